@@ -1,0 +1,65 @@
+"""Accumulates colour per sample and resolves samples into pixels; writes PNG and PFM.
+
+Deposits are summed, so the order in which they arrive (from threads or nodes) does not matter.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+
+class Framebuffer:
+    """Sample colours of one frame. SPD mode holds (W+1) x (H+1) corner samples averaged four to
+    a pixel; otherwise W x H x spp samples averaged per pixel."""
+
+    def __init__(self, width: int, height: int, corners: bool, spp: int = 1):
+        self.width, self.height, self.corners = width, height, corners
+        self.spp = 1 if corners else spp
+        n = (width + 1) * (height + 1) if corners else width * height * self.spp
+        self.samples = np.zeros((n, 3))
+
+    def add(self, sample_ids: np.ndarray, rgb: np.ndarray) -> None:
+        """Sum deposits into their samples (ids may repeat)."""
+        for c in range(3):
+            self.samples[:, c] += np.bincount(
+                sample_ids, weights=rgb[:, c], minlength=len(self.samples)
+            )
+
+    def image(self) -> np.ndarray:
+        """Linear float image (H, W, 3), row 0 at the top."""
+        w, h = self.width, self.height
+        if self.corners:
+            s = self.samples.reshape(h + 1, w + 1, 3)
+            return 0.25 * (s[:-1, :-1] + s[:-1, 1:] + s[1:, :-1] + s[1:, 1:])
+        return self.samples.reshape(h, w, self.spp, 3).mean(axis=2)
+
+
+def to_srgb8(img: np.ndarray) -> np.ndarray:
+    """Linear [0, 1] to 8-bit sRGB (values outside are clipped)."""
+    x = np.clip(img, 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
+
+
+def write_png(path, img: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(to_srgb8(img), "RGB").save(path)
+
+
+def write_pfm(path, img: np.ndarray) -> None:
+    """Portable float map: little-endian float32, rows stored bottom to top."""
+    h, w, _ = img.shape
+    with open(path, "wb") as f:
+        f.write(f"PF\n{w} {h}\n-1.0\n".encode())
+        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())
+
+
+def read_pfm(path) -> np.ndarray:
+    """Read back a PFM written by `write_pfm` (colour, either byte order)."""
+    data = Path(path).read_bytes()
+    parts = data.split(b"\n", 3)
+    w, h = (int(v) for v in parts[1].split())
+    order = "<" if float(parts[2]) < 0 else ">"
+    img = np.frombuffer(parts[3], dtype=f"{order}f4", count=w * h * 3).reshape(h, w, 3)
+    return img[::-1].astype(np.float64)

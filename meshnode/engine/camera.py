@@ -1,0 +1,110 @@
+"""Primary rays of a pinhole eye for a rectangle of the sample grid.
+
+Two sample grids: SPD corners ((W+1) x (H+1) rays at pixel corners, averaged four to a pixel)
+and pixel samples (W x H x spp, centred or jittered). Jitter comes from a counter-based hash of
+(seed, sample, dimension), so any node can generate any sample and get the same ray.
+"""
+
+import math
+
+import numpy as np
+
+from meshnode.engine.jit import kernel
+from protocols.dtypes import EYE, RAY
+from protocols.scene import View
+
+
+def view_basis(view: View, width: int, height: int):
+    """Eye, forward, right, up vectors and the image-plane step per pixel at unit distance.
+
+    The angle spans the centres of the outermost pixel columns (rows if the image is taller);
+    up is projected onto the image plane."""
+    eye = np.asarray(view.eye, float)
+    fwd = np.asarray(view.at, float) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(view.up, float))
+    if np.linalg.norm(right) < 1e-12:
+        raise ValueError("view: up is parallel to the viewing direction")
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    step = 2.0 * math.tan(math.radians(view.angle) / 2.0) / max(max(width, height) - 1, 1)
+    return eye, fwd, right, up, step
+
+
+@kernel
+def _mix(x):
+    """splitmix64 finaliser: a well-spread 64-bit hash."""
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@kernel
+def uniform(seed, sample, dim):
+    """Deterministic uniform in [0, 1) for (seed, sample, dimension)."""
+    h = _mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(sample))
+    h = _mix(h + np.uint64(dim) * np.uint64(0xD1B54A32D192ED03))
+    return (h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@kernel
+def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, seed,
+                  x0, x1, y0, y1, hither):  # fmt: skip
+    """Write the eye rays of sample-grid columns [x0, x1) and rows [y0, y1) into `out`.
+
+    corners=True: sample (i, j) sits on a pixel corner, id j*(W+1)+i. Otherwise sample k of
+    pixel (i, j) has id (j*W+i)*spp+k, at the pixel centre (spp 1) or jittered (stratified
+    when spp is a square)."""
+    n = 0
+    grid_w = width + 1 if corners else width
+    strata = int(math.sqrt(spp) + 0.5)
+    stratified = strata * strata == spp
+    for j in range(y0, y1):
+        for i in range(x0, x1):
+            for k in range(spp):
+                sid = j * grid_w + i if corners else (j * width + i) * spp + k
+                if corners:
+                    fx = float(i)
+                    fy = float(j)
+                elif spp == 1:
+                    fx = i + 0.5
+                    fy = j + 0.5
+                elif stratified:
+                    fx = i + (k % strata + uniform(seed, sid, 0)) / strata
+                    fy = j + (k // strata + uniform(seed, sid, 1)) / strata
+                else:
+                    fx = i + uniform(seed, sid, 0)
+                    fy = j + uniform(seed, sid, 1)
+                px = (fx - 0.5 * width) * step
+                py = (0.5 * height - fy) * step
+                dx = fwd[0] + px * right[0] + py * up[0]
+                dy = fwd[1] + px * right[1] + py * up[1]
+                dz = fwd[2] + px * right[2] + py * up[2]
+                ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+                r = out[n]
+                r.o[0], r.o[1], r.o[2] = eye[0], eye[1], eye[2]
+                r.d[0], r.d[1], r.d[2] = dx / ln, dy / ln, dz / ln
+                r.t_min = hither * ln  # hither is measured along the view axis
+                r.t_max = math.inf
+                r.w[0], r.w[1], r.w[2] = 1.0, 1.0, 1.0
+                r.pixel = sid
+                r.origin = -1
+                r.depth = 1
+                r.kind = EYE
+                r.light = 0
+                n += 1
+    return n
+
+
+def eye_rays(view: View, width: int, height: int, corners: bool, spp: int = 1, seed: int = 0,
+             rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None):  # fmt: skip
+    """Eye rays (RAY records) of a rectangle of the sample grid (the whole grid by default)."""
+    eye, fwd, right, up, step = view_basis(view, width, height)
+    gw, gh = (width + 1, height + 1) if corners else (width, height)
+    spp = 1 if corners else spp
+    x0, x1 = cols or (0, gw)
+    y0, y1 = rows or (0, gh)
+    out = np.zeros((x1 - x0) * (y1 - y0) * spp, RAY)
+    fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, seed,
+                  x0, x1, y0, y1, float(view.hither))  # fmt: skip
+    return out

@@ -1,0 +1,120 @@
+"""The Python-facing engine: holds one node's tables and grid, checks inputs, calls kernels.
+
+    from host.nff import read_nff
+    from meshnode.engine import Engine
+    engine = Engine(read_nff("scene.nff"))
+    t, gid = engine.first_hits(origins, directions)      # nearest hit per ray
+    rgb, counts = engine.trace(rays)                     # Whitted colour per RAY record
+"""
+
+import math
+import time
+
+import numpy as np
+
+from meshnode.engine.grid import build_grid
+from meshnode.engine.tables import build_tables
+from meshnode.engine.trace import COUNTER_NAMES, N_COUNTERS, first_hits, trace_batch
+from protocols.dtypes import RAY
+from protocols.scene import SceneData
+
+
+class Engine:
+    """One node's tracing engine, specialised to the objects, materials and lights it holds.
+
+    Absent primitive kinds, lights and transmitters are passed to the kernels as None, so the
+    compiled variant carries no code for them; `stats` says what was chosen and why.
+    `brute=True` tests every object against every ray (no grid): the reference for tests."""
+
+    def __init__(
+        self,
+        scene: SceneData,
+        *,
+        density: float = 2.0,
+        storage: str = "auto",
+        resolution=None,
+        max_depth: int = 5,
+        brute: bool = False,
+        box: tuple | None = None,
+    ):
+        start = time.perf_counter()
+        self.scene = scene
+        self.max_depth = int(max_depth)
+        self.brute = bool(brute)
+        self.tables = tb = build_tables(scene)
+        if box is not None:
+            lo, hi = (np.asarray(b, float) for b in box)
+        elif tb.n:
+            lo, hi = tb.lo.min(axis=0), tb.hi.max(axis=0)
+        else:
+            lo, hi = np.zeros(3), np.ones(3)
+        self.grid = build_grid(tb, lo, hi, density=density, storage=storage, res=resolution)
+        extent = float(np.max(self.grid.hi - self.grid.lo))
+        scale = max(extent, float(np.max(np.abs(np.concatenate([lo, hi])))))
+        # Secondary rays exclude their own surface; this guard only absorbs round-off.
+        self.t_eps = 1e-12 * scale
+        n_lights = 0 if tb.lights is None else len(tb.lights)
+        self.ambient = math.sqrt(max(n_lights, 1)) / (2.0 * max(n_lights, 1))
+        self.background = np.asarray(scene.background, float)
+        self.transmit = np.ascontiguousarray(tb.materials[:, 6]) if tb.transmitters else None
+        self.preprocess_seconds = time.perf_counter() - start
+        self.stats = {
+            "objects": int(len(np.unique(tb.gid))),
+            "kinds_present": list(tb.kinds),
+            "kernel_variant": self.variant(),
+            "variant_reason": (
+                "kinds, shadow rays and refraction compiled in only when the node holds "
+                "objects of that kind, lights, or transmitting materials"
+            ),
+            "grid": self.grid.stats,
+            "preprocess_seconds": self.preprocess_seconds,
+        }
+
+    def variant(self) -> str:
+        """Name of the compiled kernel variant, e.g. 'spheres+polygons/shadows/no-refraction/csr'."""
+        tb = self.tables
+        parts = ["+".join(tb.kinds) or "empty"]
+        parts.append("smooth" if tb.tri_normals is not None else "flat")
+        parts.append("shadows" if tb.lights is not None else "no-shadows")
+        parts.append("refraction" if tb.transmitters else "no-refraction")
+        parts.append("brute-force" if self.brute else self.grid.storage)
+        return "/".join(parts)
+
+    def _geometry(self):
+        tb = self.tables
+        return (tb.gid, tb.offsets, tb.spheres, tb.triangles, tb.polygons, tb.poly_info,
+                tb.poly_uv, tb.cones)  # fmt: skip
+
+    def first_hits(self, origins, directions, t_min: float = 0.0):
+        """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).
+
+        Directions are normalised here, so distances are in scene units."""
+        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+        if o.shape != d.shape:
+            raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
+        norm = np.linalg.norm(d, axis=1)
+        if np.any(norm == 0) or not np.all(np.isfinite(d)) or not np.all(np.isfinite(o)):
+            raise ValueError("directions must be finite and non-zero; origins finite")
+        d = d / norm[:, None]
+        counters = np.zeros(N_COUNTERS, np.int64)
+        t, u = first_hits(o, d, float(t_min), self.brute, counters, *self._geometry(),
+                          *self.grid.kernel_args())  # fmt: skip
+        gid = np.where(u >= 0, self.tables.gid[np.maximum(u, 0)], -1)
+        return t, gid
+
+    def trace(self, rays: np.ndarray, out_rgb: np.ndarray | None = None):
+        """Trace RAY records and all their descendants; returns (rgb per ray, counter dict)."""
+        if rays.dtype != RAY:
+            raise TypeError(f"rays must have dtype protocols.dtypes.RAY, not {rays.dtype}")
+        if out_rgb is None:
+            out_rgb = np.zeros((len(rays), 3))
+        counters = np.zeros(N_COUNTERS, np.int64)
+        tb = self.tables
+        trace_batch(
+            np.ascontiguousarray(rays), out_rgb, counters, self.max_depth, self.t_eps,
+            self.ambient, self.background, self.brute, tb.materials, self.transmit, tb.lights,
+            tb.gid, tb.mat, tb.offsets, tb.spheres, tb.triangles, tb.tri_normals, tb.polygons,
+            tb.poly_info, tb.poly_uv, tb.cones, *self.grid.kernel_args(),
+        )  # fmt: skip
+        return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist()))

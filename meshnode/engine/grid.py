@@ -1,0 +1,193 @@
+"""The node's uniform grid: resolution choice, and voxel -> object references stored either as
+CSR arrays or as a hash table plus a bit table, whichever costs less memory (DESIGN.md 4).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshnode.engine.jit import kernel
+from meshnode.engine.tables import Tables
+
+MAX_VOXELS = 1 << 26
+STORAGES = ("auto", "csr", "hash")
+
+
+@dataclass
+class Grid:
+    """Voxel references of one box. Exactly one storage's arrays are set, the other's are None."""
+
+    lo: np.ndarray  # (3,) box corner
+    cell: np.ndarray  # (3,) voxel size
+    res: np.ndarray  # (3,) int64 voxels per axis
+    refs: np.ndarray  # (R,) int32 local object ids, grouped by voxel
+    offsets: np.ndarray | None  # CSR: (V+1,) int32 start of each voxel's refs
+    slots: np.ndarray | None  # hash: (M+1,) int32 start of each slot's entries
+    entry_voxel: np.ndarray | None  # hash: (E,) int64 true voxel id of each entry
+    entry_start: np.ndarray | None  # hash: (E,) int32
+    entry_count: np.ndarray | None  # hash: (E,) int32
+    bits: np.ndarray | None  # hash: (V/8,) uint8, one bit per non-empty voxel
+    storage: str
+    stats: dict
+
+    @property
+    def hi(self) -> np.ndarray:
+        return self.lo + self.cell * self.res
+
+    def kernel_args(self) -> tuple:
+        """The grid as the positional arguments every traversal kernel takes."""
+        return (
+            self.lo, self.cell, self.res, self.offsets, self.slots,
+            self.entry_voxel, self.entry_start, self.entry_count, self.bits, self.refs,
+        )  # fmt: skip
+
+
+def grow_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pad a box so objects on its faces are strictly inside and flat boxes get a thickness."""
+    ext = hi - lo
+    pad = 1e-6 * max(float(ext.max()), 1e-300) + 1e-12 * np.maximum(np.abs(lo), np.abs(hi))
+    return lo - pad, hi + pad
+
+
+def choose_resolution(lo, hi, n_objects: int, density: float) -> np.ndarray:
+    """Voxels per axis proportional to the box sides, about `density * n_objects` in total.
+
+    Sides far thinner than the largest get one voxel (a flat floor needs no layers)."""
+    ext = np.asarray(hi, float) - np.asarray(lo, float)
+    active = ext > 1e-3 * ext.max()
+    target = min(max(1.0, density * n_objects), MAX_VOXELS)
+    cell = (np.prod(ext[active]) / target) ** (1.0 / active.sum())
+    res = np.where(active, np.clip(np.round(ext / cell), 1, 2048), 1).astype(np.int64)
+    while np.prod(res) > MAX_VOXELS:
+        res = np.maximum(1, res // 2)
+    return res
+
+
+@kernel
+def _voxel_refs(glo, cell, res, lo, hi, off, sph, tri, poly, fill, counts, starts, refs):
+    """Count (fill=False) or write (fill=True) the references of every object.
+
+    Bounds give a voxel range; spheres and planar objects then keep only voxels they touch
+    (box-sphere distance, plane straddles box), which cuts references for large objects."""
+    nx, ny = res[0], res[1]
+    for u in range(lo.shape[0]):
+        ijk_lo = np.empty(3, np.int64)
+        ijk_hi = np.empty(3, np.int64)
+        for a in range(3):
+            tol = 1e-7 * cell[a]
+            i0 = int(math.floor((lo[u, a] - tol - glo[a]) / cell[a]))
+            i1 = int(math.floor((hi[u, a] + tol - glo[a]) / cell[a]))
+            ijk_lo[a] = min(max(i0, 0), res[a] - 1)
+            ijk_hi[a] = min(max(i1, 0), res[a] - 1)
+        for iz in range(ijk_lo[2], ijk_hi[2] + 1):
+            for iy in range(ijk_lo[1], ijk_hi[1] + 1):
+                for ix in range(ijk_lo[0], ijk_hi[0] + 1):
+                    if not _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
+                        continue
+                    v = ix + nx * (iy + ny * iz)
+                    if fill:
+                        refs[starts[v]] = u
+                        starts[v] += 1
+                    else:
+                        counts[v] += 1
+
+
+@kernel
+def _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
+    """Conservative voxel-object overlap for the kinds that have a cheap exact-enough test."""
+    c0 = glo[0] + (ix + 0.5) * cell[0]
+    c1 = glo[1] + (iy + 0.5) * cell[1]
+    c2 = glo[2] + (iz + 0.5) * cell[2]
+    h0 = 0.5 * cell[0] * (1.0 + 1e-6)
+    h1 = 0.5 * cell[1] * (1.0 + 1e-6)
+    h2 = 0.5 * cell[2] * (1.0 + 1e-6)
+    if sph is not None and u < off[1]:
+        dd = 0.0
+        for a in range(3):
+            c = c0 if a == 0 else (c1 if a == 1 else c2)
+            h = h0 if a == 0 else (h1 if a == 1 else h2)
+            e = abs(sph[u, a] - c) - h
+            if e > 0.0:
+                dd += e * e
+        r = sph[u, 3] * (1.0 + 1e-9)
+        return dd <= r * r
+    if tri is not None and u < off[2]:
+        i = u - off[1]
+        return _plane_straddles(tri[i, 0], tri[i, 1], tri[i, 2], tri[i, 9], tri[i, 10],
+                                tri[i, 11], c0, c1, c2, h0, h1, h2)  # fmt: skip
+    if poly is not None and u < off[3]:
+        i = u - off[2]
+        return _plane_straddles(poly[i, 0], poly[i, 1], poly[i, 2], poly[i, 3], poly[i, 4],
+                                poly[i, 5], c0, c1, c2, h0, h1, h2)  # fmt: skip
+    return True
+
+
+@kernel
+def _plane_straddles(px, py, pz, nx, ny, nz, c0, c1, c2, h0, h1, h2):
+    dist = nx * (c0 - px) + ny * (c1 - py) + nz * (c2 - pz)
+    reach = abs(nx) * h0 + abs(ny) * h1 + abs(nz) * h2
+    return abs(dist) <= reach * (1.0 + 1e-9) + 1e-12 * (abs(px) + abs(py) + abs(pz))
+
+
+def build_grid(
+    tables: Tables,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    density: float = 2.0,
+    storage: str = "auto",
+    res: np.ndarray | None = None,
+) -> Grid:
+    """Grid over [lo, hi] holding every object of `tables`; storage by memory cost unless forced."""
+    if storage not in STORAGES:
+        raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
+    glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))
+    res = choose_resolution(glo, ghi, tables.n, density) if res is None else np.asarray(res)
+    res = res.astype(np.int64)
+    cell = (ghi - glo) / res
+    n_vox = int(np.prod(res))
+    args = (glo, cell, res, tables.lo, tables.hi, tables.offsets, tables.spheres,
+            tables.triangles, tables.polygons)  # fmt: skip
+    counts = np.zeros(n_vox, np.int32)
+    _voxel_refs(*args, False, counts, counts, np.zeros(0, np.int32))
+    offsets = np.zeros(n_vox + 1, np.int32)
+    np.cumsum(counts, out=offsets[1:])
+    refs = np.empty(int(offsets[-1]), np.int32)
+    _voxel_refs(*args, True, counts, offsets[:-1].copy(), refs)
+
+    occupied = np.flatnonzero(counts)
+    n_slots = 1 << max(0, math.ceil(math.log2(max(len(occupied), 1))))
+    csr_bytes = offsets.nbytes + refs.nbytes
+    hash_bytes = (n_slots + 1) * 4 + len(occupied) * 16 + refs.nbytes + (n_vox + 7) // 8
+    chosen = storage if storage != "auto" else ("csr" if csr_bytes <= hash_bytes else "hash")
+    stats = {
+        "resolution": res.tolist(),
+        "voxels": n_vox,
+        "empty_voxels": n_vox - len(occupied),
+        "object_references": len(refs),
+        "csr_bytes": csr_bytes,
+        "hash_bytes": hash_bytes,
+        "hash_slots": n_slots,
+        "storage": chosen,
+        "storage_reason": (
+            f"forced by flag ({storage})"
+            if storage != "auto"
+            else f"smaller: csr {csr_bytes} B vs hash {hash_bytes} B"
+        ),
+        "structure_bytes": csr_bytes if chosen == "csr" else hash_bytes,
+        "density": density,
+    }
+    if chosen == "csr":
+        return Grid(glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats)
+    # Hash storage: entries (true voxel id, refs range) grouped by slot = voxel & (M - 1).
+    slot_of = occupied & (n_slots - 1)
+    order = np.argsort(slot_of, kind="stable")
+    entry_voxel = occupied[order].astype(np.int64)
+    slots = np.zeros(n_slots + 1, np.int32)
+    np.cumsum(np.bincount(slot_of, minlength=n_slots), out=slots[1:])
+    bits = np.packbits(counts > 0, bitorder="little")
+    return Grid(
+        glo, cell, res, refs, None, slots, entry_voxel,
+        offsets[entry_voxel].astype(np.int32), counts[entry_voxel].astype(np.int32),
+        bits, chosen, stats,
+    )  # fmt: skip

@@ -1,0 +1,180 @@
+"""Ray-object tests, one function per primitive kind.
+
+Each returns the ray parameter of the first *visible* hit in (t_lo, t_hi), or inf. Rays leaving
+a surface carry its gid; `self_hit` then asks for the one root that is not the origin itself,
+which removes self-intersection without a scene-sized epsilon (planar objects are simply
+skipped by the caller).
+
+Table layouts (built by `tables.py`):
+- sphere row: cx cy cz r vis (vis +1 outside visible, -1 inside, 0 both sides)
+- triangle row: v0(3) e1(3) e2(3) n(3)  (n unit geometric normal)
+- polygon row: p0(3) n(3) ; info row: start count axis_u axis_v ; 2-D vertices relative to p0
+- cone row: b(3) a(3) L r0 k vis   (a unit axis, radius r0 + k s for s in [0, L])
+"""
+
+import math
+
+from meshnode.engine.jit import kernel
+
+INF = math.inf
+
+
+@kernel
+def hit_sphere(s, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
+    """Nearest visible root of |o + t d - c| = r for a unit direction d."""
+    wx = ox - s[i, 0]
+    wy = oy - s[i, 1]
+    wz = oz - s[i, 2]
+    b = wx * dx + wy * dy + wz * dz
+    vis = s[i, 4]
+    if self_hit:
+        # The origin lies on the sphere: the other root is -2b, always an exit (inside) hit.
+        t = -2.0 * b
+        if vis <= 0.0 and t_lo < t < t_hi:
+            return t
+        return INF
+    r = s[i, 3]
+    c = wx * wx + wy * wy + wz * wz - r * r
+    disc = b * b - c
+    if disc < 0.0:
+        return INF
+    h = math.sqrt(disc)
+    # Stable roots: q has no cancellation, c / q gives the other.
+    q = -(b + h) if b >= 0.0 else -(b - h)
+    if q == 0.0:
+        return INF
+    t0 = q
+    t1 = c / q
+    if t1 < t0:
+        t0, t1 = t1, t0
+    # t0 enters the sphere (outside side), t1 leaves it (inside side).
+    if vis >= 0.0 and t_lo < t0 < t_hi:
+        return t0
+    if vis <= 0.0 and t_lo < t1 < t_hi:
+        return t1
+    return INF
+
+
+@kernel
+def hit_triangle(tr, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
+    """Moller-Trumbore, two-sided; returns t, barycentrics u, v."""
+    e1x, e1y, e1z = tr[i, 3], tr[i, 4], tr[i, 5]
+    e2x, e2y, e2z = tr[i, 6], tr[i, 7], tr[i, 8]
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return INF, 0.0, 0.0
+    inv = 1.0 / det
+    sx = ox - tr[i, 0]
+    sy = oy - tr[i, 1]
+    sz = oz - tr[i, 2]
+    u = (sx * px + sy * py + sz * pz) * inv
+    if u < 0.0 or u > 1.0:
+        return INF, 0.0, 0.0
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < 0.0 or u + v > 1.0:
+        return INF, 0.0, 0.0
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    if t_lo < t < t_hi:
+        return t, u, v
+    return INF, 0.0, 0.0
+
+
+@kernel
+def hit_polygon(pl, info, v2, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
+    """Plane hit then an even-odd crossing test in 2-D: any vertex count, concave allowed."""
+    nx, ny, nz = pl[i, 3], pl[i, 4], pl[i, 5]
+    dn = nx * dx + ny * dy + nz * dz
+    if dn == 0.0:
+        return INF
+    # Work relative to p0 so far-from-origin scenes keep their precision.
+    wx = pl[i, 0] - ox
+    wy = pl[i, 1] - oy
+    wz = pl[i, 2] - oz
+    t = (nx * wx + ny * wy + nz * wz) / dn
+    if not (t_lo < t < t_hi):
+        return INF
+    rel = (t * dx - wx, t * dy - wy, t * dz - wz)
+    au = info[i, 2]
+    av = info[i, 3]
+    pu = rel[0] if au == 0 else (rel[1] if au == 1 else rel[2])
+    pv = rel[0] if av == 0 else (rel[1] if av == 1 else rel[2])
+    start = info[i, 0]
+    count = info[i, 1]
+    inside = False
+    ju = v2[start + count - 1, 0]
+    jv = v2[start + count - 1, 1]
+    for k in range(start, start + count):
+        iu = v2[k, 0]
+        iv = v2[k, 1]
+        if (iv > pv) != (jv > pv):
+            xu = (ju - iu) * (pv - iv) / (jv - iv) + iu
+            if pu < xu:
+                inside = not inside
+        ju = iu
+        jv = iv
+    return t if inside else INF
+
+
+@kernel
+def hit_cone(cn, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
+    """Open cone or cylinder: both roots of the quadric, clipped to 0 <= s <= L, visible side."""
+    ax, ay, az = cn[i, 3], cn[i, 4], cn[i, 5]
+    length = cn[i, 6]
+    r0 = cn[i, 7]
+    k = cn[i, 8]
+    vis = cn[i, 9]
+    wx = ox - cn[i, 0]
+    wy = oy - cn[i, 1]
+    wz = oz - cn[i, 2]
+    ds = dx * ax + dy * ay + dz * az
+    ws = wx * ax + wy * ay + wz * az
+    rr = r0 + k * ws
+    a = 1.0 - ds * ds * (1.0 + k * k)
+    b = wx * dx + wy * dy + wz * dz - ws * ds - k * ds * rr
+    c = wx * wx + wy * wy + wz * wz - ws * ws - rr * rr
+    if abs(a) < 1e-14:
+        if b == 0.0:
+            return INF
+        t0 = -c / (2.0 * b)
+        t1 = INF
+    else:
+        disc = b * b - a * c
+        if disc < 0.0:
+            return INF
+        h = math.sqrt(disc)
+        q = -(b + h) if b >= 0.0 else -(b - h)
+        t0 = q / a
+        t1 = c / q if q != 0.0 else t0
+        if t1 < t0:
+            t0, t1 = t1, t0
+    if self_hit:
+        # Drop the root at the origin: keep the one farther from zero.
+        if abs(t0) > abs(t1):
+            t1 = INF
+        else:
+            t0 = t1
+            t1 = INF
+    for j in range(2):
+        t = t0 if j == 0 else t1
+        if not (t_lo < t < t_hi):
+            continue
+        s = ws + t * ds
+        if s < 0.0 or s > length:
+            continue
+        if vis != 0.0:
+            # Outward normal n = v_perp - k r(s) a; the ray enters from outside when d.n < 0.
+            rs = r0 + k * s
+            nx = wx + t * dx - s * ax - k * rs * ax
+            ny = wy + t * dy - s * ay - k * rs * ay
+            nz = wz + t * dz - s * az - k * rs * az
+            outside = nx * dx + ny * dy + nz * dz < 0.0
+            if outside != (vis > 0.0):
+                continue
+        return t
+    return INF

@@ -1,0 +1,165 @@
+"""Kernel tables built from a `SceneData`: one float table per primitive kind, or None.
+
+A kind that is absent is passed to the kernels as None, and numba compiles a variant with that
+kind's code pruned away: a triangle-only node never runs sphere or cone code in its inner loop.
+Objects get a local id in the order spheres, triangles, polygons, cones; `gid` and `mat` map a
+local id back to the scene.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.scene import SceneData
+
+SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 6, 10
+
+
+@dataclass
+class Tables:
+    """Everything the kernels read about the objects of one node."""
+
+    spheres: np.ndarray | None  # (ns, 5)
+    triangles: np.ndarray | None  # (nt, 12)
+    tri_normals: np.ndarray | None  # (nt, 9) vertex normals, only if some triangle is smooth
+    polygons: np.ndarray | None  # (np, 6)
+    poly_info: np.ndarray | None  # (np, 4) int64 start count axis_u axis_v
+    poly_uv: np.ndarray | None  # (nv, 2) vertices in the polygon plane, relative to p0
+    cones: np.ndarray | None  # (nc, 10)
+    gid: np.ndarray  # (n,) int32 scene object id per local id
+    mat: np.ndarray  # (n,) int32 material per local id
+    lo: np.ndarray  # (n, 3) object bounds
+    hi: np.ndarray  # (n, 3)
+    offsets: np.ndarray  # (5,) int64 first local id of each kind, plus n
+    materials: np.ndarray  # (m, 8) r g b kd ks shine t ior
+    lights: np.ndarray | None  # (L, 6) position and intensity-scaled colour
+    kinds: tuple[str, ...]
+    transmitters: bool
+
+    @property
+    def n(self) -> int:
+        return len(self.gid)
+
+
+def _or_none(a: np.ndarray) -> np.ndarray | None:
+    return np.ascontiguousarray(a) if len(a) else None
+
+
+def _visibility(radius: np.ndarray, transmits: np.ndarray) -> np.ndarray:
+    """+1 outside visible, -1 inside visible, 0 both (transmitters are two-sided)."""
+    vis = np.where(radius < 0.0, -1.0, 1.0)
+    return np.where(transmits, 0.0, vis)
+
+
+def _newell(v: np.ndarray) -> np.ndarray:
+    """Unit polygon normal from all vertices: robust when the first ones are near-collinear."""
+    nxt = np.roll(v, -1, axis=0)
+    n = np.array(
+        [
+            np.sum((v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2])),
+            np.sum((v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0])),
+            np.sum((v[:, 0] - nxt[:, 0]) * (v[:, 1] + nxt[:, 1])),
+        ]
+    )
+    return n / np.linalg.norm(n)
+
+
+def _polygon_tables(scene: SceneData):
+    """Plane rows, info rows and projected vertices; the per-polygon loop runs at load time."""
+    polys = scene.polygons
+    rows = np.zeros((len(polys), POLYGON_COLS))
+    info = np.zeros((len(polys), 4), np.int64)
+    uv = np.zeros((int(polys["count"].sum()) if len(polys) else 0, 2))
+    lo = np.zeros((len(polys), 3))
+    hi = np.zeros((len(polys), 3))
+    at = 0
+    for i, (start, count) in enumerate(zip(polys["start"], polys["count"])):
+        v = scene.vertices[start : start + count]
+        n = _newell(v)
+        drop = int(np.argmax(np.abs(n)))
+        au, av = [a for a in range(3) if a != drop]
+        rows[i, :3] = v[0]
+        rows[i, 3:] = n
+        info[i] = (at, count, au, av)
+        uv[at : at + count, 0] = v[:, au] - v[0, au]
+        uv[at : at + count, 1] = v[:, av] - v[0, av]
+        lo[i] = v.min(axis=0)
+        hi[i] = v.max(axis=0)
+        at += count
+    return rows, info, uv, lo, hi
+
+
+def _cone_tables(scene: SceneData, transmits):
+    c = scene.cones
+    base, apex = c["base"], c["apex"]
+    axis = apex - base
+    length = np.linalg.norm(axis, axis=1)
+    a = axis / length[:, None]
+    r0, r1 = np.abs(c["base_r"]), np.abs(c["apex_r"])
+    inside = (c["base_r"] < 0) | (c["apex_r"] < 0)
+    rows = np.column_stack(
+        [base, a, length, r0, (r1 - r0) / length, _visibility(np.where(inside, -1.0, 1.0), transmits)]
+    )
+    # Bounds of the two rim circles: extent along world axis i is r * sqrt(1 - a_i^2).
+    ext = np.sqrt(np.clip(1.0 - a * a, 0.0, 1.0))
+    lo = np.minimum(base - r0[:, None] * ext, apex - r1[:, None] * ext)
+    hi = np.maximum(base + r0[:, None] * ext, apex + r1[:, None] * ext)
+    return rows, lo, hi
+
+
+def build_tables(scene: SceneData) -> Tables:
+    """Convert scene records into kernel tables (vectorised except the per-polygon setup)."""
+    mats = scene.materials
+    materials = np.column_stack(
+        [mats["rgb"], mats["kd"], mats["ks"], mats["shine"], mats["t"], mats["ior"]]
+    ).reshape(-1, 8)
+    transmits_mat = materials[:, 6] > 0.0 if len(materials) else np.zeros(0, bool)
+
+    s = scene.spheres
+    sph = np.column_stack(
+        [s["center"], np.abs(s["radius"]), _visibility(s["radius"], transmits_mat[s["mat"]])]
+    ).reshape(-1, SPHERE_COLS)
+    sph_lo = s["center"] - np.abs(s["radius"])[:, None]
+    sph_hi = s["center"] + np.abs(s["radius"])[:, None]
+
+    t = scene.triangles
+    v = t["v"]
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    n = np.cross(e1, e2)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    tri = np.column_stack([v[:, 0], e1, e2, n]).reshape(-1, TRIANGLE_COLS)
+    smooth = bool(len(t)) and bool(t["smooth"].any())
+    tri_n = t["n"].reshape(-1, 9) if smooth else np.zeros((0, 9))
+
+    poly, info, uv, pl_lo, pl_hi = _polygon_tables(scene)
+    cone, cn_lo, cn_hi = _cone_tables(scene, transmits_mat[scene.cones["mat"]])
+
+    groups = (s, t, scene.polygons, scene.cones)
+    counts = [len(g) for g in groups]
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    lights = None
+    if len(scene.lights):
+        # SPD rule: every light (and the ambient term) has intensity sqrt(L) / (2 L).
+        scale = np.sqrt(len(scene.lights)) / (2.0 * len(scene.lights))
+        lights = np.column_stack([scene.lights["pos"], scene.lights["rgb"] * scale])
+    names = ("spheres", "triangles", "polygons", "cones")
+    return Tables(
+        spheres=_or_none(sph),
+        triangles=_or_none(tri),
+        tri_normals=_or_none(tri_n) if smooth else None,
+        polygons=_or_none(poly),
+        poly_info=_or_none(info),
+        poly_uv=_or_none(uv) if len(poly) else None,
+        cones=_or_none(cone),
+        gid=np.concatenate([g["gid"] for g in groups]).astype(np.int32),
+        mat=np.concatenate([g["mat"] for g in groups]).astype(np.int32),
+        lo=np.concatenate([sph_lo, v.min(axis=1), pl_lo, cn_lo]).reshape(-1, 3),
+        hi=np.concatenate([sph_hi, v.max(axis=1), pl_hi, cn_hi]).reshape(-1, 3),
+        offsets=offsets,
+        materials=np.ascontiguousarray(materials) if len(materials) else np.zeros((1, 8)),
+        lights=lights,
+        kinds=tuple(nm for nm, c in zip(names, counts) if c),
+        transmitters=bool(len(groups) and any(
+            (transmits_mat[g["mat"]].any() if len(g) else False) for g in groups
+        )),
+    )

@@ -1,0 +1,191 @@
+"""The batch driver: rays in, colour per input ray and ray counts out.
+
+Each input ray's tree is traced depth-first on a small local stack. Colour flows forward: a ray
+carries its weight, every hit deposits `weight * ambient`, spawns one shadow ray per light the
+surface faces (carrying the light's diffuse + specular share, deposited only if the light is
+reached) and reflected / refracted rays carrying `weight * Ks` and `weight * T`.
+"""
+
+import math
+
+import numpy as np
+
+from meshnode.engine.jit import kernel
+from meshnode.engine.shade import normals, refract
+from meshnode.engine.traverse import brute_force, walk
+from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
+
+# Indices of the counters array every kernel call adds to.
+EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
+TESTS, STEPS, SEGMENTS, ESCAPED = 6, 7, 8, 9
+N_COUNTERS = 10
+COUNTER_NAMES = (
+    "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+    "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
+)  # fmt: skip
+
+
+@kernel
+def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+               glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs):  # fmt: skip
+    """Nearest hit distance and local object id of each (origin, unit direction) pair."""
+    n = orig.shape[0]
+    t_out = np.full(n, math.inf)
+    u_out = np.full(n, -1, np.int64)
+    mail = np.full(gid.shape[0], -1, np.int64)
+    for i in range(n):
+        ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        if brute:
+            t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
+                               gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+        else:
+            t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, i, mail, counters,
+                        gid, off, sph, tri, poly, pinfo, puv, cone,
+                        glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs)  # fmt: skip
+        counters[SEGMENTS] += 1
+        t_out[i] = t
+        u_out[i] = u
+    return t_out, u_out
+
+
+@kernel
+def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, brute,
+                materials, transmit, lights, gid, mat, off,
+                sph, tri, tri_n, poly, pinfo, puv, cone,
+                glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs):  # fmt: skip
+    """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
+
+    `lights` None compiles out shadow rays, `transmit` None compiles out refraction."""
+    n_lights = 0 if lights is None else lights.shape[0]
+    cap = int(max_depth) * (n_lights + 2) + 4
+    so = np.empty((cap, 3))
+    sd = np.empty((cap, 3))
+    sw = np.empty((cap, 3))
+    st = np.empty((cap, 2))
+    sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
+    mail = np.full(gid.shape[0], -1, np.int64)
+    ray_id = 0
+    amb = ambient
+    for i in range(rays.shape[0]):
+        r = rays[i]
+        so[0, 0], so[0, 1], so[0, 2] = r.o[0], r.o[1], r.o[2]
+        sd[0, 0], sd[0, 1], sd[0, 2] = r.d[0], r.d[1], r.d[2]
+        sw[0, 0], sw[0, 1], sw[0, 2] = r.w[0], r.w[1], r.w[2]
+        st[0, 0], st[0, 1] = r.t_min, r.t_max
+        sk[0, 0], sk[0, 1], sk[0, 2], sk[0, 3] = r.kind, r.depth, r.origin, r.light
+        sp = 1
+        cr = 0.0
+        cg = 0.0
+        cb = 0.0
+        while sp > 0:
+            sp -= 1
+            ox, oy, oz = so[sp, 0], so[sp, 1], so[sp, 2]
+            dx, dy, dz = sd[sp, 0], sd[sp, 1], sd[sp, 2]
+            wr, wg, wb = sw[sp, 0], sw[sp, 1], sw[sp, 2]
+            t_lo, t_hi = st[sp, 0], st[sp, 1]
+            kind, depth, origin = sk[sp, 0], sk[sp, 1], sk[sp, 2]
+            shadow = kind == SHADOW
+            ray_id += 1
+            counters[SEGMENTS] += 1
+            if brute:
+                t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
+                                   gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+            else:
+                t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, ray_id, mail,
+                            counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                            glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits,
+                            refs)  # fmt: skip
+            if shadow:
+                # The light is reached unless something lies in between.
+                if u >= 0:
+                    counters[SHADOW_BLOCKED] += 1
+                else:
+                    cr += wr
+                    cg += wg
+                    cb += wb
+                continue
+            if u < 0:
+                counters[ESCAPED] += 1
+                cr += wr * background[0]
+                cg += wg * background[1]
+                cb += wb * background[2]
+                continue
+            if kind == EYE:
+                counters[EYE_HITS] += 1
+            px = ox + t * dx
+            py = oy + t * dy
+            pz = oz + t * dz
+            gx, gy, gz, nx, ny, nz = normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off,
+                                             sph, tri, tri_n, poly, cone)  # fmt: skip
+            # Turn both normals toward the incoming ray; remember which side was hit.
+            entering = gx * dx + gy * dy + gz * dz < 0.0
+            if not entering:
+                gx, gy, gz, nx, ny, nz = -gx, -gy, -gz, -nx, -ny, -nz
+            m = mat[u]
+            kd = materials[m, 3]
+            ks = materials[m, 4]
+            cr += wr * amb * kd * materials[m, 0]
+            cg += wg * amb * kd * materials[m, 1]
+            cb += wb * amb * kd * materials[m, 2]
+            dn = dx * nx + dy * ny + dz * nz
+            rx = dx - 2.0 * dn * nx
+            ry = dy - 2.0 * dn * ny
+            rz = dz - 2.0 * dn * nz
+            hit_gid = gid[u]
+            if lights is not None:
+                shine = materials[m, 5]
+                for li in range(n_lights):
+                    lx = lights[li, 0] - px
+                    ly = lights[li, 1] - py
+                    lz = lights[li, 2] - pz
+                    ln = math.sqrt(lx * lx + ly * ly + lz * lz)
+                    lx /= ln
+                    ly /= ln
+                    lz /= ln
+                    cos = lx * nx + ly * ny + lz * nz
+                    if cos <= 0.0:
+                        continue  # the surface faces away from this light
+                    spec = 0.0
+                    rl = rx * lx + ry * ly + rz * lz
+                    if ks > 0.0 and rl > 0.0:
+                        spec = ks * rl**shine
+                    counters[SHADOW_RAYS] += 1
+                    so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
+                    sd[sp, 0], sd[sp, 1], sd[sp, 2] = lx, ly, lz
+                    sw[sp, 0] = wr * lights[li, 3] * (kd * cos * materials[m, 0] + spec)
+                    sw[sp, 1] = wg * lights[li, 4] * (kd * cos * materials[m, 1] + spec)
+                    sw[sp, 2] = wb * lights[li, 5] * (kd * cos * materials[m, 2] + spec)
+                    st[sp, 0], st[sp, 1] = t_eps, ln
+                    sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = SHADOW, depth + 1, hit_gid, li
+                    sp += 1
+            if depth >= max_depth:
+                continue
+            kt = 0.0
+            if transmit is not None:
+                kt = transmit[m]
+            refl = ks
+            if kt > 0.0:
+                eta = 1.0 / materials[m, 7] if entering else materials[m, 7]
+                ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
+                if ok:
+                    counters[REFRACTED_RAYS] += 1
+                    so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
+                    sd[sp, 0], sd[sp, 1], sd[sp, 2] = tx, ty, tz
+                    sw[sp, 0], sw[sp, 1], sw[sp, 2] = wr * kt, wg * kt, wb * kt
+                    st[sp, 0], st[sp, 1] = t_eps, math.inf
+                    sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = REFRACTED, depth + 1, hit_gid, 0
+                    sp += 1
+                else:
+                    refl += kt  # total internal reflection: the transmitted share reflects
+            if ks > 0.0 or kt > 0.0:  # SPD: reflective or transmitting surfaces reflect
+                counters[REFLECTED_RAYS] += 1
+                so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
+                sd[sp, 0], sd[sp, 1], sd[sp, 2] = rx, ry, rz
+                sw[sp, 0], sw[sp, 1], sw[sp, 2] = wr * refl, wg * refl, wb * refl
+                st[sp, 0], st[sp, 1] = t_eps, math.inf
+                sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = REFLECTED, depth + 1, hit_gid, 0
+                sp += 1
+        out_rgb[i, 0] += cr
+        out_rgb[i, 1] += cg
+        out_rgb[i, 2] += cb

@@ -1,0 +1,73 @@
+"""Record dtypes shared by host, engine and wire, defined once.
+
+Every batch that crosses a module or a socket is a NumPy structured array of one of these
+dtypes, so kernels, framing and tests agree on layout byte for byte.
+"""
+
+import numpy as np
+
+# Ray kinds, in the order SPD statistics list them.
+EYE, REFLECTED, REFRACTED, SHADOW = 0, 1, 2, 3
+KIND_NAMES = ("eye", "reflected", "refracted", "shadow")
+
+# A ray a node can continue without knowing where it came from (DESIGN.md section 4):
+# origin and direction never change across nodes; t_min is where to resume.
+RAY = np.dtype(
+    [
+        ("o", "<f8", 3),  # origin (world)
+        ("d", "<f8", 3),  # unit direction (world)
+        ("t_min", "<f8"),  # resume from this t (hither for eye rays)
+        ("t_max", "<f8"),  # end of the segment (distance to the light for shadow rays)
+        ("w", "<f8", 3),  # colour weight carried to the pixel
+        ("pixel", "<i8"),  # sample index in the framebuffer
+        ("origin", "<i4"),  # gid of the surface the ray leaves (-1 for eye rays)
+        ("depth", "u1"),  # tree depth, eye ray = 1
+        ("kind", "u1"),  # EYE / REFLECTED / REFRACTED / SHADOW
+        ("light", "<u2"),  # light index of a shadow ray
+    ]
+)
+
+# Material of NFF `f r g b Kd Ks Shine T ior`.
+MATERIAL = np.dtype(
+    [
+        ("rgb", "<f8", 3),
+        ("kd", "<f8"),
+        ("ks", "<f8"),
+        ("shine", "<f8"),
+        ("t", "<f8"),
+        ("ior", "<f8"),
+    ]
+)
+
+# Positional light `l x y z [r g b]` (rgb defaults to white; SPD intensity applied by the engine).
+LIGHT = np.dtype([("pos", "<f8", 3), ("rgb", "<f8", 3)])
+
+# One table per primitive kind; `gid` is the object's index in the scene file order (unique per
+# NFF primitive; the triangles of one fanned patch share it), `mat` indexes the material table.
+SPHERE = np.dtype([("gid", "<i4"), ("mat", "<i4"), ("center", "<f8", 3), ("radius", "<f8")])
+
+# Triangles from `p 3`, `pp 3` and fanned `pp n`; `n` holds vertex normals when `smooth`.
+TRIANGLE = np.dtype(
+    [
+        ("gid", "<i4"),
+        ("mat", "<i4"),
+        ("v", "<f8", (3, 3)),
+        ("n", "<f8", (3, 3)),
+        ("smooth", "u1"),
+    ]
+)
+
+# Polygons with more than three vertices: a slice of the scene's vertex table.
+POLYGON = np.dtype([("gid", "<i4"), ("mat", "<i4"), ("start", "<i4"), ("count", "<i4")])
+
+# Open cone or cylinder `c bx by bz br ax ay az ar`; negative radii mean inside visible.
+CONE = np.dtype(
+    [
+        ("gid", "<i4"),
+        ("mat", "<i4"),
+        ("base", "<f8", 3),
+        ("base_r", "<f8"),
+        ("apex", "<f8", 3),
+        ("apex_r", "<f8"),
+    ]
+)

@@ -48,6 +48,7 @@ def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = N
         raise ValueError("--spp and --depth must be at least 1")
     engine = engine or Engine(scene, density=s.density, storage=s.storage, max_depth=s.depth,
                               brute=s.brute)  # fmt: skip
+    engine.warmup()
     width, height = s.size(scene)
     fb = Framebuffer(width, height, corners=s.spd, spp=s.spp)
     grid_h = height + 1 if s.spd else height

@@ -10,7 +10,7 @@ import numpy as np
 from meshnode.engine.jit import kernel
 from meshnode.engine.tables import Tables
 
-MAX_VOXELS = 1 << 26
+MAX_VOXELS = 1 << 24
 STORAGES = ("auto", "csr", "hash")
 
 
@@ -130,6 +130,23 @@ def _plane_straddles(px, py, pz, nx, ny, nz, c0, c1, c2, h0, h1, h2):
     return abs(dist) <= reach * (1.0 + 1e-9) + 1e-12 * (abs(px) + abs(py) + abs(pz))
 
 
+def _count(tables: Tables, glo, ghi, res):
+    """References per voxel at resolution `res` (the first of the two build passes)."""
+    cell = (ghi - glo) / res
+    args = (glo, cell, res, tables.lo, tables.hi, tables.offsets, tables.spheres,
+            tables.triangles, tables.polygons)  # fmt: skip
+    counts = np.zeros(int(np.prod(res)), np.int32)
+    _voxel_refs(*args, False, counts, counts, np.zeros(0, np.int32))
+    return cell, args, counts
+
+
+def occupancy(counts: np.ndarray) -> float:
+    """Objects in the voxel of an average reference: sum(c^2) / sum(c). A ray that reaches
+    occupied space meets about this many candidates per voxel."""
+    c = counts.astype(np.float64)
+    return float((c * c).sum() / max(c.sum(), 1.0))
+
+
 def build_grid(
     tables: Tables,
     lo: np.ndarray,
@@ -137,19 +154,29 @@ def build_grid(
     density: float = 2.0,
     storage: str = "auto",
     res: np.ndarray | None = None,
+    target_occupancy: float = 4.0,
 ) -> Grid:
-    """Grid over [lo, hi] holding every object of `tables`; storage by memory cost unless forced."""
+    """Grid over [lo, hi] holding every object of `tables`; storage by memory cost unless forced.
+
+    Resolution: `density` voxels per object spread over the box by its side lengths; then, where
+    objects crowd a small part of the box (a sphereflake on a wide floor), the resolution grows
+    until the occupancy seen by a reference is near `target_occupancy` (at most three rounds,
+    at most MAX_VOXELS). Empty voxels are what the hash storage makes cheap."""
     if storage not in STORAGES:
         raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
     glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))
-    res = choose_resolution(glo, ghi, tables.n, density) if res is None else np.asarray(res)
-    res = res.astype(np.int64)
-    cell = (ghi - glo) / res
+    fixed = res is not None
+    boost = 1.0
+    for _ in range(1 if fixed else 4):
+        if not fixed:
+            res = choose_resolution(glo, ghi, tables.n, density * boost)
+        res = np.asarray(res).astype(np.int64)
+        cell, args, counts = _count(tables, glo, ghi, res)
+        occ = occupancy(counts)
+        if fixed or occ <= 1.5 * target_occupancy or np.prod(res) * 2 > MAX_VOXELS:
+            break
+        boost *= occ / target_occupancy
     n_vox = int(np.prod(res))
-    args = (glo, cell, res, tables.lo, tables.hi, tables.offsets, tables.spheres,
-            tables.triangles, tables.polygons)  # fmt: skip
-    counts = np.zeros(n_vox, np.int32)
-    _voxel_refs(*args, False, counts, counts, np.zeros(0, np.int32))
     offsets = np.zeros(n_vox + 1, np.int32)
     np.cumsum(counts, out=offsets[1:])
     refs = np.empty(int(offsets[-1]), np.int32)
@@ -176,6 +203,9 @@ def build_grid(
         ),
         "structure_bytes": csr_bytes if chosen == "csr" else hash_bytes,
         "density": density,
+        "occupancy": occ,
+        "target_occupancy": target_occupancy,
+        "resolution_boost": boost,
     }
     if chosen == "csr":
         return Grid(glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats)

@@ -126,7 +126,9 @@ def build_tables(scene: SceneData) -> Tables:
     v = t["v"]
     e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
     n = np.cross(e1, e2)
-    n /= np.linalg.norm(n, axis=1)[:, None]
+    length = np.linalg.norm(n, axis=1)[:, None]
+    # Zero-area triangles (patch poles) can never be hit; keep them with a zero normal.
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     tri = np.column_stack([v[:, 0], e1, e2, n]).reshape(-1, TRIANGLE_COLS)
     smooth = bool(len(t)) and bool(t["smooth"].any())
     tri_n = t["n"].reshape(-1, 9) if smooth else np.zeros((0, 9))
@@ -159,7 +161,5 @@ def build_tables(scene: SceneData) -> Tables:
         materials=np.ascontiguousarray(materials) if len(materials) else np.zeros((1, 8)),
         lights=lights,
         kinds=tuple(nm for nm, c in zip(names, counts) if c),
-        transmitters=bool(len(groups) and any(
-            (transmits_mat[g["mat"]].any() if len(g) else False) for g in groups
-        )),
+        transmitters=any(bool(transmits_mat[g["mat"]].any()) for g in groups if len(g)),
     )

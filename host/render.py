@@ -10,8 +10,6 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import numpy as np
-
 from host.framebuffer import Framebuffer
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays

@@ -71,7 +71,7 @@ class Engine:
         }
 
     def variant(self) -> str:
-        """Name of the compiled kernel variant, e.g. 'spheres+polygons/shadows/no-refraction/csr'."""
+        """Name of the compiled variant, e.g. 'spheres+polygons/flat/shadows/no-refraction/csr'."""
         tb = self.tables
         parts = ["+".join(tb.kinds) or "empty"]
         parts.append("smooth" if tb.tri_normals is not None else "flat")
@@ -131,4 +131,4 @@ class Engine:
             tb.gid, tb.mat, tb.offsets, tb.spheres, tb.triangles, tb.tri_normals, tb.polygons,
             tb.poly_info, tb.poly_uv, tb.cones, *self.grid.kernel_args(),
         )  # fmt: skip
-        return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist()))
+        return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=False))

@@ -11,6 +11,7 @@ from meshnode.engine.jit import kernel
 from meshnode.engine.tables import Tables
 
 MAX_VOXELS = 1 << 24
+MACRO = 4  # voxels per macro cell side, for skipping empty space
 STORAGES = ("auto", "csr", "hash")
 
 
@@ -30,6 +31,9 @@ class Grid:
     bits: np.ndarray | None  # hash: (V/8,) uint8, one bit per non-empty voxel
     storage: str
     stats: dict
+    macro: np.ndarray | None = None  # (Mz*My*Mx,) uint8 distance to the nearest occupied macro
+    macro_res: np.ndarray | None = None  # (3,) int64 macro cells per axis
+    macro_size: int = MACRO
 
     @property
     def hi(self) -> np.ndarray:
@@ -40,6 +44,7 @@ class Grid:
         return (
             self.lo, self.cell, self.res, self.offsets, self.slots,
             self.entry_voxel, self.entry_start, self.entry_count, self.bits, self.refs,
+            self.macro, self.macro_res, self.macro_size,
         )  # fmt: skip
 
 
@@ -147,6 +152,43 @@ def occupancy(counts: np.ndarray) -> float:
     return float((c * c).sum() / max(c.sum(), 1.0))
 
 
+@kernel
+def _macro_distance(counts, res, mres, b):
+    """Chessboard distance (in macro cells, capped at 255) from every macro cell of b^3 voxels
+    to the nearest one holding an object: a ray in a cell at distance k can skip the empty cube
+    of radius k - 1 around it in one jump (proximity clouds)."""
+    mx, my, mz = mres[0], mres[1], mres[2]
+    dist = np.full(mx * my * mz, 255, np.uint8)
+    for v in range(counts.shape[0]):
+        if counts[v] > 0:
+            ix = v % res[0]
+            iy = (v // res[0]) % res[1]
+            iz = v // (res[0] * res[1])
+            dist[ix // b + mx * (iy // b + my * (iz // b))] = 0
+    changed = True
+    while changed:
+        changed = False
+        for sweep in range(2):
+            for m0 in range(mx * my * mz):
+                m = m0 if sweep == 0 else mx * my * mz - 1 - m0
+                x = m % mx
+                y = (m // mx) % my
+                z = m // (mx * my)
+                best = int(dist[m])
+                for dz in range(-1, 2):
+                    for dy in range(-1, 2):
+                        for dx in range(-1, 2):
+                            xx, yy, zz = x + dx, y + dy, z + dz
+                            if 0 <= xx < mx and 0 <= yy < my and 0 <= zz < mz:
+                                d = int(dist[xx + mx * (yy + my * zz)]) + 1
+                                if d < best:
+                                    best = d
+                if best < dist[m]:
+                    dist[m] = best
+                    changed = True
+    return dist
+
+
 def build_grid(
     tables: Tables,
     lo: np.ndarray,
@@ -207,8 +249,14 @@ def build_grid(
         "target_occupancy": target_occupancy,
         "resolution_boost": boost,
     }
+    mres = (res + MACRO - 1) // MACRO
+    macro = _macro_distance(counts, res, mres, MACRO)
+    stats["macro_cells"] = mres.tolist()
+    stats["macro_bytes"] = macro.nbytes
+    stats["structure_bytes"] += macro.nbytes
     if chosen == "csr":
-        return Grid(glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats)
+        return Grid(glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats,
+                    macro, mres)  # fmt: skip
     # Hash storage: entries (true voxel id, refs range) grouped by slot = voxel & (M - 1).
     slot_of = occupied & (n_slots - 1)
     order = np.argsort(slot_of, kind="stable")
@@ -219,5 +267,5 @@ def build_grid(
     return Grid(
         glo, cell, res, refs, None, slots, entry_voxel,
         offsets[entry_voxel].astype(np.int32), counts[entry_voxel].astype(np.int32),
-        bits, chosen, stats,
+        bits, chosen, stats, macro, mres,
     )  # fmt: skip

@@ -14,12 +14,12 @@ Table layouts (built by `tables.py`):
 
 import math
 
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import leaf
 
 INF = math.inf
 
 
-@kernel
+@leaf
 def hit_sphere(s, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
     """Nearest visible root of |o + t d - c| = r for a unit direction d."""
     wx = ox - s[i, 0]
@@ -55,7 +55,7 @@ def hit_sphere(s, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
     return INF
 
 
-@kernel
+@leaf
 def hit_triangle(tr, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     """Moller-Trumbore, two-sided; returns t, barycentrics u, v."""
     e1x, e1y, e1z = tr[i, 3], tr[i, 4], tr[i, 5]
@@ -85,7 +85,7 @@ def hit_triangle(tr, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     return INF, 0.0, 0.0
 
 
-@kernel
+@leaf
 def hit_polygon(pl, info, v2, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     """Plane hit then an even-odd crossing test in 2-D: any vertex count, concave allowed."""
     nx, ny, nz = pl[i, 3], pl[i, 4], pl[i, 5]
@@ -121,7 +121,7 @@ def hit_polygon(pl, info, v2, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     return t if inside else INF
 
 
-@kernel
+@leaf
 def hit_cone(cn, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
     """Open cone or cylinder: both roots of the quadric, clipped to 0 <= s <= L, visible side."""
     ax, ay, az = cn[i, 3], cn[i, 4], cn[i, 5]

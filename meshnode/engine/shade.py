@@ -3,10 +3,10 @@
 import math
 
 from meshnode.engine.intersect import hit_triangle
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import leaf
 
 
-@kernel
+@leaf
 def normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off, sph, tri, tri_n, poly, cone):
     """Front (outward) geometric normal and shading normal at a hit on local object u."""
     if sph is not None and u < off[1]:
@@ -46,7 +46,7 @@ def normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off, sph, tri, tri_n, poly, c
     return nx / ln, ny / ln, nz / ln, nx / ln, ny / ln, nz / ln
 
 
-@kernel
+@leaf
 def refract(dx, dy, dz, nx, ny, nz, eta):
     """Snell's law with n facing the incoming ray; returns ok=False on total internal reflection."""
     c1 = -(dx * nx + dy * ny + dz * nz)

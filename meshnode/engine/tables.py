@@ -73,7 +73,7 @@ def _polygon_tables(scene: SceneData):
     lo = np.zeros((len(polys), 3))
     hi = np.zeros((len(polys), 3))
     at = 0
-    for i, (start, count) in enumerate(zip(polys["start"], polys["count"])):
+    for i, (start, count) in enumerate(zip(polys["start"], polys["count"], strict=False)):
         v = scene.vertices[start : start + count]
         n = _newell(v)
         drop = int(np.argmax(np.abs(n)))
@@ -97,9 +97,8 @@ def _cone_tables(scene: SceneData, transmits):
     a = axis / length[:, None]
     r0, r1 = np.abs(c["base_r"]), np.abs(c["apex_r"])
     inside = (c["base_r"] < 0) | (c["apex_r"] < 0)
-    rows = np.column_stack(
-        [base, a, length, r0, (r1 - r0) / length, _visibility(np.where(inside, -1.0, 1.0), transmits)]
-    )
+    vis = _visibility(np.where(inside, -1.0, 1.0), transmits)
+    rows = np.column_stack([base, a, length, r0, (r1 - r0) / length, vis])
     # Bounds of the two rim circles: extent along world axis i is r * sqrt(1 - a_i^2).
     ext = np.sqrt(np.clip(1.0 - a * a, 0.0, 1.0))
     lo = np.minimum(base - r0[:, None] * ext, apex - r1[:, None] * ext)
@@ -160,6 +159,6 @@ def build_tables(scene: SceneData) -> Tables:
         offsets=offsets,
         materials=np.ascontiguousarray(materials) if len(materials) else np.zeros((1, 8)),
         lights=lights,
-        kinds=tuple(nm for nm, c in zip(names, counts) if c),
+        kinds=tuple(nm for nm, c in zip(names, counts, strict=False) if c),
         transmitters=any(bool(transmits_mat[g["mat"]].any()) for g in groups if len(g)),
     )

@@ -27,7 +27,8 @@ COUNTER_NAMES = (
 
 @kernel
 def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
-               glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs):  # fmt: skip
+               glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
+               macro, mres, mb):  # fmt: skip
     """Nearest hit distance and local object id of each (origin, unit direction) pair."""
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
@@ -40,9 +41,11 @@ def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinf
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
         else:
-            t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, i, mail, counters,
+            ray = (ox, oy, oz, dx, dy, dz, t_lo, math.inf)
+            t, u = walk(ray, -1, False, i, mail, counters,
                         gid, off, sph, tri, poly, pinfo, puv, cone,
-                        glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs)  # fmt: skip
+                        glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
+                        macro, mres, mb)  # fmt: skip
         counters[SEGMENTS] += 1
         t_out[i] = t
         u_out[i] = u
@@ -53,7 +56,8 @@ def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinf
 def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, brute,
                 materials, transmit, lights, gid, mat, off,
                 sph, tri, tri_n, poly, pinfo, puv, cone,
-                glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs):  # fmt: skip
+                glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
+                macro, mres, mb):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
     `lights` None compiles out shadow rays, `transmit` None compiles out refraction."""
@@ -92,10 +96,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
             else:
-                t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, ray_id, mail,
-                            counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                ray = (ox, oy, oz, dx, dy, dz, t_lo, t_hi)
+                t, u = walk(ray, origin, shadow, ray_id, mail, counters,
+                            gid, off, sph, tri, poly, pinfo, puv, cone,
                             glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits,
-                            refs)  # fmt: skip
+                            refs, macro, mres, mb)  # fmt: skip
             if shadow:
                 # The light is reached unless something lies in between.
                 if u >= 0:

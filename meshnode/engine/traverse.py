@@ -9,12 +9,12 @@ until the voxel that contains it, because a nearer hit may still come (DESIGN.md
 import math
 
 from meshnode.engine.intersect import hit_cone, hit_polygon, hit_sphere, hit_triangle
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import leaf
 
 INF = math.inf
 
 
-@kernel
+@leaf
 def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
                 sph, tri, poly, pinfo, puv, cone):  # fmt: skip
     """Dispatch on the local id's kind; kinds passed as None are compiled out."""
@@ -34,7 +34,7 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
     return INF
 
 
-@kernel
+@leaf
 def box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
     """Clip [t_lo, t_hi] to the box by slabs; empty when the result has t0 > t1."""
     t0 = t_lo
@@ -57,43 +57,69 @@ def box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
     return t0, t1
 
 
-@kernel
-def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, ray_id, mail, counters,
+@leaf
+def _wall(o, d, i, lo, cell):
+    """t of the next voxel wall along one axis from voxel index i (inf when d is 0)."""
+    if d > 0.0:
+        return (lo + (i + 1) * cell - o) / d
+    if d < 0.0:
+        return (lo + i * cell - o) / d
+    return INF
+
+
+@leaf
+def _voxel(o, d, t, lo, cell, n):
+    """Voxel index along one axis of the point at t, clamped into the grid."""
+    return min(max(int(math.floor((o + t * d - lo) / cell)), 0), n - 1)
+
+
+@leaf
+def _region_exit(o, d, i_lo, i_hi, lo, cell):
+    """t where the ray leaves voxels [i_lo, i_hi] along one axis (inf when d is 0)."""
+    if d > 0.0:
+        return (lo + (i_hi + 1) * cell - o) / d
+    if d < 0.0:
+        return (lo + i_lo * cell - o) / d
+    return INF
+
+
+@leaf
+def walk(ray, origin, any_hit, ray_id, mail, counters,
          gid, off, sph, tri, poly, pinfo, puv, cone,
-         glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs):  # fmt: skip
-    """First hit (or, with any_hit, any hit) in (t_lo, t_hi): returns (t, local id or -1)."""
-    ghi0 = glo[0] + cell[0] * res[0]
-    ghi1 = glo[1] + cell[1] * res[1]
-    ghi2 = glo[2] + cell[2] * res[2]
-    t0, t1 = box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, glo[0], glo[1], glo[2], ghi0, ghi1, ghi2)
-    if t0 > t1:
-        return INF, -1
+         glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
+         macro, mres, mb):  # fmt: skip
+    """First hit (or, with any_hit, any hit) in (t_lo, t_hi): returns (t, local id or -1).
+
+    `ray` is the tuple (ox, oy, oz, dx, dy, dz, t_lo, t_hi): calls with more than 30
+    arguments are compiled by CPython as *args calls, which numba makes through a tuple that
+    costs more than the walk itself.
+
+    In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
+    the empty cube of radius k - 1 around it in one step and the walk restarts there."""
+    ox, oy, oz, dx, dy, dz, t_lo, t_hi = ray
     nx = res[0]
     ny = res[1]
     nz = res[2]
+    hx = glo[0] + cell[0] * nx
+    hy = glo[1] + cell[1] * ny
+    hz = glo[2] + cell[2] * nz
+    t0, t1 = box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, glo[0], glo[1], glo[2], hx, hy, hz)
+    if t0 > t1:
+        return INF, -1
     # Voxel of the entry point, clamped: the entry lies on the box within round-off.
-    ix = min(max(int(math.floor((ox + t0 * dx - glo[0]) / cell[0])), 0), nx - 1)
-    iy = min(max(int(math.floor((oy + t0 * dy - glo[1]) / cell[1])), 0), ny - 1)
-    iz = min(max(int(math.floor((oz + t0 * dz - glo[2]) / cell[2])), 0), nz - 1)
-    # Per-axis wall distance, next wall and index steps.
-    if dx > 0.0:
-        sx, dtx, ntx = 1, cell[0] / dx, (glo[0] + (ix + 1) * cell[0] - ox) / dx
-    elif dx < 0.0:
-        sx, dtx, ntx = -1, -cell[0] / dx, (glo[0] + ix * cell[0] - ox) / dx
-    else:
-        sx, dtx, ntx = 0, INF, INF
-    if dy > 0.0:
-        sy, dty, nty = 1, cell[1] / dy, (glo[1] + (iy + 1) * cell[1] - oy) / dy
-    elif dy < 0.0:
-        sy, dty, nty = -1, -cell[1] / dy, (glo[1] + iy * cell[1] - oy) / dy
-    else:
-        sy, dty, nty = 0, INF, INF
-    if dz > 0.0:
-        sz, dtz, ntz = 1, cell[2] / dz, (glo[2] + (iz + 1) * cell[2] - oz) / dz
-    elif dz < 0.0:
-        sz, dtz, ntz = -1, -cell[2] / dz, (glo[2] + iz * cell[2] - oz) / dz
-    else:
-        sz, dtz, ntz = 0, INF, INF
+    ix = _voxel(ox, dx, t0, glo[0], cell[0], nx)
+    iy = _voxel(oy, dy, t0, glo[1], cell[1], ny)
+    iz = _voxel(oz, dz, t0, glo[2], cell[2], nz)
+    # Per-axis index step, wall-to-wall distance and next wall.
+    sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+    sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+    sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
+    dtx = cell[0] / abs(dx) if dx != 0.0 else INF
+    dty = cell[1] / abs(dy) if dy != 0.0 else INF
+    dtz = cell[2] / abs(dz) if dz != 0.0 else INF
+    ntx = _wall(ox, dx, ix, glo[0], cell[0])
+    nty = _wall(oy, dy, iy, glo[1], cell[1])
+    ntz = _wall(oz, dz, iz, glo[2], cell[2])
     v = ix + nx * (iy + ny * iz)
     slot_mask = 0
     slot = 0
@@ -118,6 +144,50 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, ray_id, mail, coun
                         a = e_start[e]
                         b = a + e_count[e]
                         break
+        if a == b and macro is not None:
+            mx = ix // mb
+            my = iy // mb
+            mz = iz // mb
+            k = macro[mx + mres[0] * (my + mres[1] * mz)]
+            if k >= 1:
+                # Jump out of the empty cube of macro cells around this one.
+                r = k - 1
+                x0 = max((mx - r) * mb, 0)
+                x1 = min((mx + r + 1) * mb, nx) - 1
+                y0 = max((my - r) * mb, 0)
+                y1 = min((my + r + 1) * mb, ny) - 1
+                z0 = max((mz - r) * mb, 0)
+                z1 = min((mz + r + 1) * mb, nz) - 1
+                tx = _region_exit(ox, dx, x0, x1, glo[0], cell[0])
+                ty = _region_exit(oy, dy, y0, y1, glo[1], cell[1])
+                tz = _region_exit(oz, dz, z0, z1, glo[2], cell[2])
+                t_jump = min(tx, min(ty, tz))
+                if best_u >= 0 and best_t <= t_jump:
+                    break
+                if t_jump > t1:
+                    break
+                steps += 1
+                ix = min(max(_voxel(ox, dx, t_jump, glo[0], cell[0], nx), x0), x1)
+                iy = min(max(_voxel(oy, dy, t_jump, glo[1], cell[1], ny), y0), y1)
+                iz = min(max(_voxel(oz, dz, t_jump, glo[2], cell[2], nz), z0), z1)
+                if tx <= ty and tx <= tz:
+                    ix = x1 + 1 if sx > 0 else x0 - 1
+                    if ix < 0 or ix >= nx:
+                        break
+                elif ty <= tz:
+                    iy = y1 + 1 if sy > 0 else y0 - 1
+                    if iy < 0 or iy >= ny:
+                        break
+                else:
+                    iz = z1 + 1 if sz > 0 else z0 - 1
+                    if iz < 0 or iz >= nz:
+                        break
+                ntx = _wall(ox, dx, ix, glo[0], cell[0])
+                nty = _wall(oy, dy, iy, glo[1], cell[1])
+                ntz = _wall(oz, dz, iz, glo[2], cell[2])
+                v = ix + nx * (iy + ny * iz)
+                slot = v & slot_mask
+                continue
         # Test each object once per ray.
         for r in range(a, b):
             u = refs[r]
@@ -166,7 +236,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, ray_id, mail, coun
     return best_t, best_u
 
 
-@kernel
+@leaf
 def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
                 gid, off, sph, tri, poly, pinfo, puv, cone):  # fmt: skip
     """Every object against the ray: the no-grid reference the grid must agree with."""

@@ -27,7 +27,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--storage", choices=("auto", "csr", "hash"), default="auto",
                    help="grid storage (default: the smaller in memory)")  # fmt: skip
     r.add_argument("--density", type=float, default=2.0,
-                   help="grid voxels per object (default 2)")  # fmt: skip
+                   help="grid density: voxels per object to start from, refined until a "
+                        "voxel holds about 4/DENSITY objects (default 2)")  # fmt: skip
     r.add_argument("--threads", type=int, default=0, help="tracing threads (default: cores)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     return p

@@ -40,11 +40,21 @@ class Grid:
         return self.lo + self.cell * self.res
 
     def kernel_args(self) -> tuple:
-        """The grid as the positional arguments every traversal kernel takes."""
+        """The grid as the positional arguments every traversal kernel takes.
+
+        The unused storage's arrays are passed empty, not None: the storage is a branch taken
+        per voxel at run time (perfectly predicted), which halves the compiled variants."""
+        i32, i64, u8 = np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros(0, np.uint8)
+        csr = self.storage == "csr"
         return (
-            self.lo, self.cell, self.res, self.offsets, self.slots,
-            self.entry_voxel, self.entry_start, self.entry_count, self.bits, self.refs,
-            self.macro, self.macro_res, self.macro_size,
+            self.lo, self.cell, self.res,
+            self.offsets if csr else i32,
+            i32 if csr else self.slots,
+            i64 if csr else self.entry_voxel,
+            i32 if csr else self.entry_start,
+            i32 if csr else self.entry_count,
+            u8 if csr else self.bits,
+            self.refs, self.macro, self.macro_res, self.macro_size,
         )  # fmt: skip
 
 
@@ -196,14 +206,14 @@ def build_grid(
     density: float = 2.0,
     storage: str = "auto",
     res: np.ndarray | None = None,
-    target_occupancy: float = 4.0,
 ) -> Grid:
     """Grid over [lo, hi] holding every object of `tables`; storage by memory cost unless forced.
 
     Resolution: `density` voxels per object spread over the box by its side lengths; then, where
     objects crowd a small part of the box (a sphereflake on a wide floor), the resolution grows
-    until the occupancy seen by a reference is near `target_occupancy` (at most three rounds,
-    at most MAX_VOXELS). Empty voxels are what the hash storage makes cheap."""
+    until the occupancy seen by a reference is near 4 / density (at most three rounds, at most
+    MAX_VOXELS). Empty voxels are what the hash storage and the macro cells make cheap."""
+    target_occupancy = 4.0 / density
     if storage not in STORAGES:
         raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
     glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))

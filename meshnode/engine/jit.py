@@ -1,11 +1,35 @@
 """Decorators for every kernel: compiled once, cached on disk, GIL released.
 
+numba keys a cached kernel on its own file only, so a change in a kernel it calls from another
+file would load stale machine code. The cache therefore lives in a folder named after a hash of
+every engine source file (under NUMBA_CACHE_DIR if set, else the user's cache folder).
+
 `leaf` kernels allocate nothing, so they are compiled without numba's reference counting:
 a call between jitted functions otherwise touches the count of every array argument, which
 costs more than a whole ray-sphere test when made once per ray segment.
 """
 
+import hashlib
+import os
+from pathlib import Path
+
 import numba
+
+
+def _cache_dir() -> str:
+    """A cache folder per version of the engine sources (and of protocols' dtypes)."""
+    here = Path(__file__).resolve().parent
+    files = sorted(here.glob("*.py")) + [here.parent.parent / "protocols" / "dtypes.py"]
+    digest = hashlib.sha256()
+    for f in files:
+        digest.update(f.name.encode() + f.read_bytes())
+    root = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "meshtrace"
+    )
+    return os.path.join(root, f"engine-{digest.hexdigest()[:16]}")
+
+
+numba.config.CACHE_DIR = _cache_dir()
 
 kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 leaf = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)

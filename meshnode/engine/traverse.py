@@ -121,11 +121,9 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
     nty = _wall(oy, dy, iy, glo[1], cell[1])
     ntz = _wall(oz, dz, iz, glo[2], cell[2])
     v = ix + nx * (iy + ny * iz)
-    slot_mask = 0
-    slot = 0
-    if slots is not None:
-        slot_mask = slots.shape[0] - 2
-        slot = v & slot_mask
+    csr = offsets.shape[0] > 0
+    slot_mask = 0 if csr else slots.shape[0] - 2
+    slot = v & slot_mask
     best_t = t_hi
     best_u = -1
     tests = 0
@@ -134,17 +132,16 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
         # Find this voxel's references.
         a = 0
         b = 0
-        if offsets is not None:
+        if csr:
             a = offsets[v]
             b = offsets[v + 1]
-        if bits is not None:
-            if (bits[v >> 3] >> (v & 7)) & 1:  # empty voxels never touch the table
-                for e in range(slots[slot], slots[slot + 1]):
-                    if e_vox[e] == v:
-                        a = e_start[e]
-                        b = a + e_count[e]
-                        break
-        if a == b and macro is not None:
+        elif (bits[v >> 3] >> (v & 7)) & 1:  # empty voxels never touch the hash table
+            for e in range(slots[slot], slots[slot + 1]):
+                if e_vox[e] == v:
+                    a = e_start[e]
+                    b = a + e_count[e]
+                    break
+        if a == b:
             mx = ix // mb
             my = iy // mb
             mz = iz // mb

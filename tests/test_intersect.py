@@ -1,0 +1,117 @@
+"""Analytic first hits for every primitive kind, through the engine's public first_hits."""
+
+import math
+
+import numpy as np
+import pytest
+
+from meshnode.engine import Engine
+from tests.conftest import make_scene
+
+GLASS = ((1.0, 1.0, 1.0), 0.0, 0.1, 10.0, 0.9, 1.5)
+MATTE = ((1.0, 1.0, 1.0), 1.0, 0.0, 1.0, 0.0, 1.0)
+
+
+def hits(scene, o, d, **kw):
+    return Engine(scene, **kw).first_hits(np.atleast_2d(o), np.atleast_2d(d))
+
+
+def test_sphere_outside_inside_and_two_sided():
+    c, r = np.array([1.0, 2.0, 3.0]), 0.5
+    scene = make_scene(spheres=[(c, r, 0)])
+    t, g = hits(scene, c - [0, 0, 5], [0, 0, 1])
+    assert t[0] == pytest.approx(4.5, abs=1e-12) and g[0] == 0
+    # From inside, a positive radius shows nothing (only the outside is visible).
+    t, g = hits(scene, c, [0, 0, 1])
+    assert g[0] == -1 and math.isinf(t[0])
+    # Negative radius: only the inside is visible, from outside the far wall is seen.
+    inside = make_scene(spheres=[(c, -r, 0)])
+    t, g = hits(inside, c, [0, 0, 1])
+    assert t[0] == pytest.approx(0.5, abs=1e-12) and g[0] == 0
+    t, g = hits(inside, c - [0, 0, 5], [0, 0, 1])
+    assert t[0] == pytest.approx(5.5, abs=1e-12)
+    # Transmitters are two-sided.
+    glass = make_scene(spheres=[(c, r, 0)], materials=[GLASS])
+    t, g = hits(glass, c, [0, 0, 1])
+    assert t[0] == pytest.approx(0.5, abs=1e-12)
+
+
+def test_sphere_off_axis_distance_matches_geometry():
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)])
+    ys = np.linspace(-0.99, 0.99, 41)
+    o = np.column_stack([np.zeros_like(ys), ys, np.full_like(ys, -5.0)])
+    t, g = hits(scene, o, np.tile([0, 0, 1.0], (len(ys), 1)))
+    np.testing.assert_allclose(t, 5.0 - np.sqrt(1 - ys**2), rtol=0, atol=1e-12)
+    assert (g == 0).all()
+
+
+def test_triangle_barycentric_inside_outside_and_both_sides():
+    tri = ((0, 0, 0), (1, 0, 0), (0, 1, 0), 0)
+    scene = make_scene(triangles=[tri])
+    pts = np.array([[0.2, 0.2], [0.49, 0.49], [0.6, 0.6], [-0.01, 0.5], [0.5, -0.01]])
+    o = np.column_stack([pts, np.full(len(pts), -2.0)])
+    t, g = hits(scene, o, np.tile([0, 0, 1.0], (len(pts), 1)))
+    assert g.tolist() == [0, 0, -1, -1, -1]
+    assert t[0] == pytest.approx(2.0, abs=1e-14)
+    # Polygons are opaque from both sides: from behind the same hit.
+    t, g = hits(scene, [0.2, 0.2, 3.0], [0, 0, -1])
+    assert g[0] == 0 and t[0] == pytest.approx(3.0, abs=1e-14)
+
+
+def test_concave_polygon_notch_is_empty():
+    # L shape: the square [1,2]x[1,2] is the notch.
+    L = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]
+    scene = make_scene(polygons=[(L, 0)])
+    pts = np.array([[0.5, 0.5], [1.5, 0.5], [0.5, 1.5], [1.5, 1.5], [1.01, 1.01], [0.99, 0.99]])
+    o = np.column_stack([pts, np.full(len(pts), 1.0)])
+    t, g = hits(scene, o, np.tile([0, 0, -1.0], (len(pts), 1)))
+    assert g.tolist() == [0, 0, 0, -1, -1, 0]
+
+
+def test_144_vertex_gear_face():
+    # A gear outline like SPD gears: 36 teeth, 4 vertices each, tips at radius 1, roots at 0.9.
+    ang = np.linspace(0, 2 * np.pi, 145)[:-1]
+    radius = np.where((np.arange(144) // 2) % 2 == 0, 1.0, 0.9)
+    verts = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(144)])
+    scene = make_scene(polygons=[(verts, 0)])
+    step = ang[1]
+    probe = {
+        0.5 * step: 0.95,  # inside a tooth (between tip vertices 0 and 1)
+        2.5 * step: 0.95,  # in the gap between teeth (root vertices 2 and 3)
+        2.5 * step + 1e-9: 0.85,  # below the root circle: solid
+    }
+    o = np.array([[r * np.cos(a), r * np.sin(a), 1.0] for a, r in probe.items()])
+    t, g = hits(scene, o, np.tile([0, 0, -1.0], (3, 1)))
+    assert g.tolist() == [0, -1, 0]
+
+
+def test_cylinder_and_cone_analytic():
+    cyl = make_scene(cones=[((0, 0, 0), 1.0, (0, 0, 4), 1.0, 0)])
+    t, g = hits(cyl, [-5, 0, 2], [1, 0, 0])
+    assert g[0] == 0 and t[0] == pytest.approx(4.0, abs=1e-12)
+    # Open: along the axis from outside the caps nothing is hit; from inside nothing visible.
+    t, g = hits(cyl, [0, 0, -3], [0, 0, 1])
+    assert g[0] == -1
+    t, g = hits(cyl, [0, 0, 2], [1, 0, 0])
+    assert g[0] == -1
+    # Negative radii: inside visible.
+    inner = make_scene(cones=[((0, 0, 0), -1.0, (0, 0, 4), -1.0, 0)])
+    t, g = hits(inner, [0, 0, 2], [1, 0, 0])
+    assert g[0] == 0 and t[0] == pytest.approx(1.0, abs=1e-12)
+    # Cone radius 1 at z=0 to 0.5 at z=2: at height z the radius is 1 - z/4.
+    cone = make_scene(cones=[((0, 0, 0), 1.0, (0, 0, 2), 0.5, 0)])
+    for z in (0.1, 1.0, 1.9):
+        t, g = hits(cone, [-5, 0, z], [1, 0, 0])
+        assert g[0] == 0 and t[0] == pytest.approx(5 - (1 - z / 4), abs=1e-12)
+    # Beyond the ends nothing.
+    t, g = hits(cone, [-5, 0, 2.1], [1, 0, 0])
+    assert g[0] == -1
+
+
+def test_first_hits_rejects_bad_rays():
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)])
+    e = Engine(scene)
+    with pytest.raises(ValueError):
+        e.first_hits([[0, 0, 0]], [[0, 0, 0]])
+    with pytest.raises(ValueError):
+        e.first_hits([[0, 0, 0], [1, 1, 1]], [[0, 0, 1]])

@@ -1,0 +1,194 @@
+"""Whole ray trees: the grid gives the same ray counts and the same image as brute force; ray
+counts a hand can check; refraction and total internal reflection; scenes moved far from the
+origin or scaled tiny and huge give the same image and the same counts."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from host.nff import read_nff
+from host.render import RenderSettings, render
+from meshnode.engine import Engine
+from protocols import dtypes
+from protocols.scene import View
+from tests.conftest import make_scene, spd_scene
+from tests.test_grid import random_scene
+
+COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+          "shadow_rays_blocked")  # fmt: skip
+
+
+def small(scene, **kw):
+    settings = RenderSettings(width=40, height=40, depth=5, progress=False, threads=1, **kw)
+    image, stats = render(scene, settings)
+    return image, {k: stats["rays"][k] for k in COUNTS}
+
+
+@pytest.mark.parametrize(
+    "name", ["balls_s1.nff", "tetra_s2.nff", "mount_s1.nff", "gears_s1.nff", "teapot_s1.nff",
+             "rings_s1.nff"],
+)  # fmt: skip
+def test_grid_image_and_counts_equal_brute_force(name):
+    scene = read_nff(spd_scene(name))
+    ref_img, ref_counts = small(scene, brute=True)
+    assert ref_counts["eye_hits"] > 0
+    for storage in ("csr", "hash"):
+        img, counts = small(scene, storage=storage)
+        assert counts == ref_counts
+        np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+
+
+def test_random_scene_with_glass_and_lights_equals_brute_force():
+    rng = np.random.default_rng(7)
+    scene = random_scene(rng, n=30)
+    scene.materials = np.zeros(2, dtypes.MATERIAL)
+    scene.materials[0] = ((0.8, 0.6, 0.4), 0.7, 0.3, 20.0, 0.0, 1.0)
+    scene.materials[1] = ((1.0, 1.0, 1.0), 0.1, 0.1, 50.0, 0.8, 1.5)
+    for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
+        table["mat"] = rng.integers(0, 2, len(table))
+    scene.lights = np.zeros(2, dtypes.LIGHT)
+    scene.lights["pos"] = [(10, 10, -10), (-10, 5, -8)]
+    scene.lights["rgb"] = 1.0
+    scene.view = View(eye=(0, 0, -15), at=(0, 0, 0), up=(0, 1, 0), angle=50.0)
+    ref_img, ref_counts = small(scene, brute=True)
+    assert ref_counts["refracted_rays"] > 0 and ref_counts["shadow_rays_blocked"] > 0
+    img, counts = small(scene)
+    assert counts == ref_counts
+    np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+
+
+def one_ray(o, d, depth=1):
+    ray = np.zeros(1, dtypes.RAY)
+    ray["o"], ray["d"] = o, np.asarray(d, float) / np.linalg.norm(d)
+    ray["t_max"], ray["origin"], ray["depth"], ray["kind"] = math.inf, -1, depth, dtypes.EYE
+    ray["w"] = 1.0
+    return ray
+
+
+def test_counts_of_a_mirror_sphere_by_hand():
+    # A reflective sphere, one light behind the eye: every hit faces the light, nothing blocks
+    # it, every reflection leaves the scene.
+    mirror = ((1.0, 1.0, 1.0), 0.5, 0.5, 10.0, 0.0, 1.0)
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)], lights=[(0, 0, -20)], materials=[mirror])
+    scene.view = View(eye=(0, 0, -5), at=(0, 0, 0), up=(0, 1, 0), angle=40.0)
+    img, counts = small(scene)
+    hits = counts["eye_hits"]
+    assert 0 < hits < 1600
+    assert counts == {"eye_rays": 1600, "eye_hits": hits, "reflected_rays": hits,
+                      "refracted_rays": 0, "shadow_rays": hits, "shadow_rays_blocked": 0}  # fmt: skip
+    # The eye ray through the centre hits head-on: ambient + diffuse + specular, exactly.
+    engine = Engine(scene)
+    rgb, c = engine.trace(one_ray((0, 0, -5), (0, 0, 1)))
+    amb = 0.5  # sqrt(1) / (2 * 1)
+    assert rgb[0, 0] == pytest.approx(amb * 0.5 + amb * (0.5 * 1.0 + 0.5 * 1.0), abs=1e-12)
+    assert c["shadow_rays"] == 1 and c["reflected_rays"] == 1
+
+
+GLASS = ((1.0, 1.0, 1.0), 0.0, 0.0, 1.0, 1.0, 1.5)
+
+
+def test_refraction_follows_snell_and_total_internal_reflection_reflects():
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)], materials=[GLASS])
+    engine = Engine(scene, max_depth=2)
+    # From outside: one refracted and one reflected ray.
+    _, c = engine.trace(one_ray((0.3, 0, -5), (0, 0, 1)))
+    assert (c["refracted_rays"], c["reflected_rays"]) == (1, 1)
+    # From inside at 60 degrees incidence (> asin(1/1.5) = 41.8): total internal reflection,
+    # so no refracted ray and the transmitted share goes to the one reflection ray.
+    p = np.array([math.sin(math.radians(60)), 0.0, math.cos(math.radians(60))])
+    # Start inside, on the chord along +z through p: it meets the normal p at 60 degrees.
+    d = np.array([0.0, 0.0, 1.0])
+    start = p - 0.5 * d
+    assert np.linalg.norm(start) < 1.0
+    _, c = engine.trace(one_ray(start, d))
+    assert (c["refracted_rays"], c["reflected_rays"]) == (0, 1)
+    # Just below the critical angle: refraction again.
+    q = np.array([math.sin(math.radians(41)), 0.0, math.cos(math.radians(41))])
+    _, c = engine.trace(one_ray(q - 0.5 * d, d))
+    assert (c["refracted_rays"], c["reflected_rays"]) == (1, 1)
+
+
+def test_snell_direction_through_a_glass_slab():
+    # A horizontal glass plane: a ray at 45 degrees bends to asin(sin45 / 1.5) below it, and
+    # the ray through the slab's underside (a second plane) comes out parallel to itself.
+    top = [(-9, 1, -9), (-9, 1, 9), (9, 1, 9), (9, 1, -9)]
+    bottom = [(-9, 0, -9), (9, 0, -9), (9, 0, 9), (-9, 0, 9)]
+    screen = [(-99, -5, -99), (-99, -5, 99), (99, -5, 99), (99, -5, -99)]
+    matte = ((1.0, 1.0, 1.0), 1.0, 0.0, 1.0, 0.0, 1.0)
+    scene = make_scene(polygons=[(top, 0), (bottom, 0), (screen, 1)], materials=[GLASS, matte])
+    # Geometry by hand: entry at x=0 (y=1), inside angle b = asin(sin45/1.5), exit at
+    # x = tan(b), then 5 more units down at 45 degrees.
+    b = math.asin(math.sin(math.radians(45)) / 1.5)
+    expect_x = math.tan(b) + 5.0
+    o = np.array([-2.0, 3.0, 0.0])
+    d = np.array([1.0, -1.0, 0.0]) / math.sqrt(2)
+    # Trace and locate the screen hit through first_hits along the refracted path.
+    e = Engine(scene)
+    t1, g1 = e.first_hits([o], [d])
+    p1 = o + t1[0] * d
+    assert g1[0] == 0 and p1[0] == pytest.approx(0.0, abs=1e-12)
+    inside = np.array([math.sin(b), -math.cos(b), 0.0])
+    t2, g2 = e.first_hits([p1], [inside], t_min=1e-9)
+    p2 = p1 + t2[0] * inside
+    assert g2[0] == 1 and p2[0] == pytest.approx(math.tan(b), abs=1e-12)
+    t3, g3 = e.first_hits([p2], [d], t_min=1e-9)
+    assert g3[0] == 2 and (p2 + t3[0] * d)[0] == pytest.approx(expect_x, abs=1e-12)
+    # The tree by hand, depth 5: eye->top (refl, refr), refr->bottom (refl, refr: screen),
+    # refl->top from inside at b < 41.8 deg (refl, refr: escapes), refl->bottom (refl, refr),
+    # then depth 5 spawns nothing.
+    _, c = Engine(scene, max_depth=5).trace(one_ray(o, d))
+    assert (c["refracted_rays"], c["reflected_rays"], c["eye_hits"]) == (4, 4, 1)
+
+
+@pytest.mark.parametrize("incidence", [0.0, 10.0, 30.0, 41.0, 41.9, 60.0, 89.0])
+@pytest.mark.parametrize("eta", [1 / 1.5, 1.5])
+def test_refract_kernel_obeys_snell(incidence, eta):
+    from meshnode.engine.shade import refract
+
+    a = math.radians(incidence)
+    d = (math.sin(a), -math.cos(a), 0.0)  # hitting the plane y = 0 from above
+    ok, tx, ty, tz = refract(*d, 0.0, 1.0, 0.0, eta)
+    s = eta * math.sin(a)  # Snell: sin(out) = (n1 / n2) sin(in)
+    assert ok == (s <= 1.0)
+    if ok:
+        assert tx == pytest.approx(s, abs=1e-12)
+        assert ty == pytest.approx(-math.sqrt(1 - s * s), abs=1e-12)
+        assert tz == 0.0
+
+
+def transformed(scene, scale, offset):
+    """The same scene with every coordinate mapped x -> x * scale + offset."""
+    s = dataclasses.replace(scene)
+    def f(x):
+        return np.asarray(x) * scale + offset
+    v = scene.view
+    s.view = dataclasses.replace(v, eye=tuple(f(v.eye)), at=tuple(f(v.at)),
+                                 hither=v.hither * scale)  # fmt: skip
+    s.lights = scene.lights.copy()
+    s.lights["pos"] = f(scene.lights["pos"])
+    s.spheres = scene.spheres.copy()
+    s.spheres["center"] = f(scene.spheres["center"])
+    s.spheres["radius"] *= scale
+    s.polygons = scene.polygons.copy()
+    s.vertices = f(scene.vertices)
+    s.triangles = scene.triangles.copy()
+    s.triangles["v"] = f(scene.triangles["v"])
+    s.cones = scene.cones.copy()
+    for k in ("base", "apex"):
+        s.cones[k] = f(scene.cones[k])
+    for k in ("base_r", "apex_r"):
+        s.cones[k] *= scale
+    return s
+
+
+@pytest.mark.parametrize(
+    "scale,offset", [(1.0, 1e6), (1e-4, 0.0), (1e4, 0.0), (1e-4, 3.0)],
+)
+def test_far_tiny_and_huge_scenes_render_the_same(scale, offset):
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    base_img, base_counts = small(scene)
+    img, counts = small(transformed(scene, scale, offset))
+    assert counts == base_counts
+    np.testing.assert_allclose(img, base_img, rtol=0, atol=1e-6)

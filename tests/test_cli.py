@@ -1,0 +1,94 @@
+"""`host render` end to end: images, statistics JSON, and clear errors before any work."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from host.cli import main
+from host.framebuffer import Framebuffer, read_pfm, to_srgb8, write_pfm
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
+STAT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+             "shadow_rays_blocked")  # fmt: skip
+
+
+def test_render_writes_png_pfm_and_stats(tmp_path):
+    out, stats = tmp_path / "a.png", tmp_path / "s.json"
+    code = main(["render", str(EXAMPLE), "-o", str(out), "--width", "48", "--height", "32",
+                 "--spp", "2", "--stats", str(stats), "--quiet"])  # fmt: skip
+    assert code == 0
+    png = np.asarray(Image.open(out))
+    assert png.shape == (32, 48, 3)
+    img = read_pfm(out.with_suffix(".pfm"))
+    assert img.shape == (32, 48, 3)
+    np.testing.assert_array_equal(to_srgb8(img), png)  # the PNG is the float image, encoded
+    s = json.loads(stats.read_text())
+    assert s["rays"]["eye_rays"] == 48 * 32 * 2
+    for key in STAT_KEYS:
+        assert isinstance(s["rays"][key], int)
+    total = sum(s["rays"][k] for k in ("eye_rays", "reflected_rays", "refracted_rays",
+                                       "shadow_rays"))  # fmt: skip
+    assert s["total_rays"] == total
+    grid = s["engine"]["grid"]
+    for key in ("resolution", "empty_voxels", "object_references", "structure_bytes", "storage"):
+        assert key in grid
+    assert s["engine"]["kinds_present"] == ["spheres", "triangles", "polygons", "cones"]
+    assert s["engine"]["kernel_variant"].endswith("/refraction/" + grid["storage"])
+    assert s["tests_per_ray"] > 0 and s["steps_per_ray"] >= 0
+    assert s["trace_seconds"] > 0 and s["rays_per_second"] > 0
+
+
+def test_spd_mode_shoots_corner_rays(tmp_path):
+    stats = tmp_path / "s.json"
+    scene = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "tetra_s1.nff"
+    if not scene.exists():
+        pytest.skip("shared scenes not available")
+    assert main(["render", str(scene), "--spd", "-o", str(tmp_path / "t.png"), "--stats",
+                 str(stats), "--quiet"]) == 0  # fmt: skip
+    s = json.loads(stats.read_text())
+    assert s["rays"]["eye_rays"] == 513 * 513
+    assert s["image"] == {"width": 512, "height": 512, "spd": True, "spp": 1}
+    assert s["max_depth"] == 5
+
+
+def test_malformed_scene_fails_with_file_and_line(tmp_path, capsys):
+    bad = tmp_path / "bad.nff"
+    bad.write_text("v\nfrom 0 0 -5\nat 0 0 0\nup 0 1 0\nangle 45\nf 1 1 1 1 0 1 0 1\ns 0 0 oops 1\n")
+    out = tmp_path / "never.png"
+    assert main(["render", str(bad), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:7:" in err
+    assert not out.exists()
+
+
+def test_missing_file_is_a_clear_error(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "nope.nff"), "--quiet"]) == 2
+    assert "nope.nff" in capsys.readouterr().err
+
+
+def test_console_script_runs_as_module(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "host.cli", "render", "--help"],
+                       capture_output=True, text=True, check=True)  # fmt: skip
+    assert "--spd" in r.stdout and "--stats" in r.stdout
+
+
+def test_framebuffer_resolves_corners_and_samples():
+    fb = Framebuffer(2, 1, corners=True)
+    fb.add(np.arange(6), np.arange(18, dtype=float).reshape(6, 3))
+    # Corners (3 x 2): pixel 0 averages corners 0, 1, 3, 4.
+    np.testing.assert_allclose(fb.image()[0, 0], np.mean([[0, 1, 2], [3, 4, 5], [9, 10, 11],
+                                                          [12, 13, 14]], axis=0))  # fmt: skip
+    fb = Framebuffer(1, 1, corners=False, spp=4)
+    fb.add(np.array([0, 1, 2, 3, 3]), np.ones((5, 3)))
+    np.testing.assert_allclose(fb.image()[0, 0], [1.25] * 3)
+
+
+def test_pfm_round_trip(tmp_path):
+    img = np.random.default_rng(0).random((5, 7, 3))
+    write_pfm(tmp_path / "x.pfm", img)
+    np.testing.assert_allclose(read_pfm(tmp_path / "x.pfm"), img.astype(np.float32))

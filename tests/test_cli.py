@@ -58,7 +58,9 @@ def test_spd_mode_shoots_corner_rays(tmp_path):
 
 def test_malformed_scene_fails_with_file_and_line(tmp_path, capsys):
     bad = tmp_path / "bad.nff"
-    bad.write_text("v\nfrom 0 0 -5\nat 0 0 0\nup 0 1 0\nangle 45\nf 1 1 1 1 0 1 0 1\ns 0 0 oops 1\n")
+    lines = ["v", "from 0 0 -5", "at 0 0 0", "up 0 1 0", "angle 45", "f 1 1 1 1 0 1 0 1",
+             "s 0 0 oops 1"]  # fmt: skip
+    bad.write_text("\n".join(lines) + "\n")
     out = tmp_path / "never.png"
     assert main(["render", str(bad), "-o", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err

@@ -76,8 +76,9 @@ def test_counts_of_a_mirror_sphere_by_hand():
     img, counts = small(scene)
     hits = counts["eye_hits"]
     assert 0 < hits < 1600
-    assert counts == {"eye_rays": 1600, "eye_hits": hits, "reflected_rays": hits,
-                      "refracted_rays": 0, "shadow_rays": hits, "shadow_rays_blocked": 0}  # fmt: skip
+    expect = {"eye_rays": 1600, "eye_hits": hits, "reflected_rays": hits, "refracted_rays": 0,
+              "shadow_rays": hits, "shadow_rays_blocked": 0}  # fmt: skip
+    assert counts == expect
     # The eye ray through the centre hits head-on: ambient + diffuse + specular, exactly.
     engine = Engine(scene)
     rgb, c = engine.trace(one_ray((0, 0, -5), (0, 0, 1)))

@@ -12,7 +12,7 @@ import numpy as np
 
 from meshnode.engine.jit import kernel
 from meshnode.engine.shade import normals, refract
-from meshnode.engine.traverse import brute_force, walk
+from meshnode.engine.traverse import brute_force, test_object, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 # Indices of the counters array every kernel call adds to.
@@ -69,6 +69,8 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
     st = np.empty((cap, 2))
     sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
     mail = np.full(gid.shape[0], -1, np.int64)
+    # Shadow cache: the object that last blocked each light is tried first, before any walk.
+    blocker = np.full(max(n_lights, 1), -1, np.int64)
     ray_id = 0
     amb = ambient
     for i in range(rays.shape[0]):
@@ -88,10 +90,17 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
             dx, dy, dz = sd[sp, 0], sd[sp, 1], sd[sp, 2]
             wr, wg, wb = sw[sp, 0], sw[sp, 1], sw[sp, 2]
             t_lo, t_hi = st[sp, 0], st[sp, 1]
-            kind, depth, origin = sk[sp, 0], sk[sp, 1], sk[sp, 2]
+            kind, depth, origin, light = sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3]
             shadow = kind == SHADOW
             ray_id += 1
             counters[SEGMENTS] += 1
+            if shadow and not brute and blocker[light] >= 0:
+                counters[TESTS] += 1
+                t = test_object(blocker[light], ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin,
+                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                if t < t_hi:
+                    counters[SHADOW_BLOCKED] += 1
+                    continue
             if brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
@@ -105,6 +114,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 # The light is reached unless something lies in between.
                 if u >= 0:
                     counters[SHADOW_BLOCKED] += 1
+                    blocker[light] = u
                 else:
                     cr += wr
                     cg += wg

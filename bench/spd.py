@@ -40,7 +40,7 @@ class CountMismatchError(AssertionError):
 
 def parse_args(argv=None) -> argparse.Namespace:
     """Command line options."""
-    p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES, help="folder of *.nff")
     p.add_argument("--only", help="comma-separated scene names (default: all)")
     p.add_argument("--densities", default="1,2,4", help="grid densities (default 1,2,4)")
@@ -74,10 +74,12 @@ def scene_files(folder: Path, only: str | None) -> list[Path]:
 
 
 def warm_kernels(scene) -> dict:
-    """Load grid-build and tracing kernels for both storages on a coarse grid, so the first
-    measured configuration pays no kernel loading; returns the load seconds per storage."""
+    """Load grid-build, eye-ray and tracing kernels for both storages on a coarse grid, so the
+    first measured configuration pays no kernel loading; returns the load seconds per storage."""
     from meshnode.engine import Engine
+    from meshnode.engine.camera import eye_rays
 
+    eye_rays(scene.view, 512, 512, True, 1, 0, rows=(0, 1))
     loads = {}
     for storage in STORAGES:
         start = time.perf_counter()
@@ -114,19 +116,20 @@ def run_config(scene, storage: str, density: float, repeats: int) -> dict:
     }
 
 
-def check_counts(name: str, configs: list[dict]) -> tuple[dict, list[str]]:
-    """Raise CountMismatchError unless the printed ray counts agree across configurations;
-    return them and warnings for other counters that differ."""
+def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]:
+    """Compare the printed ray counts across configurations: a mismatch message (None when
+    they agree), and warnings for other counters that differ."""
     counts = [{k: c["rays"][k] for k in COUNT_KEYS} for c in configs]
+    error = None
     if any(c != counts[0] for c in counts):
         lines = [f"  {_label(c)}: {n}" for c, n in zip(configs, counts, strict=True)]
-        raise CountMismatchError(f"{name}: ray counts differ between grids:\n" + "\n".join(lines))
+        error = f"{name}: ray counts differ between grids:\n" + "\n".join(lines)
     warnings = []
     for key in sorted(set(configs[0]["rays"]) - set(COUNT_KEYS)):
         values = {_label(c): c["rays"].get(key) for c in configs}
         if len(set(values.values())) > 1:
             warnings.append(f"{name}: counter {key} differs between grids: {values}")
-    return counts[0], warnings
+    return error, warnings
 
 
 def bench_scene(path: Path, densities: list[float], repeat: int) -> dict:
@@ -138,7 +141,7 @@ def bench_scene(path: Path, densities: list[float], repeat: int) -> dict:
     loads = warm_kernels(scene)
     plan = [(s, d) for s in STORAGES for d in densities] + [("auto", 2.0)]
     configs = [run_config(scene, s, d, repeats) for s, d in plan]
-    counts, warnings = check_counts(path.stem, configs)
+    error, warnings = check_counts(path.stem, configs)
     best = min(configs, key=lambda c: c["trace_seconds"])
     return {
         "scene": path.stem,
@@ -146,7 +149,8 @@ def bench_scene(path: Path, densities: list[float], repeat: int) -> dict:
         "objects": scene.n_objects,
         "repeats": repeats,
         "kernel_load_seconds": loads,
-        "counts": counts,
+        "counts": {k: configs[-1]["rays"][k] for k in COUNT_KEYS},  # the default's
+        "count_error": error,
         "configs": configs,
         "best": _label(best),
         "best_trace_seconds": best["trace_seconds"],
@@ -274,13 +278,15 @@ def table(headers: list[str], rows: list[list[str]]) -> str:
 
 
 def print_scene(r: dict) -> None:
-    """Counts line and per-configuration table of one scene."""
+    """Counts line and per-configuration table of one scene; counts go into the table (and a
+    mismatch is flagged) when they differ between configurations."""
     c = r["counts"]
     loads = ", ".join(f"{k} {v:.2f} s" for k, v in r["kernel_load_seconds"].items())
     print(f"\n== {r['scene']}  ({r['objects']} objects, best of {r['repeats']}; "
           f"kernel load {loads})")  # fmt: skip
-    print("rays (identical for every grid): "
-          + "  ".join(f"{lab} {c[k]}" for lab, k in zip(COUNT_LABELS, COUNT_KEYS, strict=True)))
+    pairs = list(zip(COUNT_LABELS, COUNT_KEYS, strict=True))
+    if r["count_error"] is None:
+        print("rays (identical for every grid): " + "  ".join(f"{lab} {c[k]}" for lab, k in pairs))
     headers = ["storage", "dens", "grid", "prep s", "trace s", "Mrays/s", "tests/ray",
                "steps/ray", "struct bytes"]  # fmt: skip
     rows = [[_label(x).split(" ")[0], f"{x['density']:g}", "x".join(map(str, x["resolution"])),
@@ -288,7 +294,13 @@ def print_scene(r: dict) -> None:
              f"{x['rays_per_second'] / 1e6:.3f}", f"{x['tests_per_ray']:.2f}",
              f"{x['steps_per_ray']:.2f}", f"{x['structure_bytes']:,}"]
             for x in r["configs"]]  # fmt: skip
+    if r["count_error"] is not None:
+        headers += [lab for lab, _ in pairs]
+        rows = [row + [x["rays"][k] for _, k in pairs] for row, x in zip(rows, r["configs"],
+                                                                         strict=True)]
     print(table(headers, rows))
+    if r["count_error"] is not None:
+        print("COUNT MISMATCH: the ray counts differ between grid configurations (engine bug)")
     for w in r["warnings"]:
         print("WARNING:", w)
 
@@ -372,6 +384,9 @@ def main(argv=None) -> int:
                 "povray": pov, "wall": wall}  # fmt: skip
         args.json.write_text(json.dumps(data, indent=2) + "\n")
         print(f"figures written to {args.json}")
+    errors = [r["count_error"] for r in results if r["count_error"]]
+    if errors:
+        raise CountMismatchError("\n".join(errors))
     return 0
 
 

@@ -35,21 +35,23 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
 
 
 @leaf
-def box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
-    """Clip [t_lo, t_hi] to the box by slabs; empty when the result has t0 > t1."""
+def box_span(ox, oy, oz, rx, ry, rz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
+    """Clip [t_lo, t_hi] to the box by slabs; empty when the result has t0 > t1.
+
+    rx, ry, rz are reciprocal direction components (inf where the direction is 0)."""
     t0 = t_lo
     t1 = t_hi
     for a in range(3):
         o = ox if a == 0 else (oy if a == 1 else oz)
-        d = dx if a == 0 else (dy if a == 1 else dz)
+        r = rx if a == 0 else (ry if a == 1 else rz)
         lo = lo0 if a == 0 else (lo1 if a == 1 else lo2)
         hi = hi0 if a == 0 else (hi1 if a == 1 else hi2)
-        if d == 0.0:
+        if math.isinf(r):
             if o < lo or o > hi:
                 return 1.0, 0.0
             continue
-        ta = (lo - o) / d
-        tb = (hi - o) / d
+        ta = (lo - o) * r
+        tb = (hi - o) * r
         if ta > tb:
             ta, tb = tb, ta
         t0 = max(t0, ta)
@@ -58,12 +60,12 @@ def box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @leaf
-def _wall(o, d, i, lo, cell):
+def _wall(o, d, inv, i, lo, cell):
     """t of the next voxel wall along one axis from voxel index i (inf when d is 0)."""
     if d > 0.0:
-        return (lo + (i + 1) * cell - o) / d
+        return (lo + (i + 1) * cell - o) * inv
     if d < 0.0:
-        return (lo + i * cell - o) / d
+        return (lo + i * cell - o) * inv
     return INF
 
 
@@ -74,12 +76,12 @@ def _voxel(o, d, t, lo, cell, n):
 
 
 @leaf
-def _region_exit(o, d, i_lo, i_hi, lo, cell):
+def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
     """t where the ray leaves voxels [i_lo, i_hi] along one axis (inf when d is 0)."""
     if d > 0.0:
-        return (lo + (i_hi + 1) * cell - o) / d
+        return (lo + (i_hi + 1) * cell - o) * inv
     if d < 0.0:
-        return (lo + i_lo * cell - o) / d
+        return (lo + i_lo * cell - o) * inv
     return INF
 
 
@@ -103,7 +105,11 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
     hx = glo[0] + cell[0] * nx
     hy = glo[1] + cell[1] * ny
     hz = glo[2] + cell[2] * nz
-    t0, t1 = box_span(ox, oy, oz, dx, dy, dz, t_lo, t_hi, glo[0], glo[1], glo[2], hx, hy, hz)
+    # Reciprocal directions: every wall crossing below is a multiply, not a divide.
+    rx = 1.0 / dx if dx != 0.0 else INF
+    ry = 1.0 / dy if dy != 0.0 else INF
+    rz = 1.0 / dz if dz != 0.0 else INF
+    t0, t1 = box_span(ox, oy, oz, rx, ry, rz, t_lo, t_hi, glo[0], glo[1], glo[2], hx, hy, hz)
     if t0 > t1:
         return INF, -1
     # Voxel of the entry point, clamped: the entry lies on the box within round-off.
@@ -114,12 +120,12 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
     sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
     sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
     sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
-    dtx = cell[0] / abs(dx) if dx != 0.0 else INF
-    dty = cell[1] / abs(dy) if dy != 0.0 else INF
-    dtz = cell[2] / abs(dz) if dz != 0.0 else INF
-    ntx = _wall(ox, dx, ix, glo[0], cell[0])
-    nty = _wall(oy, dy, iy, glo[1], cell[1])
-    ntz = _wall(oz, dz, iz, glo[2], cell[2])
+    dtx = cell[0] * abs(rx)
+    dty = cell[1] * abs(ry)
+    dtz = cell[2] * abs(rz)
+    ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
+    nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
+    ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
     v = ix + nx * (iy + ny * iz)
     csr = offsets.shape[0] > 0
     slot_mask = 0 if csr else slots.shape[0] - 2
@@ -155,9 +161,9 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
                 y1 = min((my + r + 1) * mb, ny) - 1
                 z0 = max((mz - r) * mb, 0)
                 z1 = min((mz + r + 1) * mb, nz) - 1
-                tx = _region_exit(ox, dx, x0, x1, glo[0], cell[0])
-                ty = _region_exit(oy, dy, y0, y1, glo[1], cell[1])
-                tz = _region_exit(oz, dz, z0, z1, glo[2], cell[2])
+                tx = _region_exit(ox, dx, rx, x0, x1, glo[0], cell[0])
+                ty = _region_exit(oy, dy, ry, y0, y1, glo[1], cell[1])
+                tz = _region_exit(oz, dz, rz, z0, z1, glo[2], cell[2])
                 t_jump = min(tx, min(ty, tz))
                 if best_u >= 0 and best_t <= t_jump:
                     break
@@ -179,9 +185,9 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
                     iz = z1 + 1 if sz > 0 else z0 - 1
                     if iz < 0 or iz >= nz:
                         break
-                ntx = _wall(ox, dx, ix, glo[0], cell[0])
-                nty = _wall(oy, dy, iy, glo[1], cell[1])
-                ntz = _wall(oz, dz, iz, glo[2], cell[2])
+                ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
+                nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
+                ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
                 v = ix + nx * (iy + ny * iz)
                 slot = v & slot_mask
                 continue

@@ -31,6 +31,13 @@ if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(ROOT))
 
 
+def default_density() -> float:
+    """The density `host render` uses when not told."""
+    from host.render import RenderSettings
+
+    return RenderSettings().density
+
+
 class CountMismatchError(AssertionError):
     """Ray counts differ between grid configurations of one scene (an engine bug)."""
 
@@ -43,7 +50,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES, help="folder of *.nff")
     p.add_argument("--only", help="comma-separated scene names (default: all)")
-    p.add_argument("--densities", default="1,2,4", help="grid densities (default 1,2,4)")
+    p.add_argument("--densities", default="0.5,1,2", help="grid densities (default 0.5,1,2)")
     p.add_argument("--repeat", type=int, default=3,
                    help="best of N tracing runs for balls and tetra (default 3)")  # fmt: skip
     p.add_argument("--json", type=Path, help="write all figures to this JSON file")
@@ -133,13 +140,13 @@ def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]
 
 
 def bench_scene(path: Path, densities: list[float], repeat: int) -> dict:
-    """All grid configurations of one scene plus the default (auto, density 2)."""
+    """All grid configurations of one scene plus the default (storage auto, default density)."""
     from host.nff import read_nff
 
     scene = read_nff(path)
     repeats = repeat if path.stem in POV_SCENES else 1
     loads = warm_kernels(scene)
-    plan = [(s, d) for s in STORAGES for d in densities] + [("auto", 2.0)]
+    plan = [(s, d) for s in STORAGES for d in densities] + [("auto", default_density())]
     configs = [run_config(scene, s, d, repeats) for s, d in plan]
     error, warnings = check_counts(path.stem, configs)
     best = min(configs, key=lambda c: c["trace_seconds"])
@@ -325,7 +332,7 @@ def print_pov(results: list[dict], pov: dict) -> None:
                      p["shadow_rays_blocked"], c["reflected_rays"], p["reflected_rays"]])
     print(table(headers, rows))
     print("(ratio > 1: we are faster; ours traces 513x513 corner rays, POV-Ray 512x512 centres"
-          " with adc_bailout; default = storage auto, density 2)")
+          f" with adc_bailout; default = storage auto, density {default_density():g})")
 
 
 def print_wall(wall: dict) -> None:

@@ -26,9 +26,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--stats", help="write statistics as JSON to this file")
     r.add_argument("--storage", choices=("auto", "csr", "hash"), default="auto",
                    help="grid storage (default: the smaller in memory)")  # fmt: skip
-    r.add_argument("--density", type=float, default=2.0,
+    r.add_argument("--density", type=float, default=1.0,
                    help="grid density: voxels per object to start from, refined until a "
-                        "voxel holds about 4/DENSITY objects (default 2)")  # fmt: skip
+                        "voxel holds about 4/DENSITY objects (default 1)")  # fmt: skip
     r.add_argument("--threads", type=int, default=0, help="tracing threads (default: cores)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     return p

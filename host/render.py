@@ -26,7 +26,7 @@ class RenderSettings:
     spp: int = 1
     depth: int = 5
     seed: int = 0
-    density: float = 2.0
+    density: float = 1.0
     storage: str = "auto"
     threads: int = 0  # 0: one per core
     brute: bool = False

@@ -30,7 +30,7 @@ class Engine:
         self,
         scene: SceneData,
         *,
-        density: float = 2.0,
+        density: float = 1.0,
         storage: str = "auto",
         resolution=None,
         max_depth: int = 5,

@@ -11,7 +11,9 @@ from meshnode.engine.jit import kernel
 from meshnode.engine.tables import Tables
 
 MAX_VOXELS = 1 << 24
-MACRO = 4  # voxels per macro cell side, for skipping empty space
+MAX_REFS = 1 << 26
+MACRO_SHIFT = 2  # macro cells of 4^3 voxels, for skipping empty space
+MACRO = 1 << MACRO_SHIFT
 STORAGES = ("auto", "csr", "hash")
 
 
@@ -33,7 +35,7 @@ class Grid:
     stats: dict
     macro: np.ndarray | None = None  # (Mz*My*Mx,) uint8 distance to the nearest occupied macro
     macro_res: np.ndarray | None = None  # (3,) int64 macro cells per axis
-    macro_size: int = MACRO
+    macro_shift: int = MACRO_SHIFT
 
     @property
     def hi(self) -> np.ndarray:
@@ -54,7 +56,7 @@ class Grid:
             i32 if csr else self.entry_start,
             i32 if csr else self.entry_count,
             u8 if csr else self.bits,
-            self.refs, self.macro, self.macro_res, self.macro_size,
+            self.refs, self.macro, self.macro_res, self.macro_shift,
         )  # fmt: skip
 
 
@@ -126,7 +128,17 @@ def _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
             if e > 0.0:
                 dd += e * e
         r = sph[u, 3] * (1.0 + 1e-9)
-        return dd <= r * r
+        if dd > r * r:
+            return False
+        # A voxel wholly inside the sphere holds none of its surface.
+        far = 0.0
+        for a in range(3):
+            c = c0 if a == 0 else (c1 if a == 1 else c2)
+            h = h0 if a == 0 else (h1 if a == 1 else h2)
+            e = abs(sph[u, a] - c) + h
+            far += e * e
+        r_in = sph[u, 3] * (1.0 - 1e-9)
+        return far >= r_in * r_in
     if tri is not None and u < off[2]:
         i = u - off[1]
         return _plane_straddles(tri[i, 0], tri[i, 1], tri[i, 2], tri[i, 9], tri[i, 10],
@@ -203,7 +215,7 @@ def build_grid(
     tables: Tables,
     lo: np.ndarray,
     hi: np.ndarray,
-    density: float = 2.0,
+    density: float = 1.0,
     storage: str = "auto",
     res: np.ndarray | None = None,
 ) -> Grid:
@@ -219,15 +231,21 @@ def build_grid(
     glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))
     fixed = res is not None
     boost = 1.0
+    previous = None
     for _ in range(1 if fixed else 4):
-        if not fixed:
-            res = choose_resolution(glo, ghi, tables.n, density * boost)
-        res = np.asarray(res).astype(np.int64)
-        cell, args, counts = _count(tables, glo, ghi, res)
+        trial = np.asarray(res if fixed else choose_resolution(glo, ghi, tables.n,
+                                                               density * boost)).astype(np.int64)
+        cell, args, counts = _count(tables, glo, ghi, trial)
         occ = occupancy(counts)
-        if fixed or occ <= 1.5 * target_occupancy or np.prod(res) * 2 > MAX_VOXELS:
+        if previous is not None and (occ > 0.75 * previous[4] or counts.sum() > MAX_REFS):
+            # Finer voxels stopped paying (objects overlap each other): keep the last grid.
+            trial, cell, args, counts, occ = previous
+            break
+        previous = (trial, cell, args, counts, occ)
+        if fixed or occ <= 1.5 * target_occupancy or np.prod(trial) * 2 > MAX_VOXELS:
             break
         boost *= occ / target_occupancy
+    res = trial
     n_vox = int(np.prod(res))
     offsets = np.zeros(n_vox + 1, np.int32)
     np.cumsum(counts, out=offsets[1:])

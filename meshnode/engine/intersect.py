@@ -14,7 +14,7 @@ Table layouts (built by `tables.py`):
 
 import math
 
-from meshnode.engine.jit import leaf
+from meshnode.engine.jit import inline, leaf
 
 INF = math.inf
 
@@ -55,7 +55,7 @@ def hit_sphere(s, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit):
     return INF
 
 
-@leaf
+@inline
 def hit_triangle(tr, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     """Moller-Trumbore, two-sided; returns t, barycentrics u, v."""
     e1x, e1y, e1z = tr[i, 3], tr[i, 4], tr[i, 5]

@@ -33,3 +33,4 @@ numba.config.CACHE_DIR = _cache_dir()
 
 kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 leaf = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+inline = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")

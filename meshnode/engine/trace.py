@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from meshnode.engine.jit import kernel
-from meshnode.engine.shade import normals, refract
+from meshnode.engine.shade import normals, phong, refract
 from meshnode.engine.traverse import brute_force, test_object, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
@@ -28,7 +28,7 @@ COUNTER_NAMES = (
 @kernel
 def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
                glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-               macro, mres, mb):  # fmt: skip
+               macro, mres, mshift):  # fmt: skip
     """Nearest hit distance and local object id of each (origin, unit direction) pair."""
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
@@ -45,7 +45,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinf
             t, u = walk(ray, -1, False, i, mail, counters,
                         gid, off, sph, tri, poly, pinfo, puv, cone,
                         glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-                        macro, mres, mb)  # fmt: skip
+                        macro, mres, mshift)  # fmt: skip
         counters[SEGMENTS] += 1
         t_out[i] = t
         u_out[i] = u
@@ -57,7 +57,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 materials, transmit, lights, gid, mat, off,
                 sph, tri, tri_n, poly, pinfo, puv, cone,
                 glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-                macro, mres, mb):  # fmt: skip
+                macro, mres, mshift):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
     `lights` None compiles out shadow rays, `transmit` None compiles out refraction."""
@@ -71,6 +71,8 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
     mail = np.full(gid.shape[0], -1, np.int64)
     # Shadow cache: the object that last blocked each light is tried first, before any walk.
     blocker = np.full(max(n_lights, 1), -1, np.int64)
+    fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
+    ibits = fbits.view(np.int64)
     ray_id = 0
     amb = ambient
     for i in range(rays.shape[0]):
@@ -109,7 +111,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 t, u = walk(ray, origin, shadow, ray_id, mail, counters,
                             gid, off, sph, tri, poly, pinfo, puv, cone,
                             glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits,
-                            refs, macro, mres, mb)  # fmt: skip
+                            refs, macro, mres, mshift)  # fmt: skip
             if shadow:
                 # The light is reached unless something lies in between.
                 if u >= 0:
@@ -164,7 +166,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                     spec = 0.0
                     rl = rx * lx + ry * ly + rz * lz
                     if ks > 0.0 and rl > 0.0:
-                        spec = ks * rl**shine
+                        spec = ks * phong(rl, shine, fbits, ibits)
                     counters[SHADOW_RAYS] += 1
                     so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
                     sd[sp, 0], sd[sp, 1], sd[sp, 2] = lx, ly, lz

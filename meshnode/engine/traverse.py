@@ -2,19 +2,23 @@
 
 Per axis: `delta` is the t between successive voxel walls, `nxt` the t of the next wall. Each
 step takes the axis with the smallest `nxt`. Every object is tested at most once per ray
-(mailbox stamped with the ray id); a hit beyond the current voxel is kept, but the walk goes on
-until the voxel that contains it, because a nearer hit may still come (DESIGN.md 4).
+(mailbox stamped with the ray id); equal distances go to the lower gid, so the first hit never
+depends on the order of tests (grid, storage or node). A hit beyond the current voxel is kept,
+but the walk goes on until the voxel that contains it: a nearer hit may still come (DESIGN.md 4).
 """
 
 import math
 
 from meshnode.engine.intersect import hit_cone, hit_polygon, hit_sphere, hit_triangle
-from meshnode.engine.jit import leaf
+from meshnode.engine.jit import inline, leaf
 
 INF = math.inf
+# With a hit at best_t, objects are tested up to best_t * TIE (> best_t, no libm call) so that
+# an equal distance is seen; the exact comparison then keeps the lower gid.
+TIE = 1.0 + 1e-15
 
 
-@leaf
+@inline
 def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
                 sph, tri, poly, pinfo, puv, cone):  # fmt: skip
     """Dispatch on the local id's kind; kinds passed as None are compiled out."""
@@ -89,7 +93,7 @@ def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
 def walk(ray, origin, any_hit, ray_id, mail, counters,
          gid, off, sph, tri, poly, pinfo, puv, cone,
          glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-         macro, mres, mb):  # fmt: skip
+         macro, mres, mshift):  # fmt: skip
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi): returns (t, local id or -1).
 
     `ray` is the tuple (ox, oy, oz, dx, dy, dz, t_lo, t_hi): calls with more than 30
@@ -135,6 +139,50 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
     tests = 0
     steps = 0
     while True:
+        # Empty macro cell: jump out of the empty cube of macro cells around it without
+        # touching the voxel table (the small macro table stays in cache).
+        mx = ix >> mshift
+        my = iy >> mshift
+        mz = iz >> mshift
+        k = macro[mx + mres[0] * (my + mres[1] * mz)]
+        if k >= 1:
+            r = k - 1
+            x0 = max((mx - r) << mshift, 0)
+            x1 = min((mx + r + 1) << mshift, nx) - 1
+            y0 = max((my - r) << mshift, 0)
+            y1 = min((my + r + 1) << mshift, ny) - 1
+            z0 = max((mz - r) << mshift, 0)
+            z1 = min((mz + r + 1) << mshift, nz) - 1
+            tx = _region_exit(ox, dx, rx, x0, x1, glo[0], cell[0])
+            ty = _region_exit(oy, dy, ry, y0, y1, glo[1], cell[1])
+            tz = _region_exit(oz, dz, rz, z0, z1, glo[2], cell[2])
+            t_jump = min(tx, min(ty, tz))
+            if best_u >= 0 and best_t <= t_jump:
+                break
+            if t_jump > t1:
+                break
+            steps += 1
+            ix = min(max(_voxel(ox, dx, t_jump, glo[0], cell[0], nx), x0), x1)
+            iy = min(max(_voxel(oy, dy, t_jump, glo[1], cell[1], ny), y0), y1)
+            iz = min(max(_voxel(oz, dz, t_jump, glo[2], cell[2], nz), z0), z1)
+            if tx <= ty and tx <= tz:
+                ix = x1 + 1 if sx > 0 else x0 - 1
+                if ix < 0 or ix >= nx:
+                    break
+            elif ty <= tz:
+                iy = y1 + 1 if sy > 0 else y0 - 1
+                if iy < 0 or iy >= ny:
+                    break
+            else:
+                iz = z1 + 1 if sz > 0 else z0 - 1
+                if iz < 0 or iz >= nz:
+                    break
+            ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
+            nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
+            ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
+            v = ix + nx * (iy + ny * iz)
+            slot = v & slot_mask
+            continue
         # Find this voxel's references.
         a = 0
         b = 0
@@ -147,50 +195,6 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
                     a = e_start[e]
                     b = a + e_count[e]
                     break
-        if a == b:
-            mx = ix // mb
-            my = iy // mb
-            mz = iz // mb
-            k = macro[mx + mres[0] * (my + mres[1] * mz)]
-            if k >= 1:
-                # Jump out of the empty cube of macro cells around this one.
-                r = k - 1
-                x0 = max((mx - r) * mb, 0)
-                x1 = min((mx + r + 1) * mb, nx) - 1
-                y0 = max((my - r) * mb, 0)
-                y1 = min((my + r + 1) * mb, ny) - 1
-                z0 = max((mz - r) * mb, 0)
-                z1 = min((mz + r + 1) * mb, nz) - 1
-                tx = _region_exit(ox, dx, rx, x0, x1, glo[0], cell[0])
-                ty = _region_exit(oy, dy, ry, y0, y1, glo[1], cell[1])
-                tz = _region_exit(oz, dz, rz, z0, z1, glo[2], cell[2])
-                t_jump = min(tx, min(ty, tz))
-                if best_u >= 0 and best_t <= t_jump:
-                    break
-                if t_jump > t1:
-                    break
-                steps += 1
-                ix = min(max(_voxel(ox, dx, t_jump, glo[0], cell[0], nx), x0), x1)
-                iy = min(max(_voxel(oy, dy, t_jump, glo[1], cell[1], ny), y0), y1)
-                iz = min(max(_voxel(oz, dz, t_jump, glo[2], cell[2], nz), z0), z1)
-                if tx <= ty and tx <= tz:
-                    ix = x1 + 1 if sx > 0 else x0 - 1
-                    if ix < 0 or ix >= nx:
-                        break
-                elif ty <= tz:
-                    iy = y1 + 1 if sy > 0 else y0 - 1
-                    if iy < 0 or iy >= ny:
-                        break
-                else:
-                    iz = z1 + 1 if sz > 0 else z0 - 1
-                    if iz < 0 or iz >= nz:
-                        break
-                ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
-                nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
-                ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
-                v = ix + nx * (iy + ny * iz)
-                slot = v & slot_mask
-                continue
         # Test each object once per ray.
         for r in range(a, b):
             u = refs[r]
@@ -198,9 +202,10 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
                 continue
             mail[u] = ray_id
             tests += 1
-            t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, best_t, origin, gid, off,
+            bound = best_t if best_u < 0 else best_t * TIE
+            t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
                             sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-            if t < best_t:
+            if t < best_t or (t == best_t and best_u >= 0 and gid[u] < gid[best_u]):
                 best_t = t
                 best_u = u
                 if any_hit:
@@ -248,9 +253,10 @@ def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
     n = gid.shape[0]
     for u in range(n):
         counters[6] += 1
-        t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, best_t, origin, gid, off,
+        bound = best_t if best_u < 0 else best_t * TIE
+        t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
                         sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-        if t < best_t:
+        if t < best_t or (t == best_t and best_u >= 0 and gid[u] < gid[best_u]):
             best_t = t
             best_u = u
             if any_hit:

@@ -161,3 +161,39 @@ def test_resolution_follows_box_shape_and_density():
     assert flat[2] == 1
     more = choose_resolution(np.zeros(3), np.array([8.0, 4.0, 2.0]), 1000, 8.0)
     assert np.prod(more) > 3 * np.prod(res)
+
+
+def test_equal_distances_go_to_the_lower_gid_whatever_the_grid():
+    # Two coplanar, overlapping triangles (as in SPD teapot): every configuration must pick the
+    # same one, or counts and images would depend on the grid. Where both distances are the same
+    # double, the lower gid wins; where rounding separates them, the nearer one does.
+    a = ((0, 0, 0), (2, 0, 0), (0, 2, 0), 0)
+    b = ((0.5, 0.5, 0), (2.5, 0.5, 0), (0.5, 2.5, 0), 0)
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0.55, 0.9, (200, 2))  # inside both triangles
+    o = np.column_stack([pts, np.full(len(pts), 3.0)])
+    d = np.tile([0.0, 0.0, -1.0], (len(o), 1))
+    for scene in (make_scene(triangles=[a, b]), make_scene(triangles=[b, a])):
+        t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
+        tie = t_ref == 3.0
+        assert tie.sum() > 50
+        np.testing.assert_array_equal(g_ref[tie], np.zeros(tie.sum()))
+        for storage in STORAGES:
+            for density in (0.3, 1.0, 8.0):
+                t, g = Engine(scene, storage=storage, density=density).first_hits(o, d)
+                np.testing.assert_array_equal(g, g_ref)
+                np.testing.assert_array_equal(t, t_ref)
+
+
+def test_voxels_wholly_inside_a_sphere_hold_no_reference():
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)])
+    engine = Engine(scene, resolution=(9, 9, 9), storage="csr")
+    offsets = engine.grid.offsets
+    counts = np.diff(offsets).reshape(9, 9, 9)
+    assert counts[4, 4, 4] == 0  # the centre voxel lies inside the sphere
+    assert counts[0, 0, 0] == 0  # a corner voxel lies outside it
+    assert counts[4, 4, 0] == 1  # the surface crosses the middle of a face
+    # Rays from inside (inside visible when the radius is negative) still find the surface.
+    inner = make_scene(spheres=[((0, 0, 0), -1.0, 0)])
+    t, g = Engine(inner, resolution=(9, 9, 9)).first_hits(np.zeros((3, 3)), np.eye(3))
+    np.testing.assert_allclose(t, 1.0, atol=1e-12)

@@ -35,9 +35,10 @@ def test_grid_image_and_counts_equal_brute_force(name):
     ref_img, ref_counts = small(scene, brute=True)
     assert ref_counts["eye_hits"] > 0
     for storage in ("csr", "hash"):
-        img, counts = small(scene, storage=storage)
-        assert counts == ref_counts
-        np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+        for density in (0.5, 4.0):
+            img, counts = small(scene, storage=storage, density=density)
+            assert counts == ref_counts
+            np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
 
 
 def test_random_scene_with_glass_and_lights_equals_brute_force():

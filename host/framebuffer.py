@@ -19,11 +19,14 @@ class Framebuffer:
         self.samples = np.zeros((n, 3))
 
     def add(self, sample_ids: np.ndarray, rgb: np.ndarray) -> None:
-        """Sum deposits into their samples (ids may repeat)."""
+        """Sum deposits into their samples (ids may repeat); work is over the ids' range only,
+        so adding a band of rays costs the band, not the frame."""
+        if len(sample_ids) == 0:
+            return
+        lo, hi = int(sample_ids.min()), int(sample_ids.max()) + 1
+        local = sample_ids - lo
         for c in range(3):
-            self.samples[:, c] += np.bincount(
-                sample_ids, weights=rgb[:, c], minlength=len(self.samples)
-            )
+            self.samples[lo:hi, c] += np.bincount(local, weights=rgb[:, c], minlength=hi - lo)
 
     def image(self) -> np.ndarray:
         """Linear float image (H, W, 3), row 0 at the top."""

@@ -276,6 +276,11 @@ def build_grid(
         "occupancy": occ,
         "target_occupancy": target_occupancy,
         "resolution_boost": boost,
+        "resolution_reason": (
+            "given by caller" if fixed else
+            f"{density:g} voxels per object over the box by side lengths, refined x{boost:.3g} "
+            f"toward {target_occupancy:g} objects per occupied voxel (reached {occ:.3g})"
+        ),
     }
     mres = (res + MACRO - 1) // MACRO
     macro = _macro_distance(counts, res, mres, MACRO)

@@ -71,3 +71,13 @@ CONE = np.dtype(
         ("apex_r", "<f8"),
     ]
 )
+
+# One pixel deposit: colour to add to a framebuffer sample (pixel packets carry arrays of these).
+DEPOSIT = np.dtype([("pixel", "<i8"), ("rgb", "<f8", 3)])
+
+# Every array dtype that may travel in a frame, by the name frames use for it.
+WIRE_DTYPES = {
+    "ray": RAY, "deposit": DEPOSIT, "material": MATERIAL, "light": LIGHT, "sphere": SPHERE,
+    "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
+    "i8": np.dtype("<i8"),
+}  # fmt: skip

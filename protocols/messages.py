@@ -1,0 +1,97 @@
+"""Message kinds of the mesh and the fields each must carry.
+
+A message is a dict {"k": kind, field: value, ...}; `make` builds one and `parse` checks one
+received from a peer, so handlers only ever see well-formed messages. Arrays are wire arrays of
+the dtype the field names (see `framing`).
+"""
+
+from enum import IntEnum
+
+import numpy as np
+
+from protocols import dtypes
+from protocols.errors import BadFrame, UnknownKind
+
+PROTOCOL_VERSION = 1
+
+
+class Kind(IntEnum):
+    HELLO = 1  # handshake: protocol version, cluster id, who is speaking
+    CONFIG = 2  # node configuration from the host: mesh shape, coordinates, boxes, settings
+    OBJECTS = 3  # a batch of one primitive kind's records for the node's box
+    RAYS = 4  # a batch of rays (eye, reflected, refracted or shadow) entering a node's box
+    PIXELS = 5  # a batch of deposits on their way to the primary node and the host
+    STATE = 6  # the state packet circulating on the ring
+    STATS = 7  # a node's statistics
+    SHUTDOWN = 8  # stop and close every link
+    ERROR = 9  # the sender hit an error; `reason` says what
+
+
+# field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
+_NUM = (int, float)
+FIELDS = {
+    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int},
+    Kind.CONFIG: {"rows": int, "cols": int, "node": int, "neighbours": dict, "box": list,
+                  "scene_box": list, "settings": dict},  # fmt: skip
+    Kind.OBJECTS: {"table": str, "records": None, "last": bool},
+    Kind.RAYS: {"rays": dtypes.RAY, "hops": int},
+    Kind.PIXELS: {"deposits": dtypes.DEPOSIT},
+    Kind.STATE: {"state": int, "last_busy": int, "round": int, "sent": np.dtype("<i8"),
+                 "received": np.dtype("<i8")},  # fmt: skip
+    Kind.STATS: {"node": int, "stats": dict},
+    Kind.SHUTDOWN: {},
+    Kind.ERROR: {"reason": str},
+}
+OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
+                 "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),
+                 "materials": dtypes.MATERIAL, "lights": dtypes.LIGHT}  # fmt: skip
+
+
+def _check(kind: Kind, name: str, value, want) -> None:
+    if want is None:
+        return
+    if isinstance(want, np.dtype):
+        if not isinstance(value, np.ndarray) or value.dtype != want:
+            got = getattr(value, "dtype", type(value).__name__)
+            raise BadFrame(f"{kind.name}.{name} must be an array of {want}, got {got}")
+        return
+    if want is float:
+        want = _NUM
+    if isinstance(value, bool) and want is int:
+        raise BadFrame(f"{kind.name}.{name} must be int, got bool")
+    if not isinstance(value, want):
+        raise BadFrame(f"{kind.name}.{name} must be {getattr(want, '__name__', want)}, "
+                       f"got {type(value).__name__}")  # fmt: skip
+
+
+def make(kind: Kind, **fields) -> dict:
+    """A message of `kind`; every field of the kind must be given, no other."""
+    spec = FIELDS[kind]
+    if set(fields) != set(spec):
+        raise TypeError(f"{kind.name} needs fields {sorted(spec)}, got {sorted(fields)}")
+    for name, value in fields.items():
+        _check(kind, name, value, spec[name])
+    return {"k": int(kind), **fields}
+
+
+def parse(message: dict) -> tuple[Kind, dict]:
+    """Kind and fields of a received message, checked against FIELDS."""
+    raw = message.get("k")
+    try:
+        kind = Kind(raw)
+    except (ValueError, TypeError):
+        raise UnknownKind(f"unknown message kind {raw!r}") from None
+    fields = {k: v for k, v in message.items() if k != "k"}
+    spec = FIELDS[kind]
+    missing = set(spec) - set(fields)
+    extra = set(fields) - set(spec)
+    if missing or extra:
+        raise BadFrame(f"{kind.name}: missing {sorted(missing)}, unexpected {sorted(extra)}")
+    for name, value in fields.items():
+        _check(kind, name, value, spec[name])
+    if kind is Kind.OBJECTS:
+        want = OBJECT_TABLES.get(fields["table"])
+        if want is None:
+            raise BadFrame(f"OBJECTS: unknown table {fields['table']!r}")
+        _check(kind, "records", fields["records"], want)
+    return kind, fields

@@ -1,0 +1,157 @@
+"""The wire without sockets: frames split at every byte, message checks, handshake, torus."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from protocols import dtypes
+from protocols.errors import BadFrame, FrameTooLarge, ProtocolError, UnknownKind, VersionMismatch
+from protocols.framing import FrameDecoder, encode
+from protocols.handshake import check_hello, hello
+from protocols.messages import Kind, make, parse
+from protocols.topology import Router, Torus
+
+
+def ray_batch(n):
+    rays = np.zeros(n, dtypes.RAY)
+    rng = np.random.default_rng(n)
+    rays["o"] = rng.normal(size=(n, 3))
+    rays["d"] = rng.normal(size=(n, 3))
+    rays["pixel"] = np.arange(n)
+    rays["kind"] = n % 4
+    return rays
+
+
+def test_frames_survive_every_split_point():
+    rays = ray_batch(5)
+    msgs = [make(Kind.RAYS, rays=rays, hops=2), make(Kind.SHUTDOWN),
+            make(Kind.ERROR, reason="x" * 300)]  # fmt: skip
+    stream = b"".join(encode(m) for m in msgs)
+    for cut in range(len(stream) + 1):
+        dec = FrameDecoder()
+        got = dec.feed(stream[:cut]) + dec.feed(stream[cut:])
+        assert [m["k"] for m in got] == [Kind.RAYS, Kind.SHUTDOWN, Kind.ERROR]
+        assert dec.pending == 0
+        kind, fields = parse(got[0])
+        np.testing.assert_array_equal(fields["rays"], rays)  # bit-exact records
+    # Byte by byte too.
+    dec = FrameDecoder()
+    got = [m for b in stream for m in dec.feed(bytes([b]))]
+    assert len(got) == 3
+
+
+def test_oversized_frame_is_refused_before_buffering():
+    dec = FrameDecoder(max_frame=1000)
+    with pytest.raises(FrameTooLarge):
+        dec.feed((10**6).to_bytes(4, "big") + b"\0" * 10)
+    with pytest.raises(FrameTooLarge):
+        encode(make(Kind.RAYS, rays=ray_batch(100), hops=0), max_frame=1000)
+
+
+@pytest.mark.parametrize(
+    "payload", [b"\xc1", b"\x93\x01\x02\x03", b"\xd4\x07\x00", b"\x81\xa1k\xcd\xff\xff"]
+)
+def test_corrupt_payloads_are_protocol_errors(payload):
+    frame = len(payload).to_bytes(4, "big") + payload
+    with pytest.raises(ProtocolError):
+        for m in FrameDecoder().feed(frame):
+            parse(m)
+
+
+def test_array_with_wrong_length_is_refused():
+    frame = bytearray(encode(make(Kind.PIXELS, deposits=np.zeros(3, dtypes.DEPOSIT))))
+    frame[-1:] = b""  # drop one byte of the array, fix the prefix
+    frame[:4] = (len(frame) - 4).to_bytes(4, "big")
+    with pytest.raises(BadFrame):
+        FrameDecoder().feed(bytes(frame))
+
+
+def test_message_fields_are_checked():
+    with pytest.raises(TypeError):
+        make(Kind.RAYS, rays=ray_batch(1))  # missing hops
+    with pytest.raises(BadFrame):
+        make(Kind.RAYS, rays=np.zeros(2, dtypes.DEPOSIT), hops=0)
+    with pytest.raises(UnknownKind):
+        parse({"k": 99})
+    with pytest.raises(BadFrame):
+        parse({"k": int(Kind.ERROR)})
+    with pytest.raises(BadFrame):
+        parse({"k": int(Kind.STATS), "node": True, "stats": {}})
+    objs = make(Kind.OBJECTS, table="spheres", records=np.zeros(2, dtypes.SPHERE), last=True)
+    kind, fields = parse(FrameDecoder().feed(encode(objs))[0])
+    assert kind is Kind.OBJECTS and len(fields["records"]) == 2
+    bad = dict(objs, table="teapots")
+    with pytest.raises(BadFrame):
+        parse(bad)
+    bad = dict(objs, records=np.zeros(2, dtypes.CONE))
+    with pytest.raises(BadFrame):
+        parse(bad)
+
+
+def test_handshake_checks_version_and_cluster():
+    me = check_hello(hello("c1", "node", 3), "c1")
+    assert me["node"] == 3 and me["role"] == "node"
+    with pytest.raises(VersionMismatch, match="cluster"):
+        check_hello(hello("c2", "host"), "c1")
+    old = dict(hello("c1", "host"), version=0)
+    with pytest.raises(VersionMismatch, match="protocol 0"):
+        check_hello(old, "c1")
+    with pytest.raises(VersionMismatch, match="HELLO"):
+        check_hello(make(Kind.SHUTDOWN), "c1")
+
+
+SHAPES = [(1, 1), (1, 2), (2, 1), (2, 2), (3, 3), (2, 4), (2, 3), (4, 5), (1, 7)]
+
+
+@pytest.mark.parametrize("rows,cols", SHAPES)
+def test_torus_neighbours_links_and_ring(rows, cols):
+    t = Torus(rows, cols)
+    for n in range(t.size):
+        nb = t.neighbours(n)
+        # Neighbourhood is symmetric: my east's west is me, my south's north is me.
+        assert t.neighbours(nb["east"])["west"] == n
+        assert t.neighbours(nb["south"])["north"] == n
+        for m in t.links(n):
+            assert n in t.links(m)
+        assert n not in t.links(n)
+        assert len(t.links(n)) <= 4
+    assert sorted(t.ring) == list(range(t.size))
+    # Consecutive ring nodes are neighbours (the closing step may be longer).
+    for a, b in zip(t.ring, t.ring[1:], strict=False):
+        assert t.distance(a, b) == 1
+    if cols == 2 and rows == 1:
+        assert t.links(0) == [1]
+
+
+@pytest.mark.parametrize("rows,cols", SHAPES)
+def test_routes_are_shortest_and_alternate(rows, cols):
+    t = Torus(rows, cols)
+    for a, b in itertools.product(range(t.size), repeat=2):
+        hops = t.next_hops(a, b)
+        if a == b:
+            assert hops == ()
+            continue
+        assert hops, (a, b)
+        for h in hops:
+            assert t.distance(h, b) == t.distance(a, b) - 1
+            assert h in t.links(a)
+        # Following the router always arrives in exactly distance(a, b) hops.
+        node, steps = a, 0
+        routers = {n: Router(t, n) for n in range(t.size)}
+        while node != b:
+            node = routers[node].next_hop(b)
+            steps += 1
+        assert steps == t.distance(a, b)
+    # On a 3x3 torus node 4 reaches node 0 by two equal first hops; the router alternates.
+    if (rows, cols) == (3, 3):
+        r = Router(t, 4)
+        firsts = [r.next_hop(0) for _ in range(4)]
+        assert sorted(set(firsts)) == [1, 3] and firsts[0] != firsts[1]
+
+
+def test_torus_rejects_empty_and_foreign_nodes():
+    with pytest.raises(ValueError):
+        Torus(0, 3)
+    with pytest.raises(ValueError):
+        Torus(2, 2).coords(4)

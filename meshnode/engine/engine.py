@@ -36,6 +36,7 @@ class Engine:
         max_depth: int = 5,
         brute: bool = False,
         box: tuple | None = None,
+        scene_box: tuple | None = None,
     ):
         start = time.perf_counter()
         self.scene = scene
@@ -49,6 +50,9 @@ class Engine:
         else:
             lo, hi = np.zeros(3), np.ones(3)
         self.grid = build_grid(tb, lo, hi, density=density, storage=storage, res=resolution)
+        # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
+        sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
+        self.scene_lo, self.scene_hi = (np.asarray(b, float) for b in sb)
         extent = float(np.max(self.grid.hi - self.grid.lo))
         scale = max(extent, float(np.max(np.abs(np.concatenate([lo, hi])))))
         # Secondary rays exclude their own surface; this guard only absorbs round-off.
@@ -119,16 +123,28 @@ class Engine:
 
     def trace(self, rays: np.ndarray, out_rgb: np.ndarray | None = None):
         """Trace RAY records and all their descendants; returns (rgb per ray, counter dict)."""
+        rgb, counts, _ = self._trace(rays, out_rgb, None)
+        return rgb, counts
+
+    def trace_node(self, rays: np.ndarray):
+        """As a mesh node: returns (rgb per ray, counter dict, rays continuing elsewhere)."""
+        return self._trace(rays, None, np.empty(max(16, len(rays) // 4), RAY))
+
+    def _trace(self, rays, out_rgb, out):
         if rays.dtype != RAY:
             raise TypeError(f"rays must have dtype protocols.dtypes.RAY, not {rays.dtype}")
         if out_rgb is None:
             out_rgb = np.zeros((len(rays), 3))
         counters = np.zeros(N_COUNTERS, np.int64)
         tb = self.tables
-        trace_batch(
+        out, n_out = trace_batch(
             np.ascontiguousarray(rays), out_rgb, counters, self.max_depth, self.t_eps,
             self.ambient, self.background, self.brute, tb.materials, self.transmit, tb.lights,
             tb.gid, tb.mat, tb.offsets, tb.spheres, tb.triangles, tb.tri_normals, tb.polygons,
             tb.poly_info, tb.poly_uv, tb.cones, *self.grid.kernel_args(),
+            # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
+            # more arrays early in the list (code layout), so keep the hot ones first
+            self.scene_lo, self.scene_hi, out,
         )  # fmt: skip
-        return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=False))
+        passed = None if out is None else out[:n_out].copy()
+        return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=True)), passed

@@ -12,17 +12,20 @@ import numpy as np
 
 from meshnode.engine.jit import kernel
 from meshnode.engine.shade import normals, phong, refract
-from meshnode.engine.traverse import brute_force, test_object, walk
+from meshnode.engine.traverse import box_span, brute_force, test_object, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 # Indices of the counters array every kernel call adds to.
 EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
-TESTS, STEPS, SEGMENTS, ESCAPED = 6, 7, 8, 9
-N_COUNTERS = 10
+TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED = range(6, 13)
+N_COUNTERS = 13
 COUNTER_NAMES = (
     "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
     "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
+    "hits", "shadow_rays_lit", "rays_forwarded",
 )  # fmt: skip
+# Every ray ends exactly once: created = eye + reflected + refracted + shadow rays, ended =
+# hits + escaped + shadow rays blocked + shadow rays lit; forwarded rays end on another node.
 
 
 @kernel
@@ -53,14 +56,38 @@ def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinf
 
 
 @kernel
+def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, origin, depth,
+              kind, light):  # fmt: skip
+    """Write a ray that continues on another node at slot n, growing `out` when full."""
+    if n == out.shape[0]:
+        grown = np.empty(2 * out.shape[0] + 16, out.dtype)
+        grown[:n] = out[:n]
+        out = grown
+    q = out[n]
+    q.o[0], q.o[1], q.o[2] = ox, oy, oz
+    q.d[0], q.d[1], q.d[2] = dx, dy, dz
+    q.w[0], q.w[1], q.w[2] = wr, wg, wb
+    q.t_min, q.t_max = t_min, t_max
+    q.pixel, q.origin, q.depth, q.kind, q.light = pixel, origin, depth, kind, light
+    return out
+
+
+@kernel
 def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, brute,
                 materials, transmit, lights, gid, mat, off,
                 sph, tri, tri_n, poly, pinfo, puv, cone,
                 glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-                macro, mres, mshift):  # fmt: skip
+                macro, mres, mshift, scene_lo, scene_hi, out):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
-    `lights` None compiles out shadow rays, `transmit` None compiles out refraction."""
+    `lights` None compiles out shadow rays, `transmit` None compiles out refraction.
+
+    On a mesh node `out` is a RAY array: a segment that is not in this node's box (the grid's)
+    where it starts, or leaves it before ending, is written there with t_min where to resume
+    (origin and direction unchanged, so every node computes the same t), and the grown array
+    and the count written are returned. A hit beyond the box is not trusted (an object held
+    elsewhere may come first); a shadow ray blocked by any object it meets is blocked.
+    With `out` None (one node, box = scene) this code is compiled out."""
     n_lights = 0 if lights is None else lights.shape[0]
     cap = int(max_depth) * (n_lights + 2) + 4
     so = np.empty((cap, 3))
@@ -75,6 +102,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
     ibits = fbits.view(np.int64)
     ray_id = 0
     amb = ambient
+    buf = out  # `out` itself must stay unassigned for numba to prune on `out is None`
+    n_out = 0
+    ghi0 = glo[0] + cell[0] * res[0]
+    ghi1 = glo[1] + cell[1] * res[1]
+    ghi2 = glo[2] + cell[2] * res[2]
     for i in range(rays.shape[0]):
         r = rays[i]
         so[0, 0], so[0, 1], so[0, 2] = r.o[0], r.o[1], r.o[2]
@@ -96,6 +128,25 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
             shadow = kind == SHADOW
             ray_id += 1
             counters[SEGMENTS] += 1
+            if out is not None:
+                irx = 1.0 / dx if dx != 0.0 else math.inf
+                iry = 1.0 / dy if dy != 0.0 else math.inf
+                irz = 1.0 / dz if dz != 0.0 else math.inf
+                s0, s1 = box_span(ox, oy, oz, irx, iry, irz, t_lo, t_hi, scene_lo[0],
+                                  scene_lo[1], scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])
+                n0, n1 = box_span(ox, oy, oz, irx, iry, irz, t_lo, t_hi, glo[0], glo[1], glo[2],
+                                  ghi0, ghi1, ghi2)  # fmt: skip
+                resume = -1.0
+                if s0 > s1:
+                    n1 = math.inf  # the segment misses the scene: it ends here, below
+                elif n0 > n1 or n0 > s0:
+                    resume = s0  # not in this box where it starts
+                if resume >= 0.0:
+                    buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, resume, t_hi,
+                                    r.pixel, origin, depth, kind, light)  # fmt: skip
+                    n_out += 1
+                    counters[FORWARDED] += 1
+                    continue
             if shadow and not brute and blocker[light] >= 0:
                 counters[TESTS] += 1
                 t = test_object(blocker[light], ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin,
@@ -112,12 +163,23 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                             gid, off, sph, tri, poly, pinfo, puv, cone,
                             glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits,
                             refs, macro, mres, mshift)  # fmt: skip
+            if out is not None:
+                if u >= 0 and not shadow and t > n1:
+                    u = -1  # a hit beyond this box: another node may hold a nearer object
+                if u < 0 and n1 < s1:
+                    # Leaves this box inside the scene: continue on the node owning the exit.
+                    buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, n1, t_hi,
+                                    r.pixel, origin, depth, kind, light)  # fmt: skip
+                    n_out += 1
+                    counters[FORWARDED] += 1
+                    continue
             if shadow:
                 # The light is reached unless something lies in between.
                 if u >= 0:
                     counters[SHADOW_BLOCKED] += 1
                     blocker[light] = u
                 else:
+                    counters[SHADOW_LIT] += 1
                     cr += wr
                     cg += wg
                     cb += wb
@@ -128,6 +190,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 cg += wg * background[1]
                 cb += wb * background[2]
                 continue
+            counters[HITS] += 1
             if kind == EYE:
                 counters[EYE_HITS] += 1
             px = ox + t * dx
@@ -206,3 +269,28 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
         out_rgb[i, 0] += cr
         out_rgb[i, 1] += cg
         out_rgb[i, 2] += cb
+    return buf, n_out
+
+
+@kernel
+def owners(rays, los, his):
+    """Index of the box that takes each ray on from its t_min: it must hold the point at t_min
+    and let the ray advance (exit beyond t_min); among those the one the ray crosses farthest,
+    so overlapping boxes mean fewer hops. -1 where no box does."""
+    n = rays.shape[0]
+    out = np.full(n, -1, np.int64)
+    for i in range(n):
+        r = rays[i]
+        ox, oy, oz = r.o[0], r.o[1], r.o[2]
+        irx = 1.0 / r.d[0] if r.d[0] != 0.0 else math.inf
+        iry = 1.0 / r.d[1] if r.d[1] != 0.0 else math.inf
+        irz = 1.0 / r.d[2] if r.d[2] != 0.0 else math.inf
+        t = r.t_min
+        best_exit = t
+        for b in range(los.shape[0]):
+            b0, b1 = box_span(ox, oy, oz, irx, iry, irz, t, r.t_max, los[b, 0], los[b, 1],
+                              los[b, 2], his[b, 0], his[b, 1], his[b, 2])  # fmt: skip
+            if b0 <= t and b1 > best_exit:
+                best_exit = b1
+                out[i] = b
+    return out

@@ -1,0 +1,130 @@
+"""Cutting the work over a rows x cols mesh: image rectangles, one box of object space per
+node, and which objects each node holds (DESIGN.md 5).
+
+Boxes: the two world axes most perpendicular to the view are cut where test rays through the
+rectangle boundaries meet the near face of the scene box, so a rectangle's primary rays enter
+its node's box; outer boxes reach the scene bounds; every box then grows by the overlap
+percentage of its own size. Correctness never depends on the cut: a ray is always handed to a
+box that holds it (see `meshnode.engine.trace.owners`); the cut only decides how often.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from meshnode.engine.camera import view_basis
+from meshnode.engine.grid import grow_box
+from meshnode.engine.tables import build_tables
+from protocols.scene import SceneData, View
+
+
+def splits(n: int, parts: int) -> list[int]:
+    """Boundaries of `parts` near-equal ranges of range(n)."""
+    return [round(i * n / parts) for i in range(parts + 1)]
+
+
+def rectangles(width: int, height: int, rows: int, cols: int) -> list[tuple[int, int, int, int]]:
+    """(x0, x1, y0, y1) of each node's part of a width x height sample grid, node = r*cols+c."""
+    if rows > height or cols > width:
+        raise ValueError(f"a {rows}x{cols} mesh needs at least {cols}x{rows} samples")
+    xs, ys = splits(width, cols), splits(height, rows)
+    return [(xs[c], xs[c + 1], ys[r], ys[r + 1]) for r in range(rows) for c in range(cols)]
+
+
+def scene_box(scene: SceneData) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of every object, padded as the grid pads them."""
+    tb = build_tables(scene)
+    if not tb.n:
+        return np.zeros(3), np.ones(3)
+    return grow_box(tb.lo.min(axis=0), tb.hi.max(axis=0))
+
+
+def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis):
+    """Cut positions on world axis `along` for the sample-grid boundaries on `image_axis`."""
+    eye, fwd, right, up, step = view_basis(view, width, height)
+    depth = int(np.argmax(np.abs(fwd)))
+    face = lo[depth] if fwd[depth] > 0 else hi[depth]  # the near face
+    cuts = []
+    for b in bounds[1:-1]:
+        # A ray through the boundary on the image's centre line.
+        px = (b - 0.5 * width) * step if image_axis == 0 else 0.0
+        py = (0.5 * height - b) * step if image_axis == 1 else 0.0
+        d = fwd + px * right + py * up
+        if abs(d[depth]) < 1e-12:
+            cuts.append(None)
+            continue
+        t = (face - eye[depth]) / d[depth]
+        cuts.append(float(eye[along] + t * d[along]))
+    if any(c is None for c in cuts) or len(set(np.sign(np.diff(cuts)))) > 1:
+        # Degenerate view: fall back to equal slices.
+        cuts = list(lo[along] + (hi[along] - lo[along]) * np.arange(1, n_parts) / n_parts)
+    cuts = np.clip(cuts, lo[along], hi[along])
+    return np.concatenate([[lo[along]], cuts, [hi[along]]])
+
+
+def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
+               overlap: float = 1.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(los, his), each (rows*cols, 3): node r*cols+c's box of object space."""
+    if overlap < 0:
+        raise ValueError("overlap must not be negative")
+    lo, hi = (np.asarray(b, float) for b in box)
+    eye, fwd, right, up, _ = view_basis(scene.view, width, height)
+    depth = int(np.argmax(np.abs(fwd)))
+    others = [a for a in range(3) if a != depth]
+    # The image's columns follow the world axis closest to `right`, rows the other one.
+    col_axis = max(others, key=lambda a: abs(right[a]))
+    row_axis = [a for a in others if a != col_axis][0]
+    xcuts = _cuts(scene.view, width, height, splits(width, cols), lo, hi, cols, col_axis, 0)
+    ycuts = _cuts(scene.view, width, height, splits(height, rows), lo, hi, rows, row_axis, 1)
+    los = np.tile(lo, (rows * cols, 1))
+    his = np.tile(hi, (rows * cols, 1))
+    for r in range(rows):
+        for c in range(cols):
+            n = r * cols + c
+            xa, xb = sorted((xcuts[c], xcuts[c + 1]))
+            ya, yb = sorted((ycuts[r], ycuts[r + 1]))
+            los[n, col_axis], his[n, col_axis] = xa, xb
+            los[n, row_axis], his[n, row_axis] = ya, yb
+    grow = (his - los) * (overlap / 100.0)
+    return los - grow, his + grow
+
+
+def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
+    """(boxes, objects) bool: which boxes each object touches, objects in the engine's local
+    order (spheres, triangles, polygons, cones). Bounds must overlap; spheres must also reach
+    the box; planar objects' planes must cross it (conservative: a node may hold an object it
+    never meets, never miss one it does)."""
+    tb = build_tables(scene)
+    touch = (tb.lo[None] <= his[:, None]) & (tb.hi[None] >= los[:, None])
+    touch = touch.all(axis=2)
+    centre, half = (los + his) / 2, (his - los) / 2
+    if tb.spheres is not None:
+        s = tb.spheres
+        gap = np.maximum(np.abs(s[None, :, :3] - centre[:, None]) - half[:, None], 0.0)
+        reach = (gap**2).sum(axis=2) <= (s[None, :, 3] * (1 + 1e-9)) ** 2
+        touch[:, : len(s)] &= reach
+    for table, first, n_col in ((tb.triangles, tb.offsets[1], 9), (tb.polygons, tb.offsets[2], 3)):
+        if table is None:
+            continue
+        p0, n = table[:, :3], table[:, n_col : n_col + 3]
+        dist = np.abs(((centre[:, None] - p0[None]) * n[None]).sum(axis=2))
+        reach = (np.abs(n)[None] * half[:, None]).sum(axis=2)
+        touch[:, first : first + len(table)] &= dist <= reach * (1 + 1e-9) + 1e-12
+    return touch
+
+
+def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
+    """The scene restricted to objects `keep` (engine local order), gids and materials kept."""
+    counts = [len(scene.spheres), len(scene.triangles), len(scene.polygons), len(scene.cones)]
+    parts = np.split(keep, np.cumsum(counts)[:-1])
+    polys = scene.polygons[parts[2]].copy()
+    count = polys["count"].astype(np.int64)
+    new_start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    # Vertex rows of the kept polygons, in order: start + 0 .. count - 1 for each.
+    rows = np.repeat(polys["start"] - new_start, count) + np.arange(count.sum())
+    polys["start"] = new_start
+    return replace(
+        scene, spheres=scene.spheres[parts[0]], triangles=scene.triangles[parts[1]],
+        polygons=polys, vertices=scene.vertices[rows].reshape(-1, 3),
+        cones=scene.cones[parts[3]],
+    )  # fmt: skip

@@ -1,0 +1,62 @@
+"""What one mesh node does with rays, without any sockets: the service wraps this.
+
+A node holds the objects touching its box and every node's box. It makes the primary rays of
+its rectangle, traces batches (incoming rays first), turns colour into deposits for the pixel
+packets, and sorts the rays that leave its box by the node that takes them on.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshnode.engine import Engine
+from meshnode.engine.camera import eye_rays
+from meshnode.engine.trace import owners
+from protocols.dtypes import DEPOSIT, RAY
+from protocols.scene import SceneData
+
+
+@dataclass
+class Batch:
+    """The outcome of tracing one batch on one node."""
+
+    deposits: np.ndarray  # DEPOSIT records, one per traced ray that left colour
+    outgoing: dict[int, np.ndarray]  # node -> RAY records it takes on
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+class NodeCore:
+    """One node's engine and routing. `los`/`his` are every node's box, `node` indexes them."""
+
+    def __init__(self, node: int, scene: SceneData, los, his, scene_box, *, density=1.0,
+                 storage="auto", max_depth=5):  # fmt: skip
+        self.node = node
+        self.los, self.his = np.asarray(los, float), np.asarray(his, float)
+        self.engine = Engine(scene, box=(self.los[node], self.his[node]), scene_box=scene_box,
+                             density=density, storage=storage, max_depth=max_depth)  # fmt: skip
+
+    def primary(self, view, width, height, corners, spp, seed, rect) -> np.ndarray:
+        """Eye rays of this node's rectangle (x0, x1, y0, y1) of the sample grid."""
+        x0, x1, y0, y1 = rect
+        return eye_rays(view, width, height, corners, spp, seed, rows=(y0, y1), cols=(x0, x1))
+
+    def trace(self, rays: np.ndarray) -> Batch:
+        rgb, counts, passed = self.engine.trace_node(rays)
+        lit = np.any(rgb != 0.0, axis=1)
+        deposits = np.zeros(int(lit.sum()), DEPOSIT)
+        deposits["pixel"] = rays["pixel"][lit]
+        deposits["rgb"] = rgb[lit]
+        return Batch(deposits, self.route(passed), counts)
+
+    def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
+        """Rays grouped by the node that takes them on (one sort, no loop per ray)."""
+        if len(rays) == 0:
+            return {}
+        dest = owners(rays, self.los, self.his)
+        if (dest < 0).any():
+            raise RuntimeError(f"node {self.node}: {int((dest < 0).sum())} rays have no owner box")
+        order = np.argsort(dest, kind="stable")
+        nodes, starts = np.unique(dest[order], return_index=True)
+        groups = np.split(rays[order], starts[1:])
+        pairs = zip(nodes.tolist(), groups, strict=True)
+        return {n: np.ascontiguousarray(g, dtype=RAY) for n, g in pairs}

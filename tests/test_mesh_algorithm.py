@@ -1,0 +1,107 @@
+"""The mesh algorithm without sockets: any mesh shape and overlap gives the single-node image
+and exactly the single-node ray counts; every ray ends once; delays change nothing."""
+
+import numpy as np
+import pytest
+
+from host.nff import read_nff
+from host.partition import holders, node_boxes, rectangles, scene_box, subset
+from host.render import RenderSettings, render
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_grid import random_scene
+
+SPD_COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+              "shadow_rays_blocked")  # fmt: skip
+SIZE = 36
+
+
+def single(scene):
+    img, stats = render(scene, RenderSettings(width=SIZE, height=SIZE, progress=False, threads=1))
+    return img, {k: stats["rays"][k] for k in SPD_COUNTS}
+
+
+def check_mesh(scene, shapes, overlaps):
+    ref_img, ref_counts = single(scene)
+    for rows, cols in shapes:
+        for overlap in overlaps:
+            img, totals, per_node, _ = render_mesh(scene, rows, cols, overlap, SIZE, SIZE)
+            assert {k: totals[k] for k in SPD_COUNTS} == ref_counts, (rows, cols, overlap)
+            np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-5)
+            # Conservation: every ray created ends exactly once, every pass is received once.
+            created = sum(totals[k] for k in ("eye_rays", "reflected_rays", "refracted_rays",
+                                              "shadow_rays"))  # fmt: skip
+            ended = sum(totals[k] for k in ("hits", "escaped", "shadow_rays_blocked",
+                                            "shadow_rays_lit"))  # fmt: skip
+            assert created == ended
+            assert sum(p["sent"] for p in per_node) == sum(p["received"] for p in per_node)
+            assert totals["rays_forwarded"] == sum(p["sent"] for p in per_node)
+
+
+SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
+
+
+@pytest.mark.parametrize(
+    "name", ["balls_s1.nff", "balls_s2.nff", "tetra_s3.nff", "mount_s1.nff", "gears_s1.nff",
+             "rings_s1.nff", "teapot_s1.nff", "tree_s1.nff", "jacks.nff"],
+)  # fmt: skip
+def test_spd_scene_on_every_mesh_equals_single_node(name):
+    check_mesh(read_nff(spd_scene(name)), SHAPES, (1, 24, 100))
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_random_scene_on_every_mesh_equals_single_node(seed):
+    from protocols import dtypes
+    from protocols.scene import View
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n=24)
+    scene.materials = np.zeros(2, dtypes.MATERIAL)
+    scene.materials[0] = ((0.8, 0.6, 0.4), 0.7, 0.3, 20.0, 0.0, 1.0)
+    scene.materials[1] = ((1.0, 1.0, 1.0), 0.1, 0.1, 50.0, 0.8, 1.5)
+    for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
+        table["mat"] = rng.integers(0, 2, len(table))
+    scene.lights = np.zeros(2, dtypes.LIGHT)
+    scene.lights["pos"] = [(10, 10, -10), (-10, 5, -8)]
+    scene.lights["rgb"] = 1.0
+    scene.view = View(eye=(0, 0, -15), at=(0, 0, 0), up=(0, 1, 0), angle=50.0)
+    check_mesh(scene, SHAPES, (1, 24, 100))
+
+
+def test_delayed_link_still_gives_the_whole_image():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    ref_img, ref_counts = single(scene)
+    for delay in ((0, 1, 5), (1, 0, 7), (3, 2, 9)):
+        img, totals, _, rounds = render_mesh(scene, 2, 2, 1, SIZE, SIZE, delay=delay, batch=64)
+        assert {k: totals[k] for k in SPD_COUNTS} == ref_counts
+        np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-5)
+
+
+def test_spd_corner_sampling_on_a_mesh():
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    one, t1, _, _ = render_mesh(scene, 1, 1, 1, 24, 24, corners=True)
+    img, t3, _, _ = render_mesh(scene, 3, 3, 24, 24, 24, corners=True)
+    assert {k: t3[k] for k in SPD_COUNTS} == {k: t1[k] for k in SPD_COUNTS}
+    assert t1["eye_rays"] == 25 * 25
+    np.testing.assert_allclose(img, one, rtol=0, atol=1e-5)
+
+
+def test_partition_covers_the_scene_and_rectangles_tile_the_image():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    box = scene_box(scene)
+    for rows, cols in SHAPES + [(1, 1), (2, 4)]:
+        rects = rectangles(64, 48, rows, cols)
+        cover = np.zeros((48, 64), int)
+        for x0, x1, y0, y1 in rects:
+            cover[y0:y1, x0:x1] += 1
+        assert (cover == 1).all()
+        los, his = node_boxes(scene, box, 64, 48, rows, cols, overlap=1)
+        # Random points of the scene box each lie in some node box.
+        pts = np.random.default_rng(0).uniform(box[0], box[1], (2000, 3))
+        inside = ((pts[:, None] >= los[None]) & (pts[:, None] <= his[None])).all(axis=2)
+        assert inside.any(axis=1).all()
+        # Every object goes to at least one node, and to every node whose box its centre is in.
+        keep = holders(scene, los, his)
+        assert keep.any(axis=0).all()
+        sub = subset(scene, keep[0])
+        assert len(sub.spheres) == int(keep[0, : len(scene.spheres)].sum())

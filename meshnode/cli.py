@@ -40,9 +40,44 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("warmup", help="compile the tracing kernels into the disk cache")
+    s = sub.add_parser("serve", help="serve as a mesh node")
+    s.add_argument("--listen", default="0.0.0.0:7700", help="HOST:PORT (port 0: any free)")
+    s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
+    s.add_argument("--once", action="store_true", help="exit after one render")
     args = p.parse_args(argv)
     if args.command == "warmup":
         print(f"kernels ready in {warmup():.2f} s", file=sys.stderr)
+    elif args.command == "serve":
+        return serve(args.listen, args.cluster, args.once)
+    return 0
+
+
+def serve(listen: str, cluster: str, once: bool) -> int:
+    """Run the node service (uvloop when installed) until stopped."""
+    import asyncio
+    import logging
+
+    from meshnode.service import NodeService
+
+    logging.basicConfig(level=logging.INFO, format="meshnode %(levelname)s %(message)s")
+    host, port = listen.rsplit(":", 1)
+
+    async def main():
+        service = NodeService(host, int(port), cluster, once)
+        bound = await service.start()
+        print(f"listening {host}:{bound}", flush=True)
+        await service.run()
+
+    try:
+        import uvloop
+
+        runner = uvloop.run
+    except ImportError:
+        runner = asyncio.run
+    try:
+        runner(main())
+    except KeyboardInterrupt:
+        return 130
     return 0
 
 

@@ -34,10 +34,10 @@ FIELDS = {
     Kind.CONFIG: {"rows": int, "cols": int, "node": int, "neighbours": dict, "box": list,
                   "scene_box": list, "settings": dict},  # fmt: skip
     Kind.OBJECTS: {"table": str, "records": None, "last": bool},
-    Kind.RAYS: {"rays": dtypes.RAY, "hops": int},
+    Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT},
     Kind.STATE: {"state": int, "last_busy": int, "round": int, "sent": np.dtype("<i8"),
-                 "received": np.dtype("<i8")},  # fmt: skip
+                 "received": np.dtype("<i8"), "dest": int},  # fmt: skip
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},

@@ -115,3 +115,11 @@ def test_first_hits_rejects_bad_rays():
         e.first_hits([[0, 0, 0]], [[0, 0, 0]])
     with pytest.raises(ValueError):
         e.first_hits([[0, 0, 0], [1, 1, 1]], [[0, 0, 1]])
+
+
+def test_an_empty_node_misses_everything():
+    # A mesh node whose box holds no object still traces (and passes) rays.
+    scene = make_scene(spheres=[((0, 0, 0), 1.0, 0)])
+    scene.spheres = scene.spheres[:0]
+    t, g = hits(scene, [0, 0, -5], [0, 0, 1])
+    assert g[0] == -1 and math.isinf(t[0])

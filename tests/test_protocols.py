@@ -25,7 +25,7 @@ def ray_batch(n):
 
 def test_frames_survive_every_split_point():
     rays = ray_batch(5)
-    msgs = [make(Kind.RAYS, rays=rays, hops=2), make(Kind.SHUTDOWN),
+    msgs = [make(Kind.RAYS, rays=rays, dest=2), make(Kind.SHUTDOWN),
             make(Kind.ERROR, reason="x" * 300)]  # fmt: skip
     stream = b"".join(encode(m) for m in msgs)
     for cut in range(len(stream) + 1):
@@ -46,7 +46,7 @@ def test_oversized_frame_is_refused_before_buffering():
     with pytest.raises(FrameTooLarge):
         dec.feed((10**6).to_bytes(4, "big") + b"\0" * 10)
     with pytest.raises(FrameTooLarge):
-        encode(make(Kind.RAYS, rays=ray_batch(100), hops=0), max_frame=1000)
+        encode(make(Kind.RAYS, rays=ray_batch(100), dest=0), max_frame=1000)
 
 
 @pytest.mark.parametrize(
@@ -69,9 +69,9 @@ def test_array_with_wrong_length_is_refused():
 
 def test_message_fields_are_checked():
     with pytest.raises(TypeError):
-        make(Kind.RAYS, rays=ray_batch(1))  # missing hops
+        make(Kind.RAYS, rays=ray_batch(1))  # missing dest
     with pytest.raises(BadFrame):
-        make(Kind.RAYS, rays=np.zeros(2, dtypes.DEPOSIT), hops=0)
+        make(Kind.RAYS, rays=np.zeros(2, dtypes.DEPOSIT), dest=0)
     with pytest.raises(UnknownKind):
         parse({"k": 99})
     with pytest.raises(BadFrame):

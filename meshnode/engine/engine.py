@@ -118,7 +118,8 @@ class Engine:
         counters = np.zeros(N_COUNTERS, np.int64)
         t, u = first_hits(o, d, float(t_min), self.brute, counters, *self._geometry(),
                           *self.grid.kernel_args())  # fmt: skip
-        gid = np.where(u >= 0, self.tables.gid[np.maximum(u, 0)], -1)
+        gid = np.full(len(u), -1, np.int64)
+        gid[u >= 0] = self.tables.gid[u[u >= 0]]
         return t, gid
 
     def trace(self, rays: np.ndarray, out_rgb: np.ndarray | None = None):

@@ -1,0 +1,134 @@
+"""The host's side of a mesh render: partition, configuration, object download, pixel
+collection and statistics, over one link per node (DESIGN.md 5).
+
+The host talks to every node directly for control; rays and pixel packets use the torus. A
+node that fails, or whose link breaks, stops the render with an error naming it.
+"""
+
+import asyncio
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+from host.framebuffer import Framebuffer
+from host.partition import holders, node_boxes, rectangles, scene_box, subset
+from meshnode.link import Link, LinkClosed
+from protocols.handshake import check_hello, hello
+from protocols.messages import Kind, make
+from protocols.scene import SceneData
+from protocols.topology import Torus
+
+OBJECT_BATCH = 20000  # records per OBJECTS message
+
+
+class MeshError(RuntimeError):
+    """The render failed on the mesh; the message names the node."""
+
+
+def _settings(scene, rs, width, height, rects, los, his) -> dict:
+    return {
+        "view": asdict(scene.view), "background": list(scene.background),
+        "width": width, "height": height, "corners": rs.spd, "spp": 1 if rs.spd else rs.spp,
+        "seed": rs.seed, "depth": rs.depth, "density": rs.density, "storage": rs.storage,
+        "rects": [list(r) for r in rects], "los": los.tolist(), "his": his.tolist(),
+    }  # fmt: skip
+
+
+async def _download(link: Link, scene: SceneData) -> None:
+    """The node's objects, table by table, in bounded messages."""
+    tables = [("materials", scene.materials), ("lights", scene.lights),
+              ("spheres", scene.spheres), ("triangles", scene.triangles),
+              ("polygons", scene.polygons), ("vertices", scene.vertices.reshape(-1)),
+              ("cones", scene.cones)]  # fmt: skip
+    parts = [(n, t[i : i + OBJECT_BATCH])
+             for n, t in tables for i in range(0, len(t), OBJECT_BATCH)]  # fmt: skip
+    parts = parts or [("materials", scene.materials)]
+    for i, (name, records) in enumerate(parts):
+        last = i == len(parts) - 1
+        await link.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(records),
+                             last=last))  # fmt: skip
+
+
+async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
+                         overlap: float = 1.0, cluster: str = "meshtrace",
+                         progress=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+    """Render on running nodes (address i is node i); returns (image, statistics)."""
+    torus = Torus(rows, cols)
+    if len(addresses) != torus.size:
+        raise ValueError(f"a {rows}x{cols} mesh needs {torus.size} node addresses")
+    width, height = rs.size(scene)
+    gw, gh = (width + 1, height + 1) if rs.spd else (width, height)
+    start = time.perf_counter()
+    box = scene_box(scene)
+    los, his = node_boxes(scene, box, width, height, rows, cols, overlap)
+    keep = holders(scene, los, his)
+    rects = rectangles(gw, gh, rows, cols)
+    settings = _settings(scene, rs, width, height, rects, los, his)
+    links = []
+    for n, address in enumerate(addresses):
+        link = await Link.connect(address, f"node {n} ({address})")
+        await link.send(hello(cluster, "host"))
+        check_hello(await link.recv_raw(), cluster)
+        links.append(link)
+    neighbours = {str(n): a for n, a in enumerate(addresses)}
+    for n, link in enumerate(links):
+        await link.send(make(Kind.CONFIG, rows=rows, cols=cols, node=n, neighbours=neighbours,
+                             box=[*los[n], *his[n]], scene_box=[*box[0], *box[1]],
+                             settings=settings))  # fmt: skip
+        await _download(link, subset(scene, keep[n]))
+    setup = time.perf_counter() - start
+    fb = Framebuffer(width, height, rs.spd, rs.spp)
+    stats: dict[int, dict] = {}
+    deposits = 0
+
+    async def collect(n: int, link: Link):
+        nonlocal deposits
+        while n not in stats:
+            try:
+                kind, f = await link.recv()
+            except LinkClosed as e:
+                raise MeshError(f"node {n} ({addresses[n]}): {e.reason}") from e
+            if kind is Kind.PIXELS:
+                d = f["deposits"]
+                fb.add(d["pixel"], d["rgb"])
+                deposits += len(d)
+                if progress:
+                    progress(len(d))
+            elif kind is Kind.STATS:
+                stats[n] = f["stats"]
+            elif kind is Kind.ERROR:
+                raise MeshError(f"node {n} ({addresses[n]}) failed: {f['reason']}")
+
+    try:
+        await asyncio.gather(*(collect(n, link) for n, link in enumerate(links)))
+    finally:
+        for link in links:
+            try:
+                await link.send(make(Kind.SHUTDOWN))
+            except LinkClosed:
+                pass
+            await link.close()
+    wall = time.perf_counter() - start
+    return fb.image(), _summary(stats, torus, keep, deposits, setup, wall)
+
+
+def _summary(stats, torus, keep, deposits, setup, wall) -> dict:
+    nodes = [stats[n] for n in range(torus.size)]
+    totals: dict[str, int] = {}
+    for s in nodes:
+        for k, v in s["rays"].items():
+            totals[k] = totals.get(k, 0) + v
+    busy = [s["busy_seconds"] for s in nodes]
+    return {
+        "mesh": {"rows": torus.rows, "cols": torus.cols},
+        "rays": totals,
+        "deposits_received": deposits,
+        "rays_passed": sum(s["rays_sent"] for s in nodes),
+        "setup_seconds": setup,
+        "wall_seconds": wall,
+        "busiest_node_seconds": max(busy),
+        "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,
+        "objects_per_node": keep.sum(axis=1).tolist(),
+        "nodes": nodes,
+    }

@@ -1,0 +1,385 @@
+"""`meshnode serve`: the node's asyncio service (DESIGN.md 5).
+
+Accepts the host and its torus neighbours on one port. For each render: the host sends CONFIG
+and the node's objects; the node builds its NodeCore, links to its neighbours and joins the
+state packet's ring. Kernels run on a thread (they release the GIL) so links keep flowing.
+Every send goes through a per-link outbox served by its own task, so a reader never blocks on
+a full link; new primary rays are generated only while incoming rays are done and outboxes are
+below their high-water mark, which bounds the rays in flight (and so the memory).
+"""
+
+import asyncio
+import logging
+import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from meshnode.link import Link, LinkClosed
+from meshnode.node import NodeCore
+from meshnode.termination import Packet, State, Termination
+from protocols.handshake import check_hello, hello
+from protocols.messages import OBJECT_TABLES, Kind, make
+from protocols.scene import SceneData, View
+from protocols.topology import Router, Torus
+
+log = logging.getLogger("meshnode")
+OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
+DEPOSIT_BATCH = 32768  # deposits per pixel packet
+RAY_BATCH = 4096  # primary rays per traced batch
+
+
+class Outbox:
+    """Messages waiting for one link, sent in order by one task."""
+
+    def __init__(self, link: Link, on_error):
+        self.link, self.queue, self.bytes = link, deque(), 0
+        self.ready = asyncio.Event()
+        self.task = asyncio.create_task(self._run(on_error))
+
+    def post(self, message: dict, size: int = 0) -> None:
+        self.queue.append((message, size))
+        self.bytes += size
+        self.ready.set()
+
+    async def _run(self, on_error):
+        try:
+            while True:
+                await self.ready.wait()
+                self.ready.clear()
+                while self.queue:
+                    message, size = self.queue.popleft()
+                    await self.link.send(message)
+                    self.bytes -= size
+        except LinkClosed as e:
+            on_error(e)
+
+
+class Session:
+    """One render on this node, from CONFIG to DONE."""
+
+    def __init__(self, service: "NodeService", host: Link, config: dict):
+        self.service, self.host = service, host
+        self.node = config["node"]
+        self.torus = Torus(config["rows"], config["cols"])
+        self.router = Router(self.torus, self.node)
+        self.config = config
+        self.settings = config["settings"]
+        self.tables: dict[str, list] = {}
+        self.term = Termination(self.node)
+        self.state = State.DOWNLOAD
+        self.core: NodeCore | None = None
+        self.outboxes: dict[int, Outbox] = {}
+        self.host_out = Outbox(host, self.fail)
+        self.incoming: deque = deque()
+        self.primaries: deque = deque()
+        self.deposits: list = []
+        self.packet: Packet | None = None
+        self.wake = asyncio.Event()
+        self.error: Exception | None = None
+        self.counts: dict[str, int] = {}
+        self.rays_in: dict[int, int] = {}
+        self.rays_out: dict[int, int] = {}
+        self.pixel_packets = 0
+        self.busy = 0.0
+        self.started = time.perf_counter()
+        self.tasks: list[asyncio.Task] = []
+        self.done_passed = False
+        self.view: View | None = None
+
+    # ------------------------------------------------------------------ setup
+    def add_objects(self, table: str, records: np.ndarray) -> None:
+        self.tables.setdefault(table, []).append(np.array(records))
+
+    def scene(self) -> SceneData:
+        def table(name):
+            parts = self.tables.get(name)
+            dtype = OBJECT_TABLES[name]
+            return np.concatenate(parts) if parts else np.zeros(0, dtype)
+
+        s = self.settings
+        view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in s["view"].items()})
+        return SceneData(
+            view=view, background=tuple(s["background"]), lights=table("lights"),
+            materials=table("materials"), spheres=table("spheres"),
+            triangles=table("triangles"), polygons=table("polygons"),
+            vertices=table("vertices").reshape(-1, 3), cones=table("cones"),
+        )  # fmt: skip
+
+    async def build(self) -> None:
+        """Build the engine off the loop, then link to the neighbours."""
+        s = self.settings
+        scene = self.scene()
+        self.view = scene.view
+        los, his = np.array(s["los"]), np.array(s["his"])
+        box = (np.array(self.config["scene_box"][:3]), np.array(self.config["scene_box"][3:]))
+        self.core = await asyncio.get_running_loop().run_in_executor(
+            self.service.pool,
+            lambda: NodeCore(self.node, scene, los, his, box, density=s["density"],
+                             storage=s["storage"], max_depth=s["depth"]),  # fmt: skip
+        )
+        await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.engine.warmup)
+        for m in self.torus.links(self.node):
+            if self.node < m:  # the lower index dials, the higher accepts
+                link = await Link.connect(self.config["neighbours"][str(m)], f"node {m}")
+                await link.send(hello(self.service.cluster, "node", self.node))
+                check_hello((await link.recv_raw()), self.service.cluster)
+                self.attach(m, link)
+        await self.service.wait_links(self)
+        if self.node == 0:
+            self.packet = Packet.start(self.torus.size)
+        self.tasks.append(asyncio.create_task(self.work()))
+        self.wake.set()
+
+    def attach(self, m: int, link: Link) -> None:
+        self.outboxes[m] = Outbox(link, self.fail)
+        self.tasks.append(asyncio.create_task(self.read(m, link)))
+
+    # ------------------------------------------------------------------ messages
+    def fail(self, error: Exception) -> None:
+        if self.error is None:
+            self.error = error
+            log.error("node %d: %s", self.node, error)
+            self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {error}"))
+            self.wake.set()
+
+    def post_data(self, dest: int, kind: Kind, records: np.ndarray) -> None:
+        """A RAYS or PIXELS message toward `dest` (PIXELS: toward node 0), counted as sent."""
+        hop = self.router.next_hop(dest)
+        if kind is Kind.RAYS:
+            message = make(Kind.RAYS, rays=records, dest=dest)
+            self.rays_out[hop] = self.rays_out.get(hop, 0) + len(records)
+        else:
+            message = make(Kind.PIXELS, deposits=records)
+        self.term.on_sent()
+        self.outboxes[hop].post(message, records.nbytes)
+
+    def send_pixels(self, deposits: np.ndarray) -> None:
+        self.pixel_packets += 1
+        if self.node == 0:
+            self.host_out.post(make(Kind.PIXELS, deposits=deposits), deposits.nbytes)
+        else:
+            self.post_data(0, Kind.PIXELS, deposits)
+
+    async def read(self, m: int, link: Link) -> None:
+        try:
+            while True:
+                kind, f = await link.recv()
+                if kind is Kind.RAYS:
+                    self.term.on_received()
+                    self.rays_in[m] = self.rays_in.get(m, 0) + len(f["rays"])
+                    if f["dest"] == self.node:
+                        self.incoming.append(np.array(f["rays"]))
+                    else:
+                        self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+                elif kind is Kind.PIXELS:
+                    self.term.on_received()
+                    self.send_pixels(np.array(f["deposits"]))
+                elif kind is Kind.STATE:
+                    if f["dest"] == self.node:
+                        sent, received = np.array(f["sent"]), np.array(f["received"])
+                        self.packet = Packet(f["state"], f["last_busy"], f["round"], sent, received)
+                    else:
+                        self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
+                else:
+                    raise LinkClosed(f"node {m}", f"unexpected {kind.name} from a neighbour")
+                self.wake.set()
+        except LinkClosed as e:
+            if self.state != State.DONE:
+                self.fail(e)
+
+    # ------------------------------------------------------------------ work
+    def enter(self, state: int) -> None:
+        """Act on a state the packet brought."""
+        self.state = State(state)
+        if self.state == State.TRACE:
+            s = self.settings
+            rays = self.core.primary(self.view, s["width"], s["height"], s["corners"], s["spp"],
+                                     s["seed"], tuple(s["rects"][self.node]))  # fmt: skip
+            self.counts["eye_rays"] = len(rays)
+            self.primaries.extend(rays[i : i + RAY_BATCH] for i in range(0, len(rays), RAY_BATCH))
+        elif self.state == State.DONE:
+            self.host_out.post(make(Kind.STATS, node=self.node, stats=self.statistics()))
+
+    def flush(self) -> None:
+        if self.deposits:
+            allp = np.concatenate(self.deposits)
+            self.deposits = []
+            for i in range(0, len(allp), DEPOSIT_BATCH):
+                self.send_pixels(allp[i : i + DEPOSIT_BATCH])
+
+    async def trace(self, rays: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        batch = await asyncio.get_running_loop().run_in_executor(
+            self.service.pool, self.core.trace, rays
+        )
+        self.busy += time.perf_counter() - t0
+        self.term.on_work()
+        for k, v in batch.counts.items():
+            self.counts[k] = self.counts.get(k, 0) + v
+        if len(batch.deposits):
+            self.deposits.append(batch.deposits)
+            if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
+                self.flush()
+        for dest, passed in batch.outgoing.items():
+            if dest == self.node:
+                self.incoming.append(passed)
+            else:
+                self.post_data(dest, Kind.RAYS, passed)
+
+    def queued_bytes(self) -> int:
+        return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
+
+    async def work(self) -> None:
+        """Incoming rays first, then primaries; pass the packet on whenever idle."""
+        while self.error is None:
+            self.wake.clear()
+            if self.packet is not None and self.packet.state > self.state:
+                self.enter(self.packet.state)  # the packet brings the next state
+            if self.incoming:
+                await self.trace(self.incoming.popleft())
+                continue
+            if self.state == State.TRACE and self.primaries and self.queued_bytes() < OUTBOX_HIGH:
+                await self.trace(self.primaries.popleft())
+                continue
+            self.flush()
+            idle = not (self.state == State.TRACE and self.primaries)
+            if self.packet is not None and idle:
+                self.pass_packet()
+                continue
+            await self.wake.wait()
+
+    def pass_packet(self) -> None:
+        """Record counters, maybe advance the state, send the packet to the next ring node;
+        a DONE packet goes round once and is dropped where it has been before."""
+        packet, self.packet = self.packet, None
+        if self.state == State.DONE:
+            if self.done_passed:
+                return
+        else:
+            before = packet.state
+            packet = self.term.pass_on(packet)
+            if packet.state != before:
+                self.enter(packet.state)
+        self.done_passed = self.state == State.DONE
+        nxt = self.torus.ring_next(self.node)
+        if nxt == self.node:
+            self.packet = None if self.done_passed else packet
+            self.wake.set()
+            return
+        message = make(Kind.STATE, state=packet.state, last_busy=packet.last_busy,
+                       round=packet.round, sent=packet.sent, received=packet.received,
+                       dest=nxt)  # fmt: skip
+        self.outboxes[self.router.next_hop(nxt)].post(message)
+
+    def statistics(self) -> dict:
+        elapsed = time.perf_counter() - self.started
+        links = {}
+        for m, o in self.outboxes.items():
+            links[str(m)] = dict(o.link.stats, rays_sent=self.rays_out.get(m, 0),
+                                 rays_received=self.rays_in.get(m, 0))  # fmt: skip
+        return {
+            "node": self.node,
+            "objects": self.core.engine.stats["objects"] if self.core else 0,
+            "engine": self.core.engine.stats if self.core else {},
+            "rays": self.counts,
+            "rays_sent": sum(self.rays_out.values()),
+            "rays_received": sum(self.rays_in.values()),
+            "pixel_packets": self.pixel_packets,
+            "busy_seconds": self.busy,
+            "idle_seconds": max(elapsed - self.busy, 0.0),
+            "packet_visits": self.term.visits,
+            "links": links,
+        }
+
+    async def close(self) -> None:
+        for t in self.tasks:
+            t.cancel()
+        for o in self.outboxes.values():
+            o.task.cancel()
+            await o.link.close()
+        self.host_out.task.cancel()
+
+
+class NodeService:
+    """Listens on one address; serves renders one after another until stopped."""
+
+    def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False):
+        self.address, self.port, self.cluster, self.once = host, port, cluster, once
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="trace")
+        self.session: Session | None = None
+        self.pending: dict[int, Link] = {}
+        self.links_ready = asyncio.Event()
+        self.stopped = asyncio.Event()
+
+    async def start(self) -> int:
+        self.server = await asyncio.start_server(self.accept, self.address, self.port)
+        self.port = self.server.sockets[0].getsockname()[1]
+        return self.port
+
+    async def wait_links(self, session: Session) -> None:
+        """Until every neighbour of the session's node is linked (in either direction)."""
+        want = set(session.torus.links(session.node))
+        while True:
+            for m in list(self.pending):
+                if m in want and m not in session.outboxes:
+                    session.attach(m, self.pending.pop(m))
+            if want <= set(session.outboxes):
+                return
+            self.links_ready.clear()
+            await asyncio.wait_for(self.links_ready.wait(), timeout=30)
+
+    async def accept(self, reader, writer) -> None:
+        peer = "{}:{}".format(*writer.get_extra_info("peername")[:2])
+        link = Link(reader, writer, peer)
+        try:
+            fields = check_hello(await link.recv_raw(), self.cluster)
+        except Exception as e:  # a bad handshake closes just this link
+            log.warning("refused %s: %s", peer, e)
+            await link.close()
+            return
+        me = self.session.node if self.session else -1
+        await link.send(hello(self.cluster, "node", me))
+        if fields["role"] == "node":
+            link.peer = f"node {fields['node']}"
+            self.pending[fields["node"]] = link
+            self.links_ready.set()
+            return
+        await self.serve_host(link)
+
+    async def serve_host(self, link: Link) -> None:
+        session = None
+        try:
+            while True:
+                kind, f = await link.recv()
+                if kind is Kind.CONFIG:
+                    session = self.session = Session(self, link, f)
+                elif kind is Kind.OBJECTS and session:
+                    session.add_objects(f["table"], f["records"])
+                    if f["last"]:
+                        session.tasks.append(asyncio.create_task(self._build(session)))
+                elif kind is Kind.SHUTDOWN:
+                    break
+                else:
+                    raise LinkClosed("host", f"unexpected {kind.name}")
+        except LinkClosed as e:
+            log.info("host link: %s", e.reason)
+        finally:
+            if session:
+                await session.close()
+            self.session = None
+            await link.close()
+            if self.once:
+                self.stopped.set()
+
+    async def _build(self, session: Session) -> None:
+        try:
+            await session.build()
+        except Exception as e:
+            session.fail(e)
+
+    async def run(self) -> None:
+        async with self.server:
+            await self.stopped.wait()
+        self.pool.shutdown(wait=False, cancel_futures=True)

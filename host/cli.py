@@ -1,10 +1,14 @@
 """`host` command line: argument parsing and wiring only."""
 
 import argparse
+import asyncio
 import json
+import os
 import sys
 from pathlib import Path
 
+from host.localmesh import LocalMesh
+from host.meshclient import MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
 from host.render import RenderSettings, render
 
@@ -30,6 +34,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="grid density: voxels per object to start from, refined until a "
                         "voxel holds about 4/DENSITY objects (default 1)")  # fmt: skip
     r.add_argument("--threads", type=int, default=0, help="tracing threads (default: cores)")
+    r.add_argument("--mesh", default="auto",
+                   help="ROWSxCOLS local meshnode processes; 1x1 traces in this process; "
+                        "auto: one node per core")  # fmt: skip
+    r.add_argument("--cluster", help="render on running nodes listed in FILE "
+                   "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    r.add_argument("--overlap", type=float, default=1.0,
+                   help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     return p
 
@@ -56,17 +67,27 @@ def _render(args) -> int:
         storage=args.storage, threads=args.threads, progress=not args.quiet,
     )  # fmt: skip
     try:
-        image, stats = render(scene, settings)
-    except ValueError as e:
+        image, stats = _run(scene, settings, args)
+    except (ValueError, OSError) as e:
         print(f"host: {e}", file=sys.stderr)
         return 2
+    except MeshError as e:
+        print(f"host: render failed: {e}", file=sys.stderr)
+        return 1
     out = Path(args.output or Path(args.scene).with_suffix(".png").name)
     write_png(out, image)
     float_path = Path(args.float_path or out.with_suffix(".pfm"))
     write_pfm(float_path, image)
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
-    if not args.quiet:
+    if not args.quiet and "mesh" in stats:
+        r = stats["rays"]
+        print(f"{out}: mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}  eye {r['eye_rays']}"
+              f"  reflected {r['reflected_rays']}  refracted {r['refracted_rays']}  shadow "
+              f"{r['shadow_rays']} (blocked {r['shadow_rays_blocked']})  passed "
+              f"{stats['rays_passed']}  wall {stats['wall_seconds']:.2f} s  imbalance "
+              f"{stats['imbalance']:.2f}", file=sys.stderr)  # fmt: skip
+    elif not args.quiet:
         r = stats["rays"]
         print(
             f"{out}: {stats['image']['width']}x{stats['image']['height']}  "
@@ -79,6 +100,67 @@ def _render(args) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def parse_mesh(text: str) -> tuple[int, int]:
+    """'2x3' -> (2, 3); 'auto' -> one row with a node per core."""
+    if text == "auto":
+        return 1, max(1, os.cpu_count() or 1)
+    try:
+        rows, cols = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--mesh wants ROWSxCOLS, like 2x2, not {text!r}") from None
+    if rows < 1 or cols < 1:
+        raise ValueError(f"--mesh {text}: rows and columns must be at least 1")
+    return rows, cols
+
+
+def read_cluster(path) -> tuple[int, int, list[str]]:
+    """Cluster file: one `ROW COL HOST:PORT` per node, `#` comments; every cell once."""
+    cells = {}
+    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        ok = len(words) == 3 and words[0].isdigit() and words[1].isdigit() and ":" in words[2]
+        if not ok:
+            raise ValueError(f"{path}:{number}: expected ROW COL HOST:PORT")
+        key = (int(words[0]), int(words[1]))
+        if key in cells:
+            raise ValueError(f"{path}:{number}: node {key} listed twice")
+        cells[key] = words[2]
+    if not cells:
+        raise ValueError(f"{path}: no nodes listed")
+    rows = max(r for r, _ in cells) + 1
+    cols = max(c for _, c in cells) + 1
+    missing = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in cells]
+    if missing:
+        raise ValueError(f"{path}: no address for node(s) {missing}")
+    return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]
+
+
+def _run(scene, settings, args):
+    """Single node in this process, a local mesh of processes, or a running cluster."""
+    if args.cluster:
+        rows, cols, addresses = read_cluster(args.cluster)
+        return _mesh(scene, settings, addresses, rows, cols, args)
+    rows, cols = parse_mesh(args.mesh)
+    if rows * cols == 1:
+        return render(scene, settings)
+    with LocalMesh(rows * cols) as addresses:
+        return _mesh(scene, settings, addresses, rows, cols, args)
+
+
+def _mesh(scene, settings, addresses, rows, cols, args):
+    from tqdm import tqdm
+
+    bar = tqdm(unit=" deposits", desc=f"mesh {rows}x{cols}", file=sys.stderr,
+               disable=args.quiet, leave=False)  # fmt: skip
+    try:
+        return asyncio.run(render_on_mesh(scene, settings, addresses, rows, cols,
+                                          args.overlap, progress=bar.update))  # fmt: skip
+    finally:
+        bar.close()
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ import numpy as np
 from host.framebuffer import Framebuffer
 from host.partition import holders, node_boxes, rectangles, scene_box, subset
 from meshnode.link import Link, LinkClosed
+from protocols.errors import ProtocolError
 from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make
 from protocols.scene import SceneData
@@ -66,17 +67,22 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     rects = rectangles(gw, gh, rows, cols)
     settings = _settings(scene, rs, width, height, rects, los, his)
     links = []
-    for n, address in enumerate(addresses):
-        link = await Link.connect(address, f"node {n} ({address})")
-        await link.send(hello(cluster, "host"))
-        check_hello(await link.recv_raw(), cluster)
-        links.append(link)
     neighbours = {str(n): a for n, a in enumerate(addresses)}
-    for n, link in enumerate(links):
-        await link.send(make(Kind.CONFIG, rows=rows, cols=cols, node=n, neighbours=neighbours,
-                             box=[*los[n], *his[n]], scene_box=[*box[0], *box[1]],
-                             settings=settings))  # fmt: skip
-        await _download(link, subset(scene, keep[n]))
+    try:
+        for n, address in enumerate(addresses):
+            link = await Link.connect(address, f"node {n} ({address})")
+            links.append(link)
+            await link.send(hello(cluster, "host"))
+            check_hello(await link.recv_raw(), cluster)
+        for n, link in enumerate(links):
+            await link.send(make(Kind.CONFIG, rows=rows, cols=cols, node=n,
+                                 neighbours=neighbours, box=[*los[n], *his[n]],
+                                 scene_box=[*box[0], *box[1]], settings=settings))  # fmt: skip
+            await _download(link, subset(scene, keep[n]))
+    except (LinkClosed, ProtocolError) as e:
+        for link in links:
+            await link.close()
+        raise MeshError(f"setting up the mesh: {e}") from e
     setup = time.perf_counter() - start
     fb = Framebuffer(width, height, rs.spd, rs.spp)
     stats: dict[int, dict] = {}

@@ -20,7 +20,7 @@ STAT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow
 def test_render_writes_png_pfm_and_stats(tmp_path):
     out, stats = tmp_path / "a.png", tmp_path / "s.json"
     code = main(["render", str(EXAMPLE), "-o", str(out), "--width", "48", "--height", "32",
-                 "--spp", "2", "--stats", str(stats), "--quiet"])  # fmt: skip
+                 "--spp", "2", "--stats", str(stats), "--quiet", "--mesh", "1x1"])  # fmt: skip
     assert code == 0
     png = np.asarray(Image.open(out))
     assert png.shape == (32, 48, 3)
@@ -49,7 +49,7 @@ def test_spd_mode_shoots_corner_rays(tmp_path):
     if not scene.exists():
         pytest.skip("shared scenes not available")
     assert main(["render", str(scene), "--spd", "-o", str(tmp_path / "t.png"), "--stats",
-                 str(stats), "--quiet"]) == 0  # fmt: skip
+                 str(stats), "--quiet", "--mesh", "1x1"]) == 0  # fmt: skip
     s = json.loads(stats.read_text())
     assert s["rays"]["eye_rays"] == 513 * 513
     assert s["image"] == {"width": 512, "height": 512, "spd": True, "spp": 1}

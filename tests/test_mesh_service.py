@@ -1,0 +1,107 @@
+"""The mesh over TCP: meshnode processes on loopback render the single-node image with the
+single-node counts; a dead node or a bad peer fails clearly; the CLI and cluster files."""
+
+import asyncio
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from host.cli import main, parse_mesh, read_cluster
+from host.framebuffer import read_pfm
+from host.localmesh import LocalMesh
+from host.meshclient import MeshError, render_on_mesh
+from host.nff import read_nff
+from host.render import RenderSettings, render
+from tests.conftest import spd_scene
+
+COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+          "shadow_rays_blocked")  # fmt: skip
+
+
+def mesh_render(scene, rows, cols, overlap, rs, procs=None):
+    with LocalMesh(rows * cols) as addresses:
+        coro = render_on_mesh(scene, rs, addresses, rows, cols, overlap)
+        return asyncio.run(asyncio.wait_for(coro, 180))
+
+
+@pytest.mark.parametrize(
+    "name,rows,cols,overlap",
+    [("balls_s1.nff", 1, 2, 1), ("gears_s1.nff", 2, 2, 24), ("rings_s1.nff", 2, 3, 100),
+     ("mount_s1.nff", 3, 3, 1)],
+)  # fmt: skip
+def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
+    scene = read_nff(spd_scene(name))
+    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
+    ref, ref_stats = render(scene, rs)
+    img, stats = mesh_render(scene, rows, cols, overlap, rs)
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    # Conservation over the wire: rays sent on links are received, every ray ends once.
+    nodes = stats["nodes"]
+    assert sum(n["rays_sent"] for n in nodes) == sum(n["rays_received"] for n in nodes)
+    r = stats["rays"]
+    created = r["eye_rays"] + r["reflected_rays"] + r["refracted_rays"] + r["shadow_rays"]
+    assert created == r["hits"] + r["escaped"] + r["shadow_rays_blocked"] + r["shadow_rays_lit"]
+    assert all(n["packet_visits"] >= 3 for n in nodes)
+    assert len(nodes) == rows * cols
+
+
+def test_dead_node_stops_the_render_naming_it():
+    scene = read_nff(spd_scene("balls_s3.nff"))
+    rs = RenderSettings(width=800, height=800, spp=4, progress=False)  # ~10 s of tracing
+
+    async def run(mesh, addresses, delay):
+        task = asyncio.create_task(render_on_mesh(scene, rs, addresses, 2, 2, 1))
+        await asyncio.sleep(delay)
+        mesh.procs[1].kill()
+        return await asyncio.wait_for(task, 30)
+
+    for delay in (0.0, 1.5):  # before the host connects, and in the middle of tracing
+        mesh = LocalMesh(4)
+        with mesh as addresses:
+            start = time.monotonic()
+            with pytest.raises(MeshError, match="node 1"):
+                asyncio.run(run(mesh, addresses, delay))
+            assert time.monotonic() - start < 30
+
+
+def test_garbage_from_a_peer_closes_only_that_link():
+    scene = read_nff(spd_scene("tetra_s2.nff"))
+    rs = RenderSettings(width=24, height=24, progress=False, threads=1)
+    ref, _ = render(scene, rs)
+    with LocalMesh(2) as addresses:
+        host, port = addresses[1].rsplit(":", 1)
+        with socket.create_connection((host, int(port))) as s:
+            s.sendall(b"\x00\x00\x00\x05hello-not-msgpack")
+            s.settimeout(5)
+            assert s.recv(100) == b""  # the node hung up on us
+        img, _ = asyncio.run(asyncio.wait_for(render_on_mesh(scene, rs, addresses, 1, 2), 120))
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+
+
+def test_cli_mesh_image_equals_single_node(tmp_path):
+    scene = spd_scene("balls_s1.nff")
+    one, two = tmp_path / "one.png", tmp_path / "two.png"
+    common = ["--width", "32", "--height", "32", "--quiet"]
+    assert main(["render", str(scene), "-o", str(one), "--mesh", "1x1", *common]) == 0
+    assert main(["render", str(scene), "-o", str(two), "--mesh", "2x2", *common]) == 0
+    np.testing.assert_allclose(read_pfm(two.with_suffix(".pfm")),
+                               read_pfm(one.with_suffix(".pfm")), atol=1e-5)  # fmt: skip
+
+
+def test_mesh_and_cluster_arguments(tmp_path):
+    assert parse_mesh("2x3") == (2, 3)
+    assert parse_mesh("auto")[0] == 1
+    with pytest.raises(ValueError):
+        parse_mesh("2by3")
+    f = tmp_path / "cluster.txt"
+    f.write_text("# row col address\n0 0 10.0.0.1:7700\n0 1 10.0.0.2:7700\n")
+    assert read_cluster(f) == (1, 2, ["10.0.0.1:7700", "10.0.0.2:7700"])
+    f.write_text("0 0 a:1\n1 1 b:2\n")
+    with pytest.raises(ValueError, match="no address"):
+        read_cluster(f)
+    f.write_text("0 0 a:1\n0 zero b:2\n")
+    with pytest.raises(ValueError, match=":2:"):
+        read_cluster(f)

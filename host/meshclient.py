@@ -125,7 +125,7 @@ def _summary(stats, torus, keep, deposits, setup, wall) -> dict:
     for s in nodes:
         for k, v in s["rays"].items():
             totals[k] = totals.get(k, 0) + v
-    busy = [s["busy_seconds"] for s in nodes]
+    busy = [s["busy_cpu_seconds"] for s in nodes]
     return {
         "mesh": {"rows": torus.rows, "cols": torus.cols},
         "rays": totals,
@@ -133,7 +133,7 @@ def _summary(stats, torus, keep, deposits, setup, wall) -> dict:
         "rays_passed": sum(s["rays_sent"] for s in nodes),
         "setup_seconds": setup,
         "wall_seconds": wall,
-        "busiest_node_seconds": max(busy),
+        "busiest_node_cpu_seconds": max(busy),
         "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,
         "objects_per_node": keep.sum(axis=1).tolist(),
         "nodes": nodes,

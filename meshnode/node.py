@@ -5,6 +5,7 @@ its rectangle, traces batches (incoming rays first), turns colour into deposits 
 packets, and sorts the rays that leave its box by the node that takes them on.
 """
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,7 +42,9 @@ class NodeCore:
         return eye_rays(view, width, height, corners, spp, seed, rows=(y0, y1), cols=(x0, x1))
 
     def trace(self, rays: np.ndarray) -> Batch:
+        cpu = time.thread_time()
         rgb, counts, passed = self.engine.trace_node(rays)
+        counts["cpu_seconds"] = time.thread_time() - cpu
         lit = np.any(rgb != 0.0, axis=1)
         deposits = np.zeros(int(lit.sum()), DEPOSIT)
         deposits["pixel"] = rays["pixel"][lit]

@@ -82,7 +82,8 @@ class Session:
         self.rays_in: dict[int, int] = {}
         self.rays_out: dict[int, int] = {}
         self.pixel_packets = 0
-        self.busy = 0.0
+        self.busy = 0.0  # wall seconds in the tracing thread
+        self.cpu = 0.0  # CPU seconds of that thread
         self.started = time.perf_counter()
         self.tasks: list[asyncio.Task] = []
         self.done_passed = False
@@ -216,6 +217,7 @@ class Session:
         )
         self.busy += time.perf_counter() - t0
         self.term.on_work()
+        self.cpu += batch.counts.pop("cpu_seconds")
         for k, v in batch.counts.items():
             self.counts[k] = self.counts.get(k, 0) + v
         if len(batch.deposits):
@@ -288,6 +290,7 @@ class Session:
             "rays_received": sum(self.rays_in.values()),
             "pixel_packets": self.pixel_packets,
             "busy_seconds": self.busy,
+            "busy_cpu_seconds": self.cpu,
             "idle_seconds": max(elapsed - self.busy, 0.0),
             "packet_visits": self.term.visits,
             "links": links,

@@ -55,6 +55,7 @@ def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1,
             out = nodes[n].trace(rays)
             per_node[n]["batches"] += 1
             fb.add(out.deposits["pixel"], out.deposits["rgb"])
+            out.counts.pop("cpu_seconds")
             for k in COUNTED:
                 if k != "eye_rays":
                     totals[k] += out.counts[k]

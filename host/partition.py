@@ -2,8 +2,9 @@
 node, and which objects each node holds (DESIGN.md 5).
 
 Boxes: the two world axes most perpendicular to the view are cut where test rays through the
-rectangle boundaries meet the near face of the scene box, so a rectangle's primary rays enter
-its node's box; outer boxes reach the scene bounds; every box then grows by the overlap
+rectangle boundaries meet the near face of the scene box (or, when the eye is inside the box's
+slab, the plane through the view's target), so a rectangle's primary rays enter its node's box;
+outer boxes reach the scene bounds; every box then grows by the overlap
 percentage of its own size. Correctness never depends on the cut: a ray is always handed to a
 box that holds it (see `meshnode.engine.trace.owners`); the cut only decides how often.
 """
@@ -44,6 +45,9 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
     eye, fwd, right, up, step = view_basis(view, width, height)
     depth = int(np.argmax(np.abs(fwd)))
     face = lo[depth] if fwd[depth] > 0 else hi[depth]  # the near face
+    if (face - eye[depth]) * fwd[depth] <= 0:
+        # The eye is inside the box's slab on this axis: cut where the view is aimed instead.
+        face = float(np.clip(view.at[depth], lo[depth], hi[depth]))
     cuts = []
     for b in bounds[1:-1]:
         # A ray through the boundary on the image's centre line.
@@ -59,6 +63,8 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
         # Degenerate view: fall back to equal slices.
         cuts = list(lo[along] + (hi[along] - lo[along]) * np.arange(1, n_parts) / n_parts)
     cuts = np.clip(cuts, lo[along], hi[along])
+    if len(cuts) and cuts[0] > cuts[-1]:  # the image axis runs against the world axis
+        return np.concatenate([[hi[along]], cuts, [lo[along]]])
     return np.concatenate([[lo[along]], cuts, [hi[along]]])
 
 

@@ -36,6 +36,14 @@ class NodeCore:
         self.engine = Engine(scene, box=(self.los[node], self.his[node]), scene_box=scene_box,
                              density=density, storage=storage, max_depth=max_depth)  # fmt: skip
 
+    def warmup(self) -> None:
+        """Compile or load every kernel a render will call, before any is timed."""
+        self.engine.warmup()
+        ray = np.zeros(1, RAY)
+        ray["d"] = (0.0, 0.0, 1.0)
+        ray["t_max"] = np.inf
+        owners(ray, self.los, self.his)
+
     def primary(self, view, width, height, corners, spp, seed, rect) -> np.ndarray:
         """Eye rays of this node's rectangle (x0, x1, y0, y1) of the sample grid."""
         x0, x1, y0, y1 = rect

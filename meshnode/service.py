@@ -120,7 +120,7 @@ class Session:
             lambda: NodeCore(self.node, scene, los, his, box, density=s["density"],
                              storage=s["storage"], max_depth=s["depth"]),  # fmt: skip
         )
-        await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.engine.warmup)
+        await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.warmup)
         for m in self.torus.links(self.node):
             if self.node < m:  # the lower index dials, the higher accepts
                 link = await Link.connect(self.config["neighbours"][str(m)], f"node {m}")
@@ -189,6 +189,9 @@ class Session:
         except LinkClosed as e:
             if self.state != State.DONE:
                 self.fail(e)
+        except Exception as e:  # noqa: BLE001 - a bad message must not silently stop reading
+            log.exception("node %d: reading from node %d failed", self.node, m)
+            self.fail(e)
 
     # ------------------------------------------------------------------ work
     def enter(self, state: int) -> None:
@@ -234,6 +237,14 @@ class Session:
         return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
 
     async def work(self) -> None:
+        """Run the work loop; any failure is reported to the host, never swallowed."""
+        try:
+            await self._work()
+        except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
+            log.exception("node %d: work loop failed", self.node)
+            self.fail(e)
+
+    async def _work(self) -> None:
         """Incoming rays first, then primaries; pass the packet on whenever idle."""
         while self.error is None:
             self.wake.clear()

@@ -90,8 +90,8 @@ class Engine:
                 tb.poly_uv, tb.cones)  # fmt: skip
 
     def warmup(self) -> float:
-        """Compile (or load from the disk cache) this variant's kernels on a one-ray batch, so
-        that tracing time excludes compilation; returns the seconds it took."""
+        """Compile (or load from the disk cache) this variant's kernels, single-node and mesh
+        node, on a one-ray batch, so tracing time excludes compilation; returns the seconds."""
         start = time.perf_counter()
         ray = np.zeros(1, RAY)
         ray["d"] = (0.0, 0.0, 1.0)
@@ -99,6 +99,7 @@ class Engine:
         ray["origin"] = -1
         ray["depth"] = 1
         self.trace(ray)
+        self.trace_node(ray)
         self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
         self.stats["kernel_load_seconds"] = seconds = time.perf_counter() - start
         return seconds

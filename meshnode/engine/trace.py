@@ -139,8 +139,8 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 resume = -1.0
                 if s0 > s1:
                     n1 = math.inf  # the segment misses the scene: it ends here, below
-                elif n0 > n1 or n0 > s0:
-                    resume = s0  # not in this box where it starts
+                elif n0 > s0 or n1 <= s0:
+                    resume = s0  # not in this box where its part inside the scene starts
                 if resume >= 0.0:
                     buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, resume, t_hi,
                                     r.pixel, origin, depth, kind, light)  # fmt: skip
@@ -276,7 +276,9 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
 def owners(rays, los, his):
     """Index of the box that takes each ray on from its t_min: it must hold the point at t_min
     and let the ray advance (exit beyond t_min); among those the one the ray crosses farthest,
-    so overlapping boxes mean fewer hops. -1 where no box does."""
+    so overlapping boxes mean fewer hops. Where round-off leaves the point just outside every
+    box, the ray goes to the box it enters next and its t_min moves to that entry (the sliver
+    between holds no object). -1 where no box lies ahead at all."""
     n = rays.shape[0]
     out = np.full(n, -1, np.int64)
     for i in range(n):
@@ -287,10 +289,18 @@ def owners(rays, los, his):
         irz = 1.0 / r.d[2] if r.d[2] != 0.0 else math.inf
         t = r.t_min
         best_exit = t
+        next_entry = math.inf
+        next_box = -1
         for b in range(los.shape[0]):
             b0, b1 = box_span(ox, oy, oz, irx, iry, irz, t, r.t_max, los[b, 0], los[b, 1],
                               los[b, 2], his[b, 0], his[b, 1], his[b, 2])  # fmt: skip
             if b0 <= t and b1 > best_exit:
                 best_exit = b1
                 out[i] = b
+            elif t < b0 < b1 and b0 < next_entry:
+                next_entry = b0
+                next_box = b
+        if out[i] < 0 and next_box >= 0:
+            out[i] = next_box
+            r.t_min = next_entry
     return out

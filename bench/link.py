@@ -1,0 +1,147 @@
+"""Link throughput: rays per second over one TCP link between two processes, end to end
+(encode a RAY batch into a frame, send, receive, decode back into a RAY array), next to a raw
+socket copy of the same bytes between two processes (the machine's limit).
+
+    python -m bench.link [--rays-per-batch 65536] [--batches 200]
+"""
+
+import argparse
+import asyncio
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+
+def _loop_run(coro):
+    try:
+        import uvloop
+
+        return uvloop.run(coro)
+    except ImportError:
+        return asyncio.run(coro)
+
+
+def receiver(mode: str) -> None:
+    """Child process: accept one connection, consume everything, print rays and seconds."""
+    from meshnode.link import Link, LinkClosed
+    from protocols.messages import Kind
+
+    if mode == "raw":
+        srv = socket.create_server(("127.0.0.1", 0))
+        print(srv.getsockname()[1], flush=True)
+        conn, _ = srv.accept()
+        buf = bytearray(1 << 22)
+        total, start = 0, None
+        while True:
+            n = conn.recv_into(buf)
+            if not n:
+                break
+            start = start or time.perf_counter()
+            total += n
+        print(total, time.perf_counter() - start, flush=True)
+        return
+
+    async def main():
+        done = asyncio.Event()
+        result = {}
+
+        async def accept(reader, writer):
+            link = Link(reader, writer, "sender")
+            rays, start = 0, None
+            try:
+                while True:
+                    kind, f = await link.recv()
+                    start = start or time.perf_counter()
+                    if kind is Kind.SHUTDOWN:
+                        break
+                    rays += len(f["rays"])
+            except LinkClosed:
+                pass
+            result.update(rays=rays, seconds=time.perf_counter() - start)
+            done.set()
+
+        server = await asyncio.start_server(accept, "127.0.0.1", 0)
+        print(server.sockets[0].getsockname()[1], flush=True)
+        await done.wait()
+        print(result["rays"], result["seconds"], flush=True)
+
+    _loop_run(main())
+
+
+def _spawn(mode):
+    p = subprocess.Popen([sys.executable, "-m", "bench.link", "--role", mode],
+                         stdout=subprocess.PIPE, text=True,
+                         cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+    return p, int(p.stdout.readline())
+
+
+def run_link(batch: np.ndarray, batches: int) -> float:
+    """Rays per second through Link: the sender encodes every batch afresh."""
+    from meshnode.link import Link
+    from protocols.messages import Kind, make
+
+    proc, port = _spawn("link")
+
+    async def send():
+        link = await Link.connect(f"127.0.0.1:{port}", "receiver")
+        for _ in range(batches):
+            await link.send(make(Kind.RAYS, rays=batch, dest=1))
+        await link.send(make(Kind.SHUTDOWN))
+        await link.writer.drain()
+        await link.close()
+
+    _loop_run(send())
+    rays, seconds = proc.stdout.readline().split()
+    proc.wait()
+    return int(rays) / float(seconds)
+
+
+def run_raw(frame: bytes, batches: int, rays_per_batch: int) -> float:
+    """The same bytes by plain sendall / recv_into: rays per second it could carry."""
+    proc, port = _spawn("raw")
+    with socket.create_connection(("127.0.0.1", port)) as s:
+        for _ in range(batches):
+            s.sendall(frame)
+    total, seconds = proc.stdout.readline().split()
+    proc.wait()
+    assert int(total) == len(frame) * batches
+    return rays_per_batch * batches / float(seconds)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.link", description=__doc__.split("\n\n")[0])
+    p.add_argument("--role", choices=("link", "raw"), help=argparse.SUPPRESS)
+    p.add_argument("--rays-per-batch", type=int, default=65536)
+    p.add_argument("--batches", type=int, default=200)
+    args = p.parse_args(argv)
+    if args.role:
+        receiver(args.role)
+        return 0
+    from protocols.dtypes import RAY
+    from protocols.framing import encode
+    from protocols.messages import Kind, make
+
+    batch = np.zeros(args.rays_per_batch, RAY)
+    batch["d"] = (0.0, 0.0, 1.0)
+    batch["pixel"] = np.arange(len(batch))
+    frame = encode(make(Kind.RAYS, rays=batch, dest=1))
+    link = run_link(batch, args.batches)
+    raw = run_raw(frame, args.batches, args.rays_per_batch)
+    mb = len(frame) * args.batches / 1e6
+    print(f"{args.batches} batches of {args.rays_per_batch} rays ({len(frame):,} bytes a frame, "
+          f"{mb:,.0f} MB in all)")  # fmt: skip
+    print(f"meshnode link (encode, send, receive, decode): {link / 1e6:6.2f} M rays/s")
+    print(f"raw socket copy of the same bytes:             {raw / 1e6:6.2f} M rays/s")
+    print(f"link / raw = {link / raw:.2f}; goal 5 M rays/s: {'met' if link >= 5e6 else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

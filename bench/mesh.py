@@ -1,0 +1,106 @@
+"""Mesh benchmark: SPD balls and tetra at 512x512 (SPD mode) on local meshes of meshnode
+processes, against one node in this process.
+
+    python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
+                         [--overlaps 2,24,100] [--json FILE]
+
+Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
+node's CPU seconds / busiest node's, imbalance (Tmax - Tmin) / Tmax over node CPU seconds,
+rays passed between nodes, and bytes per link (mean and max over directed links). Counts are
+checked against the single node's. The machine has 2 cores, so meshes of 4 and 9 processes
+share them: wall time shows that; CPU seconds show the division of work.
+"""
+
+import argparse
+import asyncio
+import json
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+          "shadow_rays_blocked")  # fmt: skip
+
+
+def single(scene):
+    """One node in this process, one thread: the CPU-seconds reference."""
+    from host.render import RenderSettings, render
+
+    render(scene, RenderSettings(spd=True, threads=1, progress=False))  # warm
+    start = time.perf_counter()
+    _, stats = render(scene, RenderSettings(spd=True, threads=1, progress=False))
+    return time.perf_counter() - start, stats
+
+
+def on_mesh(scene, rows, cols, overlap):
+    from host.localmesh import LocalMesh
+    from host.meshclient import render_on_mesh
+    from host.render import RenderSettings
+
+    rs = RenderSettings(spd=True, progress=False)
+    with LocalMesh(rows * cols) as addresses:
+        start = time.perf_counter()
+        _, stats = asyncio.run(render_on_mesh(scene, rs, addresses, rows, cols, overlap))
+        return time.perf_counter() - start, stats
+
+
+def link_bytes(stats):
+    sizes = [link["bytes_out"] for n in stats["nodes"] for link in n["links"].values()]
+    return (sum(sizes) / len(sizes), max(sizes)) if sizes else (0, 0)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.mesh", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    p.add_argument("--only", default="balls,tetra")
+    p.add_argument("--meshes", default="2x2,3x3")
+    p.add_argument("--overlaps", default="2,24,100")
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    from host.nff import read_nff
+
+    meshes = [tuple(int(v) for v in m.split("x")) for m in args.meshes.split(",")]
+    overlaps = [float(o) for o in args.overlaps.split(",")]
+    results = []
+    bad = []
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        wall1, s1 = single(scene)
+        cpu1 = s1["trace_seconds"]
+        ref = {k: s1["rays"][k] for k in COUNTS}
+        print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
+        print(f"{'mesh':>5} {'overlap':>7} {'wall s':>7} {'busiest CPU s':>13} {'speedup':>7} "
+              f"{'imbalance':>9} {'rays passed':>11} {'bytes/link mean':>15} "
+              f"{'max':>11}")  # fmt: skip
+        for rows, cols in meshes:
+            for overlap in overlaps:
+                wall, st = on_mesh(scene, rows, cols, overlap)
+                counts = {k: st["rays"][k] for k in COUNTS}
+                if counts != ref:
+                    bad.append(f"{name} {rows}x{cols} {overlap}%: {counts} != {ref}")
+                busiest = st["busiest_node_cpu_seconds"]
+                mean, top = link_bytes(st)
+                row = {"scene": name, "mesh": f"{rows}x{cols}", "overlap": overlap,
+                       "wall_seconds": wall, "busiest_cpu_seconds": busiest,
+                       "speedup": cpu1 / busiest, "imbalance": st["imbalance"],
+                       "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
+                       "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
+                results.append(row)
+                print(f"{rows}x{cols:<3} {overlap:>7g} {wall:>7.2f} {busiest:>13.3f} "
+                      f"{row['speedup']:>7.2f} {st['imbalance']:>9.2f} {st['rays_passed']:>11} "
+                      f"{mean:>15,.0f} {top:>11,}")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    if bad:
+        print("COUNT MISMATCH:\n" + "\n".join(bad))
+        return 1
+    print("\nray counts equal the single node's on every mesh and overlap")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

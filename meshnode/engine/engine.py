@@ -53,8 +53,10 @@ class Engine:
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
         self.scene_lo, self.scene_hi = (np.asarray(b, float) for b in sb)
-        extent = float(np.max(self.grid.hi - self.grid.lo))
-        scale = max(extent, float(np.max(np.abs(np.concatenate([lo, hi])))))
+        # From the scene's box, not this node's: every node must use the same guard, or a hit
+        # at a tiny t (touching spheres) would count on one node and not on another.
+        extent = float(np.max(self.scene_hi - self.scene_lo))
+        scale = max(extent, float(np.max(np.abs(np.concatenate([self.scene_lo, self.scene_hi])))))
         # Secondary rays exclude their own surface; this guard only absorbs round-off.
         self.t_eps = 1e-12 * scale
         n_lights = 0 if tb.lights is None else len(tb.lights)

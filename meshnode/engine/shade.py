@@ -10,10 +10,15 @@ from meshnode.engine.jit import leaf
 def normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off, sph, tri, tri_n, poly, cone):
     """Front (outward) geometric normal and shading normal at a hit on local object u."""
     if sph is not None and u < off[1]:
-        r = sph[u, 3]
-        nx = (px - sph[u, 0]) / r
-        ny = (py - sph[u, 1]) / r
-        nz = (pz - sph[u, 2]) / r
+        # Normalise by the actual distance, not the radius: a hit point off the surface by
+        # round-off must still give a unit normal.
+        nx = px - sph[u, 0]
+        ny = py - sph[u, 1]
+        nz = pz - sph[u, 2]
+        ln = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+        nx *= ln
+        ny *= ln
+        nz *= ln
         return nx, ny, nz, nx, ny, nz
     if tri is not None and u < off[2]:
         i = u - off[1]

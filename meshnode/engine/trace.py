@@ -212,6 +212,12 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
             rx = dx - 2.0 * dn * nx
             ry = dy - 2.0 * dn * ny
             rz = dz - 2.0 * dn * nz
+            # Keep directions unit length: the intersection tests assume it, and drift would
+            # grow along a reflection chain.
+            rn = 1.0 / math.sqrt(rx * rx + ry * ry + rz * rz)
+            rx *= rn
+            ry *= rn
+            rz *= rn
             hit_gid = gid[u]
             if lights is not None:
                 shine = materials[m, 5]

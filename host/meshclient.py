@@ -53,8 +53,9 @@ async def _download(link: Link, scene: SceneData) -> None:
 
 async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
                          overlap: float = 1.0, cluster: str = "meshtrace",
-                         progress=None) -> tuple[np.ndarray, dict]:  # fmt: skip
-    """Render on running nodes (address i is node i); returns (image, statistics)."""
+                         progress=None, link_delay=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+    """Render on running nodes (address i is node i); returns (image, statistics).
+    `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests)."""
     torus = Torus(rows, cols)
     if len(addresses) != torus.size:
         raise ValueError(f"a {rows}x{cols} mesh needs {torus.size} node addresses")
@@ -66,6 +67,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     keep = holders(scene, los, his)
     rects = rectangles(gw, gh, rows, cols)
     settings = _settings(scene, rs, width, height, rects, los, his)
+    settings["link_delay"] = list(link_delay) if link_delay else None
     links = []
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     try:

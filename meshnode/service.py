@@ -38,8 +38,8 @@ class Outbox:
         self.ready = asyncio.Event()
         self.task = asyncio.create_task(self._run(on_error))
 
-    def post(self, message: dict, size: int = 0) -> None:
-        self.queue.append((message, size))
+    def post(self, message: dict, size: int = 0, delay: float = 0.0) -> None:
+        self.queue.append((message, size, delay))
         self.bytes += size
         self.ready.set()
 
@@ -49,7 +49,9 @@ class Outbox:
                 await self.ready.wait()
                 self.ready.clear()
                 while self.queue:
-                    message, size = self.queue.popleft()
+                    message, size, delay = self.queue.popleft()
+                    if delay:
+                        await asyncio.sleep(delay)  # an injected slow link (tests)
                     await self.link.send(message)
                     self.bytes -= size
         except LinkClosed as e:
@@ -87,6 +89,7 @@ class Session:
         self.started = time.perf_counter()
         self.tasks: list[asyncio.Task] = []
         self.done_passed = False
+        self.delayed = 0
         self.view: View | None = None
 
     # ------------------------------------------------------------------ setup
@@ -154,7 +157,18 @@ class Session:
         else:
             message = make(Kind.PIXELS, deposits=records)
         self.term.on_sent()
-        self.outboxes[hop].post(message, records.nbytes)
+        self.outboxes[hop].post(message, records.nbytes, self._delay(hop, kind))
+
+    def _delay(self, hop: int, kind: Kind) -> float:
+        """Seconds to hold this message back: settings may name one link (src, dst, seconds,
+        count) whose first `count` ray messages are delayed, to test termination."""
+        spec = self.settings.get("link_delay")
+        if not spec or kind is not Kind.RAYS or (self.node, hop) != (spec[0], spec[1]):
+            return 0.0
+        if self.delayed >= spec[3]:
+            return 0.0
+        self.delayed += 1
+        return float(spec[2])
 
     def send_pixels(self, deposits: np.ndarray) -> None:
         self.pixel_packets += 1

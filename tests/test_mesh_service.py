@@ -67,6 +67,23 @@ def test_dead_node_stops_the_render_naming_it():
             assert time.monotonic() - start < 30
 
 
+def test_delayed_link_over_tcp_gives_the_whole_image():
+    # Ray messages from node 0 to node 1 held back 0.4 s each, far longer than a turn of the
+    # state packet on a 2x2 ring (milliseconds): the render must wait for them, not end early.
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
+    ref, ref_stats = render(scene, rs)
+    mesh = LocalMesh(4)
+    with mesh as addresses:
+        coro = render_on_mesh(scene, rs, addresses, 2, 2, 1, link_delay=(0, 1, 0.4, 3))
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert stats["nodes"][0]["links"]["1"]["rays_sent"] > 0  # the slow link carried rays
+    assert stats["wall_seconds"] > 0.4
+    assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
+
+
 def test_garbage_from_a_peer_closes_only_that_link():
     scene = read_nff(spd_scene("tetra_s2.nff"))
     rs = RenderSettings(width=24, height=24, progress=False, threads=1)

@@ -53,9 +53,11 @@ async def _download(link: Link, scene: SceneData) -> None:
 
 async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
                          overlap: float = 1.0, cluster: str = "meshtrace",
-                         progress=None, link_delay=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         progress=None, link_delay=None,
+                         silence: float = 120.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
-    `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests)."""
+    `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests);
+    `silence`: seconds without any message from the mesh before the render is given up."""
     torus = Torus(rows, cols)
     if len(addresses) != torus.size:
         raise ValueError(f"a {rows}x{cols} mesh needs {torus.size} node addresses")
@@ -90,6 +92,8 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     stats: dict[int, dict] = {}
     deposits = 0
 
+    last_heard = [time.monotonic()]
+
     async def collect(n: int, link: Link):
         nonlocal deposits
         while n not in stats:
@@ -97,6 +101,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 kind, f = await link.recv()
             except LinkClosed as e:
                 raise MeshError(f"node {n} ({addresses[n]}): {e.reason}") from e
+            last_heard[0] = time.monotonic()
             if kind is Kind.PIXELS:
                 d = f["deposits"]
                 fb.add(d["pixel"], d["rgb"])
@@ -108,9 +113,27 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
             elif kind is Kind.ERROR:
                 raise MeshError(f"node {n} ({addresses[n]}) failed: {f['reason']}")
 
+    async def watchdog():
+        """A mesh that stops talking (a hung node, a lost message) fails instead of hanging."""
+        while True:
+            await asyncio.sleep(min(1.0, silence / 4))
+            if time.monotonic() - last_heard[0] > silence:
+                waiting = [n for n in range(torus.size) if n not in stats]
+                raise MeshError(f"no message from any node for {silence:g} s; nodes {waiting} "
+                                "have not finished")  # fmt: skip
+
+    tasks = [asyncio.ensure_future(collect(n, link)) for n, link in enumerate(links)]
+    guard = asyncio.ensure_future(watchdog())
     try:
-        await asyncio.gather(*(collect(n, link) for n, link in enumerate(links)))
+        while not all(t.done() for t in tasks):
+            pending = [t for t in tasks if not t.done()]
+            done, _ = await asyncio.wait([*pending, guard], return_when=asyncio.FIRST_COMPLETED)
+            for t in done:
+                if t.exception():
+                    raise t.exception()
     finally:
+        for t in [*tasks, guard]:
+            t.cancel()
         for link in links:
             try:
                 await link.send(make(Kind.SHUTDOWN))

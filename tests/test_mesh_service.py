@@ -84,6 +84,31 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
     assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
 
 
+def test_a_silent_mesh_fails_instead_of_hanging():
+    # Node 1 stopped (SIGSTOP: alive, its sockets open, but silent): the watchdog gives up.
+    import os
+    import signal
+
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = RenderSettings(width=400, height=400, spp=4, progress=False)
+    mesh = LocalMesh(2)
+    with mesh as addresses:
+
+        async def run():
+            task = asyncio.create_task(render_on_mesh(scene, rs, addresses, 1, 2, silence=2.0))
+            await asyncio.sleep(0.5)
+            os.kill(mesh.procs[1].pid, signal.SIGSTOP)
+            try:
+                return await asyncio.wait_for(task, 30)
+            finally:
+                os.kill(mesh.procs[1].pid, signal.SIGCONT)
+
+        start = time.monotonic()
+        with pytest.raises(MeshError, match="no message"):
+            asyncio.run(run())
+        assert time.monotonic() - start < 30
+
+
 def test_garbage_from_a_peer_closes_only_that_link():
     scene = read_nff(spd_scene("tetra_s2.nff"))
     rs = RenderSettings(width=24, height=24, progress=False, threads=1)

@@ -50,6 +50,24 @@ def random_scene(rng, n=60):
     return make_scene(spheres, tris, polys, cones)
 
 
+def lit_glass_scene(rng, n):
+    """A random scene with matte and glass materials, two lights and a view onto it."""
+    from protocols import dtypes
+    from protocols.scene import View
+
+    scene = random_scene(rng, n=n)
+    scene.materials = np.zeros(2, dtypes.MATERIAL)
+    scene.materials[0] = ((0.8, 0.6, 0.4), 0.7, 0.3, 20.0, 0.0, 1.0)
+    scene.materials[1] = ((1.0, 1.0, 1.0), 0.1, 0.1, 50.0, 0.8, 1.5)
+    for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
+        table["mat"] = rng.integers(0, 2, len(table))
+    scene.lights = np.zeros(2, dtypes.LIGHT)
+    scene.lights["pos"] = [(10, 10, -10), (-10, 5, -8)]
+    scene.lights["rgb"] = 1.0
+    scene.view = View(eye=(0, 0, -15), at=(0, 0, 0), up=(0, 1, 0), angle=50.0)
+    return scene
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_random_scene_grid_equals_reference(seed):
     rng = np.random.default_rng(seed)

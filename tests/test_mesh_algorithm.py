@@ -9,7 +9,7 @@ from host.partition import holders, node_boxes, rectangles, scene_box, subset
 from host.render import RenderSettings, render
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
-from tests.test_grid import random_scene
+from tests.test_grid import lit_glass_scene
 
 SPD_COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
               "shadow_rays_blocked")  # fmt: skip
@@ -51,20 +51,7 @@ def test_spd_scene_on_every_mesh_equals_single_node(name):
 
 @pytest.mark.parametrize("seed", [5, 6])
 def test_random_scene_on_every_mesh_equals_single_node(seed):
-    from protocols import dtypes
-    from protocols.scene import View
-
-    rng = np.random.default_rng(seed)
-    scene = random_scene(rng, n=24)
-    scene.materials = np.zeros(2, dtypes.MATERIAL)
-    scene.materials[0] = ((0.8, 0.6, 0.4), 0.7, 0.3, 20.0, 0.0, 1.0)
-    scene.materials[1] = ((1.0, 1.0, 1.0), 0.1, 0.1, 50.0, 0.8, 1.5)
-    for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
-        table["mat"] = rng.integers(0, 2, len(table))
-    scene.lights = np.zeros(2, dtypes.LIGHT)
-    scene.lights["pos"] = [(10, 10, -10), (-10, 5, -8)]
-    scene.lights["rgb"] = 1.0
-    scene.view = View(eye=(0, 0, -15), at=(0, 0, 0), up=(0, 1, 0), angle=50.0)
+    scene = lit_glass_scene(np.random.default_rng(seed), n=24)
     check_mesh(scene, SHAPES, (1, 24, 100))
 
 

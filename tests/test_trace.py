@@ -14,7 +14,7 @@ from meshnode.engine import Engine
 from protocols import dtypes
 from protocols.scene import View
 from tests.conftest import make_scene, spd_scene
-from tests.test_grid import random_scene
+from tests.test_grid import lit_glass_scene
 
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
@@ -42,17 +42,7 @@ def test_grid_image_and_counts_equal_brute_force(name):
 
 
 def test_random_scene_with_glass_and_lights_equals_brute_force():
-    rng = np.random.default_rng(7)
-    scene = random_scene(rng, n=30)
-    scene.materials = np.zeros(2, dtypes.MATERIAL)
-    scene.materials[0] = ((0.8, 0.6, 0.4), 0.7, 0.3, 20.0, 0.0, 1.0)
-    scene.materials[1] = ((1.0, 1.0, 1.0), 0.1, 0.1, 50.0, 0.8, 1.5)
-    for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
-        table["mat"] = rng.integers(0, 2, len(table))
-    scene.lights = np.zeros(2, dtypes.LIGHT)
-    scene.lights["pos"] = [(10, 10, -10), (-10, 5, -8)]
-    scene.lights["rgb"] = 1.0
-    scene.view = View(eye=(0, 0, -15), at=(0, 0, 0), up=(0, 1, 0), angle=50.0)
+    scene = lit_glass_scene(np.random.default_rng(7), n=30)
     ref_img, ref_counts = small(scene, brute=True)
     assert ref_counts["refracted_rays"] > 0 and ref_counts["shadow_rays_blocked"] > 0
     img, counts = small(scene)

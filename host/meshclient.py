@@ -53,11 +53,12 @@ async def _download(link: Link, scene: SceneData) -> None:
 
 async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
                          overlap: float = 1.0, cluster: str = "meshtrace",
-                         progress=None, link_delay=None,
-                         silence: float = 120.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         progress=None, link_delay=None, silence: float = 120.0,
+                         incoming_high: int | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests);
-    `silence`: seconds without any message from the mesh before the render is given up."""
+    `silence`: seconds without any message from the mesh before the render is given up;
+    `incoming_high`: queued incoming rays at which a node stops reading (tests use tiny ones)."""
     torus = Torus(rows, cols)
     if len(addresses) != torus.size:
         raise ValueError(f"a {rows}x{cols} mesh needs {torus.size} node addresses")
@@ -70,6 +71,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     rects = rectangles(gw, gh, rows, cols)
     settings = _settings(scene, rs, width, height, rects, los, his)
     settings["link_delay"] = list(link_delay) if link_delay else None
+    settings["incoming_high"] = incoming_high
     links = []
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     try:

@@ -5,7 +5,8 @@ and the node's objects; the node builds its NodeCore, links to its neighbours an
 state packet's ring. Kernels run on a thread (they release the GIL) so links keep flowing.
 Every send goes through a per-link outbox served by its own task, so a reader never blocks on
 a full link; new primary rays are generated only while incoming rays are done and outboxes are
-below their high-water mark, which bounds the rays in flight (and so the memory).
+below their high-water mark, which bounds the rays in flight (and so the memory); readers stop
+reading above a high-water mark of queued incoming rays and resume below a low one.
 """
 
 import asyncio
@@ -28,6 +29,7 @@ log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 RAY_BATCH = 4096  # primary rays per traced batch
+INCOMING_HIGH = 1_000_000  # queued incoming rays at which readers stop (~100 MB); resume at 1/4
 
 
 class Outbox:
@@ -90,6 +92,9 @@ class Session:
         self.tasks: list[asyncio.Task] = []
         self.done_passed = False
         self.delayed = 0
+        self.incoming_rays = 0
+        self.incoming_high = int(self.settings.get("incoming_high") or INCOMING_HIGH)
+        self.drained = asyncio.Event()
         self.view: View | None = None
 
     # ------------------------------------------------------------------ setup
@@ -186,6 +191,13 @@ class Session:
                     self.rays_in[m] = self.rays_in.get(m, 0) + len(f["rays"])
                     if f["dest"] == self.node:
                         self.incoming.append(np.array(f["rays"]))
+                        self.incoming_rays += len(f["rays"])
+                        if self.incoming_rays > self.incoming_high:
+                            # Stop reading: TCP pushes back on the sender, whose work loop
+                            # goes on (its sends are queued), so this cannot deadlock.
+                            self.wake.set()
+                            self.drained.clear()
+                            await self.drained.wait()
                     else:
                         self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
                 elif kind is Kind.PIXELS:
@@ -244,6 +256,7 @@ class Session:
         for dest, passed in batch.outgoing.items():
             if dest == self.node:
                 self.incoming.append(passed)
+                self.incoming_rays += len(passed)
             else:
                 self.post_data(dest, Kind.RAYS, passed)
 
@@ -265,7 +278,11 @@ class Session:
             if self.packet is not None and self.packet.state > self.state:
                 self.enter(self.packet.state)  # the packet brings the next state
             if self.incoming:
-                await self.trace(self.incoming.popleft())
+                rays = self.incoming.popleft()
+                self.incoming_rays -= len(rays)
+                if self.incoming_rays < self.incoming_high // 4:
+                    self.drained.set()
+                await self.trace(rays)
                 continue
             if self.state == State.TRACE and self.primaries and self.queued_bytes() < OUTBOX_HIGH:
                 await self.trace(self.primaries.popleft())

@@ -84,6 +84,18 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
     assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
 
 
+def test_tiny_receive_buffers_do_not_deadlock():
+    # Readers that stop after 64 queued rays: links back up constantly, yet the mesh finishes.
+    scene = read_nff(spd_scene("gears_s1.nff"))
+    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
+    ref, ref_stats = render(scene, rs)
+    with LocalMesh(4) as addresses:
+        coro = render_on_mesh(scene, rs, addresses, 2, 2, 24, incoming_high=64)
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+
+
 def test_a_silent_mesh_fails_instead_of_hanging():
     # Node 1 stopped (SIGSTOP: alive, its sockets open, but silent): the watchdog gives up.
     import os

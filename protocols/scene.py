@@ -49,8 +49,3 @@ class SceneData:
         """Number of NFF primitives (distinct gids)."""
         gids = [t["gid"] for t in (self.spheres, self.triangles, self.polygons, self.cones)]
         return len(np.unique(np.concatenate(gids))) if any(len(g) for g in gids) else 0
-
-    def kinds(self) -> list[str]:
-        """Primitive kinds present, for stats and kernel specialisation."""
-        names = ("spheres", "triangles", "polygons", "cones")
-        return [n for n in names if len(getattr(self, n))]

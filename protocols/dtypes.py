@@ -81,3 +81,21 @@ WIRE_DTYPES = {
     "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
     "i8": np.dtype("<i8"),
 }  # fmt: skip
+
+# Camera elements along the optical axis z (camera frame, metres), listed from the film outward.
+CAP, PLANE, THIN_LENS, DIAPHRAGM = 0, 1, 2, 3
+ELLIPSE, RECTANGLE, POLYGON_RIM = 0, 1, 2
+ELEMENT = np.dtype(
+    [
+        ("kind", "u1"),  # CAP, PLANE, THIN_LENS or DIAPHRAGM
+        ("z", "<f8"),  # vertex (or plane) position on the axis
+        ("radius", "<f8"),  # CAP: curvature radius, > 0 when its centre lies toward +z
+        ("n_after", "<f8"),  # index of refraction on the +z side (CAP, PLANE)
+        ("focal", "<f8"),  # THIN_LENS: focal length (negative: diverging)
+        ("ax", "<f8"),  # rim / diaphragm half-size along x (ellipse semi-axis, half-width)
+        ("ay", "<f8"),  # ... along y
+        ("shape", "u1"),  # ELLIPSE, RECTANGLE or POLYGON_RIM (regular N-gon of radius ax)
+        ("sides", "<u2"),  # POLYGON_RIM: N
+        ("rotation", "<f8"),  # POLYGON_RIM: angle of the first corner, radians
+    ]
+)

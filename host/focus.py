@@ -1,0 +1,68 @@
+"""What a photographer asks of a lens, computed by tracing paraxial rays through its elements:
+effective focal length, principal planes, back focal distance, and the film position that
+focuses a given distance (bisection on the film position, DESIGN.md 7).
+"""
+
+import math
+
+import numpy as np
+
+from meshnode.engine.optics import paraxial_height, trace
+
+
+def cardinal(elements: np.ndarray) -> dict:
+    """EFL and the film-side focal and principal points, from a ray parallel to the axis
+    coming from the scene at a paraxial height."""
+    h = paraxial_height(elements)
+    front = float(elements["z"].max()) + 1.0
+    o, d, alive = trace(elements, [(h, 0.0, front)], [(0.0, 0.0, -1.0)], backward=True)
+    if not alive[0]:
+        raise ValueError("a paraxial ray from the scene does not reach the film")
+    slope = d[0, 0] / abs(d[0, 2])  # change of height per unit distance toward the film
+    if slope == 0.0:
+        raise ValueError("the element stack has no power (afocal)")
+    focal_z = o[0, 2] + o[0, 0] / slope  # where the ray meets the axis, film side
+    efl = -h / slope
+    first = float(elements["z"].min())
+    return {
+        "effective_focal_length": efl,
+        "back_focal_point_z": focal_z,
+        "rear_principal_plane_z": focal_z + efl,
+        "back_focal_distance": first - focal_z,
+    }
+
+
+def _miss(elements, film_z: float, object_z: float, h: float) -> float:
+    """Height at the object plane of a ray from the film's centre through the lens at height
+    h: zero when the film is in focus for that plane; its sign says which side we are on."""
+    first = float(elements["z"].min())
+    o, d, alive = trace(elements, [(0.0, 0.0, film_z)], [(h, 0.0, first - film_z)])
+    if not alive[0]:
+        raise ValueError("the focusing ray is blocked")
+    return o[0, 0] + (object_z - o[0, 2]) * d[0, 0] / d[0, 2]
+
+
+def film_for_distance(elements: np.ndarray, distance: float) -> float:
+    """Film z that focuses points `distance` in front of the last element (inf: infinity)."""
+    if math.isinf(distance):
+        return cardinal(elements)["back_focal_point_z"]
+    last, first = float(elements["z"].max()), float(elements["z"].min())
+    if distance <= 0:
+        raise ValueError(f"focus distance {distance} m is not in front of the lens")
+    efl = abs(cardinal(elements)["effective_focal_length"])
+    h = paraxial_height(elements)
+    object_z = last + distance
+    lo, hi = first - 1e4 * efl, first - 1e-9 * efl  # film far away .. film at the lens
+    g_lo, g_hi = _miss(elements, lo, object_z, h), _miss(elements, hi, object_z, h)
+    if g_lo * g_hi > 0:
+        raise ValueError(f"no film position focuses {distance} m (inside the focal length?)")
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        g = _miss(elements, mid, object_z, h)
+        if g == 0.0 or hi - lo <= 1e-15 * max(1.0, abs(mid)):
+            return mid
+        if (g < 0) == (g_lo < 0):
+            lo, g_lo = mid, g
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)

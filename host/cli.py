@@ -42,12 +42,46 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--overlap", type=float, default=1.0,
                    help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")
+    c.add_argument("camera", help="camera file (.toml, SI units) or lens table (mm)")
+    c.add_argument("--focus", type=float, help="focus distance in metres (default: the file's)")
+    c.add_argument("--coc", type=float, help="largest circle of confusion, m (default: d/1500)")
+    c.add_argument("--json", action="store_true", help="print JSON")
     return p
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "camera":
+        return _camera(args)
     return _render(args)
+
+
+def _camera(args) -> int:
+    from host.camera import CameraError, describe, read_camera
+
+    try:
+        d = describe(read_camera(args.camera), args.focus, args.coc)
+    except (CameraError, ValueError, OSError) as e:
+        print(f"host: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    fov = d["field_of_view_deg"]
+    mm = 1000.0
+    print(f"effective focal length  {d['effective_focal_length_m'] * mm:.2f} mm\n"
+          f"rear principal plane    z = {d['rear_principal_plane_z_m'] * mm:.2f} mm\n"
+          f"back focal distance     {d['back_focal_distance_m'] * mm:.2f} mm\n"
+          f"f-number                f/{d['f_number']:.2f} (entrance pupil "
+          f"{d['entrance_pupil_diameter_m'] * mm:.2f} mm)\n"
+          f"focus distance          {d['focus_distance_m']:g} m -> film at z = "
+          f"{d['film_z_m'] * mm:.3f} mm\n"
+          f"field of view           {fov['horizontal']:.1f} x {fov['vertical']:.1f} deg "
+          f"({fov['diagonal']:.1f} diagonal)\n"
+          f"hyperfocal distance     {d['hyperfocal_distance_m']:.2f} m (circle of confusion "
+          f"{d['circle_of_confusion_m'] * mm:.3f} mm)")  # fmt: skip
+    return 0
 
 
 def _render(args) -> int:

@@ -47,12 +47,15 @@ def film_for_distance(elements: np.ndarray, distance: float) -> float:
     if math.isinf(distance):
         return cardinal(elements)["back_focal_point_z"]
     last, first = float(elements["z"].max()), float(elements["z"].min())
-    if distance <= 0:
+    if distance <= 0 or math.isnan(distance):
         raise ValueError(f"focus distance {distance} m is not in front of the lens")
-    efl = abs(cardinal(elements)["effective_focal_length"])
+    card = cardinal(elements)
+    efl = abs(card["effective_focal_length"])
     h = paraxial_height(elements)
     object_z = last + distance
-    lo, hi = first - 1e4 * efl, first - 1e-9 * efl  # film far away .. film at the lens
+    # A near object images beyond the focal point: between it and far behind.
+    hi = min(card["back_focal_point_z"], first - 1e-9 * efl)
+    lo = hi - 1e4 * efl
     g_lo, g_hi = _miss(elements, lo, object_z, h), _miss(elements, hi, object_z, h)
     if g_lo * g_hi > 0:
         raise ValueError(f"no film position focuses {distance} m (inside the focal length?)")

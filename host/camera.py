@@ -1,0 +1,218 @@
+"""Camera descriptions: a TOML camera file in SI units, or a lens prescription table in the
+common text format, both turned into ELEMENT records listed from the film outward.
+
+TOML:   [film] width, height (m), z (optional; default: focused at [focus] distance)
+        [[element]] type = "cap" | "plane" | "thin_lens" | "diaphragm", z, radius, n_after,
+                    focal, diameter (or semi_x, semi_y), shape = "ellipse" | "rectangle" |
+                    "polygon", sides, rotation_deg
+        [focus] distance = metres or "infinity"
+Table:  one row per surface from the scene side to the film, `#` comments: curvature radius,
+        thickness to the next surface, index after it (toward the film; 0 means air),
+        aperture diameter, all in millimetres; radius 0 is the aperture stop. The last row's
+        thickness is the distance to the film.
+Errors name the file and the line (table) or the element (TOML).
+"""
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from host.focus import cardinal, film_for_distance
+from meshnode.engine.optics import trace
+from protocols import dtypes
+
+TYPES = {"cap": dtypes.CAP, "plane": dtypes.PLANE, "thin_lens": dtypes.THIN_LENS,
+         "diaphragm": dtypes.DIAPHRAGM}  # fmt: skip
+SHAPES = {"ellipse": dtypes.ELLIPSE, "rectangle": dtypes.RECTANGLE,
+          "polygon": dtypes.POLYGON_RIM, "hexagon": dtypes.POLYGON_RIM}  # fmt: skip
+
+
+class CameraError(ValueError):
+    """An impossible or malformed camera, named by file and line or element."""
+
+
+@dataclass
+class Camera:
+    elements: np.ndarray  # ELEMENT records, film outward (increasing z)
+    film_width: float
+    film_height: float
+    film_z: float | None = None
+    focus_distance: float = math.inf
+    source: str = "<memory>"
+    notes: list = field(default_factory=list)
+
+    def focused_film_z(self) -> float:
+        return self.film_z if self.film_z is not None else film_for_distance(
+            self.elements, self.focus_distance)  # fmt: skip
+
+
+def _element(spec: dict, where: str) -> np.void:
+    e = np.zeros(1, dtypes.ELEMENT)[0]
+    kind = spec.get("type")
+    if kind not in TYPES:
+        raise CameraError(f"{where}: type must be one of {sorted(TYPES)}, not {kind!r}")
+    e["kind"] = TYPES[kind]
+    e["z"] = float(spec.get("z", 0.0))
+    e["n_after"] = float(spec.get("n_after", 1.0))
+    if "diameter" in spec:
+        e["ax"] = e["ay"] = float(spec["diameter"]) / 2
+    else:
+        e["ax"] = float(spec.get("semi_x", 0.0))
+        e["ay"] = float(spec.get("semi_y", e["ax"]))
+    if e["ax"] <= 0 or e["ay"] <= 0:
+        raise CameraError(f"{where}: needs a positive diameter (or semi_x / semi_y)")
+    shape = spec.get("shape", "ellipse")
+    if shape not in SHAPES:
+        raise CameraError(f"{where}: shape must be one of {sorted(SHAPES)}, not {shape!r}")
+    e["shape"] = SHAPES[shape]
+    e["sides"] = int(spec.get("sides", 6 if shape == "hexagon" else 0))
+    if e["shape"] == dtypes.POLYGON_RIM and e["sides"] < 3:
+        raise CameraError(f"{where}: a polygon diaphragm needs sides >= 3")
+    e["rotation"] = math.radians(float(spec.get("rotation_deg", 0.0)))
+    if kind == "cap":
+        e["radius"] = float(spec.get("radius", 0.0))
+        if e["radius"] == 0 or abs(e["radius"]) < max(e["ax"], e["ay"]):
+            raise CameraError(f"{where}: a cap needs |radius| at least its semi-aperture")
+    if kind == "thin_lens":
+        e["focal"] = float(spec.get("focal", 0.0))
+        if e["focal"] == 0:
+            raise CameraError(f"{where}: a thin lens needs a non-zero focal length")
+    if e["n_after"] <= 0:
+        raise CameraError(f"{where}: n_after must be positive")
+    return e
+
+
+def read_toml(path) -> Camera:
+    """A camera file in SI units."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise CameraError(f"{path}: {e}") from e
+    specs = data.get("element", [])
+    if not specs:
+        raise CameraError(f"{path}: no [[element]] tables")
+    elements = np.array([_element(s, f"{path}: element {i + 1}") for i, s in enumerate(specs)],
+                        dtype=dtypes.ELEMENT)  # fmt: skip
+    if np.any(np.diff(elements["z"]) < 0):
+        raise CameraError(f"{path}: elements must be listed from the film outward (z increasing)")
+    film = data.get("film", {})
+    focus = data.get("focus", {}).get("distance", "infinity")
+    distance = math.inf if focus == "infinity" else float(focus)
+    width, height = float(film.get("width", 0.036)), float(film.get("height", 0.024))
+    cam = Camera(elements, width, height, film.get("z"), distance, str(path))
+    return validate(cam)
+
+
+def read_table(path, film_width=0.036, film_height=0.024) -> Camera:
+    """A lens prescription table (millimetres, scene side first)."""
+    path = Path(path)
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        try:
+            values = [float(w) for w in words]
+        except ValueError:
+            raise CameraError(f"{path}:{number}: expected four numbers") from None
+        if len(values) != 4:
+            raise CameraError(f"{path}:{number}: expected radius thickness ior aperture")
+        if values[3] <= 0 or values[1] < 0:
+            raise CameraError(f"{path}:{number}: aperture must be positive, thickness >= 0")
+        rows.append((number, *values))
+    if not rows:
+        raise CameraError(f"{path}: no lens rows")
+    # Positions from the front vertex (z = 0) toward the film (negative z), in metres.
+    z, out = 0.0, []
+    for i, (number, radius, thick, _, aperture) in enumerate(rows):
+        before = 1.0 if i == 0 else (rows[i - 1][3] or 1.0)  # medium on the scene side
+        e = np.zeros(1, dtypes.ELEMENT)[0]
+        e["z"], e["ax"] = z, aperture / 2000
+        e["ay"], e["n_after"] = e["ax"], before
+        if radius == 0:
+            e["kind"] = dtypes.DIAPHRAGM
+        else:
+            e["kind"] = dtypes.CAP
+            e["radius"] = -radius / 1000  # the table's +z points at the film, ours at the scene
+            if abs(e["radius"]) < e["ax"]:
+                raise CameraError(f"{path}:{number}: |radius| is smaller than half the aperture")
+        out.append(e)
+        z -= thick / 1000
+    elements = np.array(out[::-1], dtype=dtypes.ELEMENT)
+    # The medium on the film side of the film-most surface must be air.
+    if rows[-1][3] not in (0.0, 1.0):
+        raise CameraError(f"{path}:{rows[-1][0]}: the last surface must leave the light in air")
+    cam = Camera(elements, film_width, film_height, z, math.inf, str(path))
+    return validate(cam)
+
+
+def read_camera(path) -> Camera:
+    return read_toml(path) if str(path).endswith(".toml") else read_table(path)
+
+
+def validate(cam: Camera) -> Camera:
+    """Impossible cameras fail before any tracing: film beyond the first element, no paraxial
+    ray through the stack, a focus distance inside the lens."""
+    first = float(cam.elements["z"].min())
+    try:
+        card = cardinal(cam.elements)
+    except ValueError as e:
+        raise CameraError(f"{cam.source}: {e}") from e
+    if cam.film_z is not None and cam.film_z >= first:
+        raise CameraError(f"{cam.source}: the film (z={cam.film_z}) is not behind the first "
+                          f"element (z={first})")  # fmt: skip
+    if card["effective_focal_length"] <= 0:
+        raise CameraError(f"{cam.source}: the lens does not form a real image (EFL <= 0)")
+    if cam.focus_distance <= 0:
+        raise CameraError(f"{cam.source}: focus distance must be in front of the lens")
+    try:
+        cam.focused_film_z()
+    except ValueError as e:
+        raise CameraError(f"{cam.source}: {e}") from e
+    return cam
+
+
+def entrance_pupil_radius(elements: np.ndarray) -> float:
+    """Largest height of a scene-side ray parallel to the axis that reaches the film side
+    (bisection): the entrance pupil seen from infinity."""
+    front = float(elements["z"].max()) + 1.0
+    lo, hi = 0.0, float(elements["ax"].max()) * 4
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        _, _, alive = trace(elements, [(mid, 0.0, front)], [(0.0, 0.0, -1.0)], backward=True)
+        lo, hi = (mid, hi) if alive[0] else (lo, mid)
+    return lo
+
+
+def describe(cam: Camera, focus: float | None = None, coc: float | None = None) -> dict:
+    """The figures a photographer asks of a lens."""
+    card = cardinal(cam.elements)
+    efl = card["effective_focal_length"]
+    pupil = entrance_pupil_radius(cam.elements)
+    n = efl / (2 * pupil)
+    distance = cam.focus_distance if focus is None else focus
+    film_z = cam.film_z if (cam.film_z is not None and focus is None) else film_for_distance(
+        cam.elements, distance)  # fmt: skip
+    image = card["rear_principal_plane_z"] - film_z
+    diag = math.hypot(cam.film_width, cam.film_height)
+    c = coc if coc is not None else diag / 1500
+    return {
+        "effective_focal_length_m": efl,
+        "rear_principal_plane_z_m": card["rear_principal_plane_z"],
+        "back_focal_distance_m": card["back_focal_distance"],
+        "entrance_pupil_diameter_m": 2 * pupil,
+        "f_number": n,
+        "focus_distance_m": distance,
+        "film_z_m": film_z,
+        "field_of_view_deg": {
+            "horizontal": 2 * math.degrees(math.atan(cam.film_width / (2 * image))),
+            "vertical": 2 * math.degrees(math.atan(cam.film_height / (2 * image))),
+            "diagonal": 2 * math.degrees(math.atan(diag / (2 * image))),
+        },
+        "circle_of_confusion_m": c,
+        "hyperfocal_distance_m": efl * efl / (n * c),
+    }

@@ -1,0 +1,87 @@
+"""Camera files and lens tables: readers, clear errors for impossible cameras, and the figures
+`host camera` prints, checked against thin-lens optics."""
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from host.camera import CameraError, describe, read_camera, read_table, read_toml
+from host.cli import main
+
+CAMERAS = Path(__file__).resolve().parents[1] / "host" / "cameras"
+
+
+def test_bundled_cameras_read_and_make_sense():
+    for path in sorted(CAMERAS.iterdir()):
+        d = describe(read_camera(path))
+        assert d["effective_focal_length_m"] > 0 and d["f_number"] > 0.5, path
+        assert 0 < d["field_of_view_deg"]["diagonal"] < 180, path
+
+
+def test_thin_lens_camera_figures_match_thin_lens_formulas():
+    cam = read_toml(CAMERAS / "thin_f2.8.toml")
+    d = describe(cam, focus=2.0, coc=3e-5)
+    f, n = 0.05, 2.8
+    assert d["effective_focal_length_m"] == pytest.approx(f, rel=1e-9)
+    assert d["f_number"] == pytest.approx(0.05 / 0.017857, rel=1e-4)
+    assert d["film_z_m"] == pytest.approx(-1 / (1 / f - 1 / 2.0), rel=1e-9)
+    assert d["hyperfocal_distance_m"] == pytest.approx(f * f / (d["f_number"] * 3e-5), rel=1e-9)
+    image = 1 / (1 / f - 1 / 2.0)
+    assert d["field_of_view_deg"]["horizontal"] == pytest.approx(
+        2 * math.degrees(math.atan(0.018 / image)), rel=1e-9)  # fmt: skip
+    assert n == pytest.approx(d["f_number"], rel=1e-4)
+
+
+def test_lens_table_matches_the_same_lens_as_toml(tmp_path):
+    # The biconvex lens as a table: scene side first, mm, last thickness = back focal distance.
+    table = tmp_path / "biconvex.txt"
+    table.write_text("# r t n aperture\n50 5 1.5 30\n-50 49.152542 0 30\n")
+    t = describe(read_table(table))
+    toml = describe(read_toml(CAMERAS / "biconvex.toml"))
+    assert t["effective_focal_length_m"] == pytest.approx(toml["effective_focal_length_m"],
+                                                          rel=1e-9)  # fmt: skip
+    assert t["back_focal_distance_m"] == pytest.approx(toml["back_focal_distance_m"], rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    "text,where",
+    [("50 5 1.5\n", ":1:"), ("# c\n50 5 x 30\n", ":2:"), ("50 5 1.5 30\n-50 40 1.5 30\n", ":2:"),
+     ("5 5 1.5 30\n", ":1:")],
+)  # fmt: skip
+def test_bad_lens_tables_name_the_line(tmp_path, text, where):
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+    with pytest.raises(CameraError, match=str(path).replace(".", r"\.") + where):
+        read_table(path)
+
+
+def test_impossible_cameras_fail_before_tracing(tmp_path):
+    base = (CAMERAS / "thin_f2.8.toml").read_text()
+    film_in_front = tmp_path / "a.toml"
+    film_in_front.write_text(base.replace("[film]\n", "[film]\nz = 0.01\n"))
+    with pytest.raises(CameraError, match="film"):
+        read_toml(film_in_front)
+    diverging = tmp_path / "b.toml"
+    diverging.write_text(base.replace("focal = 0.05", "focal = -0.05"))
+    with pytest.raises(CameraError, match="real image"):
+        read_toml(diverging)
+    inside = tmp_path / "c.toml"
+    inside.write_text(base.replace("distance = 2.0", "distance = 0.03"))
+    with pytest.raises(CameraError, match="focus"):
+        read_toml(inside)
+    unknown = tmp_path / "d.toml"
+    unknown.write_text(base.replace('type = "thin_lens"', 'type = "mirror"'))
+    with pytest.raises(CameraError, match="element 2"):
+        read_toml(unknown)
+
+
+def test_host_camera_command(capsys, tmp_path):
+    assert main(["camera", str(CAMERAS / "hexagon.toml"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["effective_focal_length_m"] == pytest.approx(0.05, rel=1e-9)
+    assert main(["camera", str(CAMERAS / "thin_f2.8.toml"), "--focus", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "f/2.80" in out and "50.00 mm" in out
+    assert main(["camera", str(tmp_path / "missing.toml")]) == 2

@@ -246,9 +246,10 @@ def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
 
 
 def wall_time(scene: Path, out_png: Path, env: dict) -> float:
-    """Wall seconds of one `python -m host.cli render SCENE --spd --threads 1` process."""
-    cmd = [sys.executable, "-m", "host.cli", "render", str(scene), "--spd", "--threads", "1",
-           "--quiet", "-o", str(out_png)]  # fmt: skip
+    """Wall seconds of one `python -m host.cli render SCENE --spd --mesh 1x1 --threads 1` process
+    (one node in the process: the figure POV-Ray's whole run compares with)."""
+    cmd = [sys.executable, "-m", "host.cli", "render", str(scene), "--spd", "--mesh", "1x1",
+           "--threads", "1", "--quiet", "-o", str(out_png)]  # fmt: skip
     start = time.perf_counter()
     done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - start
@@ -339,7 +340,8 @@ def print_wall(wall: dict) -> None:
     """Whole-process wall seconds, warm and cold numba cache."""
     if not wall:
         return
-    print("\n== whole process: python -m host.cli render SCENE --spd --threads 1 --quiet")
+    print("\n== whole process: python -m host.cli render SCENE --spd --mesh 1x1 --threads 1"
+          " --quiet")
     rows = [[name, f"{w['warm_seconds']:.2f}", f"{w['cold_seconds']:.2f}"]
             for name, w in wall.items()]  # fmt: skip
     print(table(["scene", "warm cache s", "cold cache s"], rows))

@@ -39,6 +39,13 @@ def _parser() -> argparse.ArgumentParser:
                         "auto: one node per core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    r.add_argument("--camera", help="render through a camera file (.toml) or lens table "
+                   "(in this process; not yet on the mesh)")  # fmt: skip
+    r.add_argument("--generation", type=int, default=2,
+                   help="camera generation area type 0..7 (default 2: random in ellipse)")
+    r.add_argument("--lens-rays", type=int, default=16, help="rays per pixel for types 2 and 3")
+    r.add_argument("--adaptation", choices=("all", "left"), default="all",
+                   help="average over all generated rays or those that left the camera")
     r.add_argument("--overlap", type=float, default=1.0,
                    help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -100,6 +107,17 @@ def _render(args) -> int:
         depth=5 if args.spd else args.depth, seed=args.seed, density=args.density,
         storage=args.storage, threads=args.threads, progress=not args.quiet,
     )  # fmt: skip
+    if args.camera:
+        from host.camera import CameraError, read_camera
+
+        try:
+            settings.camera = read_camera(args.camera)
+        except (CameraError, OSError) as e:
+            print(f"host: {e}", file=sys.stderr)
+            return 2
+        settings.generation, settings.lens_rays = args.generation, args.lens_rays
+        settings.adaptation = args.adaptation
+        args.mesh = "1x1"  # camera rays are generated in this process for now
     try:
         image, stats = _run(scene, settings, args)
     except (ValueError, OSError) as e:

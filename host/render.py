@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from host.framebuffer import Framebuffer
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.lenscamera import camera_rays
 from protocols.scene import SceneData
 
 
@@ -32,6 +33,10 @@ class RenderSettings:
     brute: bool = False
     progress: bool = True
     band_rows: int = 16
+    camera: object = None  # host.camera.Camera: primary rays through its elements
+    generation: int = 2  # generation area type 0..7
+    lens_rays: int = 16  # rays per pixel for the random generation areas (types 2, 3)
+    adaptation: str = "all"  # colour adaptation: over all generated rays, or those that left
 
     def size(self, scene: SceneData) -> tuple[int, int]:
         if self.spd:
@@ -48,13 +53,20 @@ def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = N
                               brute=s.brute)  # fmt: skip
     engine.warmup()
     width, height = s.size(scene)
-    fb = Framebuffer(width, height, corners=s.spd, spp=s.spp)
+    cam = s.camera
+    film_z = cam.focused_film_z() if cam is not None else None
+    fb = Framebuffer(width, height, corners=s.spd, spp=1 if cam is not None else s.spp)
     grid_h = height + 1 if s.spd else height
     bands = [(y, min(y + s.band_rows, grid_h)) for y in range(0, grid_h, s.band_rows)]
     threads = s.threads or os.cpu_count() or 1
 
     def trace_band(rows):
-        rays = eye_rays(scene.view, width, height, s.spd, s.spp, s.seed, rows=rows)
+        if cam is not None:
+            rays = camera_rays(scene.view, width, height, cam.elements, cam.film_width,
+                               cam.film_height, film_z, s.generation, s.lens_rays, s.seed,
+                               s.adaptation, rows=rows)  # fmt: skip
+        else:
+            rays = eye_rays(scene.view, width, height, s.spd, s.spp, s.seed, rows=rows)
         rgb, counts = engine.trace(rays)
         counts["eye_rays"] = len(rays)
         return rays["pixel"], rgb, counts

@@ -5,10 +5,12 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from host.camera import CameraError, describe, read_camera, read_table, read_toml
 from host.cli import main
+from protocols import dtypes
 
 CAMERAS = Path(__file__).resolve().parents[1] / "host" / "cameras"
 
@@ -85,3 +87,78 @@ def test_host_camera_command(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "f/2.80" in out and "50.00 mm" in out
     assert main(["camera", str(tmp_path / "missing.toml")]) == 2
+
+
+def _empty_scene():
+    from protocols.scene import SceneData, View
+
+    return SceneData(view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0), background=(1.0, 1.0, 1.0))
+
+
+def _lens_with_stop(shape: str, stop_r: float, lens_r: float = 0.01):
+    """A thin lens with a diaphragm in its own plane: the generation area is the lens rim, so
+    a pixel sees the stop's share of it."""
+    from host.camera import Camera
+    from tests.test_optics import stack
+
+    elements = stack(
+        {"kind": dtypes.THIN_LENS, "z": 0.0, "focal": 0.05, "ax": lens_r, "ay": lens_r},
+        {"kind": dtypes.DIAPHRAGM, "z": 0.0, "ax": stop_r, "ay": stop_r,
+         "shape": dtypes.POLYGON_RIM if shape == "hexagon" else dtypes.ELLIPSE,
+         "sides": 6 if shape == "hexagon" else 0},
+    )  # fmt: skip
+    return Camera(elements, 0.036, 0.024, None, 2.0)
+
+
+@pytest.mark.parametrize("shape,stop_r,expected", [
+    ("ellipse", 0.005, 0.25),  # (r/R)^2
+    ("hexagon", 0.01, 3 * math.sqrt(3) / (2 * math.pi)),  # hexagon / circumscribed disc
+])  # fmt: skip
+def test_diaphragm_dims_the_image_by_the_ratio_of_areas(shape, stop_r, expected):
+    from host.render import RenderSettings, render
+
+    scene = _empty_scene()
+    cam = _lens_with_stop(shape, stop_r)
+    rs = RenderSettings(width=8, height=6, camera=cam, generation=2, lens_rays=4096,
+                        adaptation="all", progress=False, threads=1)  # fmt: skip
+    img, stats = render(scene, rs)
+    centre = img[2:4, 3:5].mean()
+    assert centre == pytest.approx(expected, abs=0.02)
+    # Averaged over the rays that left the camera instead, nothing is lost.
+    rs.adaptation = "left"
+    img, _ = render(scene, rs)
+    np.testing.assert_allclose(img[2:4, 3:5], 1.0, atol=1e-12)
+
+
+def test_camera_image_is_upright_and_not_mirrored():
+    # An off-axis sphere lands in the same quadrant through the lens as through the pinhole.
+    from host.render import RenderSettings, render
+    from protocols.scene import View
+    from tests.conftest import make_scene
+
+    scene = make_scene(spheres=[((1.0, 0.8, 0.0), 0.3, 0)], lights=[(0, 0, -10)],
+                       view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0))  # fmt: skip
+    cam = read_toml(CAMERAS / "thin_f2.8.toml")
+    centroids = []
+    for camera in (None, cam):
+        rs = RenderSettings(width=40, height=40, camera=camera, generation=1, progress=False,
+                            threads=1)  # fmt: skip
+        img, _ = render(scene, rs)
+        ys, xs = np.nonzero(img.sum(axis=2) > 0.05)
+        assert len(ys)
+        centroids.append((np.sign(xs.mean() - 19.5), np.sign(ys.mean() - 19.5)))
+    assert centroids[0] == centroids[1] and centroids[0] != (0, 0)
+
+
+def test_host_render_through_a_camera(tmp_path, capsys):
+    scene = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
+    out = tmp_path / "c.png"
+    args = ["render", str(scene), "-o", str(out), "--width", "24", "--height", "16",
+            "--lens-rays", "4", "--quiet", "--stats", str(tmp_path / "s.json")]  # fmt: skip
+    assert main([*args, "--camera", str(CAMERAS / "hexagon.toml")]) == 0
+    stats = json.loads((tmp_path / "s.json").read_text())
+    assert 0 < stats["rays"]["eye_rays"] <= 24 * 16 * 4  # lost rays are not traced
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[element]]\ntype = 'mirror'\n")
+    assert main([*args, "--camera", str(bad)]) == 2
+    assert "element 1" in capsys.readouterr().err

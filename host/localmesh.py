@@ -6,9 +6,9 @@ manager, so no orphan is left behind.
 """
 
 import os
+import select
 import subprocess
 import sys
-import time
 
 
 class LocalMesh:
@@ -32,9 +32,10 @@ class LocalMesh:
             raise
 
     def _address(self, proc: subprocess.Popen) -> str:
-        deadline = time.monotonic() + self.timeout
-        line = proc.stdout.readline()
-        if not line.startswith("listening ") or time.monotonic() > deadline:
+        """The address a node prints once bound; waiting at most `timeout` seconds for it."""
+        ready, _, _ = select.select([proc.stdout], [], [], self.timeout)
+        line = proc.stdout.readline() if ready else ""
+        if not line.startswith("listening "):
             raise RuntimeError(f"meshnode did not start (pid {proc.pid}): {line!r}")
         return line.split()[1]
 

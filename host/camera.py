@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from host.focus import cardinal, film_for_distance
+from host.focus import cardinal, dof_from_near_far, dof_from_tolerance, film_for_distance
 from meshnode.engine.optics import trace
 from protocols import dtypes
 
@@ -216,3 +216,70 @@ def describe(cam: Camera, focus: float | None = None, coc: float | None = None) 
         "circle_of_confusion_m": c,
         "hyperfocal_distance_m": efl * efl / (n * c),
     }
+
+
+def with_f_number(cam: Camera, n: float) -> Camera:
+    """The camera stopped to f-number `n`: its diaphragms scaled (a circular one added in the
+    front element's plane if it has none) so the entrance pupil is EFL / n across."""
+    efl = cardinal(cam.elements)["effective_focal_length"]
+    want = efl / (2.0 * n)
+    elements = cam.elements.copy()
+    stops = np.flatnonzero(elements["kind"] == dtypes.DIAPHRAGM)
+    if len(stops) == 0:
+        stop = np.zeros(1, dtypes.ELEMENT)
+        stop["kind"], stop["shape"] = dtypes.DIAPHRAGM, dtypes.ELLIPSE
+        front = int(np.argmax(elements["z"]))
+        stop["z"] = elements["z"][front]
+        stop["ax"] = stop["ay"] = elements["ax"][front]
+        elements = np.concatenate([elements[:front], stop, elements[front:]])
+        stops = np.array([front])
+    for _ in range(3):  # the pupil is linear in the stop's size while the stop limits it
+        scale = want / entrance_pupil_radius(elements)
+        elements["ax"][stops] *= scale
+        elements["ay"][stops] *= scale
+    got = entrance_pupil_radius(elements)
+    if abs(got - want) > 1e-3 * want:
+        raise CameraError(f"{cam.source}: the lens opens only to f/{efl / (2 * got):.2f}, "
+                          f"not f/{n:.2f}")  # fmt: skip
+    out = Camera(elements, cam.film_width, cam.film_height, cam.film_z, cam.focus_distance,
+                 cam.source, [*cam.notes, f"stopped to f/{n:.3g}"])  # fmt: skip
+    return out
+
+
+def default_coc(cam: Camera) -> float:
+    """The usual largest circle of confusion: the film diagonal / 1500."""
+    return math.hypot(cam.film_width, cam.film_height) / 1500
+
+
+def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=None,
+            autofocus=None) -> Camera:  # fmt: skip
+    """The camera focused and stopped as asked: `focus` in metres, "infinity" or "auto"
+    (`autofocus()` gives the distance: a probe pass through the scene); `near`/`far`: the
+    depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp."""
+    efl = cardinal(cam.elements)["effective_focal_length"]
+    c = coc or default_coc(cam)
+    out = cam
+    try:
+        if near is not None or far is not None:
+            if near is None or focus is not None or tolerance is not None:
+                raise ValueError("depth of field from near/far takes no focus or tolerance")
+            distance, n = dof_from_near_far(efl, c, near, math.inf if far is None else far)
+            out = with_f_number(cam, n)
+        else:
+            if focus == "auto":
+                distance = autofocus()
+            elif focus == "infinity":
+                distance = math.inf
+            else:
+                distance = cam.focus_distance if focus is None else float(focus)
+            if tolerance is not None:
+                if math.isinf(distance):
+                    raise ValueError("a focus tolerance needs a finite focus distance")
+                out = with_f_number(cam, dof_from_tolerance(efl, c, distance, tolerance))
+    except ValueError as e:
+        raise CameraError(f"{cam.source}: {e}") from e
+    if focus is None and near is None and far is None and cam.film_z is not None:
+        return out  # the file fixes the film
+    out = Camera(out.elements, out.film_width, out.film_height, None, distance, out.source,
+                 [*out.notes, f"focused at {distance:.4g} m"])  # fmt: skip
+    return validate(out)

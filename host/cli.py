@@ -11,6 +11,7 @@ from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
 from host.render import RenderSettings, render
+from protocols.camera import FILM_AREAS, SAMPLINGS
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -39,13 +40,33 @@ def _parser() -> argparse.ArgumentParser:
                         "auto: one node per core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
-    r.add_argument("--camera", help="render through a camera file (.toml) or lens table "
-                   "(in this process; not yet on the mesh)")  # fmt: skip
-    r.add_argument("--generation", type=int, default=2,
-                   help="camera generation area type 0..7 (default 2: random in ellipse)")
-    r.add_argument("--lens-rays", type=int, default=16, help="rays per pixel for types 2 and 3")
-    r.add_argument("--adaptation", choices=("all", "left"), default="all",
+    r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
+    g = r.add_argument_group("camera (with --camera)")
+    g.add_argument("--generation", type=int, default=2,
+                   help="generation area type 0..7 (default 2: rays in the ellipse)")
+    g.add_argument("--lens-rays", type=int, default=16,
+                   help="rays per pixel for types 2 and 3, or with a film area (default 16)")
+    g.add_argument("--sampling", choices=SAMPLINGS, default="jittered",
+                   help="how a pixel's rays are placed; adaptive: two opposite corners first, "
+                        "the rest where they differ by more than --threshold")  # fmt: skip
+    g.add_argument("--threshold", type=float, default=0.05,
+                   help="adaptive sampling's colour difference (default 0.05)")
+    g.add_argument("--film-area", choices=FILM_AREAS, default="centre",
+                   help="where on the pixel rays start (anti-aliasing in focus)")
+    g.add_argument("--film-area-size", type=float, default=1.0, help="film area, pixels across")
+    g.add_argument("--special-jitter", action="store_true",
+                   help="jitter over the film area instead of the lens: no depth of field")
+    g.add_argument("--adaptation", choices=("all", "left"), default="all",
                    help="average over all generated rays or those that left the camera")
+    g.add_argument("--focus", help="focus distance in metres, 'infinity' or 'auto' (a probe "
+                   "pass on the image centre); default: the camera file's")  # fmt: skip
+    g.add_argument("--dof-near", type=float, help="depth of field: nearest sharp distance (m)")
+    g.add_argument("--dof-far", type=float,
+                   help="farthest sharp distance (m; default infinity with --dof-near)")
+    g.add_argument("--dof-tolerance", type=float,
+                   help="keep the focus distance +- this many metres sharp")
+    g.add_argument("--coc", type=float,
+                   help="largest circle of confusion on the film, m (default: diagonal/1500)")
     r.add_argument("--overlap", type=float, default=1.0,
                    help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -115,12 +136,22 @@ def _render(args) -> int:
         except (CameraError, OSError) as e:
             print(f"host: {e}", file=sys.stderr)
             return 2
-        settings.generation, settings.lens_rays = args.generation, args.lens_rays
-        settings.adaptation = args.adaptation
-        args.mesh = "1x1"  # camera rays are generated in this process for now
+        focus = args.focus
+        if focus not in (None, "auto", "infinity"):
+            try:
+                focus = float(focus)
+            except ValueError:
+                print(f"host: --focus wants metres, 'infinity' or 'auto', not {focus!r}",
+                      file=sys.stderr)  # fmt: skip
+                return 2
+        for name in ("generation", "lens_rays", "sampling", "threshold", "film_area",
+                     "film_area_size", "adaptation", "dof_near", "dof_far", "dof_tolerance",
+                     "coc"):  # fmt: skip
+            setattr(settings, name, getattr(args, name))
+        settings.special, settings.focus = args.special_jitter, focus
     try:
         image, stats = _run(scene, settings, args)
-    except (ValueError, OSError) as e:
+    except (ValueError, OSError) as e:  # CameraError included
         print(f"host: {e}", file=sys.stderr)
         return 2
     except MeshError as e:

@@ -69,3 +69,30 @@ def film_for_distance(elements: np.ndarray, distance: float) -> float:
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+def dof_from_near_far(efl: float, coc: float, near: float, far: float) -> tuple[float, float]:
+    """Focus distance and f-number that keep [near, far] within a circle of confusion `coc`
+    (thin-lens law): 1/near + 1/far = 2/s, and N from near = s f^2 / (f^2 + N c (s - f))."""
+    if not 0 < near < far:
+        raise ValueError(f"depth of field needs 0 < near < far, got near={near} far={far}")
+    s = 2.0 / (1.0 / near + (0.0 if math.isinf(far) else 1.0 / far))
+    if s <= efl or near <= efl:
+        raise ValueError(f"near distance {near} m is inside the focal length {efl} m")
+    inv_far = 0.0 if math.isinf(far) else 1.0 / far
+    n = s * efl * efl * (1.0 / near - inv_far) / (2.0 * coc * (s - efl))
+    return s, n
+
+
+def dof_from_tolerance(efl: float, coc: float, distance: float, tolerance: float) -> float:
+    """f-number that keeps distance +- tolerance sharp when focused at `distance`; the near
+    side is the binding one (depth of field is deeper behind the focus than in front)."""
+    if not 0 < tolerance < distance or distance <= efl:
+        raise ValueError(f"depth of field needs 0 < tolerance < distance and a distance beyond "
+                         f"the focal length; got {distance} m +- {tolerance} m")  # fmt: skip
+    return efl * efl * tolerance / (coc * (distance - efl) * (distance - tolerance))
+
+
+def circle_of_confusion(efl: float, n: float, focus: float, distance: float) -> float:
+    """Blur diameter on the film of a point at `distance` when focused at `focus` (DESIGN 7)."""
+    return abs(efl * efl * (focus / distance - 1.0) / (n * (focus - efl)))

@@ -70,6 +70,11 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     keep = holders(scene, los, his)
     rects = rectangles(gw, gh, rows, cols)
     settings = _settings(scene, rs, width, height, rects, los, his)
+    camera_info = None
+    if rs.camera is not None:
+        # Autofocus probes the whole scene here, before any node is configured.
+        spec, camera_info = rs.camera_rays(scene, lambda: _probe_engine(scene, rs))
+        settings["camera"] = spec.to_wire()
     settings["link_delay"] = list(link_delay) if link_delay else None
     settings["incoming_high"] = incoming_high
     links = []
@@ -90,7 +95,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
             await link.close()
         raise MeshError(f"setting up the mesh: {e}") from e
     setup = time.perf_counter() - start
-    fb = Framebuffer(width, height, rs.spd, rs.spp)
+    fb = Framebuffer(width, height, rs.spd, 1 if rs.camera is not None else rs.spp)
     stats: dict[int, dict] = {}
     deposits = 0
 
@@ -143,7 +148,18 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 pass
             await link.close()
     wall = time.perf_counter() - start
-    return fb.image(), _summary(stats, torus, keep, deposits, setup, wall)
+    summary = _summary(stats, torus, keep, deposits, setup, wall)
+    if camera_info is not None:
+        summary["camera"] = camera_info
+    return fb.image(), summary
+
+
+def _probe_engine(scene: SceneData, rs):
+    from meshnode.engine import Engine
+
+    engine = Engine(scene, density=rs.density, storage=rs.storage, max_depth=1)
+    engine.warmup()
+    return engine
 
 
 def _summary(stats, torus, keep, deposits, setup, wall) -> dict:

@@ -7,13 +7,18 @@ its own mailbox and stack, and counters are summed at the end.
 import os
 import sys
 import time
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+from host.autofocus import autofocus_distance
+from host.camera import describe, focused
 from host.framebuffer import Framebuffer
+from meshnode.adaptive import AdaptiveFilm
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lenscamera import camera_rays
+from meshnode.engine.lenscamera import camera_batches, rect_pixels
+from protocols.camera import CameraRays
 from protocols.scene import SceneData
 
 
@@ -35,13 +40,50 @@ class RenderSettings:
     band_rows: int = 16
     camera: object = None  # host.camera.Camera: primary rays through its elements
     generation: int = 2  # generation area type 0..7
-    lens_rays: int = 16  # rays per pixel for the random generation areas (types 2, 3)
+    lens_rays: int = 16  # rays per pixel for generation areas 2 and 3 (or a film area)
     adaptation: str = "all"  # colour adaptation: over all generated rays, or those that left
+    sampling: str = "jittered"  # uniform | jittered | random | adaptive
+    threshold: float = 0.05  # adaptive: corner colours differing by more get every ray
+    film_area: str = "centre"  # where on the pixel camera rays start: centre|ellipse|rectangle
+    film_area_size: float = 1.0  # film area across, in pixels
+    special: bool = False  # jitter over the film area instead of the lens (no depth of field)
+    focus: object = None  # metres, "infinity" or "auto" (a probe pass); None: the camera's own
+    dof_near: float | None = None  # depth of field: nearest and farthest sharp distances
+    dof_far: float | None = None
+    dof_tolerance: float | None = None  # or: focus +- this stays sharp
+    coc: float | None = None  # largest circle of confusion (m); default film diagonal / 1500
 
     def size(self, scene: SceneData) -> tuple[int, int]:
         if self.spd:
             return 512, 512
         return (self.width or scene.view.width, self.height or scene.view.height)
+
+    def camera_rays(self, scene: SceneData, engine_for_probe) -> tuple[CameraRays, dict]:
+        """The camera focused and stopped as asked, as the spec every node makes rays from;
+        `engine_for_probe()` gives a whole-scene engine if autofocus needs a probe pass."""
+        probe: dict = {}
+
+        def autofocus():
+            w, h = self.size(scene)
+            distance, seen = autofocus_distance(engine_for_probe(), scene.view, w, h)
+            probe.update(seen)
+            return distance
+
+        cam = focused(self.camera, self.focus, self.dof_near, self.dof_far, self.dof_tolerance,
+                      self.coc, autofocus)  # fmt: skip
+        spec = CameraRays(cam.elements, cam.film_width, cam.film_height, cam.focused_film_z(),
+                          self.generation, self.lens_rays, self.sampling, self.threshold,
+                          self.film_area, self.film_area_size, self.special, self.adaptation,
+                          self.seed)  # fmt: skip
+        d = describe(cam)
+        info = {"source": cam.source, "notes": cam.notes, "f_number": d["f_number"],
+                "focus_distance_m": cam.focus_distance, "film_z_m": spec.film_z,
+                "effective_focal_length_m": d["effective_focal_length_m"],
+                "generation": spec.generation, "rays_per_pixel": spec.per_pixel,
+                "sampling": spec.sampling, "threshold": spec.threshold if spec.adaptive else None,
+                "film_area": spec.film_area, "special_jittering": spec.special,
+                "adaptation": spec.adaptation, "autofocus": probe or None}  # fmt: skip
+        return spec, info
 
 
 def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = None):
@@ -53,39 +95,85 @@ def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = N
                               brute=s.brute)  # fmt: skip
     engine.warmup()
     width, height = s.size(scene)
-    cam = s.camera
-    film_z = cam.focused_film_z() if cam is not None else None
-    fb = Framebuffer(width, height, corners=s.spd, spp=1 if cam is not None else s.spp)
+    if s.camera is not None:
+        return _render_camera(scene, s, engine, width, height)
+    fb = Framebuffer(width, height, corners=s.spd, spp=s.spp)
     grid_h = height + 1 if s.spd else height
     bands = [(y, min(y + s.band_rows, grid_h)) for y in range(0, grid_h, s.band_rows)]
-    threads = s.threads or os.cpu_count() or 1
 
     def trace_band(rows):
-        if cam is not None:
-            rays = camera_rays(scene.view, width, height, cam.elements, cam.film_width,
-                               cam.film_height, film_z, s.generation, s.lens_rays, s.seed,
-                               s.adaptation, rows=rows)  # fmt: skip
-        else:
-            rays = eye_rays(scene.view, width, height, s.spd, s.spp, s.seed, rows=rows)
-        rgb, counts = engine.trace(rays)
-        counts["eye_rays"] = len(rays)
-        return rays["pixel"], rgb, counts
+        rays = eye_rays(scene.view, width, height, s.spd, s.spp, s.seed, rows=rows)
+        return rays, *engine.trace(rays)
 
+    return _run_batches(engine, fb, bands, trace_band, s, width, height)
+
+
+def _run_batches(engine, fb, jobs, trace_job, s, width, height, camera=None, passes=None):
+    """Trace jobs on the thread pool, add their deposits to `fb` (or to `passes`' film);
+    `passes` lists job lists traced one after the other (adaptive sampling)."""
+    threads = s.threads or os.cpu_count() or 1
     totals: dict[str, int] = {}
     start = time.perf_counter()
-    bar = _progress(len(bands), s.progress)
+    bar = _progress(None if passes else len(jobs), s.progress)
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        for ids, rgb, counts in pool.map(trace_band, bands):
-            fb.add(ids, rgb)
-            for k, v in counts.items():
-                totals[k] = totals.get(k, 0) + v
-            bar.update(1)
+        for job_list, sink in passes or [(jobs, None)]:
+            for rays, rgb, counts in _bounded_map(pool, trace_job, job_list, 2 * threads):
+                if sink is None:
+                    fb.add(rays["pixel"], rgb)
+                else:
+                    sink.add(rays["pixel"], rgb)
+                counts["eye_rays"] = len(rays)
+                for k, v in counts.items():
+                    totals[k] = totals.get(k, 0) + v
+                bar.update(1)
     bar.close()
     trace_seconds = time.perf_counter() - start
-    return fb.image(), _stats(engine, totals, trace_seconds, width, height, s, threads)
+    stats = _stats(engine, totals, trace_seconds, width, height, s, threads)
+    if camera is not None:
+        stats["camera"] = camera
+    return fb.image(), stats
 
 
-def _progress(total: int, enabled: bool):
+def _render_camera(scene, s, engine, width, height):
+    """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
+    spec, info = s.camera_rays(scene, lambda: engine)
+    fb = Framebuffer(width, height, corners=False, spp=1)
+    pixels = rect_pixels((0, width, 0, height), width)
+
+    def trace_batch(rays):
+        return rays, *engine.trace(rays)
+
+    if not spec.adaptive:
+        batches = list(camera_batches(spec, scene.view, width, height, pixels))
+        return _run_batches(engine, fb, batches, trace_batch, s, width, height, info)
+    film = AdaptiveFilm(spec, pixels)
+
+    class Passes:  # pass 2's rays depend on pass 1's colours: made only once it is traced
+        def __iter__(self):
+            yield film.pass1(scene.view, width, height), film
+            yield film.pass2(scene.view, width, height), film
+
+    image, stats = _run_batches(engine, fb, None, trace_batch, s, width, height, info, Passes())
+    ids, rgb = film.finish()
+    fb.add(ids, rgb)
+    stats["camera"]["refined_pixels"] = int(film.refined.sum())
+    stats["camera"]["rays_per_pixel_traced"] = stats["rays"]["eye_rays"] / len(pixels)
+    return fb.image(), stats
+
+
+def _bounded_map(pool, fn, jobs, inflight: int):
+    """pool.map in order, with at most `inflight` jobs submitted: jobs may be generators of
+    big ray batches, which pool.map would all make up front."""
+    pending: deque = deque()
+    for job in jobs:
+        pending.append(pool.submit(fn, job))
+        if len(pending) >= inflight:
+            yield pending.popleft().result()
+    while pending:
+        yield pending.popleft().result()
+
+
+def _progress(total, enabled: bool):
     from tqdm import tqdm
 
     return tqdm(total=total, unit="band", desc="tracing", file=sys.stderr,

@@ -10,9 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from meshnode.adaptive import AdaptiveFilm, owner_of
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.lenscamera import camera_batches, rect_pixels
 from meshnode.engine.trace import owners
+from protocols.camera import CameraRays
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.scene import SceneData
 
@@ -35,6 +38,8 @@ class NodeCore:
         self.los, self.his = np.asarray(los, float), np.asarray(his, float)
         self.engine = Engine(scene, box=(self.los[node], self.his[node]), scene_box=scene_box,
                              density=density, storage=storage, max_depth=max_depth)  # fmt: skip
+        self.camera: CameraRays | None = None
+        self.film: AdaptiveFilm | None = None
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
@@ -49,6 +54,31 @@ class NodeCore:
         x0, x1, y0, y1 = rect
         return eye_rays(view, width, height, corners, spp, seed, rows=(y0, y1), cols=(x0, x1))
 
+    def use_camera(self, spec: CameraRays | None, width: int, rects) -> None:
+        """Primary rays from this camera (None: the pinhole); under adaptive sampling this
+        node keeps the books of its own pixels and every deposit comes back to its owner."""
+        self.camera, self.width, self.rects = spec, width, [tuple(r) for r in rects]
+        pixels = rect_pixels(self.rects[self.node], width)
+        self.film = AdaptiveFilm(spec, pixels) if spec is not None and spec.adaptive else None
+
+    def camera_pass(self, view, width, height, second: bool):
+        """Batches of camera rays of this node's rectangle: every ray, or adaptive sampling's
+        first pass (corner rays) or second (the rest, where the corners differ)."""
+        if self.film is not None:
+            return (self.film.pass2 if second else self.film.pass1)(view, width, height)
+        if second:
+            return iter(())
+        pixels = rect_pixels(self.rects[self.node], width)
+        return camera_batches(self.camera, view, width, height, pixels)
+
+    def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
+        """Deposits by the node they go to: node 0 (then the host), or under adaptive
+        sampling the node owning each deposit's pixel."""
+        if self.film is None or len(deposits) == 0:
+            return {0: deposits} if len(deposits) else {}
+        dest = owner_of(deposits["pixel"] // self.film.n, self.width, self.rects)
+        return _group(deposits, dest)
+
     def trace(self, rays: np.ndarray) -> Batch:
         cpu = time.thread_time()
         rgb, counts, passed = self.engine.trace_node(rays)
@@ -60,14 +90,19 @@ class NodeCore:
         return Batch(deposits, self.route(passed), counts)
 
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
-        """Rays grouped by the node that takes them on (one sort, no loop per ray)."""
+        """Rays grouped by the node that takes them on."""
         if len(rays) == 0:
             return {}
         dest = owners(rays, self.los, self.his)
         if (dest < 0).any():
             raise RuntimeError(f"node {self.node}: {int((dest < 0).sum())} rays have no owner box")
-        order = np.argsort(dest, kind="stable")
-        nodes, starts = np.unique(dest[order], return_index=True)
-        groups = np.split(rays[order], starts[1:])
-        pairs = zip(nodes.tolist(), groups, strict=True)
-        return {n: np.ascontiguousarray(g, dtype=RAY) for n, g in pairs}
+        return _group(rays, dest)
+
+
+def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:
+    """Records grouped by destination node (one sort, no loop per record)."""
+    order = np.argsort(dest, kind="stable")
+    nodes, starts = np.unique(dest[order], return_index=True)
+    groups = np.split(records[order], starts[1:])
+    pairs = zip(nodes.tolist(), groups, strict=True)
+    return {n: np.ascontiguousarray(g) for n, g in pairs}

@@ -20,6 +20,8 @@ import numpy as np
 from meshnode.link import Link, LinkClosed
 from meshnode.node import NodeCore
 from meshnode.termination import Packet, State, Termination
+from protocols.camera import CameraRays
+from protocols.dtypes import DEPOSIT
 from protocols.handshake import check_hello, hello
 from protocols.messages import OBJECT_TABLES, Kind, make
 from protocols.scene import SceneData, View
@@ -60,6 +62,28 @@ class Outbox:
             on_error(e)
 
 
+class Primaries:
+    """Batches of primary rays made one at a time (memory stays bounded at any number of
+    rays per pixel), with a look ahead so the work loop can ask whether any are left."""
+
+    def __init__(self, batches):
+        self.batches, self.next = iter(batches), None
+        self._advance()
+
+    def _advance(self) -> None:
+        self.next = next(self.batches, None)
+        while self.next is not None and len(self.next) == 0:
+            self.next = next(self.batches, None)
+
+    def __bool__(self) -> bool:
+        return self.next is not None
+
+    def pop(self) -> np.ndarray:
+        rays = self.next
+        self._advance()
+        return rays
+
+
 class Session:
     """One render on this node, from CONFIG to DONE."""
 
@@ -77,7 +101,7 @@ class Session:
         self.outboxes: dict[int, Outbox] = {}
         self.host_out = Outbox(host, self.fail)
         self.incoming: deque = deque()
-        self.primaries: deque = deque()
+        self.primaries = Primaries(iter(()))
         self.deposits: list = []
         self.packet: Packet | None = None
         self.wake = asyncio.Event()
@@ -129,6 +153,9 @@ class Session:
                              storage=s["storage"], max_depth=s["depth"]),  # fmt: skip
         )
         await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.warmup)
+        camera = s.get("camera")
+        self.core.use_camera(CameraRays.from_wire(camera) if camera else None, s["width"],
+                             s["rects"])  # fmt: skip
         for m in self.torus.links(self.node):
             if self.node < m:  # the lower index dials, the higher accepts
                 link = await Link.connect(self.config["neighbours"][str(m)], f"node {m}")
@@ -154,13 +181,13 @@ class Session:
             self.wake.set()
 
     def post_data(self, dest: int, kind: Kind, records: np.ndarray) -> None:
-        """A RAYS or PIXELS message toward `dest` (PIXELS: toward node 0), counted as sent."""
+        """A RAYS or PIXELS message toward node `dest`, counted as sent."""
         hop = self.router.next_hop(dest)
         if kind is Kind.RAYS:
             message = make(Kind.RAYS, rays=records, dest=dest)
             self.rays_out[hop] = self.rays_out.get(hop, 0) + len(records)
         else:
-            message = make(Kind.PIXELS, deposits=records)
+            message = make(Kind.PIXELS, deposits=records, dest=dest)
         self.term.on_sent()
         self.outboxes[hop].post(message, records.nbytes, self._delay(hop, kind))
 
@@ -176,11 +203,21 @@ class Session:
         return float(spec[2])
 
     def send_pixels(self, deposits: np.ndarray) -> None:
+        """Deposits toward node 0, which hands them to the host."""
         self.pixel_packets += 1
         if self.node == 0:
-            self.host_out.post(make(Kind.PIXELS, deposits=deposits), deposits.nbytes)
+            self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
         else:
             self.post_data(0, Kind.PIXELS, deposits)
+
+    def keep_pixels(self, deposits: np.ndarray) -> None:
+        """Adaptive sampling: deposits go to the node owning their pixel, which keeps them."""
+        for dest, group in self.core.pixel_routes(deposits).items():
+            if dest == self.node:
+                self.core.film.add(group["pixel"], group["rgb"])
+            else:
+                self.pixel_packets += 1
+                self.post_data(dest, Kind.PIXELS, group)
 
     async def read(self, m: int, link: Link) -> None:
         try:
@@ -202,7 +239,13 @@ class Session:
                         self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
                 elif kind is Kind.PIXELS:
                     self.term.on_received()
-                    self.send_pixels(np.array(f["deposits"]))
+                    deposits = np.array(f["deposits"])
+                    if f["dest"] != self.node:
+                        self.post_data(f["dest"], Kind.PIXELS, deposits)
+                    elif self.core.film is not None:
+                        self.core.film.add(deposits["pixel"], deposits["rgb"])
+                    else:
+                        self.send_pixels(deposits)
                 elif kind is Kind.STATE:
                     if f["dest"] == self.node:
                         sent, received = np.array(f["sent"]), np.array(f["received"])
@@ -223,12 +266,23 @@ class Session:
     def enter(self, state: int) -> None:
         """Act on a state the packet brought."""
         self.state = State(state)
-        if self.state == State.TRACE:
-            s = self.settings
+        s = self.settings
+        if self.state in (State.TRACE, State.REFINE) and self.core.camera is not None:
+            second = self.state == State.REFINE
+            self.primaries = Primaries(self.core.camera_pass(self.view, s["width"], s["height"],
+                                                             second))  # fmt: skip
+        elif self.state == State.TRACE:
             rays = self.core.primary(self.view, s["width"], s["height"], s["corners"], s["spp"],
                                      s["seed"], tuple(s["rects"][self.node]))  # fmt: skip
-            self.counts["eye_rays"] = len(rays)
-            self.primaries.extend(rays[i : i + RAY_BATCH] for i in range(0, len(rays), RAY_BATCH))
+            batches = (rays[i : i + RAY_BATCH] for i in range(0, len(rays), RAY_BATCH))
+            self.primaries = Primaries(batches)
+        elif self.state == State.FLUSH and self.core.film is not None:
+            pixels, rgb = self.core.film.finish()
+            for i in range(0, len(pixels), DEPOSIT_BATCH):
+                d = np.zeros(len(pixels[i : i + DEPOSIT_BATCH]), DEPOSIT)
+                d["pixel"], d["rgb"] = pixels[i : i + DEPOSIT_BATCH], rgb[i : i + DEPOSIT_BATCH]
+                self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
+            self.counts["refined_pixels"] = int(self.core.film.refined.sum())
         elif self.state == State.DONE:
             self.host_out.post(make(Kind.STATS, node=self.node, stats=self.statistics()))
 
@@ -249,7 +303,9 @@ class Session:
         self.cpu += batch.counts.pop("cpu_seconds")
         for k, v in batch.counts.items():
             self.counts[k] = self.counts.get(k, 0) + v
-        if len(batch.deposits):
+        if len(batch.deposits) and self.core.film is not None:
+            self.keep_pixels(batch.deposits)
+        elif len(batch.deposits):
             self.deposits.append(batch.deposits)
             if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
                 self.flush()
@@ -284,11 +340,14 @@ class Session:
                     self.drained.set()
                 await self.trace(rays)
                 continue
-            if self.state == State.TRACE and self.primaries and self.queued_bytes() < OUTBOX_HIGH:
-                await self.trace(self.primaries.popleft())
+            tracing = self.state in (State.TRACE, State.REFINE) and self.primaries
+            if tracing and self.queued_bytes() < OUTBOX_HIGH:
+                rays = self.primaries.pop()
+                self.counts["eye_rays"] = self.counts.get("eye_rays", 0) + len(rays)
+                await self.trace(rays)
                 continue
             self.flush()
-            idle = not (self.state == State.TRACE and self.primaries)
+            idle = not tracing
             if self.packet is not None and idle:
                 self.pass_packet()
                 continue

@@ -17,8 +17,9 @@ import numpy as np
 class State(IntEnum):
     DOWNLOAD = 0  # objects arriving, grids building
     TRACE = 1  # primary rays generated, rays traced and passed
-    FLUSH = 2  # last pixel packets on their way to the host
-    DONE = 3
+    REFINE = 2  # adaptive sampling's second pass (a pass-through otherwise)
+    FLUSH = 3  # last pixel packets on their way to the host
+    DONE = 4
 
 
 @dataclass

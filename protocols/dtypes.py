@@ -75,13 +75,6 @@ CONE = np.dtype(
 # One pixel deposit: colour to add to a framebuffer sample (pixel packets carry arrays of these).
 DEPOSIT = np.dtype([("pixel", "<i8"), ("rgb", "<f8", 3)])
 
-# Every array dtype that may travel in a frame, by the name frames use for it.
-WIRE_DTYPES = {
-    "ray": RAY, "deposit": DEPOSIT, "material": MATERIAL, "light": LIGHT, "sphere": SPHERE,
-    "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
-    "i8": np.dtype("<i8"),
-}  # fmt: skip
-
 # Camera elements along the optical axis z (camera frame, metres), listed from the film outward.
 CAP, PLANE, THIN_LENS, DIAPHRAGM = 0, 1, 2, 3
 ELLIPSE, RECTANGLE, POLYGON_RIM = 0, 1, 2
@@ -99,3 +92,10 @@ ELEMENT = np.dtype(
         ("rotation", "<f8"),  # POLYGON_RIM: angle of the first corner, radians
     ]
 )
+
+# Every array dtype that may travel in a frame, by the name frames use for it.
+WIRE_DTYPES = {
+    "ray": RAY, "deposit": DEPOSIT, "material": MATERIAL, "light": LIGHT, "sphere": SPHERE,
+    "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
+    "i8": np.dtype("<i8"), "element": ELEMENT,
+}  # fmt: skip

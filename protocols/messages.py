@@ -20,7 +20,7 @@ class Kind(IntEnum):
     CONFIG = 2  # node configuration from the host: mesh shape, coordinates, boxes, settings
     OBJECTS = 3  # a batch of one primitive kind's records for the node's box
     RAYS = 4  # a batch of rays (eye, reflected, refracted or shadow) entering a node's box
-    PIXELS = 5  # a batch of deposits on their way to the primary node and the host
+    PIXELS = 5  # deposits on their way to node 0 and the host (adaptive: to the pixel's owner)
     STATE = 6  # the state packet circulating on the ring
     STATS = 7  # a node's statistics
     SHUTDOWN = 8  # stop and close every link
@@ -35,7 +35,7 @@ FIELDS = {
                   "scene_box": list, "settings": dict},  # fmt: skip
     Kind.OBJECTS: {"table": str, "records": None, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
-    Kind.PIXELS: {"deposits": dtypes.DEPOSIT},
+    Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
     Kind.STATE: {"state": int, "last_busy": int, "round": int, "sent": np.dtype("<i8"),
                  "received": np.dtype("<i8"), "dest": int},  # fmt: skip
     Kind.STATS: {"node": int, "stats": dict},

@@ -60,7 +60,7 @@ def test_corrupt_payloads_are_protocol_errors(payload):
 
 
 def test_array_with_wrong_length_is_refused():
-    frame = bytearray(encode(make(Kind.PIXELS, deposits=np.zeros(3, dtypes.DEPOSIT))))
+    frame = bytearray(encode(make(Kind.PIXELS, deposits=np.zeros(3, dtypes.DEPOSIT), dest=0)))
     frame[-1:] = b""  # drop one byte of the array, fix the prefix
     frame[:4] = (len(frame) - 4).to_bytes(4, "big")
     with pytest.raises(BadFrame):

@@ -73,6 +73,6 @@ def test_states_run_in_order_to_done():
     for _ in range(12):
         p = t.pass_on(p)
         seen.append(p.state)
-    assert [s for s in dict.fromkeys(seen)] == [State.DOWNLOAD, State.TRACE, State.FLUSH,
-                                                 State.DONE]  # fmt: skip
-    assert t.advances == [State.TRACE, State.FLUSH, State.DONE]
+    assert [s for s in dict.fromkeys(seen)] == [State.DOWNLOAD, State.TRACE, State.REFINE,
+                                                 State.FLUSH, State.DONE]  # fmt: skip
+    assert t.advances == [State.TRACE, State.REFINE, State.FLUSH, State.DONE]

@@ -2,7 +2,8 @@
 
 numba keys a cached kernel on its own file only, so a change in a kernel it calls from another
 file would load stale machine code. The cache therefore lives in a folder named after a hash of
-every engine source file (under NUMBA_CACHE_DIR if set, else the user's cache folder).
+every engine source file that defines kernels (under NUMBA_CACHE_DIR if set, else the user's
+cache folder); plain Python modules beside them can change without a recompile.
 
 `leaf` kernels allocate nothing, so they are compiled without numba's reference counting:
 a call between jitted functions otherwise touches the count of every array argument, which
@@ -22,7 +23,9 @@ def _cache_dir() -> str:
     files = sorted(here.glob("*.py")) + [here.parent.parent / "protocols" / "dtypes.py"]
     digest = hashlib.sha256()
     for f in files:
-        digest.update(f.name.encode() + f.read_bytes())
+        text = f.read_bytes()
+        if f.name in ("jit.py", "dtypes.py") or b"from meshnode.engine.jit import" in text:
+            digest.update(f.name.encode() + text)
     root = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "meshtrace"
     )

@@ -1,58 +1,43 @@
 """Primary rays from a simulated camera (DESIGN.md 7): film points, generation-area points on
 the first element, the element stack, and the camera-to-scene transform from the NFF view.
 
-Vectorised over every sample of a pixel rectangle (no loop per pixel); the element tracing is
-the `optics.through` kernel. Rays lost in the camera (rims, diaphragms, total reflection) are
-dropped; their share of the pixel is black under adaptation "all" (vignetting) and
+Vectorised over every (pixel, sample) pair asked for (no loop per pixel); the element tracing
+is the `optics.through` kernel. Rays lost in the camera (rims, diaphragms, total reflection)
+are dropped; their share of the pixel is black under adaptation "all" (vignetting) and
 redistributed over the survivors under "left".
+
+Sample k of a pixel is a point of a stratified set: with N = m*m rays, stratum (k % m, k // m)
+of an m x m grid (otherwise N-rooks: column k, a shuffled row), taken at its centre (uniform)
+or at a hashed random point inside it (jittered). Sample 0 and sample N-1 sit in opposite
+corner strata: adaptive sampling traces those two first. Every number comes from a
+counter-based hash of (seed, pixel, sample), so any node makes the same ray for a sample.
 """
+
+import math
 
 import numpy as np
 
 from meshnode.engine.camera import view_basis
 from meshnode.engine.optics import through
+from protocols.camera import CameraRays
 from protocols.dtypes import EYE, RAY
 
-# Generation area types: 0 pinhole, 1 centre ray through the elements, 2 n random in the
-# ellipse, 3 n random in the rectangle, 4 five points, 5 five jittered, 6 nine, 7 nine jittered.
-GENERATION_TYPES = range(8)
+_C = 1 / math.sqrt(2)
+# Fixed patterns in [-1, 1]^2 (inside the unit disc): five points, nine points (row-major).
+FIVE = np.array([(0, 0), (-_C, -_C), (_C, -_C), (-_C, _C), (_C, _C)])
+NINE = np.array([(x, y) for y in (-_C, 0, _C) for x in (-_C, 0, _C)])
 
 
-def _pattern(gen: int, n: int) -> tuple[np.ndarray, bool]:
-    """Unit-square offsets (in [-1, 1]^2) of a fixed pattern, and whether to jitter it."""
-    if gen in (0, 1):
-        return np.zeros((1, 2)), False
-    if gen in (4, 5):
-        c = 1 / np.sqrt(2)
-        return np.array([(0, 0), (-c, -c), (c, -c), (-c, c), (c, c)]), gen == 5
-    if gen in (6, 7):
-        g = np.array([-1, 0, 1]) / np.sqrt(2)
-        return np.array([(x, y) for y in g for x in g]), gen == 7
-    return np.zeros((n, 2)), True  # 2, 3: all random
-
-
-def lens_points(gen: int, n: int, sample_ids: np.ndarray, ax: float, ay: float, seed: int):
-    """Targets on the generation area for every (sample, k): shape (samples, k, 2)."""
-    pattern, random = _pattern(gen, n)
-    k = len(pattern)
-    ids = (sample_ids[:, None] * k + np.arange(k)[None, :]).astype(np.uint64)
-    if not random:
-        pts = np.broadcast_to(pattern, (len(sample_ids), k, 2)).copy()
-    else:
-        u = _hash_uniform(seed, ids, 2)
-        v = _hash_uniform(seed, ids, 3)
-        if gen == 3:
-            pts = np.stack([2 * u - 1, 2 * v - 1], axis=-1)
-        elif gen == 2:
-            r, a = np.sqrt(u), 2 * np.pi * v
-            pts = np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
-        else:  # jittered patterns: each point moves within a small square around itself
-            pts = pattern[None] + 0.25 * np.stack([2 * u - 1, 2 * v - 1], axis=-1)
-    return pts * np.array([ax, ay])
+def first_pass(spec: CameraRays) -> np.ndarray:
+    """The two samples at opposite corners that adaptive sampling traces first."""
+    if spec.generation in (4, 5) and not spec.special:
+        return np.array([1, 4])
+    return np.array([0, spec.per_pixel - 1])
 
 
 def _hash_uniform(seed: int, ids: np.ndarray, dim: int) -> np.ndarray:
     """Vectorised counter-based uniforms (splitmix64), same construction as camera.uniform."""
+
     def mix(x):
         x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
@@ -64,44 +49,135 @@ def _hash_uniform(seed: int, ids: np.ndarray, dim: int) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
 
 
-def camera_rays(view, width: int, height: int, elements: np.ndarray, film_w: float,
-                film_h: float, film_z: float, gen: int = 2, n: int = 16, seed: int = 0,
-                adaptation: str = "all", rows=None, cols=None) -> np.ndarray:  # fmt: skip
-    """RAY records (pixel = y * width + x, weight = the ray's share of its pixel) for the
-    pixels in rows x cols, through the camera; lost rays are not returned."""
-    if gen not in GENERATION_TYPES:
-        raise ValueError(f"generation area type must be 0..7, not {gen}")
-    if adaptation not in ("all", "left"):
-        raise ValueError("adaptation must be 'all' or 'left'")
-    y0, y1 = rows or (0, height)
-    x0, x1 = cols or (0, width)
-    jj, ii = np.meshgrid(np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
-    pixel = (jj * width + ii).ravel()
+def _coprime_step(n: int) -> int:
+    """A step near n / golden ratio coprime with n: k -> k*step mod n shuffles strata evenly."""
+    step = max(1, int(round(n * 0.6180339887)))
+    while math.gcd(step, n) != 1:
+        step += 1
+    return step
+
+
+def _strata(n: int, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Column and row of sample k's stratum, and the grid's columns and rows."""
+    m = math.isqrt(n)
+    if m * m == n:
+        return ks % m, ks // m, m, m
+    # N-rooks: rows shuffled, with the first and last sample kept in opposite corners.
+    row = ks.copy()
+    inner = (ks > 0) & (ks < n - 1)
+    if n > 2:
+        row[inner] = 1 + ((ks[inner] - 1) * _coprime_step(n - 2)) % (n - 2)
+    return ks, row, n, n
+
+
+def unit_points(sampling: str, n: int, pixels, ks, seed: int, dim: int) -> np.ndarray:
+    """Points in [0, 1)^2 for every (pixel, sample k): shape (len(pixels), len(ks), 2)."""
+    ids = pixels[:, None].astype(np.uint64) * np.uint64(n) + ks[None, :].astype(np.uint64)
+    if sampling == "random":
+        return np.stack([_hash_uniform(seed, ids, dim), _hash_uniform(seed, ids, dim + 1)], -1)
+    col, row, nx, ny = _strata(n, ks)
+    if sampling == "uniform":
+        u = np.broadcast_to((col + 0.5) / nx, ids.shape)
+        v = np.broadcast_to((row + 0.5) / ny, ids.shape)
+    else:  # jittered (adaptive is jittered strata traced in two passes)
+        u = (col + _hash_uniform(seed, ids, dim)) / nx
+        v = (row + _hash_uniform(seed, ids, dim + 1)) / ny
+    return np.stack([u, v], -1)
+
+
+def to_area(p: np.ndarray, ellipse: bool) -> np.ndarray:
+    """Unit-square points onto [-1, 1]^2 (rectangle) or the unit disc (ellipse) by the
+    concentric map, which keeps strata compact so stratification survives."""
+    a = 2.0 * p - 1.0
+    if not ellipse:
+        return a
+    x, y = a[..., 0], a[..., 1]
+    wide = np.abs(x) > np.abs(y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(wide, x, y)
+        phi = np.where(wide, (math.pi / 4) * (y / x), math.pi / 2 - (math.pi / 4) * (x / y))
+    phi = np.where((x == 0) & (y == 0), 0.0, phi)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+
+def _pattern_points(spec: CameraRays, pixels, ks) -> np.ndarray:
+    """Offsets in [-1, 1]^2 of the sampled area (the lens's, or the film's when special)."""
+    gen = spec.generation
+    if gen in (4, 5, 6, 7):
+        pts = np.broadcast_to((FIVE if gen < 6 else NINE)[ks], (len(pixels), len(ks), 2))
+        if gen in (5, 7):  # each point moves within a small square around itself
+            ids = pixels[:, None].astype(np.uint64) * np.uint64(16) + ks[None, :]
+            jit = np.stack([_hash_uniform(spec.seed, ids, 2), _hash_uniform(spec.seed, ids, 3)], -1)
+            pts = pts + 0.25 * (2 * jit - 1)
+        return np.array(pts)
+    sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
+    p = unit_points(sampling, spec.per_pixel, pixels, ks, spec.seed, 2)
+    ellipse = gen != 3 if not spec.special else spec.film_area == "ellipse"
+    return to_area(p, ellipse)
+
+
+def sample_offsets(spec: CameraRays, pixels: np.ndarray, ks: np.ndarray):
+    """(lens offsets, film offsets) for every (pixel, k): lens in units of the generation
+    area's semi-axes, film in pixels from the pixel centre."""
+    shape = (len(pixels), len(ks), 2)
+    zeros = np.zeros(shape)
+    lens_sampled = spec.generation not in (0, 1) or spec.special
+    pts = _pattern_points(spec, pixels, ks) if lens_sampled else None
+    half = 0.5 * spec.film_area_size
+    if spec.special:
+        return zeros, pts * half
+    if spec.film_area == "centre":
+        return (pts if pts is not None else zeros), zeros
+    # The film area's own set, with samples shuffled against the lens's (no correlation).
+    n = spec.per_pixel
+    perm = (ks * _coprime_step(n)) % n if n > 1 else ks
+    sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
+    film = unit_points(sampling, n, pixels, perm, spec.seed, 4)
+    film = to_area(film, spec.film_area == "ellipse")
+    return (pts if pts is not None else zeros), film * half
+
+
+def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndarray,
+                ks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x), and
+    which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
+
+    Weights: 1 / (rays of the pixel) under "all", 1 / (those that left) under "left"; under
+    adaptive sampling every ray weighs 1, `pixel` is the sample id pixel * N + k, and the node
+    owning the pixel divides (it alone knows how many rays the pixel got)."""
+    pixels = np.asarray(pixels, np.int64)
+    n = spec.per_pixel
+    ks = np.arange(n) if ks is None else np.asarray(ks, np.int64)
+    lens, film = sample_offsets(spec, pixels, ks)
+    k = len(ks)
+    first = spec.elements[int(np.argmin(spec.elements["z"]))]
+    ix, iy = pixels % width, pixels // width
     # Film points: the lens inverts the image, so the film is read mirrored in x and y.
-    fx = -((ii.ravel() + 0.5) / width - 0.5) * film_w
-    fy = ((jj.ravel() + 0.5) / height - 0.5) * film_h
-    first = elements[int(np.argmin(elements["z"]))]
-    pts = lens_points(gen, n, pixel, float(first["ax"]), float(first["ay"]), seed)
-    k = pts.shape[1]
-    o = np.empty((len(pixel) * k, 3))
-    o[:, 0] = np.repeat(fx, k)
-    o[:, 1] = np.repeat(fy, k)
-    o[:, 2] = film_z
+    fx = -(((ix[:, None] + 0.5 + film[..., 0]) / width) - 0.5) * spec.film_width
+    fy = (((iy[:, None] + 0.5 - film[..., 1]) / height) - 0.5) * spec.film_height
+    o = np.empty((len(pixels) * k, 3))
+    o[:, 0] = fx.ravel()
+    o[:, 1] = fy.ravel()
+    o[:, 2] = spec.film_z
     d = np.empty_like(o)
-    d[:, 0] = pts[:, :, 0].ravel() - o[:, 0]
-    d[:, 1] = pts[:, :, 1].ravel() - o[:, 1]
-    d[:, 2] = float(first["z"]) - film_z
+    d[:, 0] = lens[..., 0].ravel() * float(first["ax"]) - o[:, 0]
+    d[:, 1] = lens[..., 1].ravel() * float(first["ay"]) - o[:, 1]
+    d[:, 2] = float(first["z"]) - spec.film_z
     d /= np.linalg.norm(d, axis=1)[:, None]
     alive = np.ones(len(o), dtype=np.bool_)
-    if gen != 0:  # type 0 is the classic pinhole: straight through the lens centre
-        through(o, d, elements, False, alive)
-    share = np.full(len(o), 1.0 / k)
-    if adaptation == "left":
-        survivors = alive.reshape(-1, k).sum(axis=1)
-        share = np.repeat(1.0 / np.maximum(survivors, 1), k)
+    if spec.generation != 0:  # type 0 is the classic pinhole: straight through the centre
+        through(o, d, spec.elements, False, alive)
+    alive2 = alive.reshape(len(pixels), k)
+    if spec.adaptive:
+        share = np.ones(len(o))
+        ids = (pixels[:, None] * n + ks[None, :]).ravel()
+    else:
+        per = alive2.sum(axis=1) if spec.adaptation == "left" else np.full(len(pixels), k)
+        share = np.repeat(1.0 / np.maximum(per, 1), k)
+        ids = np.repeat(pixels, k)
     # Camera frame -> world: z along the view, x right, y up, the front vertex at the eye.
     eye, fwd, right, up, _ = view_basis(view, width, height)
-    front = float(elements["z"].max())
+    front = float(spec.elements["z"].max())
     basis = np.stack([right, up, fwd])
     keep = np.flatnonzero(alive)
     rays = np.zeros(len(keep), RAY)
@@ -109,8 +185,24 @@ def camera_rays(view, width: int, height: int, elements: np.ndarray, film_w: flo
     rays["d"] = d[keep] @ basis
     rays["t_max"] = np.inf
     rays["w"] = share[keep, None]
-    rays["pixel"] = np.repeat(pixel, k)[keep]
+    rays["pixel"] = ids[keep]
     rays["origin"] = -1
     rays["depth"] = 1
     rays["kind"] = EYE
-    return rays
+    return rays, alive2
+
+
+def camera_batches(spec: CameraRays, view, width: int, height: int, pixels: np.ndarray,
+                   rays_per_batch: int = 16384):  # fmt: skip
+    """Camera rays of `pixels` in batches of about `rays_per_batch` (bounded memory at any
+    number of rays per pixel)."""
+    step = max(1, rays_per_batch // spec.per_pixel)
+    for i in range(0, len(pixels), step):
+        yield camera_rays(spec, view, width, height, pixels[i : i + step])[0]
+
+
+def rect_pixels(rect, width: int) -> np.ndarray:
+    """Pixel ids of the rectangle (x0, x1, y0, y1), row by row."""
+    x0, x1, y0, y1 = rect
+    jj, ii = np.meshgrid(np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
+    return (jj * width + ii).ravel()

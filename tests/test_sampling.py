@@ -1,0 +1,144 @@
+"""Camera sampling: strata get one ray each, the concentric map keeps area, adaptive sampling
+traces exactly the rays it says and matches full sampling where it refines, special
+jittering has no depth of field, and the camera gives the same image on 1x1, 2x2 and 3x3."""
+
+import asyncio
+import math
+
+import numpy as np
+import pytest
+
+from host.camera import Camera
+from host.localmesh import LocalMesh
+from host.meshclient import render_on_mesh
+from host.render import RenderSettings, render
+from meshnode.engine.lenscamera import first_pass, to_area, unit_points
+from protocols import dtypes
+from protocols.camera import CameraRays
+from protocols.scene import View
+from tests.conftest import make_scene
+from tests.test_optics import stack
+
+
+def thin_camera(focus=2.0, rim=0.01):
+    lens = stack({"kind": dtypes.THIN_LENS, "z": 0.0, "focal": 0.05, "ax": rim, "ay": rim})
+    return Camera(lens, 0.024, 0.018, None, focus)
+
+
+def dof_scene():
+    """Spheres at 1, 2 and 5 m in front of a camera at the origin looking down +z: with the
+    lens focused at 2 m the middle one is sharp and the others blurred."""
+    view = View(eye=(0, 0, 0), at=(0, 0, 1), up=(0, 1, 0), angle=30.0)
+    return make_scene(
+        spheres=[((-0.12, 0.0, 1.0), 0.05, 0), ((0.0, 0.02, 2.0), 0.12, 0),
+                 ((0.6, -0.1, 5.0), 0.4, 0)],
+        polygons=[([(-9, -0.6, 0.5), (9, -0.6, 0.5), (9, -0.6, 30), (-9, -0.6, 30)], 0)],
+        lights=[(1.0, 3.0, -1.0)], view=view, background=(0.2, 0.3, 0.5),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("n", [4, 9, 16, 5, 7])
+@pytest.mark.parametrize("sampling", ["uniform", "jittered"])
+def test_each_stratum_gets_one_ray(n, sampling):
+    pixels = np.arange(50)
+    p = unit_points(sampling, n, pixels, np.arange(n), seed=3, dim=2)
+    m = math.isqrt(n)
+    nx, ny = (m, m) if m * m == n else (n, n)
+    cells = np.floor(p[..., 0] * nx).astype(int) + nx * np.floor(p[..., 1] * ny).astype(int)
+    for row in cells:  # each pixel: n different cells, one per column (and row)
+        assert len(set(row.tolist())) == n
+        assert len(set((row % nx).tolist())) == min(n, nx)
+        assert len(set((row // nx).tolist())) == min(n, ny)
+    # Adaptive's first two samples sit in opposite corner strata.
+    a, b = p[:, 0], p[:, -1]
+    assert np.all(a < 1.0 / min(nx, ny) + 1e-12) and np.all(b > 1 - 1.0 / min(nx, ny) - 1e-12)
+
+
+def test_concentric_map_keeps_area():
+    # Uniform points on the square land uniformly on the disc: equal-area rings and equal
+    # sectors hold equal shares (binomial sd ~0.001 for 200k points), all inside the disc.
+    d = to_area(np.random.default_rng(1).random((200_000, 2)), ellipse=True)
+    r2 = (d**2).sum(-1)
+    assert r2.max() <= 1 + 1e-12
+    counts = np.histogram(r2, bins=5, range=(0, 1))[0]
+    np.testing.assert_allclose(counts / len(r2), 0.2, atol=0.004)
+    ang = np.histogram(np.arctan2(d[:, 1], d[:, 0]), bins=8, range=(-np.pi, np.pi))[0]
+    np.testing.assert_allclose(ang / len(r2), 1 / 8, atol=0.004)
+
+
+def _render(camera=None, **kw):
+    rs = RenderSettings(width=48, height=36, camera=camera or thin_camera(), progress=False,
+                        threads=1, **kw)  # fmt: skip
+    return render(dof_scene(), rs)
+
+
+def test_adaptive_traces_corners_then_the_rest_where_they_differ():
+    n = 16
+    full, full_stats = _render(lens_rays=n, sampling="jittered")
+    pixels = 48 * 36
+    # Threshold 0: a pixel is refined unless its two corner rays agree exactly; refined
+    # pixels get exactly the jittered rays, so they equal the jittered image.
+    img, st = _render(lens_rays=n, sampling="adaptive", threshold=0.0)
+    refined = st["camera"]["refined_pixels"]
+    assert st["rays"]["eye_rays"] == 2 * pixels + (n - 2) * refined  # no lost rays here
+    assert 0 < refined < pixels
+    diff = np.abs(img - full).max(axis=2)
+    assert np.count_nonzero(diff > 1e-12) <= pixels - refined
+    # A threshold above any colour difference refines nothing: two rays a pixel.
+    img2, st2 = _render(lens_rays=n, sampling="adaptive", threshold=10.0)
+    assert st2["rays"]["eye_rays"] == 2 * pixels and st2["camera"]["refined_pixels"] == 0
+    # The usual threshold: far fewer rays than full sampling, close to its image.
+    img3, st3 = _render(lens_rays=n, sampling="adaptive", threshold=0.05)
+    assert st3["rays"]["eye_rays"] < 0.6 * full_stats["rays"]["eye_rays"]
+    assert np.sqrt(((img3 - full) ** 2).mean()) < 0.02
+
+
+def test_first_pass_is_opposite_corners_of_each_pattern():
+    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, generation=4)
+    assert first_pass(spec).tolist() == [1, 4]  # (-c, -c) and (c, c) of the five points
+    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, generation=6)
+    assert first_pass(spec).tolist() == [0, 8]
+
+
+def test_special_jittering_has_no_depth_of_field():
+    # Over the film area instead of the lens: every ray passes the lens centre, so the
+    # image is the centre-ray image (type 1) over the same film points, whatever the
+    # aperture; lens sampling at that aperture blurs visibly (CoC of 5 pixels at 1 m).
+    kw = dict(generation=2, lens_rays=16, sampling="uniform", film_area="rectangle")
+    wide, _ = _render(thin_camera(rim=0.05), special=True, **kw)
+    tiny, _ = _render(thin_camera(rim=0.0001), special=True, **kw)
+    np.testing.assert_allclose(wide, tiny, atol=1e-9)
+    centre, _ = _render(thin_camera(rim=0.05), **{**kw, "generation": 1})
+    np.testing.assert_allclose(wide, centre, atol=1e-9)
+    blurred, _ = _render(thin_camera(rim=0.05), **kw)
+    assert np.abs(blurred - centre).max() > 0.1
+
+
+def test_film_area_antialiases_an_edge():
+    # Centre rays only (type 1): pixels are 0 or 1 across the sharp sphere's rim; over a film
+    # area of one pixel they take values between, and the mean brightness is unchanged.
+    sharp, _ = _render(generation=1)
+    soft, _ = _render(generation=1, lens_rays=16, film_area="rectangle")
+    assert soft.mean() == pytest.approx(sharp.mean(), rel=0.02)
+    levels = lambda im: len(np.unique(np.round(im[..., 0], 6)))  # noqa: E731
+    assert levels(soft) > levels(sharp)
+
+
+def _mesh(rows, cols, rs):
+    with LocalMesh(rows * cols) as addresses:
+        coro = render_on_mesh(dof_scene(), rs, addresses, rows, cols, 1.0)
+        return asyncio.run(asyncio.wait_for(coro, 180))
+
+
+@pytest.mark.parametrize("sampling,meshes", [("jittered", [(2, 2)]),
+                                             ("adaptive", [(2, 2), (3, 3)])])  # fmt: skip
+def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
+    rs = RenderSettings(width=30, height=24, camera=thin_camera(), lens_rays=9,
+                        sampling=sampling, progress=False, threads=1)  # fmt: skip
+    ref, ref_stats = render(dof_scene(), rs)
+    for rows, cols in meshes:
+        img, stats = _mesh(rows, cols, rs)
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-9)
+        assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
+        if sampling == "adaptive":
+            assert stats["rays"]["refined_pixels"] == ref_stats["camera"]["refined_pixels"]

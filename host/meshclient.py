@@ -151,6 +151,8 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     summary = _summary(stats, torus, keep, deposits, setup, wall)
     if camera_info is not None:
         summary["camera"] = camera_info
+        if "refined_pixels" in summary["rays"]:
+            camera_info["refined_pixels"] = summary["rays"].pop("refined_pixels")
     return fb.image(), summary
 
 

@@ -141,4 +141,4 @@ def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-9)
         assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
         if sampling == "adaptive":
-            assert stats["rays"]["refined_pixels"] == ref_stats["camera"]["refined_pixels"]
+            assert stats["camera"]["refined_pixels"] == ref_stats["camera"]["refined_pixels"]

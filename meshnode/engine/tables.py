@@ -51,41 +51,37 @@ def _visibility(radius: np.ndarray, transmits: np.ndarray) -> np.ndarray:
     return np.where(transmits, 0.0, vis)
 
 
-def _newell(v: np.ndarray) -> np.ndarray:
-    """Unit polygon normal from all vertices: robust when the first ones are near-collinear."""
-    nxt = np.roll(v, -1, axis=0)
-    n = np.array(
-        [
-            np.sum((v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2])),
-            np.sum((v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0])),
-            np.sum((v[:, 0] - nxt[:, 0]) * (v[:, 1] + nxt[:, 1])),
-        ]
-    )
-    return n / np.linalg.norm(n)
-
-
 def _polygon_tables(scene: SceneData):
-    """Plane rows, info rows and projected vertices; the per-polygon loop runs at load time."""
+    """Plane rows, info rows, projected vertices and bounds, as segment operations over every
+    polygon's vertices at once (no loop per polygon)."""
     polys = scene.polygons
-    rows = np.zeros((len(polys), POLYGON_COLS))
-    info = np.zeros((len(polys), 4), np.int64)
-    uv = np.zeros((int(polys["count"].sum()) if len(polys) else 0, 2))
-    lo = np.zeros((len(polys), 3))
-    hi = np.zeros((len(polys), 3))
-    at = 0
-    for i, (start, count) in enumerate(zip(polys["start"], polys["count"], strict=False)):
-        v = scene.vertices[start : start + count]
-        n = _newell(v)
-        drop = int(np.argmax(np.abs(n)))
-        au, av = [a for a in range(3) if a != drop]
-        rows[i, :3] = v[0]
-        rows[i, 3:] = n
-        info[i] = (at, count, au, av)
-        uv[at : at + count, 0] = v[:, au] - v[0, au]
-        uv[at : at + count, 1] = v[:, av] - v[0, av]
-        lo[i] = v.min(axis=0)
-        hi[i] = v.max(axis=0)
-        at += count
+    n_poly = len(polys)
+    counts = polys["count"].astype(np.int64)
+    total = int(counts.sum()) if n_poly else 0
+    at = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if n_poly else counts
+    if total == 0:
+        z3 = np.zeros((0, 3))
+        return np.zeros((0, POLYGON_COLS)), np.zeros((0, 4), np.int64), np.zeros((0, 2)), z3, z3
+    owner = np.repeat(np.arange(n_poly), counts)
+    pos = np.arange(total) - at[owner]  # a vertex's place in its polygon
+    v = scene.vertices[polys["start"].astype(np.int64)[owner] + pos]
+    nxt = v[np.where(pos + 1 < counts[owner], np.arange(total) + 1, at[owner])]
+    # Newell's normal from all vertices: robust when the first ones are near-collinear.
+    terms = np.stack([(v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2]),
+                      (v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0]),
+                      (v[:, 0] - nxt[:, 0]) * (v[:, 1] + nxt[:, 1])], axis=1)  # fmt: skip
+    n = np.add.reduceat(terms, at, axis=0)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    drop = np.argmax(np.abs(n), axis=1)  # project onto the plane of the other two axes
+    au = np.where(drop == 0, 1, 0)
+    av = np.where(drop == 2, 1, 2)
+    p0 = v[at]
+    rows = np.column_stack([p0, n])
+    info = np.column_stack([at, counts, au, av]).astype(np.int64)
+    rel = v - p0[owner]
+    uv = np.column_stack([rel[np.arange(total), au[owner]], rel[np.arange(total), av[owner]]])
+    lo = np.minimum.reduceat(v, at, axis=0)
+    hi = np.maximum.reduceat(v, at, axis=0)
     return rows, info, uv, lo, hi
 
 
@@ -107,7 +103,7 @@ def _cone_tables(scene: SceneData, transmits):
 
 
 def build_tables(scene: SceneData) -> Tables:
-    """Convert scene records into kernel tables (vectorised except the per-polygon setup)."""
+    """Convert scene records into kernel tables (vectorised: no loop per object)."""
     mats = scene.materials
     materials = np.column_stack(
         [mats["rgb"], mats["kd"], mats["ks"], mats["shine"], mats["t"], mats["ior"]]

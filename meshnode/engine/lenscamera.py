@@ -71,14 +71,15 @@ def _strata(n: int, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
 
 
 def unit_points(sampling: str, n: int, pixels, ks, seed: int, dim: int) -> np.ndarray:
-    """Points in [0, 1)^2 for every (pixel, sample k): shape (len(pixels), len(ks), 2)."""
-    ids = pixels[:, None].astype(np.uint64) * np.uint64(n) + ks[None, :].astype(np.uint64)
+    """Points in [0, 1)^2 for every (pixel, sample k): shape (len(pixels), len(ks), 2);
+    `ks` is one list for every pixel or one row per pixel."""
+    ks = np.broadcast_to(np.asarray(ks, np.int64), (len(pixels), np.shape(ks)[-1]))
+    ids = pixels[:, None].astype(np.uint64) * np.uint64(n) + ks.astype(np.uint64)
     if sampling == "random":
         return np.stack([_hash_uniform(seed, ids, dim), _hash_uniform(seed, ids, dim + 1)], -1)
     col, row, nx, ny = _strata(n, ks)
     if sampling == "uniform":
-        u = np.broadcast_to((col + 0.5) / nx, ids.shape)
-        v = np.broadcast_to((row + 0.5) / ny, ids.shape)
+        u, v = (col + 0.5) / nx, (row + 0.5) / ny
     else:  # jittered (adaptive is jittered strata traced in two passes)
         u = (col + _hash_uniform(seed, ids, dim)) / nx
         v = (row + _hash_uniform(seed, ids, dim + 1)) / ny
@@ -128,9 +129,12 @@ def sample_offsets(spec: CameraRays, pixels: np.ndarray, ks: np.ndarray):
         return zeros, pts * half
     if spec.film_area == "centre":
         return (pts if pts is not None else zeros), zeros
-    # The film area's own set, with samples shuffled against the lens's (no correlation).
+    # The film area's own set, its strata shuffled against the lens's by a random
+    # permutation per pixel: any film stratum goes with any lens stratum (no correlation).
     n = spec.per_pixel
-    perm = (ks * _coprime_step(n)) % n if n > 1 else ks
+    keys = _hash_uniform(spec.seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
+                         + np.arange(n, dtype=np.uint64)[None, :], 6)  # fmt: skip
+    perm = np.argsort(keys, axis=1)[:, ks]
     sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
     film = unit_points(sampling, n, pixels, perm, spec.seed, 4)
     film = to_area(film, spec.film_area == "ellipse")

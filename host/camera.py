@@ -202,7 +202,9 @@ def describe(cam: Camera, focus: float | None = None, coc: float | None = None) 
     c = coc if coc is not None else diag / 1500
     return {
         "effective_focal_length_m": efl,
+        "front_principal_plane_z_m": card["front_principal_plane_z"],
         "rear_principal_plane_z_m": card["rear_principal_plane_z"],
+        "front_focal_distance_m": card["front_focal_distance"],
         "back_focal_distance_m": card["back_focal_distance"],
         "entrance_pupil_diameter_m": 2 * pupil,
         "f_number": n,

@@ -99,7 +99,9 @@ def _camera(args) -> int:
     fov = d["field_of_view_deg"]
     mm = 1000.0
     print(f"effective focal length  {d['effective_focal_length_m'] * mm:.2f} mm\n"
-          f"rear principal plane    z = {d['rear_principal_plane_z_m'] * mm:.2f} mm\n"
+          f"principal planes        front z = {d['front_principal_plane_z_m'] * mm:.2f} mm, "
+          f"rear z = {d['rear_principal_plane_z_m'] * mm:.2f} mm\n"
+          f"front focal distance    {d['front_focal_distance_m'] * mm:.2f} mm\n"
           f"back focal distance     {d['back_focal_distance_m'] * mm:.2f} mm\n"
           f"f-number                f/{d['f_number']:.2f} (entrance pupil "
           f"{d['entrance_pupil_diameter_m'] * mm:.2f} mm)\n"

@@ -11,10 +11,11 @@ from meshnode.engine.optics import paraxial_height, trace
 
 
 def cardinal(elements: np.ndarray) -> dict:
-    """EFL and the film-side focal and principal points, from a ray parallel to the axis
-    coming from the scene at a paraxial height."""
+    """EFL and the focal and principal points on both sides, from rays parallel to the axis
+    at a paraxial height: one coming from the scene, one from the film."""
     h = paraxial_height(elements)
-    front = float(elements["z"].max()) + 1.0
+    last = float(elements["z"].max())
+    front = last + 1.0
     o, d, alive = trace(elements, [(h, 0.0, front)], [(0.0, 0.0, -1.0)], backward=True)
     if not alive[0]:
         raise ValueError("a paraxial ray from the scene does not reach the film")
@@ -24,11 +25,19 @@ def cardinal(elements: np.ndarray) -> dict:
     focal_z = o[0, 2] + o[0, 0] / slope  # where the ray meets the axis, film side
     efl = -h / slope
     first = float(elements["z"].min())
+    # The same from the film side: a ray parallel to the axis leaving toward the scene.
+    o, d, alive = trace(elements, [(h, 0.0, first - 1.0)], [(0.0, 0.0, 1.0)])
+    if not alive[0]:
+        raise ValueError("a paraxial ray from the film does not reach the scene")
+    front_focal_z = o[0, 2] - o[0, 0] * d[0, 2] / d[0, 0]
     return {
         "effective_focal_length": efl,
         "back_focal_point_z": focal_z,
         "rear_principal_plane_z": focal_z + efl,
         "back_focal_distance": first - focal_z,
+        "front_focal_point_z": front_focal_z,
+        "front_principal_plane_z": front_focal_z - efl,
+        "front_focal_distance": front_focal_z - last,
     }
 
 

@@ -67,6 +67,12 @@ def test_thick_biconvex_lens_matches_the_lensmaker():
     # meets (convex toward it: +r in the light's own sign convention).
     bfd = (1 / power) * (1 - (n - 1) * thick / (n * r))
     assert c["back_focal_distance"] == pytest.approx(bfd, rel=1e-6)
+    # Principal planes of a symmetric lens: f (n-1) d / (n R) inside from each vertex, and the
+    # front focal distance equals the back one.
+    inset = (1 / power) * (n - 1) * thick / (n * r)
+    assert c["rear_principal_plane_z"] == pytest.approx(inset, rel=1e-6)
+    assert c["front_principal_plane_z"] == pytest.approx(thick - inset, rel=1e-6)
+    assert c["front_focal_distance"] == pytest.approx(bfd, rel=1e-6)
 
 
 def test_hexagonal_diaphragm_passes_the_hexagons_share_of_a_disc():

@@ -63,7 +63,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     if len(addresses) != torus.size:
         raise ValueError(f"a {rows}x{cols} mesh needs {torus.size} node addresses")
     width, height = rs.size(scene)
-    gw, gh = (width + 1, height + 1) if rs.spd else (width, height)
+    gw, gh = (width + 1, height + 1) if rs.spd and rs.camera is None else (width, height)
     start = time.perf_counter()
     box = scene_box(scene)
     los, his = node_boxes(scene, box, width, height, rows, cols, overlap)
@@ -95,7 +95,8 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
             await link.close()
         raise MeshError(f"setting up the mesh: {e}") from e
     setup = time.perf_counter() - start
-    fb = Framebuffer(width, height, rs.spd, 1 if rs.camera is not None else rs.spp)
+    camera = rs.camera is not None  # camera pixels: one sample each, no SPD corners
+    fb = Framebuffer(width, height, rs.spd and not camera, 1 if camera else rs.spp)
     stats: dict[int, dict] = {}
     deposits = 0
 

@@ -146,7 +146,7 @@ def _render_camera(scene, s, engine, width, height):
     if not spec.adaptive:
         batches = list(camera_batches(spec, scene.view, width, height, pixels))
         return _run_batches(engine, fb, batches, trace_batch, s, width, height, info)
-    film = AdaptiveFilm(spec, pixels)
+    film = AdaptiveFilm(spec, (0, width, 0, height), width, height)
 
     class Passes:  # pass 2's rays depend on pass 1's colours: made only once it is traced
         def __iter__(self):

@@ -1,19 +1,24 @@
 """Adaptive sampling's bookkeeping for the pixels one node owns (DESIGN.md 7).
 
 Pass 1 traces two rays per pixel, at opposite corners of the sampled area; a pixel gets its
-other rays in pass 2 only if those two colours differ by more than the threshold. A ray's
-colour is known only when all its descendants have ended, possibly on other nodes, so under
-adaptive sampling every deposit travels to the node owning its pixel, and the two passes are
-two states of the ring's state machine. The owner alone knows how many rays each of its pixels
-got (and how many left the camera), so it divides and sends finished pixels to the host.
+other rays in pass 2 only if those two colours differ by more than the threshold, or if their
+mean differs by more than the threshold from a side neighbour's: two rays at the rim of the
+lens can agree while a blurred edge crosses the lens between them, but then the neighbours'
+colours change. A ray's colour is known only when all its descendants have ended, possibly on
+other nodes, so under adaptive sampling every deposit travels to the node owning its pixel -
+and pass-1 deposits also to the owners of its side neighbours, which keep a one-pixel halo
+around their rectangle - and the two passes are two states of the ring's state machine. The
+owner alone knows how many rays each of its pixels got (and how many left the camera), so it
+divides and sends finished pixels to the host.
 """
 
 import numpy as np
 
-from meshnode.engine.lenscamera import camera_rays, first_pass
+from meshnode.engine.lenscamera import camera_rays, first_pass, rect_pixels
 from protocols.camera import CameraRays
 
 RAYS_PER_BATCH = 16384  # camera rays made at a time: memory stays bounded at any spp
+SIDES = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
 def owner_of(pixels: np.ndarray, width: int, rects) -> np.ndarray:
@@ -25,28 +30,42 @@ def owner_of(pixels: np.ndarray, width: int, rects) -> np.ndarray:
     return owner
 
 
-class AdaptiveFilm:
-    """Colour sums, ray counts and the pass-1 corner colours of a node's own pixels."""
+def deposit_routes(sample_ids, n, first, width, height, rects) -> tuple[np.ndarray, np.ndarray]:
+    """(deposit index, node) pairs, each once: every deposit to its pixel's owner, pass-1
+    deposits also to the owners of the pixel's side neighbours (their halo)."""
+    pixels, k = sample_ids // n, sample_ids % n
+    idx = [np.arange(len(pixels))]
+    dest = [owner_of(pixels, width, rects)]
+    corner = np.flatnonzero(np.isin(k, first))
+    x, y = pixels[corner] % width, pixels[corner] // width
+    for dx, dy in SIDES:
+        inside = (x + dx >= 0) & (x + dx < width) & (y + dy >= 0) & (y + dy < height)
+        at = corner[inside]
+        idx.append(at)
+        dest.append(owner_of(pixels[at] + dx + dy * width, width, rects))
+    idx, dest = np.concatenate(idx), np.concatenate(dest)
+    key = np.unique(dest * len(pixels) + idx)
+    return key % len(pixels), key // len(pixels)
 
-    def __init__(self, spec: CameraRays, pixels: np.ndarray):
-        self.spec = spec
+
+class AdaptiveFilm:
+    """Colour sums and ray counts of a node's rectangle of pixels, and the pass-1 corner
+    colours over the rectangle and a one-pixel halo around it."""
+
+    def __init__(self, spec: CameraRays, rect, width: int, height: int):
+        self.spec, self.width = spec, width
         self.n = spec.per_pixel
         self.first = first_pass(spec)
-        self.pixels = np.asarray(pixels, np.int64)
-        self.order = np.argsort(self.pixels, kind="stable")
+        x0, x1, y0, y1 = self.rect = tuple(int(v) for v in rect)
+        self.pixels = rect_pixels(self.rect, width)
+        self.halo = (max(x0 - 1, 0), min(x1 + 1, width), max(y0 - 1, 0), min(y1 + 1, height))
+        hx0, hx1, hy0, hy1 = self.halo
+        self.corner = np.zeros((hy1 - hy0, hx1 - hx0, 2, 3))
         p = len(self.pixels)
         self.sums = np.zeros((p, 3))
-        self.corner = np.zeros((p, 2, 3))
         self.corner_alive = np.zeros((p, 2), np.bool_)
         self.rays = np.zeros(p, np.int64)  # divisor: rays generated (or that left, "left")
         self.refined = np.zeros(p, np.bool_)
-
-    def _local(self, pixels: np.ndarray) -> np.ndarray:
-        at = np.searchsorted(self.pixels, pixels, sorter=self.order)
-        i = self.order[np.minimum(at, len(self.pixels) - 1)]
-        if np.any(self.pixels[i] != pixels):
-            raise ValueError("a deposit for a pixel this node does not own")
-        return i
 
     def _chunks(self, idx: np.ndarray, per_pixel: int):
         step = max(1, RAYS_PER_BATCH // max(per_pixel, 1))
@@ -60,15 +79,34 @@ class AdaptiveFilm:
             self._count(idx, alive)
             yield rays
 
-    def pass2(self, view, width, height):
-        """Batches of the remaining rays of the pixels whose corner colours differ (decided
-        when the first batch is asked for: every pass-1 deposit must be in by then)."""
-        a, b = self.corner[:, 0], self.corner[:, 1]
-        differ = np.max(np.abs(a - b), axis=1) > self.spec.threshold
+    def decide(self) -> np.ndarray:
+        """Which own pixels get the rest of their rays: corners apart, or the corners' mean
+        apart from a side neighbour's (all pass-1 deposits must be in by now)."""
+        t = self.spec.threshold
+        c = self.corner
+        differ = np.max(np.abs(c[:, :, 0] - c[:, :, 1]), axis=-1) > t
+        mean = 0.5 * (c[:, :, 0] + c[:, :, 1])
+        hx0, _, hy0, _ = self.halo
+        x0, x1, y0, y1 = self.rect
+        own = (slice(y0 - hy0, y1 - hy0), slice(x0 - hx0, x1 - hx0))
+        refine = differ[own].copy()
+        # Neighbours beyond the image edge are NaN, and a comparison with NaN is false.
+        pad = np.pad(mean, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+        oy, ox, h, w = y0 - hy0 + 1, x0 - hx0 + 1, y1 - y0, x1 - x0
+        centre = pad[oy : oy + h, ox : ox + w]
+        for dx, dy in SIDES:
+            side = pad[oy + dy : oy + dy + h, ox + dx : ox + dx + w]
+            refine |= np.max(np.abs(centre - side), axis=-1) > t
+        refine = refine.ravel()
         if self.spec.adaptation == "left":  # a lost corner says nothing about the colour
-            differ |= ~self.corner_alive.all(axis=1)
+            refine |= ~self.corner_alive.all(axis=1)
+        return refine
+
+    def pass2(self, view, width, height):
+        """Batches of the remaining rays of the pixels `decide` picks (decided when the first
+        batch is asked for)."""
         rest = np.setdiff1d(np.arange(self.n), self.first)
-        self.refined = differ if len(rest) else np.zeros_like(differ)
+        self.refined = self.decide() if len(rest) else np.zeros(len(self.pixels), np.bool_)
         for idx in self._chunks(np.flatnonzero(self.refined), len(rest)):
             rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], rest)
             self._count(idx, alive)
@@ -81,19 +119,29 @@ class AdaptiveFilm:
             self.rays[idx] += alive.shape[1]
 
     def add(self, sample_ids: np.ndarray, rgb: np.ndarray) -> None:
-        """Deposits of traced rays (ids pixel * N + k), summed; corner samples also apart."""
+        """Deposits of traced rays (ids pixel * N + k): summed over own pixels; pass-1 ones
+        also apart, over the rectangle and its halo."""
         if len(sample_ids) == 0:
             return
-        i = self._local(sample_ids // self.n)
-        k = sample_ids % self.n
+        pixels, k = sample_ids // self.n, sample_ids % self.n
+        x, y = pixels % self.width, pixels // self.width
+        x0, x1, y0, y1 = self.rect
+        own = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+        hx0, hx1, hy0, hy1 = self.halo
+        in_halo = (x >= hx0) & (x < hx1) & (y >= hy0) & (y < hy1)
+        if np.any(~in_halo):
+            raise ValueError("a deposit for a pixel outside this node's rectangle and halo")
+        local = (y[own] - y0) * (x1 - x0) + (x[own] - x0)
         for c in range(3):
-            self.sums[:, c] += np.bincount(i, weights=rgb[:, c], minlength=len(self.pixels))
+            self.sums[:, c] += np.bincount(local, weights=rgb[own, c], minlength=len(self.pixels))
+        hw, size = hx1 - hx0, self.corner.shape[0] * self.corner.shape[1]
+        flat = self.corner.reshape(size, 2, 3)
         for j, corner in enumerate(self.first):
             m = k == corner
             if m.any():
+                cell = (y[m] - hy0) * hw + (x[m] - hx0)
                 for c in range(3):
-                    self.corner[:, j, c] += np.bincount(i[m], weights=rgb[m, c],
-                                                        minlength=len(self.pixels))  # fmt: skip
+                    flat[:, j, c] += np.bincount(cell, weights=rgb[m, c], minlength=size)
 
     def finish(self) -> tuple[np.ndarray, np.ndarray]:
         """Pixel ids and their colours: each pixel's sum over the rays it got."""

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.adaptive import AdaptiveFilm, owner_of
+from meshnode.adaptive import AdaptiveFilm, deposit_routes
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, rect_pixels
@@ -54,12 +54,14 @@ class NodeCore:
         x0, x1, y0, y1 = rect
         return eye_rays(view, width, height, corners, spp, seed, rows=(y0, y1), cols=(x0, x1))
 
-    def use_camera(self, spec: CameraRays | None, width: int, rects) -> None:
+    def use_camera(self, spec: CameraRays | None, width: int, height: int, rects) -> None:
         """Primary rays from this camera (None: the pinhole); under adaptive sampling this
         node keeps the books of its own pixels and every deposit comes back to its owner."""
-        self.camera, self.width, self.rects = spec, width, [tuple(r) for r in rects]
-        pixels = rect_pixels(self.rects[self.node], width)
-        self.film = AdaptiveFilm(spec, pixels) if spec is not None and spec.adaptive else None
+        self.camera, self.width, self.height = spec, width, height
+        self.rects = [tuple(r) for r in rects]
+        self.film = None
+        if spec is not None and spec.adaptive:
+            self.film = AdaptiveFilm(spec, self.rects[self.node], width, height)
 
     def camera_pass(self, view, width, height, second: bool):
         """Batches of camera rays of this node's rectangle: every ray, or adaptive sampling's
@@ -73,11 +75,13 @@ class NodeCore:
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by the node they go to: node 0 (then the host), or under adaptive
-        sampling the node owning each deposit's pixel."""
+        sampling the node owning each deposit's pixel (and pass-1 ones to the halos)."""
         if self.film is None or len(deposits) == 0:
             return {0: deposits} if len(deposits) else {}
-        dest = owner_of(deposits["pixel"] // self.film.n, self.width, self.rects)
-        return _group(deposits, dest)
+        f = self.film
+        idx, dest = deposit_routes(deposits["pixel"], f.n, f.first, self.width, self.height,
+                                   self.rects)  # fmt: skip
+        return _group(deposits[idx], dest)
 
     def trace(self, rays: np.ndarray) -> Batch:
         cpu = time.thread_time()

@@ -155,7 +155,7 @@ class Session:
         await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.warmup)
         camera = s.get("camera")
         self.core.use_camera(CameraRays.from_wire(camera) if camera else None, s["width"],
-                             s["rects"])  # fmt: skip
+                             s["height"], s["rects"])  # fmt: skip
         for m in self.torus.links(self.node):
             if self.node < m:  # the lower index dials, the higher accepts
                 link = await Link.connect(self.config["neighbours"][str(m)], f"node {m}")

@@ -142,3 +142,31 @@ def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
         assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
         if sampling == "adaptive":
             assert stats["camera"]["refined_pixels"] == ref_stats["camera"]["refined_pixels"]
+
+
+def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
+    # A 5x4 image whose pixel (2, 1) has both corner rays white and every other pixel black:
+    # the pixel and its four side neighbours are refined (their corner means differ by 1),
+    # nothing else. Split into two rectangles with deposits routed to owners and halos, the
+    # two nodes decide exactly as one node does.
+    from meshnode.adaptive import AdaptiveFilm, deposit_routes
+
+    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, rays=4, sampling="adaptive")
+    width, height, n = 5, 4, spec.per_pixel
+    pixels = np.arange(width * height)
+    ids = np.concatenate([pixels * n + k for k in first_pass(spec)])
+    rgb = np.zeros((len(ids), 3))
+    rgb[ids // n == 1 * width + 2] = 1.0
+    whole = AdaptiveFilm(spec, (0, width, 0, height), width, height)
+    whole.add(ids, rgb)
+    refined = set(np.flatnonzero(whole.decide()).tolist())
+    assert refined == {7, 2, 6, 8, 12}  # (2, 1) and (2, 0), (1, 1), (3, 1), (2, 2)
+
+    rects = [(0, 2, 0, height), (2, width, 0, height)]
+    films = [AdaptiveFilm(spec, r, width, height) for r in rects]
+    idx, dest = deposit_routes(ids, n, first_pass(spec), width, height, rects)
+    for node, film in enumerate(films):
+        mine = idx[dest == node]
+        film.add(ids[mine], rgb[mine])
+    split = {int(p) for f in films for p in f.pixels[f.decide()]}
+    assert split == refined

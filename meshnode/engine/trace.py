@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import inline, kernel
 from meshnode.engine.shade import normals, phong, refract
 from meshnode.engine.traverse import box_span, brute_force, test_object, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
@@ -26,6 +26,19 @@ COUNTER_NAMES = (
 )  # fmt: skip
 # Every ray ends exactly once: created = eye + reflected + refracted + shadow rays, ended =
 # hits + escaped + shadow rays blocked + shadow rays lit; forwarded rays end on another node.
+
+
+@inline
+def _push(so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi, kind, depth,
+          gid, light):  # fmt: skip
+    """Push a secondary ray onto the ray tree's stack (columns as the stack's arrays say);
+    returns the new stack height."""
+    so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
+    sd[sp, 0], sd[sp, 1], sd[sp, 2] = dx, dy, dz
+    sw[sp, 0], sw[sp, 1], sw[sp, 2] = w0, w1, w2
+    st[sp, 0], st[sp, 1] = t_lo, t_hi
+    sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = kind, depth, gid, light
+    return sp + 1
 
 
 @kernel
@@ -237,14 +250,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                     if ks > 0.0 and rl > 0.0:
                         spec = ks * phong(rl, shine, fbits, ibits)
                     counters[SHADOW_RAYS] += 1
-                    so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
-                    sd[sp, 0], sd[sp, 1], sd[sp, 2] = lx, ly, lz
-                    sw[sp, 0] = wr * lights[li, 3] * (kd * cos * materials[m, 0] + spec)
-                    sw[sp, 1] = wg * lights[li, 4] * (kd * cos * materials[m, 1] + spec)
-                    sw[sp, 2] = wb * lights[li, 5] * (kd * cos * materials[m, 2] + spec)
-                    st[sp, 0], st[sp, 1] = t_eps, ln
-                    sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = SHADOW, depth + 1, hit_gid, li
-                    sp += 1
+                    sp = _push(so, sd, sw, st, sk, sp, px, py, pz, lx, ly, lz,
+                               wr * lights[li, 3] * (kd * cos * materials[m, 0] + spec),
+                               wg * lights[li, 4] * (kd * cos * materials[m, 1] + spec),
+                               wb * lights[li, 5] * (kd * cos * materials[m, 2] + spec),
+                               t_eps, ln, SHADOW, depth + 1, hit_gid, li)  # fmt: skip
             if depth >= max_depth:
                 continue
             kt = 0.0
@@ -256,22 +266,16 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
                 if ok:
                     counters[REFRACTED_RAYS] += 1
-                    so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
-                    sd[sp, 0], sd[sp, 1], sd[sp, 2] = tx, ty, tz
-                    sw[sp, 0], sw[sp, 1], sw[sp, 2] = wr * kt, wg * kt, wb * kt
-                    st[sp, 0], st[sp, 1] = t_eps, math.inf
-                    sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = REFRACTED, depth + 1, hit_gid, 0
-                    sp += 1
+                    sp = _push(so, sd, sw, st, sk, sp, px, py, pz, tx, ty, tz, wr * kt,
+                               wg * kt, wb * kt, t_eps, math.inf, REFRACTED, depth + 1,
+                               hit_gid, 0)  # fmt: skip
                 else:
                     refl += kt  # total internal reflection: the transmitted share reflects
             if ks > 0.0 or kt > 0.0:  # SPD: reflective or transmitting surfaces reflect
                 counters[REFLECTED_RAYS] += 1
-                so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
-                sd[sp, 0], sd[sp, 1], sd[sp, 2] = rx, ry, rz
-                sw[sp, 0], sw[sp, 1], sw[sp, 2] = wr * refl, wg * refl, wb * refl
-                st[sp, 0], st[sp, 1] = t_eps, math.inf
-                sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3] = REFLECTED, depth + 1, hit_gid, 0
-                sp += 1
+                sp = _push(so, sd, sw, st, sk, sp, px, py, pz, rx, ry, rz, wr * refl,
+                           wg * refl, wb * refl, t_eps, math.inf, REFLECTED, depth + 1,
+                           hit_gid, 0)  # fmt: skip
         out_rgb[i, 0] += cr
         out_rgb[i, 1] += cg
         out_rgb[i, 2] += cb

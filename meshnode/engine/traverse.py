@@ -64,16 +64,6 @@ def box_span(ox, oy, oz, rx, ry, rz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @leaf
-def _wall(o, d, inv, i, lo, cell):
-    """t of the next voxel wall along one axis from voxel index i (inf when d is 0)."""
-    if d > 0.0:
-        return (lo + (i + 1) * cell - o) * inv
-    if d < 0.0:
-        return (lo + i * cell - o) * inv
-    return INF
-
-
-@leaf
 def _voxel(o, d, t, lo, cell, n):
     """Voxel index along one axis of the point at t, clamped into the grid."""
     return min(max(int(math.floor((o + t * d - lo) / cell)), 0), n - 1)
@@ -81,7 +71,8 @@ def _voxel(o, d, t, lo, cell, n):
 
 @leaf
 def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
-    """t where the ray leaves voxels [i_lo, i_hi] along one axis (inf when d is 0)."""
+    """t where the ray leaves voxels [i_lo, i_hi] along one axis (inf when d is 0); with
+    i_lo = i_hi, the next voxel wall."""
     if d > 0.0:
         return (lo + (i_hi + 1) * cell - o) * inv
     if d < 0.0:
@@ -127,9 +118,9 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
     dtx = cell[0] * abs(rx)
     dty = cell[1] * abs(ry)
     dtz = cell[2] * abs(rz)
-    ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
-    nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
-    ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
+    ntx = _region_exit(ox, dx, rx, ix, ix, glo[0], cell[0])
+    nty = _region_exit(oy, dy, ry, iy, iy, glo[1], cell[1])
+    ntz = _region_exit(oz, dz, rz, iz, iz, glo[2], cell[2])
     v = ix + nx * (iy + ny * iz)
     csr = offsets.shape[0] > 0
     slot_mask = 0 if csr else slots.shape[0] - 2
@@ -177,9 +168,9 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
                 iz = z1 + 1 if sz > 0 else z0 - 1
                 if iz < 0 or iz >= nz:
                     break
-            ntx = _wall(ox, dx, rx, ix, glo[0], cell[0])
-            nty = _wall(oy, dy, ry, iy, glo[1], cell[1])
-            ntz = _wall(oz, dz, rz, iz, glo[2], cell[2])
+            ntx = _region_exit(ox, dx, rx, ix, ix, glo[0], cell[0])
+            nty = _region_exit(oy, dy, ry, iy, iy, glo[1], cell[1])
+            ntz = _region_exit(oz, dz, rz, iz, iz, glo[2], cell[2])
             v = ix + nx * (iy + ny * iz)
             slot = v & slot_mask
             continue

@@ -165,8 +165,14 @@ def _render(args) -> int:
     write_pfm(float_path, image)
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
+    leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
+    if leaving < 0.5:
+        print(f"host: only {leaving:.0%} of the camera rays leave the camera (the rest are "
+              "stopped by rims or diaphragms): aim them at the stop by listing it first "
+              "(film side)", file=sys.stderr)  # fmt: skip
     if not args.quiet and "mesh" in stats:
-        r = stats["rays"]
+        r = {k: stats["rays"].get(k, 0) for k in ("eye_rays", "reflected_rays",
+             "refracted_rays", "shadow_rays", "shadow_rays_blocked")}  # fmt: skip
         print(f"{out}: mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}  eye {r['eye_rays']}"
               f"  reflected {r['reflected_rays']}  refracted {r['refracted_rays']}  shadow "
               f"{r['shadow_rays']} (blocked {r['shadow_rays_blocked']})  passed "

@@ -9,7 +9,9 @@ import sys
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from host.autofocus import autofocus_distance
 from host.camera import describe, focused
@@ -17,7 +19,7 @@ from host.framebuffer import Framebuffer
 from meshnode.adaptive import AdaptiveFilm
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lenscamera import camera_batches, rect_pixels
+from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from protocols.camera import CameraRays
 from protocols.scene import SceneData
 
@@ -76,13 +78,19 @@ class RenderSettings:
                           self.film_area, self.film_area_size, self.special, self.adaptation,
                           self.seed)  # fmt: skip
         d = describe(cam)
+        w, h = self.size(scene)
+        probe_spec = replace(spec, rays=256, sampling="uniform", film_area="centre",
+                             special=False)  # fmt: skip
+        centre = np.array([(h // 2) * w + w // 2])
+        _, alive = camera_rays(probe_spec, scene.view, w, h, centre)
         info = {"source": cam.source, "notes": cam.notes, "f_number": d["f_number"],
                 "focus_distance_m": cam.focus_distance, "film_z_m": spec.film_z,
                 "effective_focal_length_m": d["effective_focal_length_m"],
                 "generation": spec.generation, "rays_per_pixel": spec.per_pixel,
                 "sampling": spec.sampling, "threshold": spec.threshold if spec.adaptive else None,
                 "film_area": spec.film_area, "special_jittering": spec.special,
-                "adaptation": spec.adaptation, "autofocus": probe or None}  # fmt: skip
+                "adaptation": spec.adaptation, "autofocus": probe or None,
+                "centre_rays_leaving_camera": float(alive.mean())}  # fmt: skip
         return spec, info
 
 

@@ -1,15 +1,15 @@
 """Adaptive sampling's bookkeeping for the pixels one node owns (DESIGN.md 7).
 
 Pass 1 traces two rays per pixel, at opposite corners of the sampled area; a pixel gets its
-other rays in pass 2 only if those two colours differ by more than the threshold, or if their
-mean differs by more than the threshold from a side neighbour's: two rays at the rim of the
-lens can agree while a blurred edge crosses the lens between them, but then the neighbours'
-colours change. A ray's colour is known only when all its descendants have ended, possibly on
-other nodes, so under adaptive sampling every deposit travels to the node owning its pixel -
-and pass-1 deposits also to the owners of its side neighbours, which keep a one-pixel halo
-around their rectangle - and the two passes are two states of the ring's state machine. The
-owner alone knows how many rays each of its pixels got (and how many left the camera), so it
-divides and sends finished pixels to the host.
+other rays in pass 2 if either was lost in the camera, if those two colours differ by more than
+the threshold, or if their mean differs by more than the threshold from a side neighbour's: two
+rays at the rim of the lens can agree while a blurred edge crosses the lens between them, but
+then the neighbours' colours change. A ray's colour is known only when all its descendants have
+ended, possibly on other nodes, so under adaptive sampling every deposit travels to the node
+owning its pixel - and pass-1 deposits also to the owners of its side neighbours, which keep a
+one-pixel halo around their rectangle - and the two passes are two states of the ring's state
+machine. The owner alone knows how many rays each of its pixels got (and how many left the
+camera), so it divides and sends finished pixels to the host.
 """
 
 import numpy as np
@@ -97,10 +97,8 @@ class AdaptiveFilm:
         for dx, dy in SIDES:
             side = pad[oy + dy : oy + dy + h, ox + dx : ox + dx + w]
             refine |= np.max(np.abs(centre - side), axis=-1) > t
-        refine = refine.ravel()
-        if self.spec.adaptation == "left":  # a lost corner says nothing about the colour
-            refine |= ~self.corner_alive.all(axis=1)
-        return refine
+        # A corner ray lost in the camera (rim, diaphragm) says nothing of the scene's colour.
+        return refine.ravel() | ~self.corner_alive.all(axis=1)
 
     def pass2(self, view, width, height):
         """Batches of the remaining rays of the pixels `decide` picks (decided when the first

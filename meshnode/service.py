@@ -106,7 +106,7 @@ class Session:
         self.packet: Packet | None = None
         self.wake = asyncio.Event()
         self.error: Exception | None = None
-        self.counts: dict[str, int] = {}
+        self.counts: dict[str, int] = {"eye_rays": 0}
         self.rays_in: dict[int, int] = {}
         self.rays_out: dict[int, int] = {}
         self.pixel_packets = 0

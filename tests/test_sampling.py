@@ -158,15 +158,50 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     rgb = np.zeros((len(ids), 3))
     rgb[ids // n == 1 * width + 2] = 1.0
     whole = AdaptiveFilm(spec, (0, width, 0, height), width, height)
+    whole.corner_alive[:] = True  # (no pass 1 here: every corner ray left the camera)
     whole.add(ids, rgb)
     refined = set(np.flatnonzero(whole.decide()).tolist())
     assert refined == {7, 2, 6, 8, 12}  # (2, 1) and (2, 0), (1, 1), (3, 1), (2, 2)
 
     rects = [(0, 2, 0, height), (2, width, 0, height)]
     films = [AdaptiveFilm(spec, r, width, height) for r in rects]
+    for film in films:
+        film.corner_alive[:] = True
     idx, dest = deposit_routes(ids, n, first_pass(spec), width, height, rects)
     for node, film in enumerate(films):
         mine = idx[dest == node]
         film.add(ids[mine], rgb[mine])
     split = {int(p) for f in films for p in f.pixels[f.decide()]}
     assert split == refined
+
+
+def test_adaptive_refines_pixels_whose_corner_rays_the_camera_stops():
+    # The hexagonal stop (6.25 mm) is smaller than the lens the rays are aimed at (15 mm):
+    # the corner rays, near the lens rim, never get out. They say nothing of the scene, so
+    # every pixel is refined and the image is the jittered one, not black.
+    elements = stack(
+        {"kind": dtypes.THIN_LENS, "z": 0.0, "focal": 0.05, "ax": 0.015, "ay": 0.015},
+        {"kind": dtypes.DIAPHRAGM, "z": 0.002, "ax": 0.00625, "ay": 0.00625,
+         "shape": dtypes.POLYGON_RIM, "sides": 6},
+    )  # fmt: skip
+    cam = Camera(elements, 0.024, 0.018, None, 2.0)
+    full, _ = _render(cam, lens_rays=16, sampling="jittered")
+    img, st = _render(cam, lens_rays=16, sampling="adaptive")
+    assert st["camera"]["refined_pixels"] == 48 * 36
+    np.testing.assert_allclose(img, full, atol=1e-12)
+    assert full.mean() > 0.05
+
+
+def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
+    from host.cli import main
+
+    scene = tmp_path / "s.nff"
+    scene.write_text("v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 8 8\n"
+                     "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n")  # fmt: skip
+    camera = tmp_path / "c.toml"
+    camera.write_text('[[element]]\ntype = "thin_lens"\nz = 0.0\nfocal = 0.05\ndiameter = 0.03\n'
+                      '[[element]]\ntype = "diaphragm"\nz = 0.002\ndiameter = 0.008\n')  # fmt: skip
+    args = ["render", str(scene), "-o", str(tmp_path / "o.png"), "--quiet", "--mesh", "1x1",
+            "--camera", str(camera)]  # fmt: skip
+    assert main(args) == 0
+    assert "of the camera rays leave the camera" in capsys.readouterr().err

@@ -133,6 +133,11 @@ def _render(args) -> int:
     if args.camera:
         from host.camera import CameraError, read_camera
 
+        if args.spp != 1:
+            print("host: --spp is for the pinhole; through a camera, rays per pixel are "
+                  "--lens-rays N", file=sys.stderr)  # fmt: skip
+            return 2
+
         try:
             settings.camera = read_camera(args.camera)
         except (CameraError, OSError) as e:

@@ -205,3 +205,5 @@ def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
             "--camera", str(camera)]  # fmt: skip
     assert main(args) == 0
     assert "of the camera rays leave the camera" in capsys.readouterr().err
+    assert main([*args, "--spp", "4"]) == 2
+    assert "--lens-rays" in capsys.readouterr().err

@@ -250,7 +250,11 @@ def _run(scene, settings, args):
 def _mesh(scene, settings, addresses, rows, cols, args):
     from tqdm import tqdm
 
-    bar = tqdm(unit=" deposits", desc=f"mesh {rows}x{cols}", file=sys.stderr,
+    w, h = settings.size(scene)
+    total = None  # camera rays lost inside the camera are never traced: no known total
+    if settings.camera is None:
+        total = (w + 1) * (h + 1) if settings.spd else w * h * settings.spp
+    bar = tqdm(total=total, unit=" rays", desc=f"mesh {rows}x{cols} primary", file=sys.stderr,
                disable=args.quiet, leave=False)  # fmt: skip
     try:
         return asyncio.run(render_on_mesh(scene, settings, addresses, rows, cols,

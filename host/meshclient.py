@@ -56,6 +56,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                          progress=None, link_delay=None, silence: float = 120.0,
                          incoming_high: int | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
+    `progress(n)` is called as nodes report n more primary rays traced;
     `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests);
     `silence`: seconds without any message from the mesh before the render is given up;
     `incoming_high`: queued incoming rays at which a node stops reading (tests use tiny ones)."""
@@ -114,8 +115,9 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 d = f["deposits"]
                 fb.add(d["pixel"], d["rgb"])
                 deposits += len(d)
+            elif kind is Kind.PROGRESS:
                 if progress:
-                    progress(len(d))
+                    progress(f["rays"])
             elif kind is Kind.STATS:
                 stats[n] = f["stats"]
             elif kind is Kind.ERROR:

@@ -345,6 +345,7 @@ class Session:
                 rays = self.primaries.pop()
                 self.counts["eye_rays"] = self.counts.get("eye_rays", 0) + len(rays)
                 await self.trace(rays)
+                self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=len(rays)))
                 continue
             self.flush()
             idle = not tracing

@@ -25,6 +25,7 @@ class Kind(IntEnum):
     STATS = 7  # a node's statistics
     SHUTDOWN = 8  # stop and close every link
     ERROR = 9  # the sender hit an error; `reason` says what
+    PROGRESS = 10  # a node to the host: primary rays it has traced since its last report
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -41,6 +42,7 @@ FIELDS = {
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
+    Kind.PROGRESS: {"node": int, "rays": int},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),

@@ -124,9 +124,9 @@ def test_film_area_antialiases_an_edge():
     assert levels(soft) > levels(sharp)
 
 
-def _mesh(rows, cols, rs):
+def _mesh(rows, cols, rs, progress=None):
     with LocalMesh(rows * cols) as addresses:
-        coro = render_on_mesh(dof_scene(), rs, addresses, rows, cols, 1.0)
+        coro = render_on_mesh(dof_scene(), rs, addresses, rows, cols, 1.0, progress=progress)
         return asyncio.run(asyncio.wait_for(coro, 180))
 
 
@@ -137,9 +137,10 @@ def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
                         sampling=sampling, progress=False, threads=1)  # fmt: skip
     ref, ref_stats = render(dof_scene(), rs)
     for rows, cols in meshes:
-        img, stats = _mesh(rows, cols, rs)
+        reports = []
+        img, stats = _mesh(rows, cols, rs, reports.append)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-9)
-        assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
+        assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"] == sum(reports)
         if sampling == "adaptive":
             assert stats["camera"]["refined_pixels"] == ref_stats["camera"]["refined_pixels"]
 

@@ -16,7 +16,7 @@ import numpy as np
 from host.autofocus import autofocus_distance
 from host.camera import describe, focused
 from host.framebuffer import Framebuffer
-from meshnode.adaptive import AdaptiveFilm
+from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
@@ -116,13 +116,14 @@ def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = N
     return _run_batches(engine, fb, bands, trace_band, s, width, height)
 
 
-def _run_batches(engine, fb, jobs, trace_job, s, width, height, camera=None, passes=None):
+def _run_batches(engine, fb, jobs, trace_job, s, width, height, camera=None, passes=None,
+                 total=None):  # fmt: skip
     """Trace jobs on the thread pool, add their deposits to `fb` (or to `passes`' film);
     `passes` lists job lists traced one after the other (adaptive sampling)."""
     threads = s.threads or os.cpu_count() or 1
     totals: dict[str, int] = {}
     start = time.perf_counter()
-    bar = _progress(None if passes else len(jobs), s.progress)
+    bar = _progress(total if total is not None or passes else len(jobs), s.progress)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for job_list, sink in passes or [(jobs, None)]:
             for rays, rgb, counts in _bounded_map(pool, trace_job, job_list, 2 * threads):
@@ -151,9 +152,11 @@ def _render_camera(scene, s, engine, width, height):
     def trace_batch(rays):
         return rays, *engine.trace(rays)
 
-    if not spec.adaptive:
-        batches = list(camera_batches(spec, scene.view, width, height, pixels))
-        return _run_batches(engine, fb, batches, trace_batch, s, width, height, info)
+    if not spec.adaptive:  # batches made as the pool takes them: memory stays bounded
+        batches = camera_batches(spec, scene.view, width, height, pixels, RAYS_PER_BATCH)
+        count = -(-len(pixels) // max(1, RAYS_PER_BATCH // spec.per_pixel))
+        return _run_batches(engine, fb, batches, trace_batch, s, width, height, info,
+                            total=count)  # fmt: skip
     film = AdaptiveFilm(spec, (0, width, 0, height), width, height)
 
     class Passes:  # pass 2's rays depend on pass 1's colours: made only once it is traced

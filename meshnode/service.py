@@ -35,11 +35,13 @@ INCOMING_HIGH = 1_000_000  # queued incoming rays at which readers stop (~100 MB
 
 
 class Outbox:
-    """Messages waiting for one link, sent in order by one task."""
+    """Messages waiting for one link, sent in order by one task; `sent` is set after every
+    send, so a work loop paused on full outboxes wakes when they drain."""
 
-    def __init__(self, link: Link, on_error):
+    def __init__(self, link: Link, on_error, sent: asyncio.Event | None = None):
         self.link, self.queue, self.bytes = link, deque(), 0
         self.ready = asyncio.Event()
+        self.sent = sent
         self.task = asyncio.create_task(self._run(on_error))
 
     def post(self, message: dict, size: int = 0, delay: float = 0.0) -> None:
@@ -58,6 +60,8 @@ class Outbox:
                         await asyncio.sleep(delay)  # an injected slow link (tests)
                     await self.link.send(message)
                     self.bytes -= size
+                    if size and self.sent is not None:
+                        self.sent.set()
         except LinkClosed as e:
             on_error(e)
 
@@ -99,12 +103,12 @@ class Session:
         self.state = State.DOWNLOAD
         self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
-        self.host_out = Outbox(host, self.fail)
+        self.wake = asyncio.Event()
+        self.host_out = Outbox(host, self.fail, self.wake)
         self.incoming: deque = deque()
         self.primaries = Primaries(iter(()))
         self.deposits: list = []
         self.packet: Packet | None = None
-        self.wake = asyncio.Event()
         self.error: Exception | None = None
         self.counts: dict[str, int] = {"eye_rays": 0}
         self.rays_in: dict[int, int] = {}
@@ -169,7 +173,7 @@ class Session:
         self.wake.set()
 
     def attach(self, m: int, link: Link) -> None:
-        self.outboxes[m] = Outbox(link, self.fail)
+        self.outboxes[m] = Outbox(link, self.fail, self.wake)
         self.tasks.append(asyncio.create_task(self.read(m, link)))
 
     # ------------------------------------------------------------------ messages

@@ -159,3 +159,25 @@ def test_mesh_and_cluster_arguments(tmp_path):
     f.write_text("0 0 a:1\n0 zero b:2\n")
     with pytest.raises(ValueError, match=":2:"):
         read_cluster(f)
+
+
+def test_an_outbox_wakes_the_work_loop_when_it_sends():
+    # A node paused on full outboxes waits for this: without it, a node whose rays bring
+    # nothing back would sleep forever once its outboxes drained.
+    from meshnode.service import Outbox
+
+    class Sink:
+        sent: list = []
+
+        async def send(self, message):
+            self.sent.append(message)
+
+    async def run():
+        woken = asyncio.Event()
+        box = Outbox(Sink(), on_error=print, sent=woken)
+        box.post({"k": 4}, size=1000)
+        await asyncio.wait_for(woken.wait(), 5)
+        box.task.cancel()
+        return box.bytes
+
+    assert asyncio.run(run()) == 0

@@ -208,3 +208,17 @@ def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
     assert "of the camera rays leave the camera" in capsys.readouterr().err
     assert main([*args, "--spp", "4"]) == 2
     assert "--lens-rays" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("generation", [4, 5, 6, 7])
+def test_fixed_patterns_stay_inside_the_generation_area(generation):
+    # Aimed at a stop that is the film-most element, every ray of the five- and nine-point
+    # patterns leaves the camera, jittered or not (none on the rim, none beyond it).
+    from meshnode.engine.lenscamera import camera_rays
+
+    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.0513, generation=generation)
+    _, alive = camera_rays(spec, dof_scene().view, 64, 48, np.arange(64 * 48))
+    assert alive.all()
+    special = CameraRays(thin_camera().elements, 0.024, 0.018, -0.0513, generation=generation,
+                         film_area="rectangle", special=True)  # fmt: skip
+    assert first_pass(special).tolist() == ([1, 4] if generation < 6 else [0, 8])

@@ -22,15 +22,18 @@ from meshnode.engine.optics import through
 from protocols.camera import CameraRays
 from protocols.dtypes import EYE, RAY
 
-_C = 1 / math.sqrt(2)
-# Fixed patterns in [-1, 1]^2 (inside the unit disc): five points, nine points (row-major).
+_C = 0.6
+JITTER = 0.1
+# Fixed patterns in the unit disc: five points, nine points (row-major). Jittered by up to
+# JITTER per axis, a corner stays inside the disc (radius (0.6 + 0.1) sqrt 2 = 0.99), and off
+# the rim where round-off would decide whether it passes.
 FIVE = np.array([(0, 0), (-_C, -_C), (_C, -_C), (-_C, _C), (_C, _C)])
 NINE = np.array([(x, y) for y in (-_C, 0, _C) for x in (-_C, 0, _C)])
 
 
 def first_pass(spec: CameraRays) -> np.ndarray:
     """The two samples at opposite corners that adaptive sampling traces first."""
-    if spec.generation in (4, 5) and not spec.special:
+    if spec.generation in (4, 5):
         return np.array([1, 4])
     return np.array([0, spec.per_pixel - 1])
 
@@ -109,7 +112,7 @@ def _pattern_points(spec: CameraRays, pixels, ks) -> np.ndarray:
         if gen in (5, 7):  # each point moves within a small square around itself
             ids = pixels[:, None].astype(np.uint64) * np.uint64(16) + ks[None, :]
             jit = np.stack([_hash_uniform(spec.seed, ids, 2), _hash_uniform(spec.seed, ids, 3)], -1)
-            pts = pts + 0.25 * (2 * jit - 1)
+            pts = pts + JITTER * (2 * jit - 1)
         return np.array(pts)
     sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
     p = unit_points(sampling, spec.per_pixel, pixels, ks, spec.seed, 2)
@@ -131,10 +134,14 @@ def sample_offsets(spec: CameraRays, pixels: np.ndarray, ks: np.ndarray):
         return (pts if pts is not None else zeros), zeros
     # The film area's own set, its strata shuffled against the lens's by a random
     # permutation per pixel: any film stratum goes with any lens stratum (no correlation).
+    # Without lens sampling there is nothing to decorrelate: sample k is stratum k, so
+    # adaptive sampling's first two are the film area's opposite corners.
     n = spec.per_pixel
-    keys = _hash_uniform(spec.seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
-                         + np.arange(n, dtype=np.uint64)[None, :], 6)  # fmt: skip
-    perm = np.argsort(keys, axis=1)[:, ks]
+    perm = ks
+    if lens_sampled:
+        keys = _hash_uniform(spec.seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
+                             + np.arange(n, dtype=np.uint64)[None, :], 6)  # fmt: skip
+        perm = np.argsort(keys, axis=1)[:, ks]
     sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
     film = unit_points(sampling, n, pixels, perm, spec.seed, 4)
     film = to_area(film, spec.film_area == "ellipse")

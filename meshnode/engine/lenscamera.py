@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from meshnode.engine.camera import view_basis
+from meshnode.engine.jit import kernel
 from meshnode.engine.optics import through
 from protocols.camera import CameraRays
 from protocols.dtypes import EYE, RAY
@@ -95,13 +96,49 @@ def to_area(p: np.ndarray, ellipse: bool) -> np.ndarray:
     a = 2.0 * p - 1.0
     if not ellipse:
         return a
-    x, y = a[..., 0], a[..., 1]
-    wide = np.abs(x) > np.abs(y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(wide, x, y)
-        phi = np.where(wide, (math.pi / 4) * (y / x), math.pi / 2 - (math.pi / 4) * (x / y))
-    phi = np.where((x == 0) & (y == 0), 0.0, phi)
-    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+    flat = np.ascontiguousarray(a.reshape(-1, 2))
+    _concentric(flat)
+    return flat.reshape(a.shape)
+
+
+@kernel
+def _concentric(a):
+    """Shirley-Chiu concentric map of [-1, 1]^2 onto the unit disc, in place."""
+    for i in range(a.shape[0]):
+        x, y = a[i, 0], a[i, 1]
+        if x == 0.0 and y == 0.0:
+            continue
+        if abs(x) > abs(y):
+            r, phi = x, (math.pi / 4) * (y / x)
+        else:
+            r, phi = y, math.pi / 2 - (math.pi / 4) * (x / y)
+        a[i, 0] = r * math.cos(phi)
+        a[i, 1] = r * math.sin(phi)
+
+
+@kernel
+def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front):
+    """RAY records of the rays that left the camera, moved from the camera frame (z along the
+    view, the front vertex at the eye) to the scene; returns how many."""
+    n = 0
+    for i in range(o.shape[0]):
+        if not alive[i]:
+            continue
+        x, y, z = o[i, 0], o[i, 1], o[i, 2] - front
+        r = out[n]
+        for c in range(3):
+            r.o[c] = eye[c] + x * right[c] + y * up[c] + z * fwd[c]
+            r.d[c] = d[i, 0] * right[c] + d[i, 1] * up[c] + d[i, 2] * fwd[c]
+            r.w[c] = share[i]
+        r.t_min = 0.0
+        r.t_max = math.inf
+        r.pixel = ids[i]
+        r.origin = -1
+        r.depth = 1
+        r.kind = EYE
+        r.light = 0
+        n += 1
+    return n
 
 
 def _pattern_points(spec: CameraRays, pixels, ks) -> np.ndarray:
@@ -186,20 +223,9 @@ def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndar
         per = alive2.sum(axis=1) if spec.adaptation == "left" else np.full(len(pixels), k)
         share = np.repeat(1.0 / np.maximum(per, 1), k)
         ids = np.repeat(pixels, k)
-    # Camera frame -> world: z along the view, x right, y up, the front vertex at the eye.
     eye, fwd, right, up, _ = view_basis(view, width, height)
-    front = float(spec.elements["z"].max())
-    basis = np.stack([right, up, fwd])
-    keep = np.flatnonzero(alive)
-    rays = np.zeros(len(keep), RAY)
-    rays["o"] = eye + (o[keep] - [0.0, 0.0, front]) @ basis
-    rays["d"] = d[keep] @ basis
-    rays["t_max"] = np.inf
-    rays["w"] = share[keep, None]
-    rays["pixel"] = ids[keep]
-    rays["origin"] = -1
-    rays["depth"] = 1
-    rays["kind"] = EYE
+    rays = np.zeros(int(alive.sum()), RAY)
+    _emit(rays, o, d, alive, share, ids, eye, right, up, fwd, float(spec.elements["z"].max()))
     return rays, alive2
 
 

@@ -1,12 +1,16 @@
 """Autofocus: a probe pass of pinhole rays through the centre of the image finds the average
 depth there (DESIGN.md 7), measured along the view axis from the eye, where the camera's front
-vertex sits."""
+vertex sits. For a mesh render the host probes with an engine over just the objects inside the
+probe's cone, not the whole scene."""
 
 import math
 
 import numpy as np
 
+from host.partition import subset
+from meshnode.engine import Engine
 from meshnode.engine.camera import view_basis
+from meshnode.engine.tables import build_tables
 
 
 def probe_rays(view, width: int, height: int, fraction: float = 0.1, grid: int = 16):
@@ -20,6 +24,29 @@ def probe_rays(view, width: int, height: int, fraction: float = 0.1, grid: int =
     d = fwd + gx.ravel()[:, None] * right + gy.ravel()[:, None] * up
     d /= np.linalg.norm(d, axis=1)[:, None]
     return np.broadcast_to(eye, d.shape).copy(), d, fwd
+
+
+def in_probe_cone(scene, width: int, height: int, fraction: float = 0.1) -> np.ndarray:
+    """Objects (engine local order) whose bounding sphere meets the cone around every probe
+    ray: the only ones a probe ray can hit (conservative)."""
+    eye, fwd, _, _, step = view_basis(scene.view, width, height)
+    half = 0.5 * fraction * step * math.hypot(width - 1, height - 1)
+    cone = math.atan(half) * (1 + 1e-9) + 1e-12
+    tb = build_tables(scene)
+    centre, radius = (tb.lo + tb.hi) / 2, np.linalg.norm(tb.hi - tb.lo, axis=1) / 2
+    v = centre - eye
+    dist = np.linalg.norm(v, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        angle = np.arccos(np.clip((v @ fwd) / dist, -1.0, 1.0))
+        spread = np.arcsin(np.clip(radius / dist, 0.0, 1.0))
+    return (dist <= radius) | (angle - spread <= cone)
+
+
+def probe_engine(scene, width: int, height: int, **engine_options) -> Engine:
+    """An engine over the objects the probe can hit."""
+    engine = Engine(subset(scene, in_probe_cone(scene, width, height)), **engine_options)
+    engine.warmup()
+    return engine
 
 
 def autofocus_distance(engine, view, width: int, height: int, fraction: float = 0.1,

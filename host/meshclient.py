@@ -160,11 +160,11 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
 
 
 def _probe_engine(scene: SceneData, rs):
-    from meshnode.engine import Engine
+    from host.autofocus import probe_engine
 
-    engine = Engine(scene, density=rs.density, storage=rs.storage, max_depth=1)
-    engine.warmup()
-    return engine
+    width, height = rs.size(scene)
+    return probe_engine(scene, width, height, density=rs.density, storage=rs.storage,
+                        max_depth=1)  # fmt: skip
 
 
 def _summary(stats, torus, keep, deposits, setup, wall) -> dict:

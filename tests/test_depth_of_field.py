@@ -113,3 +113,21 @@ def test_host_render_depth_of_field_options(tmp_path, capsys):
     assert main([*args, "--dof-near", "0.01"]) == 2
     assert "inside the focal length" in capsys.readouterr().err
     assert main([*args, "--focus", "near"]) == 2
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "gears_s1.nff", "teapot_s1.nff",
+                                  "tree_s1.nff", "rings_s1.nff"])  # fmt: skip
+def test_mesh_autofocus_probes_only_the_objects_in_its_cone(name):
+    # The host focuses a mesh render with an engine over the objects inside the probe's cone:
+    # the same depth as a whole-scene engine (a probe ray can hit nothing else), fewer objects.
+    from host.autofocus import autofocus_distance, in_probe_cone, probe_engine
+    from host.nff import read_nff
+    from meshnode.engine import Engine
+    from tests.conftest import spd_scene
+
+    scene = read_nff(spd_scene(name))
+    whole, _ = autofocus_distance(Engine(scene), scene.view, 64, 48)
+    probe, seen = autofocus_distance(probe_engine(scene, 64, 48), scene.view, 64, 48)
+    assert probe == whole and seen["probe_hits"] > 0
+    keep = in_probe_cone(scene, 64, 48)
+    assert keep.sum() < len(keep)

@@ -1,5 +1,6 @@
-"""`meshnode` command line. `warmup` compiles the engine's kernels into the disk cache, so a
-node (or a container image) starts tracing without paying numba's compile time."""
+"""`meshnode` command line. `warmup` compiles the engine's and the camera's kernels into the
+disk cache, so a node (or a container image) starts tracing without paying numba's compile
+time."""
 
 import argparse
 import sys
@@ -33,7 +34,19 @@ def warmup() -> float:
 
     start = time.perf_counter()
     Engine(_all_kinds_scene()).warmup()
+    _camera_warmup()
     return time.perf_counter() - start
+
+
+def _camera_warmup() -> None:
+    """Compile the camera-ray kernels (elements, sampling, records) on a one-pixel batch."""
+    from meshnode.engine.lenscamera import camera_rays
+    from protocols.camera import CameraRays
+
+    lens = np.zeros(1, dtypes.ELEMENT)
+    lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
+    spec = CameraRays(lens, 0.036, 0.024, -0.051)
+    camera_rays(spec, View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0), 1, 1, np.zeros(1, int))
 
 
 def main(argv=None) -> int:

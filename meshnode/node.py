@@ -13,11 +13,11 @@ import numpy as np
 from meshnode.adaptive import AdaptiveFilm, deposit_routes
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lenscamera import camera_batches, rect_pixels
+from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.trace import owners
 from protocols.camera import CameraRays
 from protocols.dtypes import DEPOSIT, RAY
-from protocols.scene import SceneData
+from protocols.scene import SceneData, View
 
 
 @dataclass
@@ -62,6 +62,8 @@ class NodeCore:
         self.film = None
         if spec is not None and spec.adaptive:
             self.film = AdaptiveFilm(spec, self.rects[self.node], width, height)
+        if spec is not None:  # compile or load the camera kernels now, not mid-render
+            camera_rays(spec, View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0), 1, 1, np.zeros(1, int))
 
     def camera_pass(self, view, width, height, second: bool):
         """Batches of camera rays of this node's rectangle: every ray, or adaptive sampling's

@@ -157,9 +157,11 @@ class Session:
                              storage=s["storage"], max_depth=s["depth"]),  # fmt: skip
         )
         await asyncio.get_running_loop().run_in_executor(self.service.pool, self.core.warmup)
-        camera = s.get("camera")
-        self.core.use_camera(CameraRays.from_wire(camera) if camera else None, s["width"],
-                             s["height"], s["rects"])  # fmt: skip
+        camera = CameraRays.from_wire(s["camera"]) if s.get("camera") else None
+        await asyncio.get_running_loop().run_in_executor(
+            self.service.pool,
+            lambda: self.core.use_camera(camera, s["width"], s["height"], s["rects"]),
+        )
         for m in self.torus.links(self.node):
             if self.node < m:  # the lower index dials, the higher accepts
                 link = await Link.connect(self.config["neighbours"][str(m)], f"node {m}")

@@ -53,12 +53,13 @@ async def _download(link: Link, scene: SceneData) -> None:
 
 async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
                          overlap: float = 1.0, cluster: str = "meshtrace",
-                         progress=None, link_delay=None, silence: float = 120.0,
+                         progress=None, link_delay=None, silence: float = 15.0,
                          incoming_high: int | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `progress(n)` is called as nodes report n more primary rays traced;
     `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests);
-    `silence`: seconds without any message from the mesh before the render is given up;
+    `silence`: seconds without a message from a node (they send one a second) before the
+    render is given up naming it;
     `incoming_high`: queued incoming rays at which a node stops reading (tests use tiny ones)."""
     torus = Torus(rows, cols)
     if len(addresses) != torus.size:
@@ -101,7 +102,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     stats: dict[int, dict] = {}
     deposits = 0
 
-    last_heard = [time.monotonic()]
+    last_heard = dict.fromkeys(range(torus.size), time.monotonic())
 
     async def collect(n: int, link: Link):
         nonlocal deposits
@@ -110,7 +111,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 kind, f = await link.recv()
             except LinkClosed as e:
                 raise MeshError(f"node {n} ({addresses[n]}): {e.reason}") from e
-            last_heard[0] = time.monotonic()
+            last_heard[n] = time.monotonic()
             if kind is Kind.PIXELS:
                 d = f["deposits"]
                 fb.add(d["pixel"], d["rgb"])
@@ -124,13 +125,14 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 raise MeshError(f"node {n} ({addresses[n]}) failed: {f['reason']}")
 
     async def watchdog():
-        """A mesh that stops talking (a hung node, a lost message) fails instead of hanging."""
+        """A node that stops talking (stopped, hung, cut off) fails the render, named."""
         while True:
             await asyncio.sleep(min(1.0, silence / 4))
-            if time.monotonic() - last_heard[0] > silence:
-                waiting = [n for n in range(torus.size) if n not in stats]
-                raise MeshError(f"no message from any node for {silence:g} s; nodes {waiting} "
-                                "have not finished")  # fmt: skip
+            now = time.monotonic()
+            for n in range(torus.size):
+                if n not in stats and now - last_heard[n] > silence:
+                    raise MeshError(f"node {n} ({addresses[n]}): no message for {silence:g} s "
+                                    "(stopped, hung or cut off)")  # fmt: skip
 
     tasks = [asyncio.ensure_future(collect(n, link)) for n, link in enumerate(links)]
     guard = asyncio.ensure_future(watchdog())

@@ -31,6 +31,7 @@ log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 RAY_BATCH = 4096  # primary rays per traced batch
+HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which readers stop (~100 MB); resume at 1/4
 
 
@@ -124,6 +125,14 @@ class Session:
         self.incoming_high = int(self.settings.get("incoming_high") or INCOMING_HIGH)
         self.drained = asyncio.Event()
         self.view: View | None = None
+        self.tasks.append(asyncio.create_task(self.heartbeat()))
+
+    async def heartbeat(self) -> None:
+        """Tell the host every second that this node lives (a PROGRESS of no rays), so it can
+        name a node that stops, hangs or is cut off within seconds."""
+        while True:
+            await asyncio.sleep(HEARTBEAT)
+            self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=0))
 
     # ------------------------------------------------------------------ setup
     def add_objects(self, table: str, records: np.ndarray) -> None:

@@ -95,11 +95,67 @@ def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     return los - grow, his + grow
 
 
+def _flat_shapes(scene: SceneData):
+    """Triangles then polygons as one vertex list: (vertices, first vertex, count) per shape."""
+    tri = scene.triangles["v"].reshape(-1, 3)
+    poly = scene.polygons
+    counts = np.concatenate([np.full(len(scene.triangles), 3),
+                             poly["count"].astype(np.int64)]).astype(np.int64)  # fmt: skip
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    rows, _ = _segments(poly["start"].astype(np.int64), poly["count"].astype(np.int64))
+    verts = np.concatenate([tri, scene.vertices[rows].reshape(-1, 3)])
+    return verts, starts, counts
+
+
+def _segments(starts: np.ndarray, counts: np.ndarray):
+    """Row indices of every segment's members, in order, and the segments' new starts."""
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    rows = np.repeat(starts - first, counts) + np.arange(int(counts.sum()))
+    return rows, first
+
+
+def _edges_separate(verts, starts, counts, lo, hi) -> np.ndarray:
+    """Per shape: does some axis edge x box-axis separate it from the box [lo, hi]?"""
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    shape_of = np.repeat(np.arange(len(counts)), counts)
+    pos = np.arange(len(verts)) - starts[shape_of]
+    nxt = np.where(pos + 1 < counts[shape_of], np.arange(len(verts)) + 1, starts[shape_of])
+    edges = verts[nxt] - verts  # edge j of its shape, one per vertex
+    # Every (edge, vertex of the same shape) pair: each edge's axes project its whole shape.
+    per_edge = counts[shape_of]
+    pair_vert, edge_first = _segments(np.repeat(starts, counts), per_edge)
+    pair_edge = np.repeat(np.arange(len(verts)), per_edge)
+    rel = verts[pair_vert] - centre
+    apart = np.zeros(len(verts), np.bool_)
+    for k in range(3):
+        axis = np.cross(edges, np.eye(3)[k])
+        reach = (np.abs(axis) @ half) * (1 + 1e-9) + 1e-12  # a zero axis separates nothing
+        proj = (rel * axis[pair_edge]).sum(axis=1)
+        apart |= np.minimum.reduceat(proj, edge_first) > reach
+        apart |= np.maximum.reduceat(proj, edge_first) < -reach
+    return np.logical_or.reduceat(apart, starts)
+
+
+def _edge_separated(scene: SceneData, los, his, candidates: np.ndarray) -> np.ndarray:
+    """(boxes, flat shapes) bool: the separating-axis tests that bounds and plane tests leave
+    out (edges crossed with the box axes), run only on each box's remaining candidates. With
+    those, exact for triangles and convex polygons; a concave polygon may be kept needlessly."""
+    verts, starts, counts = _flat_shapes(scene)
+    separated = np.zeros(candidates.shape, np.bool_)
+    for b in range(len(los)):  # one pass per node box, over the shapes its bounds admit
+        idx = np.flatnonzero(candidates[b])
+        if len(idx):
+            rows, first = _segments(starts[idx], counts[idx])
+            separated[b, idx] = _edges_separate(verts[rows], first, counts[idx], los[b], his[b])
+    return separated
+
+
 def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
     """(boxes, objects) bool: which boxes each object touches, objects in the engine's local
     order (spheres, triangles, polygons, cones). Bounds must overlap; spheres must also reach
-    the box; planar objects' planes must cross it (conservative: a node may hold an object it
-    never meets, never miss one it does)."""
+    the box; triangles and polygons must pass the separating-axis tests (their plane, and
+    their edges crossed with the box axes); cones only their bounds (conservative: a node may
+    hold an object it never meets, never miss one it does)."""
     tb = build_tables(scene)
     touch = (tb.lo[None] <= his[:, None]) & (tb.hi[None] >= los[:, None])
     touch = touch.all(axis=2)
@@ -116,6 +172,9 @@ def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
         dist = np.abs(((centre[:, None] - p0[None]) * n[None]).sum(axis=2))
         reach = (np.abs(n)[None] * half[:, None]).sum(axis=2)
         touch[:, first : first + len(table)] &= dist <= reach * (1 + 1e-9) + 1e-12
+    a, b = tb.offsets[1], tb.offsets[3]  # triangles and polygons
+    if b > a:
+        touch[:, a:b] &= ~_edge_separated(scene, los, his, touch[:, a:b])
     return touch
 
 

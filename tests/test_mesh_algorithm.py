@@ -7,7 +7,7 @@ import pytest
 from host.nff import read_nff
 from host.partition import holders, node_boxes, rectangles, scene_box, subset
 from host.render import RenderSettings, render
-from tests.conftest import spd_scene
+from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
 from tests.test_grid import lit_glass_scene
 
@@ -92,3 +92,49 @@ def test_partition_covers_the_scene_and_rectangles_tile_the_image():
         assert keep.any(axis=0).all()
         sub = subset(scene, keep[0])
         assert len(sub.spheres) == int(keep[0, : len(scene.spheres)].sum())
+
+
+def _clip_touches(poly: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Reference: Sutherland-Hodgman clipping of a convex polygon by the box's six planes;
+    it touches the box iff something is left."""
+    pts = list(poly)
+    for axis in range(3):
+        for sign, bound in ((1.0, lo[axis]), (-1.0, hi[axis])):
+            out = []
+            for i, p in enumerate(pts):
+                q = pts[(i + 1) % len(pts)]
+                dp, dq = sign * (p[axis] - bound), sign * (q[axis] - bound)
+                if dp >= 0:
+                    out.append(p)
+                if dp * dq < 0:
+                    out.append(p + (q - p) * (dp / (dp - dq)))
+            pts = out
+            if not pts:
+                return False
+    return True
+
+
+def test_holders_clip_triangles_and_convex_polygons_exactly():
+    # Random triangles and convex (regular) polygons of every size and tilt against random
+    # boxes: a box holds a shape exactly when clipping the shape by the box leaves something.
+    rng = np.random.default_rng(7)
+    tris, polys = [], []
+    for _ in range(300):
+        c = rng.uniform(-1, 1, 3)
+        tris.append((*(c + rng.normal(0, rng.choice([0.05, 0.3, 1.0]), (3, 3))), 0))
+        u, v = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :2].T
+        a = np.linspace(0, 2 * np.pi, int(rng.integers(4, 9)), endpoint=False)
+        r = rng.choice([0.05, 0.3, 1.0])
+        polys.append((c + r * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v), 0))
+    scene = make_scene(triangles=tris, polygons=polys)
+    los = rng.uniform(-1.2, 0.6, (12, 3))
+    his = los + rng.uniform(0.05, 0.8, (12, 3))
+    keep = holders(scene, los, his)
+    shapes = [np.array(t[:3]) for t in tris] + [p for p, _ in polys]
+    want = np.array([[_clip_touches(s, los[b], his[b]) for s in shapes] for b in range(12)])
+    assert (keep == want).all()
+    # Not a trivial agreement: many boxes overlap a shape's bounds without touching it.
+    lo_s = np.array([s.min(axis=0) for s in shapes])
+    hi_s = np.array([s.max(axis=0) for s in shapes])
+    bounds = ((lo_s[None] <= his[:, None]) & (hi_s[None] >= los[:, None])).all(axis=2)
+    assert want.sum() > 100 and (bounds & ~want).sum() > 100

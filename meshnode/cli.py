@@ -57,18 +57,21 @@ def main(argv=None) -> int:
     s.add_argument("--listen", default="0.0.0.0:7700", help="HOST:PORT (port 0: any free)")
     s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
     s.add_argument("--once", action="store_true", help="exit after one render")
+    s.add_argument("--threads", type=int, default=0,
+                   help="tracing threads (default 0: one per core)")
     args = p.parse_args(argv)
     if args.command == "warmup":
         print(f"kernels ready in {warmup():.2f} s", file=sys.stderr)
     elif args.command == "serve":
-        return serve(args.listen, args.cluster, args.once)
+        return serve(args.listen, args.cluster, args.once, args.threads)
     return 0
 
 
-def serve(listen: str, cluster: str, once: bool) -> int:
+def serve(listen: str, cluster: str, once: bool, threads: int = 0) -> int:
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
     import logging
+    import os
 
     from meshnode.service import NodeService
 
@@ -76,7 +79,7 @@ def serve(listen: str, cluster: str, once: bool) -> int:
     host, port = listen.rsplit(":", 1)
 
     async def main():
-        service = NodeService(host, int(port), cluster, once)
+        service = NodeService(host, int(port), cluster, once, threads or os.cpu_count() or 1)
         bound = await service.start()
         print(f"listening {host}:{bound}", flush=True)
         await service.run()

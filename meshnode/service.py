@@ -119,6 +119,7 @@ class Session:
         self.cpu = 0.0  # CPU seconds of that thread
         self.started = time.perf_counter()
         self.tasks: list[asyncio.Task] = []
+        self.tracing: set[asyncio.Task] = set()  # batches on the pool's threads right now
         self.done_passed = False
         self.delayed = 0
         self.incoming_rays = 0
@@ -343,31 +344,50 @@ class Session:
             self.fail(e)
 
     async def _work(self) -> None:
-        """Incoming rays first, then primaries; pass the packet on whenever idle."""
+        """Incoming rays first, then primaries, one batch per tracing thread at a time; pass
+        the packet on whenever idle (nothing queued, nothing being traced)."""
         while self.error is None:
             self.wake.clear()
             if self.packet is not None and self.packet.state > self.state:
                 self.enter(self.packet.state)  # the packet brings the next state
-            if self.incoming:
+            room = len(self.tracing) < self.service.threads
+            if self.incoming and room:
                 rays = self.incoming.popleft()
                 self.incoming_rays -= len(rays)
                 if self.incoming_rays < self.incoming_high // 4:
                     self.drained.set()
-                await self.trace(rays)
+                self.start(rays, primary=False)
                 continue
             tracing = self.state in (State.TRACE, State.REFINE) and self.primaries
-            if tracing and self.queued_bytes() < OUTBOX_HIGH:
+            if tracing and room and self.queued_bytes() < OUTBOX_HIGH:
                 rays = self.primaries.pop()
                 self.counts["eye_rays"] = self.counts.get("eye_rays", 0) + len(rays)
-                await self.trace(rays)
-                self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=len(rays)))
+                self.start(rays, primary=True)
                 continue
-            self.flush()
-            idle = not tracing
-            if self.packet is not None and idle:
-                self.pass_packet()
-                continue
+            if not self.tracing:
+                self.flush()
+                if self.packet is not None and not tracing and not self.incoming:
+                    self.pass_packet()
+                    continue
             await self.wake.wait()
+
+    def start(self, rays: np.ndarray, primary: bool) -> None:
+        """Trace a batch on a pool thread; the work loop wakes when it is done."""
+
+        async def run():
+            try:
+                await self.trace(rays)
+                if primary:
+                    self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=len(rays)))
+            except Exception as e:  # noqa: BLE001 - the host must hear of it
+                log.exception("node %d: tracing a batch failed", self.node)
+                self.fail(e)
+            finally:
+                self.tracing.discard(task)
+                self.wake.set()
+
+        task = asyncio.create_task(run())
+        self.tracing.add(task)
 
     def pass_packet(self) -> None:
         """Record counters, maybe advance the state, send the packet to the next ring node;
@@ -414,7 +434,7 @@ class Session:
         }
 
     async def close(self) -> None:
-        for t in self.tasks:
+        for t in [*self.tasks, *self.tracing]:
             t.cancel()
         for o in self.outboxes.values():
             o.task.cancel()
@@ -425,9 +445,11 @@ class Session:
 class NodeService:
     """Listens on one address; serves renders one after another until stopped."""
 
-    def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False):
+    def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False,
+                 threads: int = 1):  # fmt: skip
         self.address, self.port, self.cluster, self.once = host, port, cluster, once
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="trace")
+        self.threads = max(1, threads)
+        self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
         self.session: Session | None = None
         self.pending: dict[int, Link] = {}
         self.links_ready = asyncio.Event()

@@ -181,3 +181,16 @@ def test_an_outbox_wakes_the_work_loop_when_it_sends():
         return box.bytes
 
     assert asyncio.run(run()) == 0
+
+
+def test_nodes_tracing_on_several_threads_give_the_single_node_image():
+    # Two batches in flight per node: deposits and passed rays come back in any order, the
+    # state packet must wait for both; image and counts stay the single node's.
+    scene = read_nff(spd_scene("rings_s1.nff"))
+    rs = RenderSettings(width=48, height=48, spp=2, progress=False, threads=1)
+    ref, ref_stats = render(scene, rs)
+    with LocalMesh(2, threads=2) as addresses:
+        coro = render_on_mesh(scene, rs, addresses, 1, 2, 24.0)
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}

@@ -162,3 +162,35 @@ def test_host_render_through_a_camera(tmp_path, capsys):
     bad.write_text("[[element]]\ntype = 'mirror'\n")
     assert main([*args, "--camera", str(bad)]) == 2
     assert "element 1" in capsys.readouterr().err
+
+
+def test_wide_angle_example_has_visible_barrel_distortion():
+    # Chief rays (through the stop's centre) from field angles theta land at h(theta) on the
+    # film focused at infinity; a distortion-free lens puts them at EFL tan(theta). The wide
+    # lens agrees paraxially and bows inward further out (barrel): -1% at 10 deg, < -2% at 20.
+    from host.focus import cardinal, film_for_distance
+    from meshnode.engine.optics import trace
+
+    el = read_camera(CAMERAS / "wide.txt").elements
+    efl = cardinal(el)["effective_focal_length"]
+    film, front = film_for_distance(el, math.inf), float(el["z"].max())
+    stop = int(np.flatnonzero(el["kind"] == dtypes.DIAPHRAGM)[0])
+
+    def distortion(deg):
+        d = (math.sin(math.radians(deg)), 0.0, -math.cos(math.radians(deg)))
+        lo, hi = -0.05, 0.05  # entry height whose ray crosses the stop plane on the axis
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            o, dd, alive = trace(el[stop + 1 :], [(mid, 0.0, front + 0.01)], [d], backward=True)
+            # A ray the front rims stop is far off the axis, on its entry height's side.
+            x = o[0, 0] + (el["z"][stop] - o[0, 2]) * dd[0, 0] / dd[0, 2] if alive[0] else mid
+            lo, hi = (lo, mid) if x > 0 else (mid, hi)
+        o, dd, alive = trace(el, [(mid, 0.0, front + 0.01)], [d], backward=True)
+        assert alive[0]
+        h = abs(o[0, 0] + (film - o[0, 2]) * dd[0, 0] / dd[0, 2])
+        return h / (efl * math.tan(math.radians(deg))) - 1
+
+    d = [distortion(a) for a in (0.5, 5, 10, 15, 20)]
+    assert abs(d[0]) < 1e-4
+    assert all(a > b for a, b in zip(d, d[1:], strict=False))  # bowing grows with the field
+    assert d[2] < -0.005 and d[4] < -0.02

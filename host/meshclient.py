@@ -54,12 +54,14 @@ async def _download(link: Link, scene: SceneData) -> None:
 async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, cols: int,
                          overlap: float = 1.0, cluster: str = "meshtrace",
                          progress=None, link_delay=None, silence: float = 15.0,
+                         stall: float = 180.0,
                          incoming_high: int | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `progress(n)` is called as nodes report n more primary rays traced;
     `link_delay` = (src, dst, seconds, count) holds back ray messages on one link (tests);
     `silence`: seconds without a message from a node (they send one a second) before the
-    render is given up naming it;
+    render is given up naming it; `stall`: seconds in which no node traces anything (all
+    alive, none working, the render unfinished: a stuck kernel or a protocol fault);
     `incoming_high`: queued incoming rays at which a node stops reading (tests use tiny ones)."""
     torus = Torus(rows, cols)
     if len(addresses) != torus.size:
@@ -103,6 +105,8 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     deposits = 0
 
     last_heard = dict.fromkeys(range(torus.size), time.monotonic())
+    work = dict.fromkeys(range(torus.size), 0)
+    last_work = [time.monotonic()]
 
     async def collect(n: int, link: Link):
         nonlocal deposits
@@ -116,8 +120,11 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 d = f["deposits"]
                 fb.add(d["pixel"], d["rgb"])
                 deposits += len(d)
+                last_work[0] = last_heard[n]
             elif kind is Kind.PROGRESS:
-                if progress:
+                if f["work"] > work[n]:
+                    work[n], last_work[0] = f["work"], last_heard[n]
+                if progress and f["rays"]:
                     progress(f["rays"])
             elif kind is Kind.STATS:
                 stats[n] = f["stats"]
@@ -125,7 +132,8 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 raise MeshError(f"node {n} ({addresses[n]}) failed: {f['reason']}")
 
     async def watchdog():
-        """A node that stops talking (stopped, hung, cut off) fails the render, named."""
+        """A node that stops talking (stopped, hung, cut off) fails the render, named; so
+        does a mesh whose nodes all talk but none works."""
         while True:
             await asyncio.sleep(min(1.0, silence / 4))
             now = time.monotonic()
@@ -133,6 +141,10 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
                 if n not in stats and now - last_heard[n] > silence:
                     raise MeshError(f"node {n} ({addresses[n]}): no message for {silence:g} s "
                                     "(stopped, hung or cut off)")  # fmt: skip
+            if now - last_work[0] > stall:
+                waiting = [n for n in range(torus.size) if n not in stats]
+                raise MeshError(f"no node has traced anything for {stall:g} s and nodes "
+                                f"{waiting} have not finished (alive but stuck)")  # fmt: skip
 
     tasks = [asyncio.ensure_future(collect(n, link)) for n, link in enumerate(links)]
     guard = asyncio.ensure_future(watchdog())

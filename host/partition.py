@@ -95,16 +95,27 @@ def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     return los - grow, his + grow
 
 
-def _flat_shapes(scene: SceneData):
-    """Triangles then polygons as one vertex list: (vertices, first vertex, count) per shape."""
+def _flat_shapes(scene: SceneData, tb):
+    """Triangles then polygons as one vertex list: (vertices, first vertex, count) per shape.
+    A polygon's vertices are moved along its dropped axis onto the plane the engine hits it
+    on (through the first vertex, Newell normal): for a polygon that is not quite flat, that
+    is the shape the engine tests, not the outline of the vertices."""
     tri = scene.triangles["v"].reshape(-1, 3)
     poly = scene.polygons
-    counts = np.concatenate([np.full(len(scene.triangles), 3),
-                             poly["count"].astype(np.int64)]).astype(np.int64)  # fmt: skip
+    n_vert = poly["count"].astype(np.int64)
+    counts = np.concatenate([np.full(len(scene.triangles), 3), n_vert]).astype(np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    rows, _ = _segments(poly["start"].astype(np.int64), poly["count"].astype(np.int64))
-    verts = np.concatenate([tri, scene.vertices[rows].reshape(-1, 3)])
-    return verts, starts, counts
+    rows, _ = _segments(poly["start"].astype(np.int64), n_vert)
+    pv = scene.vertices[rows].reshape(-1, 3).copy()
+    if len(pv):
+        owner = np.repeat(np.arange(len(poly)), n_vert)
+        p0, n = tb.polygons[owner, :3], tb.polygons[owner, 3:6]
+        info = tb.poly_info[owner]
+        drop = 3 - info[:, 2] - info[:, 3]  # the axis that is neither u nor v
+        at = np.arange(len(pv))
+        off = ((pv - p0) * n).sum(axis=1)  # distance off the plane, times |n| = 1
+        pv[at, drop] -= off / n[at, drop]
+    return np.concatenate([tri, pv]), starts, counts
 
 
 def _segments(starts: np.ndarray, counts: np.ndarray):
@@ -136,11 +147,11 @@ def _edges_separate(verts, starts, counts, lo, hi) -> np.ndarray:
     return np.logical_or.reduceat(apart, starts)
 
 
-def _edge_separated(scene: SceneData, los, his, candidates: np.ndarray) -> np.ndarray:
+def _edge_separated(scene: SceneData, tb, los, his, candidates: np.ndarray) -> np.ndarray:
     """(boxes, flat shapes) bool: the separating-axis tests that bounds and plane tests leave
     out (edges crossed with the box axes), run only on each box's remaining candidates. With
     those, exact for triangles and convex polygons; a concave polygon may be kept needlessly."""
-    verts, starts, counts = _flat_shapes(scene)
+    verts, starts, counts = _flat_shapes(scene, tb)
     separated = np.zeros(candidates.shape, np.bool_)
     for b in range(len(los)):  # one pass per node box, over the shapes its bounds admit
         idx = np.flatnonzero(candidates[b])
@@ -174,7 +185,7 @@ def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
         touch[:, first : first + len(table)] &= dist <= reach * (1 + 1e-9) + 1e-12
     a, b = tb.offsets[1], tb.offsets[3]  # triangles and polygons
     if b > a:
-        touch[:, a:b] &= ~_edge_separated(scene, los, his, touch[:, a:b])
+        touch[:, a:b] &= ~_edge_separated(scene, tb, los, his, touch[:, a:b])
     return touch
 
 

@@ -115,7 +115,9 @@ class Session:
         self.rays_in: dict[int, int] = {}
         self.rays_out: dict[int, int] = {}
         self.pixel_packets = 0
-        self.busy = 0.0  # wall seconds in the tracing thread
+        self.busy = 0.0  # wall seconds with at least one batch on a tracing thread
+        self.busy_since = 0.0
+        self.batches = 0  # batches traced
         self.cpu = 0.0  # CPU seconds of that thread
         self.started = time.perf_counter()
         self.tasks: list[asyncio.Task] = []
@@ -133,7 +135,7 @@ class Session:
         name a node that stops, hangs or is cut off within seconds."""
         while True:
             await asyncio.sleep(HEARTBEAT)
-            self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=0))
+            self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=0, work=self.batches))
 
     # ------------------------------------------------------------------ setup
     def add_objects(self, table: str, records: np.ndarray) -> None:
@@ -310,11 +312,10 @@ class Session:
                 self.send_pixels(allp[i : i + DEPOSIT_BATCH])
 
     async def trace(self, rays: np.ndarray) -> None:
-        t0 = time.perf_counter()
         batch = await asyncio.get_running_loop().run_in_executor(
             self.service.pool, self.core.trace, rays
         )
-        self.busy += time.perf_counter() - t0
+        self.batches += 1
         self.term.on_work()
         self.cpu += batch.counts.pop("cpu_seconds")
         for k, v in batch.counts.items():
@@ -354,7 +355,7 @@ class Session:
             if self.incoming and room:
                 rays = self.incoming.popleft()
                 self.incoming_rays -= len(rays)
-                if self.incoming_rays < self.incoming_high // 4:
+                if self.incoming_rays <= self.incoming_high // 4:
                     self.drained.set()
                 self.start(rays, primary=False)
                 continue
@@ -378,14 +379,19 @@ class Session:
             try:
                 await self.trace(rays)
                 if primary:
-                    self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=len(rays)))
+                    self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=len(rays),
+                                            work=self.batches))  # fmt: skip
             except Exception as e:  # noqa: BLE001 - the host must hear of it
                 log.exception("node %d: tracing a batch failed", self.node)
                 self.fail(e)
             finally:
                 self.tracing.discard(task)
+                if not self.tracing:
+                    self.busy += time.perf_counter() - self.busy_since
                 self.wake.set()
 
+        if not self.tracing:  # the first batch in flight: the node turns busy
+            self.busy_since = time.perf_counter()
         task = asyncio.create_task(run())
         self.tracing.add(task)
 

@@ -25,7 +25,8 @@ class Kind(IntEnum):
     STATS = 7  # a node's statistics
     SHUTDOWN = 8  # stop and close every link
     ERROR = 9  # the sender hit an error; `reason` says what
-    PROGRESS = 10  # a node to the host: primary rays it has traced since its last report
+    PROGRESS = 10  # a node to the host: primary rays traced since its last report, batches
+    # traced in all (a heartbeat every second, so the host tells alive from working)
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -42,7 +43,7 @@ FIELDS = {
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
-    Kind.PROGRESS: {"node": int, "rays": int},
+    Kind.PROGRESS: {"node": int, "rays": int, "work": int},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),

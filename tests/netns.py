@@ -45,6 +45,7 @@ class Network:
         return f"{self.subnet}.{10 + i}:{port}"
 
     def up(self) -> None:
+        self.down()  # leftovers of a killed run with the same pid
         _ip("link", "add", self.bridge, "type", "bridge")
         _ip("addr", "add", f"{self.subnet}.1/24", "dev", self.bridge)
         _ip("link", "set", self.bridge, "up")

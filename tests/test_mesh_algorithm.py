@@ -138,3 +138,18 @@ def test_holders_clip_triangles_and_convex_polygons_exactly():
     hi_s = np.array([s.max(axis=0) for s in shapes])
     bounds = ((lo_s[None] <= his[:, None]) & (hi_s[None] >= los[:, None])).all(axis=2)
     assert want.sum() > 100 and (bounds & ~want).sum() > 100
+
+
+def test_holders_keep_a_warped_polygon_where_the_engine_hits_it():
+    # A quad with one corner lifted: the engine hits it on the plane through its first
+    # vertex (Newell normal), here at z = 0.75 below (1.8, 0.2), inside a box the outline of
+    # its vertices misses. The box must hold it, or a mesh would lose that hit.
+    from meshnode.engine import Engine
+
+    quad = [(0, 0, 0), (2, 0, 0), (2, 2, 1.5), (0, 2, 0)]
+    scene = make_scene(polygons=[(quad, 0)])
+    t, _ = Engine(scene).first_hits([(1.8, 0.2, 5.0)], [(0.0, 0.0, -1.0)])
+    hit = 5.0 - t[0]
+    los, his = np.array([[1.5, -1.0, 0.5]]), np.array([[3.0, 0.5, 1.0]])
+    assert los[0, 2] < hit < his[0, 2]
+    assert holders(scene, los, his)[0, 0]

@@ -84,13 +84,29 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
     assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
 
 
-def test_tiny_receive_buffers_do_not_deadlock():
-    # Readers that stop after 64 queued rays: links back up constantly, yet the mesh finishes.
+def test_a_mesh_that_lives_but_never_finishes_fails_instead_of_hanging():
+    # A ray message held on one link for 1000 s: every node is alive (heartbeats flow) and
+    # soon idle, but the ring can never end the frame. The host gives up after `stall`.
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
+    with LocalMesh(4) as addresses:
+        coro = render_on_mesh(scene, rs, addresses, 2, 2, 1, link_delay=(0, 1, 1000.0, 1),
+                              stall=3.0)  # fmt: skip
+        start = time.monotonic()
+        with pytest.raises(MeshError, match="alive but stuck"):
+            asyncio.run(asyncio.wait_for(coro, 60))
+        assert time.monotonic() - start < 30
+
+
+@pytest.mark.parametrize("high", [64, 2])
+def test_tiny_receive_buffers_do_not_deadlock(high):
+    # Readers that stop after 64 (or 2) queued rays: links back up constantly, yet the mesh
+    # finishes (a reader resumes once the queue is down to a quarter, or empty).
     scene = read_nff(spd_scene("gears_s1.nff"))
     rs = RenderSettings(width=40, height=40, progress=False, threads=1)
     ref, ref_stats = render(scene, rs)
     with LocalMesh(4) as addresses:
-        coro = render_on_mesh(scene, rs, addresses, 2, 2, 24, incoming_high=64)
+        coro = render_on_mesh(scene, rs, addresses, 2, 2, 24, incoming_high=high, stall=20.0)
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

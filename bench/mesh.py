@@ -2,15 +2,17 @@
 processes, against one node in this process.
 
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
-                         [--overlaps 2,24,100] [--node-threads 1] [--json FILE]
+                         [--overlaps 2,24,100] [--node-threads 1] [--balance even]
+                         [--json FILE]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's, imbalance (Tmax - Tmin) / Tmax over node CPU seconds,
 rays passed between nodes, and bytes per link (mean and max over directed links). Counts are
 checked against the single node's. `--node-threads 1,2` runs every row with nodes tracing on
 that many threads, side by side (e.g. `--meshes 1x1 --node-threads 1,2`: one node process
-using one core or both). The machine has 2 cores, so meshes of 4 and 9 processes
-share them: wall time shows that; CPU seconds show the division of work.
+using one core or both); `--balance even,cost` compares the image cuts likewise. The machine
+has 2 cores, so meshes of 4 and 9 processes share them: wall time shows that; CPU seconds
+show the division of work.
 """
 
 import argparse
@@ -38,12 +40,12 @@ def single(scene):
     return time.perf_counter() - start, stats
 
 
-def on_mesh(scene, rows, cols, overlap, threads=1):
+def on_mesh(scene, rows, cols, overlap, threads=1, balance="even"):
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from host.render import RenderSettings
 
-    rs = RenderSettings(spd=True, progress=False)
+    rs = RenderSettings(spd=True, progress=False, balance=balance)
     with LocalMesh(rows * cols, threads=threads) as addresses:
         start = time.perf_counter()
         _, stats = asyncio.run(render_on_mesh(scene, rs, addresses, rows, cols, overlap))
@@ -62,6 +64,7 @@ def main(argv=None) -> int:
     p.add_argument("--meshes", default="2x2,3x3")
     p.add_argument("--overlaps", default="2,24,100")
     p.add_argument("--node-threads", default="1", help="tracing threads per node to compare")
+    p.add_argument("--balance", default="even", help="image cuts to compare: even,cost")
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
     from host.nff import read_nff
@@ -76,27 +79,30 @@ def main(argv=None) -> int:
         cpu1 = s1["trace_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
         print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
-        print(f"{'mesh':>5} {'overlap':>7} {'thr':>3} {'wall s':>7} {'busiest CPU s':>13} "
+        print(f"{'mesh':>5} {'overlap':>7} {'thr':>3} {'cuts':>5} {'wall s':>7} "
+              f"{'busiest CPU s':>13} "
               f"{'speedup':>7} "
               f"{'imbalance':>9} {'rays passed':>11} {'bytes/link mean':>15} "
               f"{'max':>11}")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
+        cuts = args.balance.split(",")
         for rows, cols in meshes:
-            for overlap, thr in ((o, t) for o in overlaps for t in threads):
-                wall, st = on_mesh(scene, rows, cols, overlap, thr)
+            for overlap, thr, cut in ((o, t, c) for o in overlaps for t in threads for c in cuts):
+                wall, st = on_mesh(scene, rows, cols, overlap, thr, cut)
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
                 mean, top = link_bytes(st)
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "overlap": overlap,
-                       "node_threads": thr,
+                       "node_threads": thr, "cuts": cut,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "imbalance": st["imbalance"],
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
                        "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {overlap:>7g} {thr:>3} {wall:>7.2f} {busiest:>13.3f} "
+                print(f"{rows}x{cols:<3} {overlap:>7g} {thr:>3} {cut:>5} {wall:>7.2f} "
+                      f"{busiest:>13.3f} "
                       f"{row['speedup']:>7.2f} {st['imbalance']:>9.2f} {st['rays_passed']:>11} "
                       f"{mean:>15,.0f} {top:>11,}")  # fmt: skip
     if args.json:

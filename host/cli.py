@@ -67,6 +67,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="keep the focus distance +- this many metres sharp")
     g.add_argument("--coc", type=float,
                    help="largest circle of confusion on the film, m (default: diagonal/1500)")
+    r.add_argument("--balance", choices=("even", "cost"), default="even",
+                   help="mesh image cuts: even, or from a coarse simulated pass that evens "
+                        "the nodes' work (costs a fraction of a second up front)")  # fmt: skip
     r.add_argument("--overlap", type=float, default=1.0,
                    help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
@@ -129,6 +132,7 @@ def _render(args) -> int:
         width=args.width, height=args.height, spd=args.spd, spp=args.spp,
         depth=5 if args.spd else args.depth, seed=args.seed, density=args.density,
         storage=args.storage, threads=args.threads, progress=not args.quiet,
+        balance=args.balance,
     )  # fmt: skip
     if args.camera:
         from host.camera import CameraError, read_camera

@@ -7,10 +7,11 @@ node that fails, or whose link breaks, stops the render with an error naming it.
 
 import asyncio
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
+from host.balance import balanced_cuts
 from host.framebuffer import Framebuffer
 from host.partition import holders, node_boxes, rectangles, scene_box, subset
 from meshnode.link import Link, LinkClosed
@@ -69,15 +70,26 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
     width, height = rs.size(scene)
     gw, gh = (width + 1, height + 1) if rs.spd and rs.camera is None else (width, height)
     start = time.perf_counter()
-    box = scene_box(scene)
-    los, his = node_boxes(scene, box, width, height, rows, cols, overlap)
-    keep = holders(scene, los, his)
-    rects = rectangles(gw, gh, rows, cols)
-    settings = _settings(scene, rs, width, height, rects, los, his)
-    camera_info = None
+    spec = camera_info = None
     if rs.camera is not None:
-        # Autofocus probes the whole scene here, before any node is configured.
+        # Autofocus probes the scene here, before any node is configured.
         spec, camera_info = rs.camera_rays(scene, lambda: _probe_engine(scene, rs))
+    xs = ys = None
+    balance: dict = {"cuts": rs.balance}
+    if rs.balance == "cost" and torus.size > 1:
+        t0 = time.perf_counter()
+        centre = None if spec is None else replace(spec, generation=1, rays=1, special=False,
+                                                   film_area="centre", sampling="uniform")
+        xs, ys, report = balanced_cuts(scene, gw, gh, rows, cols, overlap, rs.depth, centre)
+        balance.update(report, seconds=time.perf_counter() - t0)
+    elif rs.balance not in ("even", "cost"):
+        raise ValueError(f"balance must be 'even' or 'cost', not {rs.balance!r}")
+    box = scene_box(scene)
+    los, his = node_boxes(scene, box, width, height, rows, cols, overlap, xs, ys)
+    keep = holders(scene, los, his)
+    rects = rectangles(gw, gh, rows, cols, xs, ys)
+    settings = _settings(scene, rs, width, height, rects, los, his)
+    if spec is not None:
         settings["camera"] = spec.to_wire()
     settings["link_delay"] = list(link_delay) if link_delay else None
     settings["incoming_high"] = incoming_high
@@ -166,6 +178,7 @@ async def render_on_mesh(scene: SceneData, rs, addresses: list[str], rows: int, 
             await link.close()
     wall = time.perf_counter() - start
     summary = _summary(stats, torus, keep, deposits, setup, wall)
+    summary["balance"] = balance
     if camera_info is not None:
         summary["camera"] = camera_info
         if "refined_pixels" in summary["rays"]:

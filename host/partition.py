@@ -24,11 +24,13 @@ def splits(n: int, parts: int) -> list[int]:
     return [round(i * n / parts) for i in range(parts + 1)]
 
 
-def rectangles(width: int, height: int, rows: int, cols: int) -> list[tuple[int, int, int, int]]:
-    """(x0, x1, y0, y1) of each node's part of a width x height sample grid, node = r*cols+c."""
+def rectangles(width: int, height: int, rows: int, cols: int, xs=None,
+               ys=None) -> list[tuple[int, int, int, int]]:  # fmt: skip
+    """(x0, x1, y0, y1) of each node's part of a width x height sample grid, node = r*cols+c;
+    column and row boundaries `xs`, `ys` (default: even)."""
     if rows > height or cols > width:
         raise ValueError(f"a {rows}x{cols} mesh needs at least {cols}x{rows} samples")
-    xs, ys = splits(width, cols), splits(height, rows)
+    xs, ys = xs or splits(width, cols), ys or splits(height, rows)
     return [(xs[c], xs[c + 1], ys[r], ys[r + 1]) for r in range(rows) for c in range(cols)]
 
 
@@ -69,8 +71,9 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
 
 
 def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
-               overlap: float = 1.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """(los, his), each (rows*cols, 3): node r*cols+c's box of object space."""
+               overlap: float = 1.0, xs=None, ys=None):  # fmt: skip
+    """(los, his), each (rows*cols, 3): node r*cols+c's box of object space, cut where rays
+    through the rectangles' boundaries (`xs`, `ys`; default even) meet the scene."""
     if overlap < 0:
         raise ValueError("overlap must not be negative")
     lo, hi = (np.asarray(b, float) for b in box)
@@ -80,8 +83,9 @@ def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     # The image's columns follow the world axis closest to `right`, rows the other one.
     col_axis = max(others, key=lambda a: abs(right[a]))
     row_axis = [a for a in others if a != col_axis][0]
-    xcuts = _cuts(scene.view, width, height, splits(width, cols), lo, hi, cols, col_axis, 0)
-    ycuts = _cuts(scene.view, width, height, splits(height, rows), lo, hi, rows, row_axis, 1)
+    xs, ys = xs or splits(width, cols), ys or splits(height, rows)
+    xcuts = _cuts(scene.view, width, height, xs, lo, hi, cols, col_axis, 0)
+    ycuts = _cuts(scene.view, width, height, ys, lo, hi, rows, row_axis, 1)
     los = np.tile(lo, (rows * cols, 1))
     his = np.tile(hi, (rows * cols, 1))
     for r in range(rows):

@@ -54,6 +54,7 @@ class RenderSettings:
     dof_far: float | None = None
     dof_tolerance: float | None = None  # or: focus +- this stays sharp
     coc: float | None = None  # largest circle of confusion (m); default film diagonal / 1500
+    balance: str = "even"  # mesh cuts: "even", or "cost" (a coarse simulated pass evens them)
 
     def size(self, scene: SceneData) -> tuple[int, int]:
         if self.spd:

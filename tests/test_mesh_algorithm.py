@@ -153,3 +153,25 @@ def test_holders_keep_a_warped_polygon_where_the_engine_hits_it():
     los, his = np.array([[1.5, -1.0, 0.5]]), np.array([[3.0, 0.5, 1.0]])
     assert los[0, 2] < hit < his[0, 2]
     assert holders(scene, los, his)[0, 0]
+
+
+def test_cost_balanced_cuts_even_out_a_lopsided_scene():
+    # Spheres crowded into the left third of the view: even cuts give the left column of nodes
+    # nearly all the work. The pre-pass moves the cuts so the simulated busiest node carries
+    # much less; the cuts stay ordered with every band non-empty.
+    from host.balance import balanced_cuts, node_costs
+    from host.partition import splits
+
+    rng = np.random.default_rng(3)
+    centres = np.column_stack([rng.uniform(-4, -1.5, 200), rng.uniform(-3, 3, 200),
+                               rng.uniform(-1, 1, 200)])  # fmt: skip
+    scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres],
+                       lights=[(0.0, 5.0, -10.0)])  # fmt: skip
+    xs, ys, report = balanced_cuts(scene, 96, 96, 2, 3, 1.0)
+    for bounds, n, parts in ((xs, 96, 3), (ys, 96, 2)):
+        assert bounds[0] == 0 and bounds[-1] == n and len(bounds) == parts + 1
+        assert all(a < b for a, b in zip(bounds, bounds[1:], strict=False))
+    even = node_costs(scene, 96, 96, 2, 3, 1.0, splits(96, 3), splits(96, 2))
+    cost = node_costs(scene, 96, 96, 2, 3, 1.0, xs, ys)
+    assert cost.max() < 0.7 * even.max()
+    assert report["simulated_busiest_vs_even"] == pytest.approx(cost.max() / even.max())

@@ -210,3 +210,16 @@ def test_nodes_tracing_on_several_threads_give_the_single_node_image():
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+
+
+def test_cost_balanced_cuts_give_the_single_node_image():
+    # Cuts from the simulated pre-pass: rectangles and boxes of unequal sizes, same image and
+    # counts (correctness never depends on the cuts).
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    rs = RenderSettings(width=60, height=60, progress=False, threads=1, balance="cost")
+    ref, ref_stats = render(scene, rs)
+    img, stats = mesh_render(scene, 3, 3, 2, rs)
+    assert stats["balance"]["cuts"] == "cost"
+    assert stats["balance"]["columns"] != [0, 20, 40, 60]  # the pre-pass moved them
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

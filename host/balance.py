@@ -20,13 +20,17 @@ from meshnode.node import NodeCore
 COARSE = 64  # coarse samples along the longer image axis
 
 
-def _coarse(bounds: list[int], n: int, coarse_n: int) -> list[int]:
-    """Boundaries on an n-sample axis scaled to a coarse_n-sample one, each range non-empty."""
+def _bands(inner, n: int) -> list[int]:
+    """Boundaries 0, inner..., n rounded to samples, kept ordered with every band non-empty."""
     out = [0]
-    for k, b in enumerate(bounds[1:-1], 1):
-        c = int(round(b * coarse_n / n))
-        out.append(min(max(c, out[-1] + 1), coarse_n - (len(bounds) - 1 - k)))
-    return [*out, coarse_n]
+    for k, b in enumerate(inner, 1):
+        out.append(min(max(int(b), out[-1] + 1), n - (len(inner) + 1 - k)))
+    return [*out, n]
+
+
+def _coarse(bounds: list[int], n: int, coarse_n: int) -> list[int]:
+    """Boundaries on an n-sample axis scaled to a coarse_n-sample one."""
+    return _bands([round(b * coarse_n / n) for b in bounds[1:-1]], coarse_n)
 
 
 def node_costs(scene, width, height, rows, cols, overlap, xs, ys, depth=5, camera=None):
@@ -41,9 +45,10 @@ def node_costs(scene, width, height, rows, cols, overlap, xs, ys, depth=5, camer
     nodes = [NodeCore(n, subset(scene, keep[n]), los, his, box, max_depth=depth)
              for n in range(rows * cols)]  # fmt: skip
     queues = [deque() for _ in nodes]
-    for n, rect in enumerate(rectangles(cw, ch, rows, cols, cx, cy)):
+    rects = rectangles(cw, ch, rows, cols, cx, cy)
+    for n, rect in enumerate(rects):
         if camera is not None:
-            nodes[n].use_camera(camera, cw, ch, rectangles(cw, ch, rows, cols, cx, cy))
+            nodes[n].use_camera(camera, cw, ch, rects)
             queues[n].extend(nodes[n].camera_pass(scene.view, cw, ch, second=False))
         else:
             queues[n].append(nodes[n].primary(scene.view, cw, ch, False, 1, 0, rect))
@@ -66,11 +71,7 @@ def _even_out(bounds: list[int], band_cost: np.ndarray, n: int) -> list[int]:
     cum = np.concatenate([[0.0], np.cumsum(band_cost)]) / max(band_cost.sum(), 1e-300)
     at = np.interp(np.arange(n + 1), bounds, cum)
     parts = len(band_cost)
-    out = [0]
-    for k in range(1, parts):
-        b = int(np.searchsorted(at, k / parts))
-        out.append(min(max(b, out[-1] + 1), n - (parts - k)))
-    return [*out, n]
+    return _bands(np.searchsorted(at, np.arange(1, parts) / parts), n)
 
 
 def balanced_cuts(scene, width, height, rows, cols, overlap, depth=5, camera=None,

@@ -15,7 +15,7 @@ import numpy as np
 
 from meshnode.engine.camera import view_basis
 from meshnode.engine.grid import grow_box
-from meshnode.engine.tables import build_tables
+from meshnode.engine.tables import build_tables, segments
 from protocols.scene import SceneData, View
 
 
@@ -109,10 +109,9 @@ def _flat_shapes(scene: SceneData, tb):
     n_vert = poly["count"].astype(np.int64)
     counts = np.concatenate([np.full(len(scene.triangles), 3), n_vert]).astype(np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    rows, _ = _segments(poly["start"].astype(np.int64), n_vert)
+    rows, _, owner, _ = segments(poly["start"], n_vert)
     pv = scene.vertices[rows].reshape(-1, 3).copy()
     if len(pv):
-        owner = np.repeat(np.arange(len(poly)), n_vert)
         p0, n = tb.polygons[owner, :3], tb.polygons[owner, 3:6]
         info = tb.poly_info[owner]
         drop = 3 - info[:, 2] - info[:, 3]  # the axis that is neither u nor v
@@ -122,24 +121,14 @@ def _flat_shapes(scene: SceneData, tb):
     return np.concatenate([tri, pv]), starts, counts
 
 
-def _segments(starts: np.ndarray, counts: np.ndarray):
-    """Row indices of every segment's members, in order, and the segments' new starts."""
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    rows = np.repeat(starts - first, counts) + np.arange(int(counts.sum()))
-    return rows, first
-
-
 def _edges_separate(verts, starts, counts, lo, hi) -> np.ndarray:
     """Per shape: does some axis edge x box-axis separate it from the box [lo, hi]?"""
     centre, half = (lo + hi) / 2, (hi - lo) / 2
-    shape_of = np.repeat(np.arange(len(counts)), counts)
-    pos = np.arange(len(verts)) - starts[shape_of]
-    nxt = np.where(pos + 1 < counts[shape_of], np.arange(len(verts)) + 1, starts[shape_of])
+    _, _, shape_of, nxt = segments(starts, counts)
     edges = verts[nxt] - verts  # edge j of its shape, one per vertex
     # Every (edge, vertex of the same shape) pair: each edge's axes project its whole shape.
     per_edge = counts[shape_of]
-    pair_vert, edge_first = _segments(np.repeat(starts, counts), per_edge)
-    pair_edge = np.repeat(np.arange(len(verts)), per_edge)
+    pair_vert, edge_first, pair_edge, _ = segments(np.repeat(starts, counts), per_edge)
     rel = verts[pair_vert] - centre
     apart = np.zeros(len(verts), np.bool_)
     for k in range(3):
@@ -160,7 +149,7 @@ def _edge_separated(scene: SceneData, tb, los, his, candidates: np.ndarray) -> n
     for b in range(len(los)):  # one pass per node box, over the shapes its bounds admit
         idx = np.flatnonzero(candidates[b])
         if len(idx):
-            rows, first = _segments(starts[idx], counts[idx])
+            rows, first, _, _ = segments(starts[idx], counts[idx])
             separated[b, idx] = _edges_separate(verts[rows], first, counts[idx], los[b], his[b])
     return separated
 
@@ -198,10 +187,7 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     counts = [len(scene.spheres), len(scene.triangles), len(scene.polygons), len(scene.cones)]
     parts = np.split(keep, np.cumsum(counts)[:-1])
     polys = scene.polygons[parts[2]].copy()
-    count = polys["count"].astype(np.int64)
-    new_start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-    # Vertex rows of the kept polygons, in order: start + 0 .. count - 1 for each.
-    rows = np.repeat(polys["start"] - new_start, count) + np.arange(count.sum())
+    rows, new_start, _, _ = segments(polys["start"], polys["count"])  # kept vertices, in order
     polys["start"] = new_start
     return replace(
         scene, spheres=scene.spheres[parts[0]], triangles=scene.triangles[parts[1]],

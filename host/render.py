@@ -65,9 +65,9 @@ class RenderSettings:
         """The camera focused and stopped as asked, as the spec every node makes rays from;
         `engine_for_probe()` gives a whole-scene engine if autofocus needs a probe pass."""
         probe: dict = {}
+        w, h = self.size(scene)
 
         def autofocus():
-            w, h = self.size(scene)
             distance, seen = autofocus_distance(engine_for_probe(), scene.view, w, h)
             probe.update(seen)
             return distance
@@ -79,7 +79,6 @@ class RenderSettings:
                           self.film_area, self.film_area_size, self.special, self.adaptation,
                           self.seed)  # fmt: skip
         d = describe(cam)
-        w, h = self.size(scene)
         probe_spec = replace(spec, rays=256, sampling="uniform", film_area="centre",
                              special=False)  # fmt: skip
         centre = np.array([(h // 2) * w + w // 2])
@@ -114,24 +113,21 @@ def render(scene: SceneData, settings: RenderSettings, engine: Engine | None = N
         rays = eye_rays(scene.view, width, height, s.spd, s.spp, s.seed, rows=rows)
         return rays, *engine.trace(rays)
 
-    return _run_batches(engine, fb, bands, trace_band, s, width, height)
+    return _run_batches(engine, fb, [(bands, fb)], trace_band, s, width, height, len(bands))
 
 
-def _run_batches(engine, fb, jobs, trace_job, s, width, height, camera=None, passes=None,
-                 total=None):  # fmt: skip
-    """Trace jobs on the thread pool, add their deposits to `fb` (or to `passes`' film);
-    `passes` lists job lists traced one after the other (adaptive sampling)."""
+def _run_batches(engine, fb, passes, trace_job, s, width, height, total, camera=None):
+    """Trace jobs on the thread pool: `passes` are (jobs, sink) pairs taken one after the
+    other (adaptive sampling's second pass is made only once the first is traced), each job's
+    deposits added to its sink (the framebuffer, or an adaptive film); `total` jobs or None."""
     threads = s.threads or os.cpu_count() or 1
     totals: dict[str, int] = {}
     start = time.perf_counter()
-    bar = _progress(total if total is not None or passes else len(jobs), s.progress)
+    bar = _progress(total, s.progress)
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        for job_list, sink in passes or [(jobs, None)]:
-            for rays, rgb, counts in _bounded_map(pool, trace_job, job_list, 2 * threads):
-                if sink is None:
-                    fb.add(rays["pixel"], rgb)
-                else:
-                    sink.add(rays["pixel"], rgb)
+        for jobs, sink in passes:
+            for rays, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
+                sink.add(rays["pixel"], rgb)
                 counts["eye_rays"] = len(rays)
                 for k, v in counts.items():
                     totals[k] = totals.get(k, 0) + v
@@ -156,16 +152,11 @@ def _render_camera(scene, s, engine, width, height):
     if not spec.adaptive:  # batches made as the pool takes them: memory stays bounded
         batches = camera_batches(spec, scene.view, width, height, pixels, RAYS_PER_BATCH)
         count = -(-len(pixels) // max(1, RAYS_PER_BATCH // spec.per_pixel))
-        return _run_batches(engine, fb, batches, trace_batch, s, width, height, info,
-                            total=count)  # fmt: skip
+        return _run_batches(engine, fb, [(batches, fb)], trace_batch, s, width, height, count,
+                            info)  # fmt: skip
     film = AdaptiveFilm(spec, (0, width, 0, height), width, height)
-
-    class Passes:  # pass 2's rays depend on pass 1's colours: made only once it is traced
-        def __iter__(self):
-            yield film.pass1(scene.view, width, height), film
-            yield film.pass2(scene.view, width, height), film
-
-    image, stats = _run_batches(engine, fb, None, trace_batch, s, width, height, info, Passes())
+    passes = ((make(scene.view, width, height), film) for make in (film.pass1, film.pass2))
+    _, stats = _run_batches(engine, fb, passes, trace_batch, s, width, height, None, info)
     ids, rgb = film.finish()
     fb.add(ids, rgb)
     stats["camera"]["refined_pixels"] = int(film.refined.sum())

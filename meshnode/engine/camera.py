@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import inline, kernel
 from protocols.dtypes import EYE, RAY
 from protocols.scene import View
 
@@ -48,6 +48,28 @@ def uniform(seed, sample, dim):
 
 
 @kernel
+def uniforms(seed, ids, dim, out):
+    """`uniform` for every id of a flat array (the camera's sampling draws them in bulk)."""
+    for i in range(ids.shape[0]):
+        out[i] = uniform(seed, ids[i], dim)
+
+
+@inline
+def set_primary(r, ox, oy, oz, dx, dy, dz, t_min, w, pixel):
+    """Fill one primary (eye or camera) RAY record: unit weight scale `w`, no origin object."""
+    r.o[0], r.o[1], r.o[2] = ox, oy, oz
+    r.d[0], r.d[1], r.d[2] = dx, dy, dz
+    r.t_min = t_min
+    r.t_max = math.inf
+    r.w[0], r.w[1], r.w[2] = w, w, w
+    r.pixel = pixel
+    r.origin = -1
+    r.depth = 1
+    r.kind = EYE
+    r.light = 0
+
+
+@kernel
 def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, seed,
                   x0, x1, y0, y1, hither):  # fmt: skip
     """Write the eye rays of sample-grid columns [x0, x1) and rows [y0, y1) into `out`.
@@ -81,17 +103,9 @@ def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, s
                 dy = fwd[1] + px * right[1] + py * up[1]
                 dz = fwd[2] + px * right[2] + py * up[2]
                 ln = math.sqrt(dx * dx + dy * dy + dz * dz)
-                r = out[n]
-                r.o[0], r.o[1], r.o[2] = eye[0], eye[1], eye[2]
-                r.d[0], r.d[1], r.d[2] = dx / ln, dy / ln, dz / ln
-                r.t_min = hither * ln  # hither is measured along the view axis
-                r.t_max = math.inf
-                r.w[0], r.w[1], r.w[2] = 1.0, 1.0, 1.0
-                r.pixel = sid
-                r.origin = -1
-                r.depth = 1
-                r.kind = EYE
-                r.light = 0
+                # hither is measured along the view axis
+                set_primary(out[n], eye[0], eye[1], eye[2], dx / ln, dy / ln, dz / ln,
+                            hither * ln, 1.0, sid)  # fmt: skip
                 n += 1
     return n
 

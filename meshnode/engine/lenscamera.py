@@ -17,11 +17,11 @@ import math
 
 import numpy as np
 
-from meshnode.engine.camera import view_basis
+from meshnode.engine.camera import set_primary, uniforms, view_basis
 from meshnode.engine.jit import kernel
 from meshnode.engine.optics import through
 from protocols.camera import CameraRays
-from protocols.dtypes import EYE, RAY
+from protocols.dtypes import RAY
 
 _C = 0.6
 JITTER = 0.1
@@ -40,17 +40,11 @@ def first_pass(spec: CameraRays) -> np.ndarray:
 
 
 def _hash_uniform(seed: int, ids: np.ndarray, dim: int) -> np.ndarray:
-    """Vectorised counter-based uniforms (splitmix64), same construction as camera.uniform."""
-
-    def mix(x):
-        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        return x ^ (x >> np.uint64(31))
-
-    with np.errstate(over="ignore"):
-        h = mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + ids.astype(np.uint64))
-        h = mix(h + np.uint64(dim) * np.uint64(0xD1B54A32D192ED03))
-    return (h >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    """`camera.uniform` of (seed, id, dim) for an array of ids, shaped like it."""
+    flat = np.ascontiguousarray(ids, dtype=np.uint64).ravel()
+    out = np.empty(len(flat))
+    uniforms(seed, flat, dim, out)
+    return out.reshape(np.shape(ids))
 
 
 def _coprime_step(n: int) -> int:
@@ -125,18 +119,12 @@ def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front):
         if not alive[i]:
             continue
         x, y, z = o[i, 0], o[i, 1], o[i, 2] - front
-        r = out[n]
-        for c in range(3):
-            r.o[c] = eye[c] + x * right[c] + y * up[c] + z * fwd[c]
-            r.d[c] = d[i, 0] * right[c] + d[i, 1] * up[c] + d[i, 2] * fwd[c]
-            r.w[c] = share[i]
-        r.t_min = 0.0
-        r.t_max = math.inf
-        r.pixel = ids[i]
-        r.origin = -1
-        r.depth = 1
-        r.kind = EYE
-        r.light = 0
+        a, b, c = d[i, 0], d[i, 1], d[i, 2]
+        set_primary(out[n], eye[0] + x * right[0] + y * up[0] + z * fwd[0],
+                    eye[1] + x * right[1] + y * up[1] + z * fwd[1],
+                    eye[2] + x * right[2] + y * up[2] + z * fwd[2],
+                    a * right[0] + b * up[0] + c * fwd[0], a * right[1] + b * up[1] + c * fwd[1],
+                    a * right[2] + b * up[2] + c * fwd[2], 0.0, share[i], ids[i])  # fmt: skip
         n += 1
     return n
 

@@ -51,6 +51,20 @@ def _visibility(radius: np.ndarray, transmits: np.ndarray) -> np.ndarray:
     return np.where(transmits, 0.0, vis)
 
 
+def segments(starts: np.ndarray, counts: np.ndarray):
+    """Gather segments (segment i: rows starts[i] .. starts[i] + counts[i] - 1) one after the
+    other: (source row of every member, each segment's first position, each member's segment,
+    the position of each member's cyclic successor in its segment - a polygon's next vertex)."""
+    starts, counts = np.asarray(starts, np.int64), np.asarray(counts, np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    at = np.arange(len(owner))
+    pos = at - first[owner]
+    rows = starts[owner] + pos
+    nxt = np.where(pos + 1 < counts[owner], at + 1, first[owner])
+    return rows, first, owner, nxt
+
+
 def _polygon_tables(scene: SceneData):
     """Plane rows, info rows, projected vertices and bounds, as segment operations over every
     polygon's vertices at once (no loop per polygon)."""
@@ -58,14 +72,12 @@ def _polygon_tables(scene: SceneData):
     n_poly = len(polys)
     counts = polys["count"].astype(np.int64)
     total = int(counts.sum()) if n_poly else 0
-    at = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if n_poly else counts
     if total == 0:
         z3 = np.zeros((0, 3))
         return np.zeros((0, POLYGON_COLS)), np.zeros((0, 4), np.int64), np.zeros((0, 2)), z3, z3
-    owner = np.repeat(np.arange(n_poly), counts)
-    pos = np.arange(total) - at[owner]  # a vertex's place in its polygon
-    v = scene.vertices[polys["start"].astype(np.int64)[owner] + pos]
-    nxt = v[np.where(pos + 1 < counts[owner], np.arange(total) + 1, at[owner])]
+    rows, at, owner, succ = segments(polys["start"], counts)
+    v = scene.vertices[rows]
+    nxt = v[succ]
     # Newell's normal from all vertices: robust when the first ones are near-collinear.
     terms = np.stack([(v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2]),
                       (v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0]),

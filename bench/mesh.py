@@ -32,23 +32,24 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
 
 def single(scene):
     """One node in this process, one thread: the CPU-seconds reference."""
-    from host.render import RenderSettings, render
+    from host.render import render
+    from protocols.render import EngineSpec, ImageSpec
 
-    render(scene, RenderSettings(spd=True, threads=1, progress=False))  # warm
+    render(scene, ImageSpec(spd=True), EngineSpec(threads=1))  # warm
     start = time.perf_counter()
-    _, stats = render(scene, RenderSettings(spd=True, threads=1, progress=False))
+    _, stats = render(scene, ImageSpec(spd=True), EngineSpec(threads=1))
     return time.perf_counter() - start, stats
 
 
 def on_mesh(scene, rows, cols, overlap, threads=1, balance="even"):
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
-    from host.render import RenderSettings
+    from protocols.render import ImageSpec, MeshPlan
 
-    rs = RenderSettings(spd=True, progress=False, balance=balance)
+    plan = MeshPlan(rows, cols, overlap, balance)
     with LocalMesh(rows * cols, threads=threads) as addresses:
         start = time.perf_counter()
-        _, stats = asyncio.run(render_on_mesh(scene, rs, addresses, rows, cols, overlap))
+        _, stats = asyncio.run(render_on_mesh(scene, ImageSpec(spd=True), addresses, plan))
         return time.perf_counter() - start, stats
 
 

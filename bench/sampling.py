@@ -73,9 +73,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = p.parse_args(argv)
     if args.threshold is None:
-        from host.render import RenderSettings
+        from protocols.camera import CameraSampling
+        from protocols.spec import default
 
-        args.threshold = [RenderSettings().threshold]
+        args.threshold = [default(CameraSampling, "threshold")]
     if min(args.spp) < 1 or args.ref_rays < 1 or args.repeat < 1:
         p.error("--spp, --ref-rays and --repeat must be at least 1")
     if args.ref_rays <= max(args.spp):
@@ -104,12 +105,15 @@ class Bench:
 
     def settings(self, sampling: str, rays: int, seed: int, threshold: float = 0.05):
         """Render settings: the camera's lens sampled with `rays` rays per pixel."""
-        from host.render import RenderSettings
+        from host.camerasetup import CameraSetup, Focus
+        from protocols.camera import CameraSampling
+        from protocols.render import EngineSpec, ImageSpec
 
         a = self.args
-        return RenderSettings(width=a.width, height=a.height, seed=seed, threads=a.threads,
-                              progress=False, camera=self.camera, generation=2, lens_rays=rays,
-                              sampling=sampling, threshold=threshold, focus=a.focus)  # fmt: skip
+        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
+        return (ImageSpec(width=a.width, height=a.height, seed=seed),
+                EngineSpec(threads=a.threads),
+                CameraSetup(self.camera, sampled, Focus(a.focus)))  # fmt: skip
 
     def render(self, settings, repeat: int = 1):
         """(image, stats, best tracing seconds of `repeat` identical renders)."""
@@ -117,7 +121,7 @@ class Bench:
 
         best, image, stats = math.inf, None, None
         for _ in range(repeat):
-            image, stats = render(self.scene, settings, self.engine)
+            image, stats = render(self.scene, *settings, built=self.engine)
             best = min(best, stats["trace_seconds"])
         return image, stats, best
 

@@ -33,9 +33,10 @@ if __package__ in (None, ""):  # run as `python bench/spd.py`
 
 def default_density() -> float:
     """The density `host render` uses when not told."""
-    from host.render import RenderSettings
+    from protocols.render import EngineSpec
+    from protocols.spec import default
 
-    return RenderSettings().density
+    return default(EngineSpec, "density")
 
 
 class CountMismatchError(AssertionError):
@@ -85,8 +86,9 @@ def warm_kernels(scene) -> dict:
     first measured configuration pays no kernel loading; returns the load seconds per storage."""
     from meshnode.engine import Engine
     from meshnode.engine.camera import eye_rays
+    from protocols.render import ImageSpec
 
-    eye_rays(scene.view, 512, 512, True, 1, 0, rows=(0, 1))
+    eye_rays(scene.view, ImageSpec(spd=True).sized(scene.view), rows=(0, 1))
     loads = {}
     for storage in STORAGES:
         start = time.perf_counter()
@@ -97,11 +99,11 @@ def warm_kernels(scene) -> dict:
 
 def run_config(scene, storage: str, density: float, repeats: int) -> dict:
     """Render `repeats` times with one grid configuration; keep the best tracing time."""
-    from host.render import RenderSettings, render
+    from host.render import render
+    from protocols.render import EngineSpec, ImageSpec
 
-    settings = RenderSettings(spd=True, threads=1, storage=storage, density=density,
-                              progress=False)  # fmt: skip
-    runs = [render(scene, settings)[1] for _ in range(repeats)]
+    image, engine = ImageSpec(spd=True), EngineSpec(threads=1, storage=storage, density=density)
+    runs = [render(scene, image, engine)[1] for _ in range(repeats)]
     best = min(runs, key=lambda s: s["trace_seconds"])
     grid = best["engine"]["grid"]
     return {

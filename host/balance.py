@@ -2,20 +2,22 @@
 pre-pass that estimates cost per region").
 
 A node's work is the rays it traces inside its box, wherever they came from, so the pre-pass
-runs the mesh itself, in this process, on a coarse image: every node's NodeCore on its clipped
-objects, rays passed between them as on the torus, and each node's cost counted as its
+runs the mesh itself on a coarse image: the simulated mesh of `meshnode.simulator`, whose
+nodes decide with the same scheduler as real ones, each node's cost counted as its
 intersection tests, voxel steps and rays. The column cuts then move so that the columns of
 nodes share the measured cost evenly (cost spread evenly over the pixels of each column band),
 the row cuts likewise, and the pass repeats; the cuts with the smallest busiest node win.
 Correctness never depends on the cuts, only the balance of work does.
 """
 
-from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
-from host.partition import holders, node_boxes, rectangles, scene_box, splits, subset
-from meshnode.node import NodeCore
+from host.partition import partition, splits, subset
+from meshnode.simulator import simulate
+from protocols.camera import CameraSampling, Generation
+from protocols.render import ImageSpec, RenderSpec
 
 COARSE = 64  # coarse samples along the longer image axis
 
@@ -33,36 +35,29 @@ def _coarse(bounds: list[int], n: int, coarse_n: int) -> list[int]:
     return _bands([round(b * coarse_n / n) for b in bounds[1:-1]], coarse_n)
 
 
-def node_costs(scene, width, height, rows, cols, overlap, xs, ys, depth=5, camera=None):
-    """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full width x height
-    sample grid): the mesh simulated in this process, one batch per node at a time."""
+def coarse_spec(spec: RenderSpec) -> RenderSpec:
+    """The render at COARSE samples across, pixel centres, one centre ray through a camera:
+    where work lies, at a fraction of the cost."""
+    width, height = spec.sample_grid
     scale = COARSE / max(width, height)
-    cw, ch = max(cols, round(width * scale)), max(rows, round(height * scale))
-    cx, cy = _coarse(xs, width, cw), _coarse(ys, height, ch)
-    box = scene_box(scene)
-    los, his = node_boxes(scene, box, cw, ch, rows, cols, overlap, cx, cy)
-    keep = holders(scene, los, his)
-    nodes = [NodeCore(n, subset(scene, keep[n]), los, his, box, max_depth=depth)
-             for n in range(rows * cols)]  # fmt: skip
-    queues = [deque() for _ in nodes]
-    rects = rectangles(cw, ch, rows, cols, cx, cy)
-    for n, rect in enumerate(rects):
-        if camera is not None:
-            nodes[n].use_camera(camera, cw, ch, rects)
-            queues[n].extend(nodes[n].camera_pass(scene.view, cw, ch, second=False))
-        else:
-            queues[n].append(nodes[n].primary(scene.view, cw, ch, False, 1, 0, rect))
-    cost = np.zeros(len(nodes))
-    while any(queues):
-        for n in range(len(nodes)):
-            if queues[n]:
-                rays = queues[n].popleft()
-                out = nodes[n].trace(rays)
-                c = out.counts
-                cost[n] += c["intersection_tests"] + c["voxel_steps"] + len(rays)
-                for dest, passed in out.outgoing.items():
-                    queues[dest].append(passed)
-    return cost
+    plan = spec.plan
+    image = ImageSpec(width=max(plan.cols, round(width * scale)),
+                      height=max(plan.rows, round(height * scale)), depth=spec.image.depth)
+    camera = spec.camera
+    if camera is not None:
+        camera = replace(camera, sampling=CameraSampling(generation=Generation.CENTRE, rays=1,
+                                                         sampling="uniform"))  # fmt: skip
+    return RenderSpec(image, spec.engine, plan, camera)
+
+
+def node_costs(scene, spec: RenderSpec, xs, ys) -> np.ndarray:
+    """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
+    grid): the mesh simulated in this process."""
+    coarse = coarse_spec(spec)
+    (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
+    part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch))
+    scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
+    return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
 
 
 def _even_out(bounds: list[int], band_cost: np.ndarray, n: int) -> list[int]:
@@ -74,16 +69,16 @@ def _even_out(bounds: list[int], band_cost: np.ndarray, n: int) -> list[int]:
     return _bands(np.searchsorted(at, np.arange(1, parts) / parts), n)
 
 
-def balanced_cuts(scene, width, height, rows, cols, overlap, depth=5, camera=None,
-                  rounds: int = 3):  # fmt: skip
-    """(xs, ys, report): cuts of the width x height sample grid whose simulated busiest node
-    is the least loaded over `rounds` re-cuts starting from even cuts."""
-    xs, ys = splits(width, cols), splits(height, rows)
+def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3):
+    """(xs, ys, report): cuts of the sample grid whose simulated busiest node is the least
+    loaded over `rounds` re-cuts starting from even cuts."""
+    (width, height), plan = spec.sample_grid, spec.plan
+    xs, ys = splits(width, plan.cols), splits(height, plan.rows)
     tried = []
     for _ in range(rounds + 1):
-        cost = node_costs(scene, width, height, rows, cols, overlap, xs, ys, depth, camera)
+        cost = node_costs(scene, spec, xs, ys)
         tried.append((float(cost.max()), xs, ys, cost))
-        grid = cost.reshape(rows, cols)
+        grid = cost.reshape(plan.rows, plan.cols)
         xs = _even_out(xs, grid.sum(axis=0), width)
         ys = _even_out(ys, grid.sum(axis=1), height)
     best, bx, by, cost = min(tried, key=lambda t: t[0])

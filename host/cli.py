@@ -1,4 +1,8 @@
-"""`host` command line: argument parsing and wiring only."""
+"""`host` command line: argument parsing and wiring only.
+
+Every render option is one field of a record of `protocols.render` (or `protocols.camera`,
+`host.camerasetup`); the option's default and its checks are the field's, shown in --help.
+"""
 
 import argparse
 import asyncio
@@ -7,11 +11,30 @@ import os
 import sys
 from pathlib import Path
 
+from host.camerasetup import CameraSetup, Focus
 from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
-from host.render import RenderSettings, render
-from protocols.camera import FILM_AREAS, SAMPLINGS
+from host.render import render
+from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
+from protocols.render import BALANCES, STORAGES, EngineSpec, ImageSpec, MeshPlan
+from protocols.spec import default
+
+CAMERA_ONLY = (CameraSampling, Focus)
+
+
+def _field(group, flag: str, record: type, name: str, help: str, **kw) -> None:
+    """An option that sets `record.name`; unset, the record's own default applies."""
+    d = default(record, name)
+    shown = "" if d is None or kw.get("action") == "store_true" else f" (default {d})"
+    group.add_argument(flag, dest=f"{record.__name__}.{name}", default=argparse.SUPPRESS,
+                       help=help + shown, **kw)  # fmt: skip
+
+
+def _given(args, record: type) -> dict:
+    """The fields of `record` set on the command line."""
+    prefix = f"{record.__name__}."
+    return {k[len(prefix):]: v for k, v in vars(args).items() if k.startswith(prefix)}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -21,64 +44,77 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="NFF scene file")
     r.add_argument("-o", "--output", help="PNG image (default: SCENE name .png)")
     r.add_argument("--float", dest="float_path", help="float image, PFM (default: beside PNG)")
-    r.add_argument("--spd", action="store_true",
-                   help="SPD rules: 512x512 from 513x513 corner rays, depth 5")  # fmt: skip
-    r.add_argument("--spp", type=int, default=1, help="jittered samples per pixel (default 1)")
-    r.add_argument("--depth", type=int, default=5, help="maximum ray tree depth (eye ray = 1)")
-    r.add_argument("--width", type=int, help="image width (default: the scene's resolution)")
-    r.add_argument("--height", type=int, help="image height")
-    r.add_argument("--seed", type=int, default=0, help="jitter seed")
     r.add_argument("--stats", help="write statistics as JSON to this file")
-    r.add_argument("--storage", choices=("auto", "csr", "hash"), default="auto",
-                   help="grid storage (default: the smaller in memory)")  # fmt: skip
-    r.add_argument("--density", type=float, default=1.0,
-                   help="grid density: voxels per object to start from, refined until a "
-                        "voxel holds about 4/DENSITY objects (default 1)")  # fmt: skip
-    r.add_argument("--threads", type=int, default=0, help="tracing threads (default: cores)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    _field(r, "--spd", ImageSpec, "spd", "SPD rules: 512x512 from 513x513 corner rays, depth 5",
+           action="store_true")  # fmt: skip
+    _field(r, "--spp", ImageSpec, "spp", "jittered samples per pixel", type=int)
+    _field(r, "--depth", ImageSpec, "depth", "maximum ray tree depth (eye ray = 1)", type=int)
+    _field(r, "--width", ImageSpec, "width", "image width (default: the scene's)", type=int)
+    _field(r, "--height", ImageSpec, "height", "image height", type=int)
+    _field(r, "--seed", ImageSpec, "seed", "seed of jitter, lens and film samples", type=int)
+    _field(r, "--storage", EngineSpec, "storage", "grid storage (auto: the smaller in memory)",
+           choices=STORAGES)  # fmt: skip
+    _field(r, "--density", EngineSpec, "density", "grid density: voxels per object to start "
+           "from, refined until a voxel holds about 4/DENSITY objects", type=float)  # fmt: skip
+    _field(r, "--threads", EngineSpec, "threads", "tracing threads (0: one per core; on a "
+           "mesh, at most this many per node)", type=int)  # fmt: skip
     r.add_argument("--mesh", default="auto",
                    help="ROWSxCOLS local meshnode processes; 1x1 traces in this process; "
                         "auto: one node per core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
+           type=float)  # fmt: skip
+    _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
+           "simulated pass that evens the nodes' work (costs a fraction of a second up front)",
+           choices=BALANCES)  # fmt: skip
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
-    g = r.add_argument_group("camera (with --camera)")
-    g.add_argument("--generation", type=int, default=2,
-                   help="generation area type 0..7 (default 2: rays in the ellipse)")
-    g.add_argument("--lens-rays", type=int, default=16,
-                   help="rays per pixel for types 2 and 3, or with a film area (default 16)")
-    g.add_argument("--sampling", choices=SAMPLINGS, default="jittered",
-                   help="how a pixel's rays are placed; adaptive: two opposite corners first, "
-                        "the rest where they differ by more than --threshold")  # fmt: skip
-    g.add_argument("--threshold", type=float, default=0.05,
-                   help="adaptive sampling's colour difference (default 0.05)")
-    g.add_argument("--film-area", choices=FILM_AREAS, default="centre",
-                   help="where on the pixel rays start (anti-aliasing in focus)")
-    g.add_argument("--film-area-size", type=float, default=1.0, help="film area, pixels across")
-    g.add_argument("--special-jitter", action="store_true",
-                   help="jitter over the film area instead of the lens: no depth of field")
-    g.add_argument("--adaptation", choices=("all", "left"), default="all",
-                   help="average over all generated rays or those that left the camera")
-    g.add_argument("--focus", help="focus distance in metres, 'infinity' or 'auto' (a probe "
-                   "pass on the image centre); default: the camera file's")  # fmt: skip
-    g.add_argument("--dof-near", type=float, help="depth of field: nearest sharp distance (m)")
-    g.add_argument("--dof-far", type=float,
-                   help="farthest sharp distance (m; default infinity with --dof-near)")
-    g.add_argument("--dof-tolerance", type=float,
-                   help="keep the focus distance +- this many metres sharp")
-    g.add_argument("--coc", type=float,
-                   help="largest circle of confusion on the film, m (default: diagonal/1500)")
-    r.add_argument("--balance", choices=("even", "cost"), default="even",
-                   help="mesh image cuts: even, or from a coarse simulated pass that evens "
-                        "the nodes' work (costs a fraction of a second up front)")  # fmt: skip
-    r.add_argument("--overlap", type=float, default=1.0,
-                   help="grow each node's box by PERCENT of its size (default 1)")  # fmt: skip
-    r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    _camera_options(r.add_argument_group("camera (with --camera)"))
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")
     c.add_argument("camera", help="camera file (.toml, SI units) or lens table (mm)")
     c.add_argument("--focus", type=float, help="focus distance in metres (default: the file's)")
     c.add_argument("--coc", type=float, help="largest circle of confusion, m (default: d/1500)")
     c.add_argument("--json", action="store_true", help="print JSON")
     return p
+
+
+def _camera_options(g) -> None:
+    _field(g, "--generation", CameraSampling, "generation", "generation area type 0..7 (2: "
+           "rays in the first element's ellipse)", type=int)  # fmt: skip
+    _field(g, "--lens-rays", CameraSampling, "rays", "rays per pixel for types 2 and 3, or "
+           "with a film area", type=int)  # fmt: skip
+    _field(g, "--sampling", CameraSampling, "sampling", "how a pixel's rays are placed; "
+           "adaptive: two opposite corners first, the rest where they differ by more than "
+           "--threshold", choices=SAMPLINGS)  # fmt: skip
+    _field(g, "--threshold", CameraSampling, "threshold", "adaptive sampling's colour "
+           "difference", type=float)  # fmt: skip
+    _field(g, "--film-area", CameraSampling, "film_area", "where on the pixel rays start "
+           "(anti-aliasing in focus)", choices=FILM_AREAS)  # fmt: skip
+    _field(g, "--film-area-size", CameraSampling, "film_area_size", "film area, pixels across",
+           type=float)  # fmt: skip
+    _field(g, "--special-jitter", CameraSampling, "special", "jitter over the film area "
+           "instead of the lens: no depth of field", action="store_true")  # fmt: skip
+    _field(g, "--adaptation", CameraSampling, "adaptation", "average over all generated rays "
+           "or those that left the camera", choices=ADAPTATIONS)  # fmt: skip
+    _field(g, "--focus", Focus, "distance", "focus distance in metres, 'infinity' or 'auto' "
+           "(a probe pass on the image centre); default: the camera file's", type=_focus)
+    _field(g, "--dof-near", Focus, "dof_near", "depth of field: nearest sharp distance (m)",
+           type=float)  # fmt: skip
+    _field(g, "--dof-far", Focus, "dof_far", "farthest sharp distance (m; default infinity "
+           "with --dof-near)", type=float)  # fmt: skip
+    _field(g, "--dof-tolerance", Focus, "dof_tolerance", "keep the focus distance +- this "
+           "many metres sharp", type=float)  # fmt: skip
+    _field(g, "--coc", Focus, "coc", "largest circle of confusion on the film, m (default: "
+           "diagonal/1500)", type=float)  # fmt: skip
+
+
+def _focus(text: str):
+    """Metres as a number; words as they are (Focus says which words it takes)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def main(argv=None) -> int:
@@ -128,50 +164,19 @@ def _render(args) -> int:
     except OSError as e:
         print(f"host: cannot read scene: {e}", file=sys.stderr)
         return 2
-    settings = RenderSettings(
-        width=args.width, height=args.height, spd=args.spd, spp=args.spp,
-        depth=5 if args.spd else args.depth, seed=args.seed, density=args.density,
-        storage=args.storage, threads=args.threads, progress=not args.quiet,
-        balance=args.balance,
-    )  # fmt: skip
-    if args.camera:
-        from host.camera import CameraError, read_camera
-
-        if args.spp != 1:
-            print("host: --spp is for the pinhole; through a camera, rays per pixel are "
-                  "--lens-rays N", file=sys.stderr)  # fmt: skip
-            return 2
-
-        try:
-            settings.camera = read_camera(args.camera)
-        except (CameraError, OSError) as e:
-            print(f"host: {e}", file=sys.stderr)
-            return 2
-        focus = args.focus
-        if focus not in (None, "auto", "infinity"):
-            try:
-                focus = float(focus)
-            except ValueError:
-                print(f"host: --focus wants metres, 'infinity' or 'auto', not {focus!r}",
-                      file=sys.stderr)  # fmt: skip
-                return 2
-        for name in ("generation", "lens_rays", "sampling", "threshold", "film_area",
-                     "film_area_size", "adaptation", "dof_near", "dof_far", "dof_tolerance",
-                     "coc"):  # fmt: skip
-            setattr(settings, name, getattr(args, name))
-        settings.special, settings.focus = args.special_jitter, focus
     try:
-        image, stats = _run(scene, settings, args)
-    except (ValueError, OSError) as e:  # CameraError included
+        image, engine, camera = _records(args)
+        img, stats = _run(scene, image, engine, camera, args)
+    except (ValueError, OSError) as e:  # SpecError and CameraError included
         print(f"host: {e}", file=sys.stderr)
         return 2
     except MeshError as e:
         print(f"host: render failed: {e}", file=sys.stderr)
         return 1
     out = Path(args.output or Path(args.scene).with_suffix(".png").name)
-    write_png(out, image)
+    write_png(out, img)
     float_path = Path(args.float_path or out.with_suffix(".pfm"))
-    write_pfm(float_path, image)
+    write_pfm(float_path, img)
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
     leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
@@ -239,30 +244,51 @@ def read_cluster(path) -> tuple[int, int, list[str]]:
     return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]
 
 
-def _run(scene, settings, args):
+def _records(args):
+    """The render's records from the options (each checked by its record)."""
+    image, engine = ImageSpec(**_given(args, ImageSpec)), EngineSpec(**_given(args, EngineSpec))
+    if not args.camera:
+        given = [name for record in CAMERA_ONLY for name in _given(args, record)]
+        if given:
+            raise ValueError(f"camera options {given} need --camera")
+        return image, engine, None
+    from host.camera import read_camera
+
+    if image.spp != 1:
+        raise ValueError("--spp is for the pinhole; through a camera, rays per pixel are "
+                         "--lens-rays N")  # fmt: skip
+    sampling = CameraSampling(**_given(args, CameraSampling))
+    return image, engine, CameraSetup(read_camera(args.camera), sampling,
+                                      Focus(**_given(args, Focus)))  # fmt: skip
+
+
+def _run(scene, image, engine, camera, args):
     """Single node in this process, a local mesh of processes, or a running cluster."""
     if args.cluster:
         rows, cols, addresses = read_cluster(args.cluster)
-        return _mesh(scene, settings, addresses, rows, cols, args)
+        plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
+        return _mesh(scene, image, engine, plan, camera, addresses, args)
     rows, cols = parse_mesh(args.mesh)
-    if rows * cols == 1:
-        return render(scene, settings)
-    with LocalMesh(rows * cols) as addresses:
-        return _mesh(scene, settings, addresses, rows, cols, args)
+    plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
+    if plan.nodes == 1:
+        return render(scene, image, engine, camera, progress=not args.quiet)
+    with LocalMesh(plan.nodes) as addresses:
+        return _mesh(scene, image, engine, plan, camera, addresses, args)
 
 
-def _mesh(scene, settings, addresses, rows, cols, args):
+def _mesh(scene, image, engine, plan, camera, addresses, args):
     from tqdm import tqdm
 
-    w, h = settings.size(scene)
+    sized = image.sized(scene.view)
     total = None  # camera rays lost inside the camera are never traced: no known total
-    if settings.camera is None:
-        total = (w + 1) * (h + 1) if settings.spd else w * h * settings.spp
-    bar = tqdm(total=total, unit=" rays", desc=f"mesh {rows}x{cols} primary", file=sys.stderr,
-               disable=args.quiet, leave=False)  # fmt: skip
+    if camera is None:
+        gw, gh = sized.sample_grid()
+        total = gw * gh * (1 if sized.corners() else sized.spp)
+    bar = tqdm(total=total, unit=" rays", desc=f"mesh {plan.rows}x{plan.cols} primary",
+               file=sys.stderr, disable=args.quiet, leave=False)  # fmt: skip
     try:
-        return asyncio.run(render_on_mesh(scene, settings, addresses, rows, cols,
-                                          args.overlap, progress=bar.update))  # fmt: skip
+        return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
+                                          progress=bar.update))  # fmt: skip
     finally:
         bar.close()
 

@@ -15,11 +15,15 @@ class LocalMesh:
     """`with LocalMesh(n) as addresses:` n node processes on 127.0.0.1, each tracing on
     `threads` threads (one: the default mesh has a node per core). `listen` (one
     HOST:PORT per node) and `wrap` (a command prefix per node, such as `ip netns exec NS`)
-    place nodes elsewhere on this machine, for tests over real network devices."""
+    place nodes elsewhere on this machine, for tests over real network devices; `module`
+    (a `meshnode.cli` look-alike), `options` (more `serve` options) and `env` start them
+    differently, for tests that inject faults."""
 
     def __init__(self, n: int, cluster: str = "meshtrace", start_timeout: float = 60.0,
-                 listen: list[str] | None = None, wrap=None, threads: int = 1):  # fmt: skip
+                 listen: list[str] | None = None, wrap=None, threads: int = 1,
+                 module: str = "meshnode.cli", options=(), env=None):  # fmt: skip
         self.n, self.cluster, self.timeout, self.threads = n, cluster, start_timeout, threads
+        self.module, self.options, self.env = module, list(options), env
         self.listen = listen or ["127.0.0.1:0"] * n
         self.wrap = wrap or (lambda i: [])
         self.procs: list[subprocess.Popen] = []
@@ -28,10 +32,10 @@ class LocalMesh:
         try:
             for i in range(self.n):
                 self.procs.append(subprocess.Popen(
-                    [*self.wrap(i), sys.executable, "-m", "meshnode.cli", "serve", "--listen",
+                    [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
                      self.listen[i], "--cluster", self.cluster, "--once", "--threads",
-                     str(self.threads)],
-                    stdout=subprocess.PIPE, text=True, env=dict(os.environ),
+                     str(self.threads), *self.options],
+                    stdout=subprocess.PIPE, text=True, env={**os.environ, **(self.env or {})},
                 ))  # fmt: skip
             return [self._address(p) for p in self.procs]
         except BaseException:

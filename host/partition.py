@@ -16,6 +16,7 @@ import numpy as np
 from meshnode.engine.camera import view_basis
 from meshnode.engine.grid import grow_box
 from meshnode.engine.tables import build_tables, segments
+from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
 
 
@@ -194,3 +195,14 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
         polygons=polys, vertices=scene.vertices[rows].reshape(-1, 3),
         cones=scene.cones[parts[3]],
     )  # fmt: skip
+
+
+def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None) -> tuple[Partition, np.ndarray]:
+    """The plan made concrete: every node's rectangle of the sample grid (cut at `xs`, `ys`;
+    default even) and box, and which objects each node holds (nodes x objects, bool)."""
+    plan, (width, height) = spec.plan, spec.image.size
+    gw, gh = spec.sample_grid
+    box = scene_box(scene)
+    los, his = node_boxes(scene, box, width, height, plan.rows, plan.cols, plan.overlap, xs, ys)
+    rects = rectangles(gw, gh, plan.rows, plan.cols, xs, ys)
+    return Partition.make(rects, los, his, box), holders(scene, los, his)

@@ -15,7 +15,7 @@ camera), so it divides and sends finished pixels to the host.
 import numpy as np
 
 from meshnode.engine.lenscamera import camera_rays, first_pass, rect_pixels
-from protocols.camera import CameraRays
+from protocols.camera import CameraSpec
 
 RAYS_PER_BATCH = 16384  # camera rays made at a time: memory stays bounded at any spp
 SIDES = ((1, 0), (-1, 0), (0, 1), (0, -1))
@@ -52,8 +52,8 @@ class AdaptiveFilm:
     """Colour sums and ray counts of a node's rectangle of pixels, and the pass-1 corner
     colours over the rectangle and a one-pixel halo around it."""
 
-    def __init__(self, spec: CameraRays, rect, width: int, height: int):
-        self.spec, self.width = spec, width
+    def __init__(self, spec: CameraSpec, rect, width: int, height: int, seed: int = 0):
+        self.spec, self.width, self.seed = spec, width, seed
         self.n = spec.per_pixel
         self.first = first_pass(spec)
         x0, x1, y0, y1 = self.rect = tuple(int(v) for v in rect)
@@ -74,7 +74,8 @@ class AdaptiveFilm:
     def pass1(self, view, width, height):
         """Batches of the two corner rays of every owned pixel."""
         for idx in self._chunks(np.arange(len(self.pixels)), 2):
-            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], self.first)
+            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], self.first,
+                                       self.seed)
             self.corner_alive[idx] = alive
             self._count(idx, alive)
             yield rays
@@ -82,7 +83,7 @@ class AdaptiveFilm:
     def decide(self) -> np.ndarray:
         """Which own pixels get the rest of their rays: corners apart, or the corners' mean
         apart from a side neighbour's (all pass-1 deposits must be in by now)."""
-        t = self.spec.threshold
+        t = self.spec.sampling.threshold
         c = self.corner
         differ = np.max(np.abs(c[:, :, 0] - c[:, :, 1]), axis=-1) > t
         mean = 0.5 * (c[:, :, 0] + c[:, :, 1])
@@ -106,12 +107,13 @@ class AdaptiveFilm:
         rest = np.setdiff1d(np.arange(self.n), self.first)
         self.refined = self.decide() if len(rest) else np.zeros(len(self.pixels), np.bool_)
         for idx in self._chunks(np.flatnonzero(self.refined), len(rest)):
-            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], rest)
+            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], rest,
+                                      self.seed)  # fmt: skip
             self._count(idx, alive)
             yield rays
 
     def _count(self, idx: np.ndarray, alive: np.ndarray) -> None:
-        if self.spec.adaptation == "left":
+        if self.spec.sampling.adaptation == "left":
             self.rays[idx] += alive.sum(axis=1)
         else:
             self.rays[idx] += alive.shape[1]

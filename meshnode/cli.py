@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from meshnode.scheduler import INCOMING_HIGH
 from protocols import dtypes
 from protocols.scene import SceneData, View
 
@@ -41,15 +42,15 @@ def warmup() -> float:
 def _camera_warmup() -> None:
     """Compile the camera-ray kernels (elements, sampling, records) on a one-pixel batch."""
     from meshnode.engine.lenscamera import camera_rays
-    from protocols.camera import CameraRays
+    from protocols.camera import CameraSpec
 
     lens = np.zeros(1, dtypes.ELEMENT)
     lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
-    spec = CameraRays(lens, 0.036, 0.024, -0.051)
+    spec = CameraSpec(lens, 0.036, 0.024, -0.051)
     camera_rays(spec, View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0), 1, 1, np.zeros(1, int))
 
 
-def main(argv=None) -> int:
+def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("warmup", help="compile the tracing kernels into the disk cache")
@@ -59,15 +60,23 @@ def main(argv=None) -> int:
     s.add_argument("--once", action="store_true", help="exit after one render")
     s.add_argument("--threads", type=int, default=0,
                    help="tracing threads (default 0: one per core)")
-    args = p.parse_args(argv)
+    s.add_argument("--incoming-high", type=int, default=INCOMING_HIGH,
+                   help="queued incoming rays at which the node stops reading from its "
+                        f"neighbours (default {INCOMING_HIGH}, about 100 MB)")  # fmt: skip
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
     if args.command == "warmup":
         print(f"kernels ready in {warmup():.2f} s", file=sys.stderr)
     elif args.command == "serve":
-        return serve(args.listen, args.cluster, args.once, args.threads)
+        return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high)
     return 0
 
 
-def serve(listen: str, cluster: str, once: bool, threads: int = 0) -> int:
+def serve(listen: str, cluster: str, once: bool, threads: int = 0,
+          incoming_high: int = INCOMING_HIGH, service_class=None) -> int:  # fmt: skip
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
     import logging
@@ -75,11 +84,14 @@ def serve(listen: str, cluster: str, once: bool, threads: int = 0) -> int:
 
     from meshnode.service import NodeService
 
+    service_class = service_class or NodeService
+
     logging.basicConfig(level=logging.INFO, format="meshnode %(levelname)s %(message)s")
     host, port = listen.rsplit(":", 1)
 
     async def main():
-        service = NodeService(host, int(port), cluster, once, threads or os.cpu_count() or 1)
+        service = service_class(host, int(port), cluster, once, threads or os.cpu_count() or 1,
+                                incoming_high)  # fmt: skip
         bound = await service.start()
         print(f"listening {host}:{bound}", flush=True)
         await service.run()

@@ -7,6 +7,7 @@ names the peer and chains the cause.
 """
 
 import asyncio
+from collections import deque
 
 from protocols.errors import ProtocolError
 from protocols.framing import MAX_FRAME, FrameDecoder, encode
@@ -91,3 +92,41 @@ class Link:
             await self.writer.wait_closed()
         except (ConnectionError, RuntimeError):
             pass
+
+
+class Outbox:
+    """Messages waiting for one link, sent in order by one task, so a reader or the work loop
+    never blocks on a full link. `sent` is set after every data send, so a work loop paused
+    on full outboxes wakes when they drain; a broken link goes to `on_error` once."""
+
+    def __init__(self, link: Link, on_error, sent: asyncio.Event | None = None):
+        self.link, self.queue, self.bytes = link, deque(), 0
+        self.ready = asyncio.Event()
+        self.sent = sent
+        self.task = asyncio.create_task(self._run(on_error))
+
+    def post(self, message: dict, size: int = 0) -> None:
+        """Queue `message`; `size` bytes of it count toward the node's output bound."""
+        self.queue.append((message, size))
+        self.bytes += size
+        self.ready.set()
+
+    async def _run(self, on_error):
+        try:
+            while True:
+                await self.ready.wait()
+                self.ready.clear()
+                while self.queue:
+                    message, size = self.queue.popleft()
+                    await self.link.send(message)
+                    self.bytes -= size
+                    if size and self.sent is not None:
+                        self.sent.set()
+        except LinkClosed as e:
+            on_error(e)
+
+    async def close(self) -> None:
+        """Stop sending and close the link; waits for the sending task to end."""
+        self.task.cancel()
+        await asyncio.gather(self.task, return_exceptions=True)
+        await self.link.close()

@@ -1,8 +1,10 @@
-"""What one mesh node does with rays, without any sockets: the service wraps this.
+"""What one mesh node does with rays, without any sockets: the service and the simulated mesh
+both wrap this.
 
 A node holds the objects touching its box and every node's box. It makes the primary rays of
-its rectangle, traces batches (incoming rays first), turns colour into deposits for the pixel
-packets, and sorts the rays that leave its box by the node that takes them on.
+its rectangle (for each state of the ring that has them), traces batches, says where each
+batch's deposits and leaving rays go, and under adaptive sampling keeps the books of its own
+pixels until the frame is flushed.
 """
 
 import time
@@ -10,36 +12,46 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.adaptive import AdaptiveFilm, deposit_routes
+from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm, deposit_routes
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.trace import owners
-from protocols.camera import CameraRays
+from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
+from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
+
+HOST = -1  # deposits for the host (through node 0)
+EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
 
 
 @dataclass
 class Batch:
     """The outcome of tracing one batch on one node."""
 
-    deposits: np.ndarray  # DEPOSIT records, one per traced ray that left colour
+    deposits: dict[int, np.ndarray]  # node (HOST: the host) -> DEPOSIT records it takes
     outgoing: dict[int, np.ndarray]  # node -> RAY records it takes on
     counts: dict[str, int] = field(default_factory=dict)
 
 
 class NodeCore:
-    """One node's engine and routing. `los`/`his` are every node's box, `node` indexes them."""
+    """One node's engine, primary rays and routing, for one render; pinhole eye rays are
+    made in batches of about `eye_batch` (whole rows of the node's rectangle)."""
 
-    def __init__(self, node: int, scene: SceneData, los, his, scene_box, *, density=1.0,
-                 storage="auto", max_depth=5):  # fmt: skip
-        self.node = node
-        self.los, self.his = np.asarray(los, float), np.asarray(his, float)
-        self.engine = Engine(scene, box=(self.los[node], self.his[node]), scene_box=scene_box,
-                             density=density, storage=storage, max_depth=max_depth)  # fmt: skip
-        self.camera: CameraRays | None = None
+    def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
+                 eye_batch: int = EYE_BATCH):  # fmt: skip
+        self.node, self.spec, self.view = node, spec, scene.view
+        self.eye_batch = eye_batch
+        self.rects = part.rects
+        self.los, self.his = part.boxes
+        self.engine = Engine(scene, box=(self.los[node], self.his[node]),
+                             scene_box=part.scene_box, density=spec.engine.density,
+                             storage=spec.engine.storage, max_depth=spec.image.depth)  # fmt: skip
         self.film: AdaptiveFilm | None = None
+        if spec.camera is not None and spec.camera.adaptive:
+            w, h = spec.image.size
+            self.film = AdaptiveFilm(spec.camera, self.rects[node], w, h, spec.image.seed)
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
@@ -48,42 +60,33 @@ class NodeCore:
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
         owners(ray, self.los, self.his)
+        if self.spec.camera is not None:
+            view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
+            camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
 
-    def primary(self, view, width, height, corners, spp, seed, rect) -> np.ndarray:
-        """Eye rays of this node's rectangle (x0, x1, y0, y1) of the sample grid."""
-        x0, x1, y0, y1 = rect
-        return eye_rays(view, width, height, corners, spp, seed, rows=(y0, y1), cols=(x0, x1))
-
-    def use_camera(self, spec: CameraRays | None, width: int, height: int, rects) -> None:
-        """Primary rays from this camera (None: the pinhole); under adaptive sampling this
-        node keeps the books of its own pixels and every deposit comes back to its owner."""
-        self.camera, self.width, self.height = spec, width, height
-        self.rects = [tuple(r) for r in rects]
-        self.film = None
-        if spec is not None and spec.adaptive:
-            self.film = AdaptiveFilm(spec, self.rects[self.node], width, height)
-        if spec is not None:  # compile or load the camera kernels now, not mid-render
-            camera_rays(spec, View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0), 1, 1, np.zeros(1, int))
-
-    def camera_pass(self, view, width, height, second: bool):
-        """Batches of camera rays of this node's rectangle: every ray, or adaptive sampling's
-        first pass (corner rays) or second (the rest, where the corners differ)."""
+    def primaries(self, state: State):
+        """Batches of this node's primary rays for a state of the ring: every eye or camera
+        ray in TRACE, or adaptive sampling's first pass (corner rays) in TRACE and second (the
+        rest, where the corners differ) in REFINE. Made one batch at a time."""
+        image, camera = self.spec.image, self.spec.camera
+        w, h = image.size
         if self.film is not None:
-            return (self.film.pass2 if second else self.film.pass1)(view, width, height)
-        if second:
+            make = self.film.pass1 if state == State.TRACE else self.film.pass2
+            return make(self.view, w, h) if state in (State.TRACE, State.REFINE) else iter(())
+        if state != State.TRACE:
             return iter(())
-        pixels = rect_pixels(self.rects[self.node], width)
-        return camera_batches(self.camera, view, width, height, pixels)
+        rect = self.rects[self.node]
+        if camera is not None:
+            pixels = rect_pixels(rect, w)
+            return camera_batches(camera, self.view, w, h, pixels, image.seed, RAYS_PER_BATCH)
+        return self._eye_batches(rect)
 
-    def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
-        """Deposits by the node they go to: node 0 (then the host), or under adaptive
-        sampling the node owning each deposit's pixel (and pass-1 ones to the halos)."""
-        if self.film is None or len(deposits) == 0:
-            return {0: deposits} if len(deposits) else {}
-        f = self.film
-        idx, dest = deposit_routes(deposits["pixel"], f.n, f.first, self.width, self.height,
-                                   self.rects)  # fmt: skip
-        return _group(deposits[idx], dest)
+    def _eye_batches(self, rect):
+        x0, x1, y0, y1 = rect
+        rows = max(1, self.eye_batch // max(1, (x1 - x0) * self.spec.image.spp))
+        for y in range(y0, y1, rows):
+            yield eye_rays(self.view, self.spec.image, rows=(y, min(y + rows, y1)),
+                           cols=(x0, x1))  # fmt: skip
 
     def trace(self, rays: np.ndarray) -> Batch:
         cpu = time.thread_time()
@@ -93,7 +96,19 @@ class NodeCore:
         deposits = np.zeros(int(lit.sum()), DEPOSIT)
         deposits["pixel"] = rays["pixel"][lit]
         deposits["rgb"] = rgb[lit]
-        return Batch(deposits, self.route(passed), counts)
+        return Batch(self.pixel_routes(deposits), self.route(passed), counts)
+
+    def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
+        """Deposits by where they go: the host, or under adaptive sampling the node owning
+        each deposit's pixel (and pass-1 ones to the owners of its side neighbours)."""
+        if len(deposits) == 0:
+            return {}
+        if self.film is None:
+            return {HOST: deposits}
+        f = self.film
+        w, h = self.spec.image.size
+        idx, dest = deposit_routes(deposits["pixel"], f.n, f.first, w, h, self.rects)
+        return _group(deposits[idx], dest)
 
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
         """Rays grouped by the node that takes them on."""
@@ -103,6 +118,17 @@ class NodeCore:
         if (dest < 0).any():
             raise RuntimeError(f"node {self.node}: {int((dest < 0).sum())} rays have no owner box")
         return _group(rays, dest)
+
+    def finished_pixels(self):
+        """Adaptive sampling, once every deposit is in: DEPOSIT batches of this node's
+        finished pixels for the host (none otherwise)."""
+        if self.film is None:
+            return
+        pixels, rgb = self.film.finish()
+        for i in range(0, len(pixels), RAYS_PER_BATCH):
+            d = np.zeros(len(pixels[i : i + RAYS_PER_BATCH]), DEPOSIT)
+            d["pixel"], d["rgb"] = pixels[i : i + RAYS_PER_BATCH], rgb[i : i + RAYS_PER_BATCH]
+            yield d
 
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:

@@ -1,36 +1,65 @@
 """How primary rays leave a simulated camera: the element stack, the film, and the sampling.
 
-The host builds one from a camera file and the render options; it travels to every mesh node
-inside CONFIG (`to_wire` / `from_wire`), and each node makes the camera rays of its own pixels.
+The command line builds a CameraSampling from its options; the host focuses the camera file
+and makes the CameraSpec every mesh node receives inside CONFIG, and each node makes the camera
+rays of its own pixels from it (with the image's seed).
 """
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import ClassVar
 
 import numpy as np
 
 from protocols import dtypes
+from protocols.spec import Spec, SpecError
 
 SAMPLINGS = ("uniform", "jittered", "random", "adaptive")
 FILM_AREAS = ("centre", "ellipse", "rectangle")
 ADAPTATIONS = ("all", "left")
+MAX_RAYS_PER_PIXEL = 65536
+
+
+class Generation(IntEnum):
+    """Generation area types on the first element (DESIGN.md 7)."""
+
+    PINHOLE = 0  # straight through the centre of the first element, no refraction
+    CENTRE = 1  # one ray through the centre of the first element, through the elements
+    ELLIPSE = 2  # N rays in the first element's ellipse
+    RECTANGLE = 3  # N rays in its bounding rectangle
+    FIVE = 4  # five fixed points
+    FIVE_JITTERED = 5
+    NINE = 6  # nine fixed points
+    NINE_JITTERED = 7
+
+    @property
+    def points(self) -> int:
+        """Rays of a fixed pattern (0: the count is the sampling's `rays`)."""
+        return {4: 5, 5: 5, 6: 9, 7: 9}.get(int(self), 0)
+
+    @property
+    def jittered(self) -> bool:
+        return self in (Generation.FIVE_JITTERED, Generation.NINE_JITTERED)
+
+    @property
+    def through_centre(self) -> bool:
+        """One ray through the centre: no lens sampling, no depth of field."""
+        return self in (Generation.PINHOLE, Generation.CENTRE)
 
 
 @dataclass(frozen=True)
-class CameraRays:
-    """Everything a node needs to make camera rays.
+class CameraSampling(Spec):
+    """Where a pixel's camera rays go.
 
-    generation: area type 0..7 on the first element (DESIGN.md 7); rays: rays per pixel for
-    types 2 and 3 (and for a film area or special jittering with types 0 and 1); sampling:
-    how those rays are placed (regular strata, jittered strata, independent random, or
-    adaptive: two opposite-corner rays first, the rest only where their colours differ by more
-    than `threshold`); film_area: where on the pixel a ray starts, `film_area_size` pixels
-    across; special: jitter over the film area instead of the lens (no depth of field)."""
+    generation: area type on the first element; rays: rays per pixel for types 2 and 3 (and
+    for a film area or special jittering with types 0 and 1); sampling: how they are placed
+    (regular strata, jittered strata, independent random, or adaptive: two opposite-corner
+    rays first, the rest only where their colours differ by more than `threshold`);
+    film_area: where on the pixel a ray starts, `film_area_size` pixels across; special:
+    jitter over the film area instead of the lens (no depth of field); adaptation: divide by
+    all generated rays or by those that left the camera."""
 
-    elements: np.ndarray  # protocols.dtypes.ELEMENT, film outward
-    film_width: float
-    film_height: float
-    film_z: float
-    generation: int = 2
+    generation: int = Generation.ELLIPSE
     rays: int = 16
     sampling: str = "jittered"
     threshold: float = 0.05
@@ -38,34 +67,29 @@ class CameraRays:
     film_area_size: float = 1.0
     special: bool = False
     adaptation: str = "all"
-    seed: int = 0
 
-    def __post_init__(self):
-        if self.elements.dtype != dtypes.ELEMENT or len(self.elements) == 0:
-            raise ValueError("camera elements must be a non-empty ELEMENT array")
-        if self.generation not in range(8):
-            raise ValueError(f"generation area type must be 0..7, not {self.generation}")
-        if self.rays < 1:
-            raise ValueError("rays per pixel must be at least 1")
-        if self.sampling not in SAMPLINGS:
-            raise ValueError(f"sampling must be one of {SAMPLINGS}, not {self.sampling!r}")
-        if self.film_area not in FILM_AREAS:
-            raise ValueError(f"film area must be one of {FILM_AREAS}, not {self.film_area!r}")
-        if self.adaptation not in ADAPTATIONS:
-            raise ValueError(f"adaptation must be one of {ADAPTATIONS}, not {self.adaptation!r}")
+    def check(self) -> None:
+        self.want_int("generation", 0, 7)
+        self.want_int("rays", 1, MAX_RAYS_PER_PIXEL)
+        self.want_choice("sampling", SAMPLINGS)
+        self.want_number("threshold", 0.0, 1e30)
+        self.want_choice("film_area", FILM_AREAS)
+        self.want_number("film_area_size", 0.0, 1e6, open_lo=True)
+        self.want_bool("special")
+        self.want_choice("adaptation", ADAPTATIONS)
         if self.special and self.film_area == "centre":
-            raise ValueError("special jittering needs a film area (ellipse or rectangle)")
-        if self.threshold < 0 or self.film_area_size <= 0:
-            raise ValueError("threshold must be >= 0 and the film area size positive")
+            self.fail("special", "special jittering needs a film area (ellipse or rectangle)")
+
+    @property
+    def kind(self) -> Generation:
+        return Generation(self.generation)
 
     @property
     def per_pixel(self) -> int:
         """Rays generated for a pixel when every one is traced."""
-        if self.generation in (4, 5):
-            return 5
-        if self.generation in (6, 7):
-            return 9
-        if self.generation in (0, 1) and not self.special and self.film_area == "centre":
+        if self.kind.points:
+            return self.kind.points
+        if self.kind.through_centre and not self.special and self.film_area == "centre":
             return 1
         return self.rays
 
@@ -73,11 +97,54 @@ class CameraRays:
     def adaptive(self) -> bool:
         return self.sampling == "adaptive" and self.per_pixel > 2
 
-    def to_wire(self) -> dict:
-        d = asdict(self)
-        d["elements"] = np.ascontiguousarray(self.elements)
-        return d
+
+@dataclass(frozen=True)
+class CameraSpec(Spec):
+    """Everything a node needs to make camera rays: the elements (ELEMENT records, film
+    outward), the film's size and position (m), and the sampling."""
+
+    elements: np.ndarray
+    film_width: float
+    film_height: float
+    film_z: float
+    sampling: CameraSampling = field(default_factory=CameraSampling)
+
+    NESTED: ClassVar[dict] = {"sampling": CameraSampling}
+
+    def check(self) -> None:
+        e = self.elements
+        if not isinstance(e, np.ndarray) or e.dtype != dtypes.ELEMENT or e.ndim != 1:
+            self.fail("elements", "must be a one-dimensional ELEMENT array")
+        if not 1 <= len(e) <= 256:
+            self.fail("elements", "a camera has 1 to 256 elements")
+        numbers = np.concatenate([e[n].astype(float).ravel() for n in e.dtype.names])
+        if not np.all(np.isfinite(numbers)):
+            self.fail("elements", "every element value must be finite")
+        self.want_number("film_width", 0.0, 1e3, open_lo=True)
+        self.want_number("film_height", 0.0, 1e3, open_lo=True)
+        self.want_number("film_z", -1e3, 1e3)
+        if not isinstance(self.sampling, CameraSampling):
+            self.fail("sampling", "must be a CameraSampling")
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, CameraSpec):
+            return NotImplemented
+        same = (self.film_width, self.film_height, self.film_z, self.sampling) == (
+            other.film_width, other.film_height, other.film_z, other.sampling)  # fmt: skip
+        return same and np.array_equal(self.elements, other.elements)
+
+    @property
+    def per_pixel(self) -> int:
+        return self.sampling.per_pixel
+
+    @property
+    def adaptive(self) -> bool:
+        return self.sampling.adaptive
 
     @classmethod
-    def from_wire(cls, d: dict) -> "CameraRays":
-        return cls(**{**d, "elements": np.array(d["elements"], dtypes.ELEMENT)})
+    def decode(cls, values: dict) -> dict:
+        elements = values["elements"]
+        if not isinstance(elements, np.ndarray) or elements.dtype != dtypes.ELEMENT:
+            got = getattr(elements, "dtype", type(elements).__name__)
+            raise SpecError(f"CameraSpec.elements must be an ELEMENT array, got {got}")
+        return {**values, "elements": np.array(elements)}

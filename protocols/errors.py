@@ -1,4 +1,5 @@
-"""Errors of the wire, each naming what was wrong so a link can log it and close."""
+"""Errors of the wire, each naming what was wrong so a link can log it and close, and the
+one way either side turns any error into text that says what failed."""
 
 
 class ProtocolError(Exception):
@@ -19,3 +20,16 @@ class UnknownKind(ProtocolError):
 
 class VersionMismatch(ProtocolError):
     """The peer speaks another protocol version or belongs to another cluster."""
+
+
+def describe(error: BaseException) -> str:
+    """`Type: message`; with an empty message (`str(TimeoutError())` is ""), the type and
+    its cause, so no report ever ends in nothing."""
+    text = str(error).strip()
+    name = type(error).__name__
+    if text:
+        return f"{name}: {text}"
+    cause = error.__cause__ or error.__context__
+    if cause is not None and cause is not error:
+        return f"{name} ({describe(cause)})"
+    return f"{name} (no message)"

@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 
 
 class Kind(IntEnum):
@@ -26,15 +26,17 @@ class Kind(IntEnum):
     SHUTDOWN = 8  # stop and close every link
     ERROR = 9  # the sender hit an error; `reason` says what
     PROGRESS = 10  # a node to the host: primary rays traced since its last report, batches
-    # traced in all (a heartbeat every second, so the host tells alive from working)
+    # traced in all, whether its engine is built and its links are up (a heartbeat every
+    # second, so the host tells alive from working, and building from stuck)
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
 _NUM = (int, float)
 FIELDS = {
     Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int},
-    Kind.CONFIG: {"rows": int, "cols": int, "node": int, "neighbours": dict, "box": list,
-                  "scene_box": list, "settings": dict},  # fmt: skip
+    # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms)
+    Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,
+                  "view": dict, "background": list},  # fmt: skip
     Kind.OBJECTS: {"table": str, "records": None, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
@@ -43,7 +45,7 @@ FIELDS = {
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
-    Kind.PROGRESS: {"node": int, "rays": int, "work": int},
+    Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),

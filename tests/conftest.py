@@ -1,22 +1,65 @@
-"""Shared test helpers: where the SPD scenes are, and small scene builders."""
+"""Shared test helpers: where the SPD scenes are, the kernel cache, small scene builders.
 
+Kernels are cached on disk in one folder (`meshnode.engine.jit`: a folder per version of the
+kernel sources, under NUMBA_CACHE_DIR or ~/.cache/meshtrace, which the node processes the
+tests start share), so each kernel variant compiles once per session, or never when the cache
+is warm; the session's first fixture compiles the common variants up front and the summary
+says how long that took and whether the cache was cold. With MESHTRACE_REQUIRE_SCENES=1 (CI
+sets it) a missing ../shared/scenes fails every test that needs it instead of skipping it.
+"""
+
+import os
+import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
 
+from host.camerasetup import CameraSetup, Focus
 from protocols import dtypes
+from protocols.camera import CameraSampling
+from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData, View
 
-SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+ROOT = Path(__file__).resolve().parents[1]
+
+SCENES = ROOT.parent / "shared" / "scenes"
+KERNEL_LOAD: dict[str, float] = {}
 
 
 def spd_scene(name: str) -> Path:
-    """Path of an SPD scene, skipping the test when ../shared/scenes is not beside the repo."""
+    """Path of an SPD scene; without ../shared/scenes beside the repo the test is skipped, or
+    fails when MESHTRACE_REQUIRE_SCENES=1."""
     path = SCENES / name
     if not path.exists():
+        if os.environ.get("MESHTRACE_REQUIRE_SCENES") == "1":
+            pytest.fail(f"{path} is missing and MESHTRACE_REQUIRE_SCENES=1")
         pytest.skip(f"{path} not available")
     return path
+
+
+@pytest.fixture(scope="session", autouse=True)
+def kernels():
+    """Compile (cold cache) or load (warm) the all-kinds engine and camera kernels once,
+    before any test, so node processes started later load them from disk."""
+    import numba
+
+    from meshnode.cli import warmup
+
+    cache = Path(numba.config.CACHE_DIR)
+    KERNEL_LOAD["cache"] = str(cache)
+    KERNEL_LOAD["cold"] = not any(cache.rglob("*.nbi")) if cache.exists() else True
+    start = time.perf_counter()
+    warmup()
+    KERNEL_LOAD["seconds"] = time.perf_counter() - start
+
+
+def pytest_terminal_summary(terminalreporter):
+    if KERNEL_LOAD:
+        kind = "compiled (cold cache)" if KERNEL_LOAD["cold"] else "loaded (warm cache)"
+        terminalreporter.write_line(f"kernels {kind} in {KERNEL_LOAD['seconds']:.1f} s, "
+                                    f"cache {KERNEL_LOAD['cache']}")  # fmt: skip
 
 
 def make_scene(
@@ -60,3 +103,27 @@ def make_scene(
         view=view, background=background, lights=li, materials=m, spheres=s, triangles=t,
         polygons=p, vertices=np.concatenate(verts) if verts else np.zeros((0, 3)), cones=c,
     )  # fmt: skip
+
+
+class Job(NamedTuple):
+    """A render's records, for `render(scene, *job)`."""
+
+    image: ImageSpec
+    engine: EngineSpec
+    camera: CameraSetup | None
+
+
+def records(camera=None, **options) -> Job:
+    """The records of a render from keywords named as their fields (ImageSpec, EngineSpec,
+    and with a camera CameraSampling and Focus); an unknown keyword is an error."""
+
+    def pick(record):
+        return {k: options.pop(k) for k in list(options) if k in record.__dataclass_fields__}
+
+    image, engine = ImageSpec(**pick(ImageSpec)), EngineSpec(**pick(EngineSpec))
+    setup = None
+    if camera is not None:
+        setup = CameraSetup(camera, CameraSampling(**pick(CameraSampling)), Focus(**pick(Focus)))
+    if options:
+        raise TypeError(f"no render record has fields {sorted(options)}")
+    return Job(image, engine, setup)

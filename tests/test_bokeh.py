@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from host.camera import Camera
-from host.render import RenderSettings, render
+from host.render import render
 from protocols import dtypes
 from protocols.scene import View
-from tests.conftest import make_scene
+from tests.conftest import make_scene, records
 from tests.test_optics import stack
 
 F = 0.05  # focal length (m)
@@ -62,10 +62,10 @@ def glowing_sphere(distance: float, radius: float):
 def shoot(scene, camera: Camera, size: int, focus: float, rays: int = 256, **kw) -> np.ndarray:
     """The rendered image's brightness (mean of the channels; the sphere is white)."""
     kw.setdefault("seed", 7)
-    settings = RenderSettings(width=size, height=size, camera=camera, generation=2,
-                              lens_rays=rays, sampling="jittered", adaptation="all",
-                              focus=focus, progress=False, **kw)  # fmt: skip
-    image, _ = render(scene, settings)
+    settings = records(width=size, height=size, camera=camera, generation=2,
+                              rays=rays, sampling="jittered", adaptation="all",
+                              distance=focus, **kw)  # fmt: skip
+    image, _ = render(scene, *settings)
     return image.mean(axis=2)
 
 

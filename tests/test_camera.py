@@ -115,35 +115,37 @@ def _lens_with_stop(shape: str, stop_r: float, lens_r: float = 0.01):
     ("hexagon", 0.01, 3 * math.sqrt(3) / (2 * math.pi)),  # hexagon / circumscribed disc
 ])  # fmt: skip
 def test_diaphragm_dims_the_image_by_the_ratio_of_areas(shape, stop_r, expected):
-    from host.render import RenderSettings, render
+    from host.render import render
+    from tests.conftest import records
 
     scene = _empty_scene()
     cam = _lens_with_stop(shape, stop_r)
-    rs = RenderSettings(width=8, height=6, camera=cam, generation=2, lens_rays=4096,
-                        adaptation="all", progress=False, threads=1)  # fmt: skip
-    img, stats = render(scene, rs)
+    rs = records(width=8, height=6, camera=cam, generation=2, rays=4096,
+                        adaptation="all", threads=1)  # fmt: skip
+    img, stats = render(scene, *rs)
     centre = img[2:4, 3:5].mean()
     assert centre == pytest.approx(expected, abs=0.02)
     # Averaged over the rays that left the camera instead, nothing is lost.
-    rs.adaptation = "left"
-    img, _ = render(scene, rs)
+    rs = records(width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="left",
+                 threads=1)  # fmt: skip
+    img, _ = render(scene, *rs)
     np.testing.assert_allclose(img[2:4, 3:5], 1.0, atol=1e-12)
 
 
 def test_camera_image_is_upright_and_not_mirrored():
     # An off-axis sphere lands in the same quadrant through the lens as through the pinhole.
-    from host.render import RenderSettings, render
+    from host.render import render
     from protocols.scene import View
-    from tests.conftest import make_scene
+    from tests.conftest import make_scene, records
 
     scene = make_scene(spheres=[((1.0, 0.8, 0.0), 0.3, 0)], lights=[(0, 0, -10)],
                        view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0))  # fmt: skip
     cam = read_toml(CAMERAS / "thin_f2.8.toml")
     centroids = []
     for camera in (None, cam):
-        rs = RenderSettings(width=40, height=40, camera=camera, generation=1, progress=False,
+        rs = records(width=40, height=40, camera=camera, **({"generation": 1} if camera else {}),
                             threads=1)  # fmt: skip
-        img, _ = render(scene, rs)
+        img, _ = render(scene, *rs)
         ys, xs = np.nonzero(img.sum(axis=2) > 0.05)
         assert len(ys)
         centroids.append((np.sign(xs.mean() - 19.5), np.sign(ys.mean() - 19.5)))

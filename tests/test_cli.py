@@ -6,11 +6,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 from PIL import Image
 
 from host.cli import main
 from host.framebuffer import Framebuffer, read_pfm, to_srgb8, write_pfm
+from tests.conftest import spd_scene
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
 STAT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
@@ -45,14 +45,12 @@ def test_render_writes_png_pfm_and_stats(tmp_path):
 
 def test_spd_mode_shoots_corner_rays(tmp_path):
     stats = tmp_path / "s.json"
-    scene = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "tetra_s1.nff"
-    if not scene.exists():
-        pytest.skip("shared scenes not available")
+    scene = spd_scene("tetra_s1.nff")
     assert main(["render", str(scene), "--spd", "-o", str(tmp_path / "t.png"), "--stats",
                  str(stats), "--quiet", "--mesh", "1x1"]) == 0  # fmt: skip
     s = json.loads(stats.read_text())
     assert s["rays"]["eye_rays"] == 513 * 513
-    assert s["image"] == {"width": 512, "height": 512, "spd": True, "spp": 1}
+    assert s["image"] == {"width": 512, "height": 512, "spd": True, "spp": 1, "depth": 5, "seed": 0}
     assert s["max_depth"] == 5
 
 

@@ -10,11 +10,11 @@ import pytest
 from host.camera import Camera, CameraError, entrance_pupil_radius, focused, with_f_number
 from host.cli import main
 from host.focus import circle_of_confusion, dof_from_near_far
-from host.render import RenderSettings, render
+from host.render import render
 from meshnode.engine.optics import trace
 from protocols import dtypes
 from protocols.scene import View
-from tests.conftest import make_scene
+from tests.conftest import make_scene, records
 from tests.test_optics import stack
 
 F = 0.05
@@ -82,9 +82,8 @@ def test_autofocus_finds_the_depth_at_the_image_centre():
     view = View(eye=(0.3, 0.2, -1.0), at=(0.3, 0.2, 0.0), up=(0, 1, 0), angle=40.0)
     wall = [(-5, -5, 2.7), (5, -5, 2.7), (5, 5, 2.7), (-5, 5, 2.7)]
     scene = make_scene(polygons=[(wall, 0)], lights=[(0, 0, -3)], view=view)
-    rs = RenderSettings(width=16, height=12, camera=lens_camera(), focus="auto",
-                        progress=False, threads=1)  # fmt: skip
-    _, stats = render(scene, rs)
+    rs = records(width=16, height=12, camera=lens_camera(), distance="auto", threads=1)  # fmt: skip
+    _, stats = render(scene, *rs)
     cam = stats["camera"]
     assert cam["focus_distance_m"] == pytest.approx(3.7, rel=1e-9)
     assert cam["autofocus"]["probe_hits"] == cam["autofocus"]["probe_rays"]

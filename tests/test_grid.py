@@ -10,6 +10,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.grid import build_grid, choose_resolution
 from meshnode.engine.tables import build_tables
+from protocols.render import ImageSpec
 from tests import reference
 from tests.conftest import make_scene, spd_scene
 
@@ -90,7 +91,7 @@ def test_random_scene_grid_equals_reference(seed):
 )  # fmt: skip
 def test_spd_scene_eye_hits_equal_reference(name):
     scene = read_nff(spd_scene(name))
-    rays = eye_rays(scene.view, 24, 24, corners=False)
+    rays = eye_rays(scene.view, ImageSpec(width=24, height=24))
     t_ref, g_ref = reference.first_hits(scene, rays["o"], rays["d"], t_min=0.0)
     for storage in STORAGES:
         t, g = Engine(scene, storage=storage).first_hits(rays["o"], rays["d"])

@@ -6,7 +6,8 @@ import pytest
 
 from host.nff import read_nff
 from host.partition import holders, node_boxes, rectangles, scene_box, subset
-from host.render import RenderSettings, render
+from host.render import render
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
 from tests.test_grid import lit_glass_scene
@@ -17,7 +18,7 @@ SIZE = 36
 
 
 def single(scene):
-    img, stats = render(scene, RenderSettings(width=SIZE, height=SIZE, progress=False, threads=1))
+    img, stats = render(scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1))
     return img, {k: stats["rays"][k] for k in SPD_COUNTS}
 
 
@@ -34,8 +35,8 @@ def check_mesh(scene, shapes, overlaps):
             ended = sum(totals[k] for k in ("hits", "escaped", "shadow_rays_blocked",
                                             "shadow_rays_lit"))  # fmt: skip
             assert created == ended
-            assert sum(p["sent"] for p in per_node) == sum(p["received"] for p in per_node)
-            assert totals["rays_forwarded"] == sum(p["sent"] for p in per_node)
+            assert sum(p.rays_sent for p in per_node) == sum(p.rays_received for p in per_node)
+            assert totals["rays_forwarded"] == sum(p.rays_sent for p in per_node)
 
 
 SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
@@ -167,11 +168,12 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
                                rng.uniform(-1, 1, 200)])  # fmt: skip
     scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres],
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
-    xs, ys, report = balanced_cuts(scene, 96, 96, 2, 3, 1.0)
+    spec = RenderSpec(ImageSpec(width=96, height=96), plan=MeshPlan(2, 3, 1.0))
+    xs, ys, report = balanced_cuts(scene, spec)
     for bounds, n, parts in ((xs, 96, 3), (ys, 96, 2)):
         assert bounds[0] == 0 and bounds[-1] == n and len(bounds) == parts + 1
         assert all(a < b for a, b in zip(bounds, bounds[1:], strict=False))
-    even = node_costs(scene, 96, 96, 2, 3, 1.0, splits(96, 3), splits(96, 2))
-    cost = node_costs(scene, 96, 96, 2, 3, 1.0, xs, ys)
+    even = node_costs(scene, spec, splits(96, 3), splits(96, 2))
+    cost = node_costs(scene, spec, xs, ys)
     assert cost.max() < 0.7 * even.max()
     assert report["simulated_busiest_vs_even"] == pytest.approx(cost.max() / even.max())

@@ -2,8 +2,10 @@
 single-node counts; a dead node or a bad peer fails clearly; the CLI and cluster files."""
 
 import asyncio
+import os
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,17 +15,30 @@ from host.framebuffer import read_pfm
 from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh
 from host.nff import read_nff
-from host.render import RenderSettings, render
-from tests.conftest import spd_scene
+from host.render import render
+from protocols.render import MeshPlan
+from tests.conftest import records, spd_scene
 
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
 
 
-def mesh_render(scene, rows, cols, overlap, rs, procs=None):
-    with LocalMesh(rows * cols) as addresses:
-        coro = render_on_mesh(scene, rs, addresses, rows, cols, overlap)
-        return asyncio.run(asyncio.wait_for(coro, 180))
+def on_mesh(scene, rs, addresses, plan: MeshPlan, **kw):
+    """render_on_mesh of a test's records (`rs`) on running nodes."""
+    return render_on_mesh(scene, rs.image, addresses, plan, rs.engine, rs.camera, **kw)
+
+
+def mesh_render(scene, plan: MeshPlan, rs):
+    with LocalMesh(plan.nodes) as addresses:
+        return asyncio.run(asyncio.wait_for(on_mesh(scene, rs, addresses, plan), 180))
+
+
+def slow_mesh(n: int, src: int, dst: int, seconds: float, count: int) -> LocalMesh:
+    """Nodes whose link src -> dst holds back its first `count` ray messages (tests.faultnode)."""
+    root = str(Path(__file__).resolve().parents[1])
+    return LocalMesh(n, module="tests.faultnode",
+                     options=["--slow-link", f"{src},{dst},{seconds},{count}"],
+                     env={"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")})
 
 
 @pytest.mark.parametrize(
@@ -33,9 +48,9 @@ def mesh_render(scene, rows, cols, overlap, rs, procs=None):
 )  # fmt: skip
 def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     scene = read_nff(spd_scene(name))
-    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
-    ref, ref_stats = render(scene, rs)
-    img, stats = mesh_render(scene, rows, cols, overlap, rs)
+    rs = records(width=40, height=40, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    img, stats = mesh_render(scene, MeshPlan(rows, cols, overlap), rs)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     # Conservation over the wire: rays sent on links are received, every ray ends once.
@@ -50,20 +65,23 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
 
 def test_dead_node_stops_the_render_naming_it():
     scene = read_nff(spd_scene("balls_s3.nff"))
-    rs = RenderSettings(width=800, height=800, spp=4, progress=False)  # ~10 s of tracing
+    rs = records(width=800, height=800, spp=4)  # ~10 s of tracing
 
-    async def run(mesh, addresses, delay):
-        task = asyncio.create_task(render_on_mesh(scene, rs, addresses, 2, 2, 1))
-        await asyncio.sleep(delay)
+    async def run(mesh, addresses, tracing: bool):
+        started = asyncio.Event()
+        task = asyncio.create_task(on_mesh(scene, rs, addresses, MeshPlan(2, 2, 1),
+                                           progress=lambda n: started.set()))  # fmt: skip
+        if tracing:  # the first primary rays traced somewhere
+            await asyncio.wait_for(started.wait(), 60)
         mesh.procs[1].kill()
         return await asyncio.wait_for(task, 30)
 
-    for delay in (0.0, 1.5):  # before the host connects, and in the middle of tracing
+    for tracing in (False, True):  # before the host connects, and in the middle of tracing
         mesh = LocalMesh(4)
         with mesh as addresses:
             start = time.monotonic()
             with pytest.raises(MeshError, match="node 1"):
-                asyncio.run(run(mesh, addresses, delay))
+                asyncio.run(run(mesh, addresses, tracing))
             assert time.monotonic() - start < 30
 
 
@@ -71,11 +89,11 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
     # Ray messages from node 0 to node 1 held back 0.4 s each, far longer than a turn of the
     # state packet on a 2x2 ring (milliseconds): the render must wait for them, not end early.
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
-    ref, ref_stats = render(scene, rs)
-    mesh = LocalMesh(4)
+    rs = records(width=40, height=40, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    mesh = slow_mesh(4, 0, 1, 0.4, 3)
     with mesh as addresses:
-        coro = render_on_mesh(scene, rs, addresses, 2, 2, 1, link_delay=(0, 1, 0.4, 3))
+        coro = on_mesh(scene, rs, addresses, MeshPlan(2, 2, 1))
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
@@ -88,10 +106,9 @@ def test_a_mesh_that_lives_but_never_finishes_fails_instead_of_hanging():
     # A ray message held on one link for 1000 s: every node is alive (heartbeats flow) and
     # soon idle, but the ring can never end the frame. The host gives up after `stall`.
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
-    with LocalMesh(4) as addresses:
-        coro = render_on_mesh(scene, rs, addresses, 2, 2, 1, link_delay=(0, 1, 1000.0, 1),
-                              stall=3.0)  # fmt: skip
+    rs = records(width=40, height=40, threads=1)
+    with slow_mesh(4, 0, 1, 1000.0, 1) as addresses:
+        coro = on_mesh(scene, rs, addresses, MeshPlan(2, 2, 1), stall=3.0)
         start = time.monotonic()
         with pytest.raises(MeshError, match="alive but stuck"):
             asyncio.run(asyncio.wait_for(coro, 60))
@@ -103,10 +120,10 @@ def test_tiny_receive_buffers_do_not_deadlock(high):
     # Readers that stop after 64 (or 2) queued rays: links back up constantly, yet the mesh
     # finishes (a reader resumes once the queue is down to a quarter, or empty).
     scene = read_nff(spd_scene("gears_s1.nff"))
-    rs = RenderSettings(width=40, height=40, progress=False, threads=1)
-    ref, ref_stats = render(scene, rs)
-    with LocalMesh(4) as addresses:
-        coro = render_on_mesh(scene, rs, addresses, 2, 2, 24, incoming_high=high, stall=20.0)
+    rs = records(width=40, height=40, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    with LocalMesh(4, options=["--incoming-high", str(high)]) as addresses:
+        coro = on_mesh(scene, rs, addresses, MeshPlan(2, 2, 24), stall=20.0)
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
@@ -118,13 +135,15 @@ def test_a_silent_mesh_fails_instead_of_hanging():
     import signal
 
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = RenderSettings(width=400, height=400, spp=4, progress=False)
+    rs = records(width=400, height=400, spp=4)
     mesh = LocalMesh(2)
     with mesh as addresses:
 
         async def run():
-            task = asyncio.create_task(render_on_mesh(scene, rs, addresses, 1, 2, silence=2.0))
-            await asyncio.sleep(0.5)
+            started = asyncio.Event()
+            task = asyncio.create_task(on_mesh(scene, rs, addresses, MeshPlan(1, 2), silence=2.0,
+                                               progress=lambda n: started.set()))  # fmt: skip
+            await asyncio.wait_for(started.wait(), 60)  # tracing has begun
             os.kill(mesh.procs[1].pid, signal.SIGSTOP)
             try:
                 return await asyncio.wait_for(task, 30)
@@ -139,15 +158,15 @@ def test_a_silent_mesh_fails_instead_of_hanging():
 
 def test_garbage_from_a_peer_closes_only_that_link():
     scene = read_nff(spd_scene("tetra_s2.nff"))
-    rs = RenderSettings(width=24, height=24, progress=False, threads=1)
-    ref, _ = render(scene, rs)
+    rs = records(width=24, height=24, threads=1)
+    ref, _ = render(scene, *rs)
     with LocalMesh(2) as addresses:
         host, port = addresses[1].rsplit(":", 1)
         with socket.create_connection((host, int(port))) as s:
             s.sendall(b"\x00\x00\x00\x05hello-not-msgpack")
             s.settimeout(5)
             assert s.recv(100) == b""  # the node hung up on us
-        img, _ = asyncio.run(asyncio.wait_for(render_on_mesh(scene, rs, addresses, 1, 2), 120))
+        img, _ = asyncio.run(asyncio.wait_for(on_mesh(scene, rs, addresses, MeshPlan(1, 2)), 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
 
 
@@ -180,7 +199,7 @@ def test_mesh_and_cluster_arguments(tmp_path):
 def test_an_outbox_wakes_the_work_loop_when_it_sends():
     # A node paused on full outboxes waits for this: without it, a node whose rays bring
     # nothing back would sleep forever once its outboxes drained.
-    from meshnode.service import Outbox
+    from meshnode.link import Outbox
 
     class Sink:
         sent: list = []
@@ -203,10 +222,10 @@ def test_nodes_tracing_on_several_threads_give_the_single_node_image():
     # Two batches in flight per node: deposits and passed rays come back in any order, the
     # state packet must wait for both; image and counts stay the single node's.
     scene = read_nff(spd_scene("rings_s1.nff"))
-    rs = RenderSettings(width=48, height=48, spp=2, progress=False, threads=1)
-    ref, ref_stats = render(scene, rs)
+    rs = records(width=48, height=48, spp=2, threads=1)
+    ref, ref_stats = render(scene, *rs)
     with LocalMesh(2, threads=2) as addresses:
-        coro = render_on_mesh(scene, rs, addresses, 1, 2, 24.0)
+        coro = on_mesh(scene, rs, addresses, MeshPlan(1, 2, 24.0))
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
@@ -216,9 +235,9 @@ def test_cost_balanced_cuts_give_the_single_node_image():
     # Cuts from the simulated pre-pass: rectangles and boxes of unequal sizes, same image and
     # counts (correctness never depends on the cuts).
     scene = read_nff(spd_scene("balls_s1.nff"))
-    rs = RenderSettings(width=60, height=60, progress=False, threads=1, balance="cost")
-    ref, ref_stats = render(scene, rs)
-    img, stats = mesh_render(scene, 3, 3, 2, rs)
+    rs = records(width=60, height=60, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    img, stats = mesh_render(scene, MeshPlan(3, 3, 2, balance="cost"), rs)
     assert stats["balance"]["cuts"] == "cost"
     assert stats["balance"]["columns"] != [0, 20, 40, 60]  # the pre-pass moved them
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}

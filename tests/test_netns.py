@@ -10,9 +10,10 @@ import pytest
 
 from host.meshclient import MeshError, render_on_mesh
 from host.nff import read_nff
-from host.render import RenderSettings, render
+from host.render import render
+from protocols.render import MeshPlan
 from tests import netns
-from tests.conftest import spd_scene
+from tests.conftest import records, spd_scene
 
 pytestmark = pytest.mark.skipif(not netns.available(), reason="needs root and ip netns")
 
@@ -26,11 +27,11 @@ def _shape(net):
 
 def test_mesh_across_namespaces_equals_single_node():
     scene = read_nff(spd_scene("rings_s1.nff"))
-    rs = RenderSettings(width=64, height=64, progress=False, threads=1)
-    ref, ref_stats = render(scene, rs)
+    rs = records(width=64, height=64, threads=1)
+    ref, ref_stats = render(scene, *rs)
     with netns.namespaced_mesh(4, _shape) as (_, _, addresses):
         assert all(a.startswith("10.213.") for a in addresses)
-        coro = render_on_mesh(scene, rs, addresses, 2, 2, 24.0)
+        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine)
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
@@ -40,12 +41,15 @@ def test_mesh_across_namespaces_equals_single_node():
 
 def test_a_node_cut_off_the_network_is_named_within_seconds():
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = RenderSettings(width=400, height=400, spp=4, progress=False)  # several seconds' work
+    rs = records(width=400, height=400, spp=4)  # several seconds' work
     with netns.namespaced_mesh(2) as (net, _, addresses):
 
         async def run():
-            task = asyncio.create_task(render_on_mesh(scene, rs, addresses, 1, 2, silence=3.0))
-            await asyncio.sleep(1.0)
+            started = asyncio.Event()
+            coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), silence=3.0,
+                                  progress=lambda n: started.set())  # fmt: skip
+            task = asyncio.create_task(coro)
+            await asyncio.wait_for(started.wait(), 60)  # tracing has begun
             net.cut(1)  # no RST, no FIN: only silence tells
             return await asyncio.wait_for(task, 30)
 

@@ -1,7 +1,6 @@
 """Tests of the NFF reader: exact records per entity, `file:line:` errors, the SPD scenes."""
 
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,8 +8,7 @@ import pytest
 from host.nff import SceneError, parse_nff, read_nff
 from protocols import dtypes
 from protocols.scene import View
-
-SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+from tests.conftest import spd_scene
 
 # A minimal valid head: view on lines 1-5, material on line 6; objects start on line 7.
 HEAD = "v\nfrom 0 0 5\nat 0 0 0\nup 0 1 0\nangle 45\nf 1 0.5 0.25 0.8 0.2 10 0 1\n"
@@ -405,13 +403,9 @@ SPD_COUNTS = {
     "jacks.nff": (6, 0, 0, 3, 1),
 }
 
-needs_scenes = pytest.mark.skipif(not SCENES.is_dir(), reason=f"no SPD scenes at {SCENES}")
-
-
-@needs_scenes
 @pytest.mark.parametrize("name", sorted(SPD_COUNTS))
 def test_spd_scene_counts(name):
-    s = read_nff(SCENES / name)
+    s = read_nff(spd_scene(name))
     n_sph, n_tri, n_poly, n_cone, _ = SPD_COUNTS[name]
     got = (len(s.spheres), len(s.triangles), len(s.polygons), len(s.cones), len(s.lights))
     assert got == SPD_COUNTS[name]
@@ -422,9 +416,8 @@ def test_spd_scene_counts(name):
     np.testing.assert_array_equal(gids, np.arange(s.n_objects))
 
 
-@needs_scenes
 def test_spd_balls_view_and_floor_exact():
-    s = read_nff(SCENES / "balls.nff")
+    s = read_nff(spd_scene("balls.nff"))
     assert s.view == View(
         eye=(2.1, 1.3, 1.7), at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), angle=45.0, hither=0.01
     )
@@ -438,21 +431,19 @@ def test_spd_balls_view_and_floor_exact():
     assert list(s.spheres[0]["center"]) == [0, 0, 0] and s.spheres[0]["radius"] == 0.5
 
 
-@needs_scenes
 def test_spd_gears_many_vertex_faces():
-    s = read_nff(SCENES / "gears_s1.nff")
+    s = read_nff(spd_scene("gears_s1.nff"))
     counts = s.polygons["count"]
     assert np.count_nonzero(counts == 144) == 2 and np.count_nonzero(counts == 4) == 145
     assert len(s.vertices) == counts.sum()
     np.testing.assert_array_equal(s.polygons["start"], np.cumsum(counts) - counts)
 
 
-@needs_scenes
 def test_spd_teapot_patches_smooth_and_rings_cones():
-    t = read_nff(SCENES / "teapot_s1.nff").triangles
+    t = read_nff(spd_scene("teapot_s1.nff")).triangles
     assert t["smooth"].all() and len(np.unique(t["gid"])) == 56
     np.testing.assert_allclose(np.linalg.norm(t["n"], axis=2), 1.0, rtol=1e-12)
-    r = read_nff(SCENES / "rings_s1.nff")
+    r = read_nff(spd_scene("rings_s1.nff"))
     c = r.cones[0]
     assert list(c["base"]) == [0.930995, 2.61313, 0] and c["apex_r"] == 0.07412
 

@@ -11,12 +11,13 @@ import pytest
 from host.camera import Camera
 from host.localmesh import LocalMesh
 from host.meshclient import render_on_mesh
-from host.render import RenderSettings, render
+from host.render import render
 from meshnode.engine.lenscamera import first_pass, to_area, unit_points
 from protocols import dtypes
-from protocols.camera import CameraRays
+from protocols.camera import CameraSampling, CameraSpec
+from protocols.render import MeshPlan
 from protocols.scene import View
-from tests.conftest import make_scene
+from tests.conftest import make_scene, records
 from tests.test_optics import stack
 
 
@@ -67,36 +68,36 @@ def test_concentric_map_keeps_area():
 
 
 def _render(camera=None, **kw):
-    rs = RenderSettings(width=48, height=36, camera=camera or thin_camera(), progress=False,
+    rs = records(width=48, height=36, camera=camera or thin_camera(),
                         threads=1, **kw)  # fmt: skip
-    return render(dof_scene(), rs)
+    return render(dof_scene(), *rs)
 
 
 def test_adaptive_traces_corners_then_the_rest_where_they_differ():
     n = 16
-    full, full_stats = _render(lens_rays=n, sampling="jittered")
+    full, full_stats = _render(rays=n, sampling="jittered")
     pixels = 48 * 36
     # Threshold 0: a pixel is refined unless its two corner rays agree exactly; refined
     # pixels get exactly the jittered rays, so they equal the jittered image.
-    img, st = _render(lens_rays=n, sampling="adaptive", threshold=0.0)
+    img, st = _render(rays=n, sampling="adaptive", threshold=0.0)
     refined = st["camera"]["refined_pixels"]
     assert st["rays"]["eye_rays"] == 2 * pixels + (n - 2) * refined  # no lost rays here
     assert 0 < refined < pixels
     diff = np.abs(img - full).max(axis=2)
     assert np.count_nonzero(diff > 1e-12) <= pixels - refined
     # A threshold above any colour difference refines nothing: two rays a pixel.
-    img2, st2 = _render(lens_rays=n, sampling="adaptive", threshold=10.0)
+    img2, st2 = _render(rays=n, sampling="adaptive", threshold=10.0)
     assert st2["rays"]["eye_rays"] == 2 * pixels and st2["camera"]["refined_pixels"] == 0
     # The usual threshold: far fewer rays than full sampling, close to its image.
-    img3, st3 = _render(lens_rays=n, sampling="adaptive", threshold=0.05)
+    img3, st3 = _render(rays=n, sampling="adaptive", threshold=0.05)
     assert st3["rays"]["eye_rays"] < 0.6 * full_stats["rays"]["eye_rays"]
     assert np.sqrt(((img3 - full) ** 2).mean()) < 0.02
 
 
 def test_first_pass_is_opposite_corners_of_each_pattern():
-    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, generation=4)
+    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(generation=4))
     assert first_pass(spec).tolist() == [1, 4]  # (-c, -c) and (c, c) of the five points
-    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, generation=6)
+    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(generation=6))
     assert first_pass(spec).tolist() == [0, 8]
 
 
@@ -104,7 +105,7 @@ def test_special_jittering_has_no_depth_of_field():
     # Over the film area instead of the lens: every ray passes the lens centre, so the
     # image is the centre-ray image (type 1) over the same film points, whatever the
     # aperture; lens sampling at that aperture blurs visibly (CoC of 5 pixels at 1 m).
-    kw = dict(generation=2, lens_rays=16, sampling="uniform", film_area="rectangle")
+    kw = dict(generation=2, rays=16, sampling="uniform", film_area="rectangle")
     wide, _ = _render(thin_camera(rim=0.05), special=True, **kw)
     tiny, _ = _render(thin_camera(rim=0.0001), special=True, **kw)
     np.testing.assert_allclose(wide, tiny, atol=1e-9)
@@ -118,7 +119,7 @@ def test_film_area_antialiases_an_edge():
     # Centre rays only (type 1): pixels are 0 or 1 across the sharp sphere's rim; over a film
     # area of one pixel they take values between, and the mean brightness is unchanged.
     sharp, _ = _render(generation=1)
-    soft, _ = _render(generation=1, lens_rays=16, film_area="rectangle")
+    soft, _ = _render(generation=1, rays=16, film_area="rectangle")
     assert soft.mean() == pytest.approx(sharp.mean(), rel=0.02)
     levels = lambda im: len(np.unique(np.round(im[..., 0], 6)))  # noqa: E731
     assert levels(soft) > levels(sharp)
@@ -126,16 +127,17 @@ def test_film_area_antialiases_an_edge():
 
 def _mesh(rows, cols, rs, progress=None):
     with LocalMesh(rows * cols) as addresses:
-        coro = render_on_mesh(dof_scene(), rs, addresses, rows, cols, 1.0, progress=progress)
+        coro = render_on_mesh(dof_scene(), rs.image, addresses, MeshPlan(rows, cols, 1.0),
+                              rs.engine, rs.camera, progress=progress)  # fmt: skip
         return asyncio.run(asyncio.wait_for(coro, 180))
 
 
 @pytest.mark.parametrize("sampling,meshes", [("jittered", [(2, 2)]),
                                              ("adaptive", [(2, 2), (3, 3)])])  # fmt: skip
 def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
-    rs = RenderSettings(width=30, height=24, camera=thin_camera(), lens_rays=9,
-                        sampling=sampling, progress=False, threads=1)  # fmt: skip
-    ref, ref_stats = render(dof_scene(), rs)
+    rs = records(width=30, height=24, camera=thin_camera(), rays=9,
+                        sampling=sampling, threads=1)  # fmt: skip
+    ref, ref_stats = render(dof_scene(), *rs)
     for rows, cols in meshes:
         reports = []
         img, stats = _mesh(rows, cols, rs, reports.append)
@@ -152,7 +154,8 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     # two nodes decide exactly as one node does.
     from meshnode.adaptive import AdaptiveFilm, deposit_routes
 
-    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.05, rays=4, sampling="adaptive")
+    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05,
+                      CameraSampling(rays=4, sampling="adaptive"))
     width, height, n = 5, 4, spec.per_pixel
     pixels = np.arange(width * height)
     ids = np.concatenate([pixels * n + k for k in first_pass(spec)])
@@ -186,8 +189,8 @@ def test_adaptive_refines_pixels_whose_corner_rays_the_camera_stops():
          "shape": dtypes.POLYGON_RIM, "sides": 6},
     )  # fmt: skip
     cam = Camera(elements, 0.024, 0.018, None, 2.0)
-    full, _ = _render(cam, lens_rays=16, sampling="jittered")
-    img, st = _render(cam, lens_rays=16, sampling="adaptive")
+    full, _ = _render(cam, rays=16, sampling="jittered")
+    img, st = _render(cam, rays=16, sampling="adaptive")
     assert st["camera"]["refined_pixels"] == 48 * 36
     np.testing.assert_allclose(img, full, atol=1e-12)
     assert full.mean() > 0.05
@@ -216,9 +219,11 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
     # patterns leaves the camera, jittered or not (none on the rim, none beyond it).
     from meshnode.engine.lenscamera import camera_rays
 
-    spec = CameraRays(thin_camera().elements, 0.024, 0.018, -0.0513, generation=generation)
+    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.0513,
+                      CameraSampling(generation=generation))
     _, alive = camera_rays(spec, dof_scene().view, 64, 48, np.arange(64 * 48))
     assert alive.all()
-    special = CameraRays(thin_camera().elements, 0.024, 0.018, -0.0513, generation=generation,
-                         film_area="rectangle", special=True)  # fmt: skip
+    special = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.0513,
+                         CameraSampling(generation=generation, film_area="rectangle",
+                                        special=True))  # fmt: skip
     assert first_pass(special).tolist() == ([1, 4] if generation < 6 else [0, 8])

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from host.nff import read_nff
-from host.render import RenderSettings, render
+from host.render import render
 from meshnode.engine import Engine
 from protocols import dtypes
 from protocols.scene import View
-from tests.conftest import make_scene, spd_scene
+from tests.conftest import make_scene, records, spd_scene
 from tests.test_grid import lit_glass_scene
 
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
@@ -21,8 +21,8 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
 
 
 def small(scene, **kw):
-    settings = RenderSettings(width=40, height=40, depth=5, progress=False, threads=1, **kw)
-    image, stats = render(scene, settings)
+    settings = records(width=40, height=40, depth=5, threads=1, **kw)
+    image, stats = render(scene, *settings)
     return image, {k: stats["rays"][k] for k in COUNTS}
 
 

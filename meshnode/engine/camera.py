@@ -11,6 +11,7 @@ import numpy as np
 
 from meshnode.engine.jit import inline, kernel
 from protocols.dtypes import EYE, RAY
+from protocols.render import ImageSpec
 from protocols.scene import View
 
 
@@ -110,15 +111,18 @@ def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, s
     return n
 
 
-def eye_rays(view: View, width: int, height: int, corners: bool, spp: int = 1, seed: int = 0,
-             rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None):  # fmt: skip
-    """Eye rays (RAY records) of a rectangle of the sample grid (the whole grid by default)."""
+def eye_rays(view: View, image: ImageSpec, rows: tuple[int, int] | None = None,
+             cols: tuple[int, int] | None = None):  # fmt: skip
+    """Eye rays (RAY records) of a rectangle of the image's sample grid (all of it by
+    default): pixel corners under the SPD rules, else `spp` samples per pixel."""
+    width, height = image.size
     eye, fwd, right, up, step = view_basis(view, width, height)
-    gw, gh = (width + 1, height + 1) if corners else (width, height)
-    spp = 1 if corners else spp
+    gw, gh = image.sample_grid()
+    corners = image.corners()
+    spp = 1 if corners else image.spp
     x0, x1 = cols or (0, gw)
     y0, y1 = rows or (0, gh)
     out = np.zeros((x1 - x0) * (y1 - y0) * spp, RAY)
-    fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, seed,
+    fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, image.seed,
                   x0, x1, y0, y1, float(view.hither))  # fmt: skip
     return out

@@ -20,7 +20,7 @@ import numpy as np
 from meshnode.engine.camera import set_primary, uniforms, view_basis
 from meshnode.engine.jit import kernel
 from meshnode.engine.optics import through
-from protocols.camera import CameraRays
+from protocols.camera import CameraSampling, CameraSpec, Generation
 from protocols.dtypes import RAY
 
 _C = 0.6
@@ -32,9 +32,9 @@ FIVE = np.array([(0, 0), (-_C, -_C), (_C, -_C), (-_C, _C), (_C, _C)])
 NINE = np.array([(x, y) for y in (-_C, 0, _C) for x in (-_C, 0, _C)])
 
 
-def first_pass(spec: CameraRays) -> np.ndarray:
+def first_pass(spec: CameraSpec) -> np.ndarray:
     """The two samples at opposite corners that adaptive sampling traces first."""
-    if spec.generation in (4, 5):
+    if spec.sampling.kind.points == 5:
         return np.array([1, 4])
     return np.array([0, spec.per_pixel - 1])
 
@@ -129,53 +129,58 @@ def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front):
     return n
 
 
-def _pattern_points(spec: CameraRays, pixels, ks) -> np.ndarray:
+def _pattern_points(s: CameraSampling, pixels, ks, seed: int) -> np.ndarray:
     """Offsets in [-1, 1]^2 of the sampled area (the lens's, or the film's when special)."""
-    gen = spec.generation
-    if gen in (4, 5, 6, 7):
-        pts = np.broadcast_to((FIVE if gen < 6 else NINE)[ks], (len(pixels), len(ks), 2))
-        if gen in (5, 7):  # each point moves within a small square around itself
+    gen = s.kind
+    if gen.points:
+        pts = np.broadcast_to((FIVE if gen.points == 5 else NINE)[ks], (len(pixels), len(ks), 2))
+        if gen.jittered:  # each point moves within a small square around itself
             ids = pixels[:, None].astype(np.uint64) * np.uint64(16) + ks[None, :]
-            jit = np.stack([_hash_uniform(spec.seed, ids, 2), _hash_uniform(spec.seed, ids, 3)], -1)
+            jit = np.stack([_hash_uniform(seed, ids, 2), _hash_uniform(seed, ids, 3)], -1)
             pts = pts + JITTER * (2 * jit - 1)
         return np.array(pts)
-    sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
-    p = unit_points(sampling, spec.per_pixel, pixels, ks, spec.seed, 2)
-    ellipse = gen != 3 if not spec.special else spec.film_area == "ellipse"
+    p = unit_points(_placement(s), s.per_pixel, pixels, ks, seed, 2)
+    ellipse = gen != Generation.RECTANGLE if not s.special else s.film_area == "ellipse"
     return to_area(p, ellipse)
 
 
-def sample_offsets(spec: CameraRays, pixels: np.ndarray, ks: np.ndarray):
+def _placement(s: CameraSampling) -> str:
+    """How strata points are placed: adaptive sampling places its rays jittered."""
+    return "jittered" if s.sampling == "adaptive" else s.sampling
+
+
+def sample_offsets(s: CameraSampling, pixels: np.ndarray, ks: np.ndarray, seed: int):
     """(lens offsets, film offsets) for every (pixel, k): lens in units of the generation
     area's semi-axes, film in pixels from the pixel centre."""
     shape = (len(pixels), len(ks), 2)
     zeros = np.zeros(shape)
-    lens_sampled = spec.generation not in (0, 1) or spec.special
-    pts = _pattern_points(spec, pixels, ks) if lens_sampled else None
-    half = 0.5 * spec.film_area_size
-    if spec.special:
+    lens_sampled = not s.kind.through_centre or s.special
+    pts = _pattern_points(s, pixels, ks, seed) if lens_sampled else None
+    half = 0.5 * s.film_area_size
+    if s.special:
         return zeros, pts * half
-    if spec.film_area == "centre":
+    if s.film_area == "centre":
         return (pts if pts is not None else zeros), zeros
     # The film area's own set, its strata shuffled against the lens's by a random
     # permutation per pixel: any film stratum goes with any lens stratum (no correlation).
     # Without lens sampling there is nothing to decorrelate: sample k is stratum k, so
     # adaptive sampling's first two are the film area's opposite corners.
-    n = spec.per_pixel
+    n = s.per_pixel
     perm = ks
     if lens_sampled:
-        keys = _hash_uniform(spec.seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
+        keys = _hash_uniform(seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
                              + np.arange(n, dtype=np.uint64)[None, :], 6)  # fmt: skip
         perm = np.argsort(keys, axis=1)[:, ks]
-    sampling = "jittered" if spec.sampling == "adaptive" else spec.sampling
-    film = unit_points(sampling, n, pixels, perm, spec.seed, 4)
-    film = to_area(film, spec.film_area == "ellipse")
+    film = unit_points(_placement(s), n, pixels, perm, seed, 4)
+    film = to_area(film, s.film_area == "ellipse")
     return (pts if pts is not None else zeros), film * half
 
 
-def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndarray,
-                ks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x), and
+def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndarray,
+                ks: np.ndarray | None = None,
+                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x), drawn
+    with the image's `seed`, and
     which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
 
     Weights: 1 / (rays of the pixel) under "all", 1 / (those that left) under "left"; under
@@ -184,7 +189,7 @@ def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndar
     pixels = np.asarray(pixels, np.int64)
     n = spec.per_pixel
     ks = np.arange(n) if ks is None else np.asarray(ks, np.int64)
-    lens, film = sample_offsets(spec, pixels, ks)
+    lens, film = sample_offsets(spec.sampling, pixels, ks, seed)
     k = len(ks)
     first = spec.elements[int(np.argmin(spec.elements["z"]))]
     ix, iy = pixels % width, pixels // width
@@ -201,14 +206,14 @@ def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndar
     d[:, 2] = float(first["z"]) - spec.film_z
     d /= np.linalg.norm(d, axis=1)[:, None]
     alive = np.ones(len(o), dtype=np.bool_)
-    if spec.generation != 0:  # type 0 is the classic pinhole: straight through the centre
+    if spec.sampling.kind != Generation.PINHOLE:  # straight through the centre, no refraction
         through(o, d, spec.elements, False, alive)
     alive2 = alive.reshape(len(pixels), k)
     if spec.adaptive:
         share = np.ones(len(o))
         ids = (pixels[:, None] * n + ks[None, :]).ravel()
     else:
-        per = alive2.sum(axis=1) if spec.adaptation == "left" else np.full(len(pixels), k)
+        per = alive2.sum(axis=1) if spec.sampling.adaptation == "left" else np.full(len(pixels), k)
         share = np.repeat(1.0 / np.maximum(per, 1), k)
         ids = np.repeat(pixels, k)
     eye, fwd, right, up, _ = view_basis(view, width, height)
@@ -217,13 +222,13 @@ def camera_rays(spec: CameraRays, view, width: int, height: int, pixels: np.ndar
     return rays, alive2
 
 
-def camera_batches(spec: CameraRays, view, width: int, height: int, pixels: np.ndarray,
-                   rays_per_batch: int = 16384):  # fmt: skip
+def camera_batches(spec: CameraSpec, view, width: int, height: int, pixels: np.ndarray,
+                   seed: int = 0, rays_per_batch: int = 16384):  # fmt: skip
     """Camera rays of `pixels` in batches of about `rays_per_batch` (bounded memory at any
     number of rays per pixel)."""
     step = max(1, rays_per_batch // spec.per_pixel)
     for i in range(0, len(pixels), step):
-        yield camera_rays(spec, view, width, height, pixels[i : i + step])[0]
+        yield camera_rays(spec, view, width, height, pixels[i : i + step], seed=seed)[0]
 
 
 def rect_pixels(rect, width: int) -> np.ndarray:

@@ -1,0 +1,90 @@
+"""A camera set up for one render: the camera file, how it is focused and stopped, and how its
+rays are sampled; `spec` turns it into the CameraSpec every node makes rays from.
+
+Focusing is the host's alone (it may need a probe pass through the scene), so `Focus` is a
+host record; the sampling travels to the nodes inside the CameraSpec.
+"""
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from host.autofocus import autofocus_distance
+from host.camera import Camera, describe, focused
+from meshnode.engine.lenscamera import camera_rays
+from protocols.camera import CameraSampling, CameraSpec
+from protocols.render import ImageSpec
+from protocols.spec import Spec
+
+FOCUS_WORDS = ("auto", "infinity")
+
+
+@dataclass(frozen=True)
+class Focus(Spec):
+    """distance: metres, "infinity" or "auto" (a probe pass on the image centre), None: the
+    camera file's; dof_near/dof_far: focus and f-number so everything between is sharp;
+    dof_tolerance: the focus distance +- this stays sharp; coc: largest circle of confusion
+    on the film (m; None: the film diagonal / 1500)."""
+
+    distance: float | str | None = None
+    dof_near: float | None = None
+    dof_far: float | None = None
+    dof_tolerance: float | None = None
+    coc: float | None = None
+
+    def check(self) -> None:
+        d = self.distance
+        if not (d is None or d in FOCUS_WORDS or isinstance(d, int | float)
+                and not isinstance(d, bool) and 0 < d < math.inf):  # fmt: skip
+            self.fail("distance", "must be metres (> 0), 'infinity' or 'auto'")
+        for name in ("dof_near", "dof_far", "dof_tolerance", "coc"):
+            self.want_number(name, 0.0, math.inf, open_lo=True, optional=True)
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    """The camera of a render before focusing: optics, focus request, sampling."""
+
+    camera: Camera
+    sampling: CameraSampling = field(default_factory=CameraSampling)
+    focus: Focus = field(default_factory=Focus)
+
+    def spec(self, scene, image: ImageSpec, probe_engine) -> tuple[CameraSpec, dict]:
+        """The camera focused and stopped as asked, as the spec every node makes rays from,
+        and what the statistics say of it; `probe_engine()` gives an engine over the scene if
+        autofocus needs a probe pass."""
+        w, h = image.size
+        probe: dict = {}
+
+        def autofocus():
+            distance, seen = autofocus_distance(probe_engine(), scene.view, w, h)
+            probe.update(seen)
+            return distance
+
+        f = self.focus
+        cam = focused(self.camera, f.distance, f.dof_near, f.dof_far, f.dof_tolerance, f.coc,
+                      autofocus)  # fmt: skip
+        spec = CameraSpec(cam.elements, cam.film_width, cam.film_height, cam.focused_film_z(),
+                          self.sampling)  # fmt: skip
+        s = self.sampling
+        return spec, {
+            "source": cam.source, "notes": cam.notes, "f_number": describe(cam)["f_number"],
+            "focus_distance_m": cam.focus_distance, "film_z_m": spec.film_z,
+            "effective_focal_length_m": describe(cam)["effective_focal_length_m"],
+            "generation": s.generation, "rays_per_pixel": s.per_pixel, "sampling": s.sampling,
+            "threshold": s.threshold if s.adaptive else None, "film_area": s.film_area,
+            "special_jittering": s.special, "adaptation": s.adaptation,
+            "autofocus": probe or None,
+            "centre_rays_leaving_camera": leaving_share(spec, scene.view, w, h),
+        }  # fmt: skip
+
+
+def leaving_share(spec: CameraSpec, view, width: int, height: int) -> float:
+    """Share of 256 uniform rays from the centre pixel that leave the camera: a stop that
+    blocks most of them wastes most of the work (the CLI warns)."""
+    probe = replace(spec, sampling=replace(spec.sampling, rays=256, sampling="uniform",
+                                           film_area="centre", special=False))
+    centre = np.array([(height // 2) * width + width // 2])
+    _, alive = camera_rays(probe, view, width, height, centre)
+    return float(alive.mean())

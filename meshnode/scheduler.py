@@ -1,0 +1,180 @@
+"""What a node does next: a pure state machine, no sockets and no clock (DESIGN.md 5 and 6).
+
+The asyncio service and the simulated mesh (the host's cost pre-pass, the tests) drive it
+alike, so a simulated mesh decides exactly as a real one. The driver reports events (rays
+arrived, a pixel message arrived, messages sent, the state packet arrived, a batch finished)
+and asks `next()` what to do: enter a new state, trace a batch (rays from other nodes first:
+they are partly traced, and finishing them keeps queues short and cannot deadlock full
+links; then this node's primary rays, while its links have room), flush buffered output
+once idle, send the state packet on, or wait for the next event (None).
+"""
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshnode.termination import Packet, State, Termination
+
+INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
+
+
+@dataclass(frozen=True)
+class Enter:
+    """The ring moved to `state`: the driver sets up its primaries (`Scheduler.primaries`),
+    flushes finished pixels or reports statistics."""
+
+    state: State
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Trace this batch; call `batch_done` when it is."""
+
+    rays: np.ndarray
+    primary: bool
+
+
+@dataclass(frozen=True)
+class Flush:
+    """Nothing is being traced: send buffered output (deposits) now."""
+
+
+@dataclass(frozen=True)
+class SendPacket:
+    """Send the state packet to node `to` (the next on the ring)."""
+
+    packet: Packet
+    to: int
+
+
+class Primaries:
+    """Batches of primary rays made one at a time (memory stays bounded at any number of
+    rays per pixel), with a look ahead so the scheduler can tell whether any are left."""
+
+    def __init__(self, batches=()):
+        self.batches, self.next = iter(batches), None
+        self._advance()
+
+    def _advance(self) -> None:
+        self.next = next(self.batches, None)
+        while self.next is not None and len(self.next) == 0:
+            self.next = next(self.batches, None)
+
+    def __bool__(self) -> bool:
+        return self.next is not None
+
+    def pop(self) -> np.ndarray:
+        rays = self.next
+        self._advance()
+        return rays
+
+
+class Scheduler:
+    """One node's decisions. `ring_next`: the node after this one on the packet's ring;
+    `threads`: batches traced at once; `incoming_high`: queued incoming rays above which the
+    driver stops reading (it resumes once `may_read`, at a quarter of that)."""
+
+    def __init__(self, node: int, ring_next: int, nodes: int, threads: int = 1,
+                 incoming_high: int = INCOMING_HIGH):  # fmt: skip
+        self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
+        self.incoming_high = max(1, incoming_high)
+        self.term = Termination(node)
+        self.state = State.DOWNLOAD
+        self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
+        self.incoming: deque = deque()
+        self.incoming_rays = 0
+        self.primaries = Primaries()
+        self.in_flight = 0
+        self.unflushed = False
+        self.done_passed = False
+        self.pending: deque = deque()  # decisions made, not yet handed out
+
+    # ------------------------------------------------------------------ events
+    def rays_in(self, rays: np.ndarray, message: bool = True) -> bool:
+        """Rays to trace here (from a RAYS message, or passed from this node to itself);
+        True when the driver should stop reading until `may_read`."""
+        if message:
+            self.term.on_received()
+        self.incoming.append(rays)
+        self.incoming_rays += len(rays)
+        return self.incoming_rays > self.incoming_high
+
+    def message_in(self) -> None:
+        """A counted data message (PIXELS) arrived and was handled."""
+        self.term.on_received()
+
+    def message_out(self, messages: int = 1) -> None:
+        """Counted data messages (RAYS, PIXELS) left toward other nodes."""
+        self.term.on_sent(messages)
+
+    def packet_in(self, packet: Packet) -> None:
+        self.packet = packet
+
+    def batch_done(self) -> None:
+        self.in_flight -= 1
+        self.term.on_work()
+        self.unflushed = True
+
+    @property
+    def may_read(self) -> bool:
+        return self.incoming_rays <= self.incoming_high // 4
+
+    @property
+    def done(self) -> bool:
+        return self.state == State.DONE and self.packet is None and not self.pending
+
+    # ------------------------------------------------------------------ decisions
+    def next(self, room: bool = True):
+        """The next thing to do (None: wait for an event). `room`: the links can take more
+        output, so new primary rays may start."""
+        while True:
+            if self.pending:
+                return self.pending.popleft()
+            if self.packet is not None and self.packet.state > self.state:
+                return self._enter(State(self.packet.state))
+            free = self.in_flight < self.threads
+            if self.incoming and free:
+                rays = self.incoming.popleft()
+                self.incoming_rays -= len(rays)
+                return self._trace(rays, primary=False)
+            tracing = self.state in (State.TRACE, State.REFINE) and bool(self.primaries)
+            if tracing and free and room:
+                return self._trace(self.primaries.pop(), primary=True)
+            if self.in_flight:
+                return None
+            if self.unflushed:
+                self.unflushed = False
+                return Flush()
+            if self.packet is None or tracing or self.incoming:
+                return None
+            if not self._pass_packet():
+                return None
+
+    def _enter(self, state: State) -> Enter:
+        self.state = state
+        self.primaries = Primaries()
+        return Enter(state)
+
+    def _trace(self, rays: np.ndarray, primary: bool) -> Trace:
+        self.in_flight += 1
+        return Trace(rays, primary)
+
+    def _pass_packet(self) -> bool:
+        """Record counters, maybe advance the state, hand the packet to the next ring node;
+        a DONE packet goes round once and is dropped where it has been before. False when
+        there is nothing more to decide now."""
+        packet, self.packet = self.packet, None
+        if self.state == State.DONE and self.done_passed:
+            return False
+        if self.state != State.DONE:
+            before = packet.state
+            packet = self.term.pass_on(packet)
+            if packet.state != before:
+                self.pending.append(self._enter(State(packet.state)))
+        self.done_passed = self.state == State.DONE
+        if self.ring_next != self.node:
+            self.pending.append(SendPacket(packet, self.ring_next))
+        elif not self.done_passed:
+            self.packet = packet  # a ring of one: the packet comes straight back
+        return True

@@ -1,0 +1,326 @@
+"""One render on one node, from CONFIG to DONE: the application layer of the node service.
+
+The session reads its configuration and objects, builds its NodeCore off the event loop, links
+to its neighbours, and then lets the Scheduler decide: it traces the batches it is told to on
+the service's thread pool (kernels release the GIL, so links keep flowing), posts rays and
+deposits toward the nodes that take them, and forwards the state packet. Every send goes
+through a per-link Outbox; new primary rays start only while the outboxes are below a
+high-water mark, which bounds the rays in flight (and so the memory).
+"""
+
+import asyncio
+import logging
+
+import numpy as np
+
+from meshnode.link import Link, LinkClosed, Outbox
+from meshnode.node import HOST, NodeCore
+from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.stats import NodeStats
+from meshnode.termination import Packet, State
+from protocols.errors import BadFrame, describe
+from protocols.messages import OBJECT_TABLES, Kind, make
+from protocols.render import Partition, RenderSpec
+from protocols.scene import SceneData, View
+from protocols.spec import SpecError
+from protocols.topology import Router, Torus
+
+log = logging.getLogger("meshnode")
+OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
+DEPOSIT_BATCH = 32768  # deposits per pixel packet
+HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
+
+
+class Config:
+    """A CONFIG message read and checked: SpecError or BadFrame name what is wrong."""
+
+    def __init__(self, f: dict):
+        self.render = RenderSpec.from_wire(f["render"])
+        self.partition = Partition.from_wire(f["partition"])
+        plan = self.render.plan
+        self.torus = Torus(plan.rows, plan.cols)
+        if self.partition.nodes != plan.nodes:
+            raise SpecError(f"Partition has {self.partition.nodes} nodes, the plan {plan.nodes}")
+        if not 0 <= f["node"] < plan.nodes:
+            raise BadFrame(f"CONFIG.node = {f['node']}: must be from 0 to {plan.nodes - 1}")
+        self.node = f["node"]
+        self.neighbours = f["neighbours"]
+        for m in self.torus.links(self.node):
+            if not isinstance(self.neighbours.get(str(m)), str):
+                raise BadFrame(f"CONFIG.neighbours has no address for node {m}")
+        try:
+            view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
+        except TypeError as e:
+            raise BadFrame(f"CONFIG.view: {e}") from None
+        self.view, self.background = view, tuple(f["background"])
+
+
+class Session:
+    """One render on this node; `service` gives the thread pool, the cluster id, the number
+    of tracing threads and the links neighbours opened to this node."""
+
+    def __init__(self, service, host: Link, config: Config):
+        self.service, self.host, self.config = service, host, config
+        self.node = config.node
+        self.router = Router(config.torus, self.node)
+        threads = min(service.threads, config.render.engine.threads or service.threads)
+        self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
+                               threads, service.incoming_high)  # fmt: skip
+        self.stats = NodeStats(self.node)
+        self.tables: dict[str, list] = {}
+        self.core: NodeCore | None = None
+        self.outboxes: dict[int, Outbox] = {}
+        self.wake = asyncio.Event()
+        self.drained = asyncio.Event()
+        self.host_out = Outbox(host, self.fail, self.wake)
+        self.deposits: list = []
+        self.error: Exception | None = None
+        self.ready = False  # engine built and every neighbour linked
+        self.tasks: set[asyncio.Task] = set()
+        self.spawn(self.heartbeat())
+
+    def spawn(self, coro) -> asyncio.Task:
+        """A task of this session: tracked, so `close` can cancel and await it."""
+        task = asyncio.create_task(coro)
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+        return task
+
+    async def heartbeat(self) -> None:
+        """Tell the host every second that this node lives (a PROGRESS of no rays, saying
+        whether it is ready), so it can name a node that stops, hangs or is cut off within
+        seconds, and tell a node still building from a stuck one."""
+        while True:
+            await asyncio.sleep(HEARTBEAT)
+            self.progress(0)
+
+    def progress(self, rays: int) -> None:
+        self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=rays,
+                                work=self.stats.batches, ready=self.ready))  # fmt: skip
+
+    # ------------------------------------------------------------------ setup
+    def add_objects(self, table: str, records: np.ndarray) -> None:
+        self.tables.setdefault(table, []).append(np.array(records))
+
+    def scene(self) -> SceneData:
+        def table(name):
+            parts = self.tables.get(name)
+            return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
+
+        return SceneData(
+            view=self.config.view, background=self.config.background, lights=table("lights"),
+            materials=table("materials"), spheres=table("spheres"),
+            triangles=table("triangles"), polygons=table("polygons"),
+            vertices=table("vertices").reshape(-1, 3), cones=table("cones"),
+        )  # fmt: skip
+
+    async def build(self) -> None:
+        """Build the engine off the loop, link to the neighbours, then start working."""
+        try:
+            loop = asyncio.get_running_loop()
+            c = self.config
+            self.core = await loop.run_in_executor(
+                self.service.pool, lambda: NodeCore(self.node, self.scene(), c.render,
+                                                    c.partition))  # fmt: skip
+            await loop.run_in_executor(self.service.pool, self.core.warmup)
+            for m in c.torus.links(self.node):
+                if self.node < m:  # the lower index dials, the higher accepts
+                    self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
+            await self.service.wait_links(self)
+            self.ready = True
+            self.progress(0)
+            self.spawn(self.work())
+        except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
+            self.fail(e)
+
+    def attach(self, m: int, link: Link) -> None:
+        self.outboxes[m] = Outbox(link, self.fail, self.wake)
+        self.spawn(self.read(m, link))
+
+    # ------------------------------------------------------------------ messages
+    def fail(self, error: Exception) -> None:
+        """Report the first failure to the host (named, never empty) and stop working."""
+        if self.error is None:
+            self.error = error
+            log.error("node %d: %s", self.node, describe(error))
+            self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {describe(error)}"))
+            self.wake.set()
+
+    def post_data(self, dest: int, kind: Kind, records: np.ndarray) -> None:
+        """A RAYS or PIXELS message toward node `dest`, counted as sent."""
+        hop = self.router.next_hop(dest)
+        if kind is Kind.RAYS:
+            message = make(Kind.RAYS, rays=records, dest=dest)
+            self.stats.rays_out[hop] += len(records)
+        else:
+            message = make(Kind.PIXELS, deposits=records, dest=dest)
+            self.stats.pixel_packets += 1
+        self.sched.message_out()
+        self.outboxes[hop].post(message, records.nbytes)
+
+    def to_host(self, deposits: np.ndarray) -> None:
+        """Deposits toward the host: straight from node 0, from others through node 0."""
+        if self.node == 0:
+            self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
+        else:
+            self.post_data(0, Kind.PIXELS, deposits)
+
+    async def read(self, m: int, link: Link) -> None:
+        try:
+            while True:
+                kind, f = await link.recv()
+                if kind is Kind.RAYS:
+                    self.on_rays(m, f)
+                    if self.sched.incoming_rays > self.sched.incoming_high:
+                        # Stop reading: TCP pushes back on the sender, whose work loop goes
+                        # on (its sends are queued), so this cannot deadlock.
+                        self.drained.clear()
+                        self.wake.set()
+                        await self.drained.wait()
+                elif kind is Kind.PIXELS:
+                    self.on_pixels(f)
+                elif kind is Kind.STATE:
+                    self.on_state(f)
+                else:
+                    raise BadFrame(f"unexpected {kind.name} from a neighbour")
+                self.wake.set()
+        except LinkClosed as e:
+            if self.sched.state != State.DONE:
+                self.fail(e)
+        except Exception as e:  # noqa: BLE001 - a bad message must not silently stop reading
+            log.exception("node %d: reading from node %d failed", self.node, m)
+            self.fail(LinkClosed(f"node {m}", describe(e)))
+
+    def on_rays(self, m: int, f: dict) -> None:
+        self.stats.rays_in[m] += len(f["rays"])
+        if f["dest"] == self.node:
+            self.sched.rays_in(np.array(f["rays"]))
+        else:
+            self.sched.message_in()
+            self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+
+    def on_pixels(self, f: dict) -> None:
+        self.sched.message_in()
+        deposits = np.array(f["deposits"])
+        if f["dest"] != self.node:
+            self.post_data(f["dest"], Kind.PIXELS, deposits)
+        elif self.core.film is not None:
+            self.core.film.add(deposits["pixel"], deposits["rgb"])
+        else:
+            self.to_host(deposits)
+
+    def on_state(self, f: dict) -> None:
+        if f["dest"] != self.node:
+            self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
+            return
+        sent, received = np.array(f["sent"]), np.array(f["received"])
+        self.sched.packet_in(Packet(f["state"], f["last_busy"], f["round"], sent, received))
+
+    # ------------------------------------------------------------------ work
+    async def work(self) -> None:
+        """Do what the scheduler says until the render ends or fails; any failure is
+        reported to the host, never swallowed."""
+        try:
+            while self.error is None:
+                self.wake.clear()
+                room = self.queued_bytes() < OUTBOX_HIGH
+                while (step := self.sched.next(room)) is not None:
+                    self.act(step)
+                    room = self.queued_bytes() < OUTBOX_HIGH
+                if self.sched.may_read:
+                    self.drained.set()
+                await self.wake.wait()
+        except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
+            log.exception("node %d: work loop failed", self.node)
+            self.fail(e)
+
+    def act(self, step) -> None:
+        if isinstance(step, Trace):
+            self.start(step.rays, step.primary)
+        elif isinstance(step, Enter):
+            self.enter(step.state)
+        elif isinstance(step, Flush):
+            self.flush()
+        elif isinstance(step, SendPacket):
+            p = step.packet
+            message = make(Kind.STATE, state=p.state, last_busy=p.last_busy, round=p.round,
+                           sent=p.sent, received=p.received, dest=step.to)  # fmt: skip
+            self.outboxes[self.router.next_hop(step.to)].post(message)
+        else:
+            raise TypeError(f"unknown scheduler step {step!r}")
+
+    def enter(self, state: State) -> None:
+        """Act on a state the packet brought."""
+        if state in (State.TRACE, State.REFINE):
+            self.sched.primaries = Primaries(self.core.primaries(state))
+        elif state == State.FLUSH and self.core.film is not None:
+            for d in self.core.finished_pixels():
+                self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
+            self.stats.counts["refined_pixels"] = int(self.core.film.refined.sum())
+        elif state == State.DONE:
+            links = {m: o.link.stats for m, o in self.outboxes.items()}
+            report = self.stats.report(self.core.engine.stats, links)
+            report["packet_visits"] = self.sched.term.visits
+            self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
+
+    def flush(self) -> None:
+        """Buffered deposits toward the host, in packets of DEPOSIT_BATCH."""
+        if self.deposits:
+            allp = np.concatenate(self.deposits)
+            self.deposits = []
+            for i in range(0, len(allp), DEPOSIT_BATCH):
+                self.to_host(allp[i : i + DEPOSIT_BATCH])
+
+    def queued_bytes(self) -> int:
+        return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
+
+    def start(self, rays: np.ndarray, primary: bool) -> None:
+        """Trace a batch on a pool thread; the work loop wakes when it is done."""
+        if self.sched.in_flight == 1:  # the first batch in flight: the node turns busy
+            self.stats.turn_busy()
+        self.spawn(self.trace(rays, primary))
+
+    async def trace(self, rays: np.ndarray, primary: bool) -> None:
+        try:
+            loop = asyncio.get_running_loop()
+            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays)
+            self.stats.traced(batch.counts, len(rays) if primary else 0)
+            self.deliver(batch)
+            if primary:
+                self.progress(len(rays))
+        except Exception as e:  # noqa: BLE001 - the host must hear of it
+            log.exception("node %d: tracing a batch failed", self.node)
+            self.fail(e)
+        finally:
+            self.sched.batch_done()
+            if self.sched.in_flight == 0:
+                self.stats.turn_idle()
+            self.wake.set()
+
+    def deliver(self, batch) -> None:
+        """A traced batch's deposits and leaving rays, each toward the node that takes it."""
+        for dest, deposits in batch.deposits.items():
+            if dest == HOST:
+                self.deposits.append(deposits)
+                if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
+                    self.flush()
+            elif dest == self.node:
+                self.core.film.add(deposits["pixel"], deposits["rgb"])
+            else:
+                self.post_data(dest, Kind.PIXELS, deposits)
+        for dest, passed in batch.outgoing.items():
+            if dest == self.node:
+                self.sched.rays_in(passed, message=False)
+            else:
+                self.post_data(dest, Kind.RAYS, passed)
+
+    async def close(self) -> None:
+        """Cancel and await every task of this render, then close its links."""
+        tasks = list(self.tasks)
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await asyncio.gather(*(o.close() for o in self.outboxes.values()),
+                             return_exceptions=True)  # fmt: skip
+        self.host_out.task.cancel()
+        await asyncio.gather(self.host_out.task, return_exceptions=True)

@@ -1,0 +1,159 @@
+"""A mesh simulated in one process: every node's NodeCore driven by its own Scheduler, as on
+a real mesh, with messages held in a queue instead of sent on sockets.
+
+Each round, every node (in a seeded random order) acts until it has traced one batch or has
+nothing to do; messages sent in a round arrive at the start of the next (or `delay` rounds
+later on one link), so rays and the state packet overtake each other as on a network. The
+host's cost pre-pass runs it on a coarse image; the tests check the distributed algorithm
+with it (image, counts, termination under delays) against the single-node render.
+"""
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshnode.node import EYE_BATCH, HOST, NodeCore
+from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.termination import State
+from protocols.render import Partition, RenderSpec
+from protocols.topology import Torus
+
+MAX_ROUNDS = 1_000_000
+
+
+@dataclass
+class NodeRecord:
+    """What one simulated node did."""
+
+    objects: int = 0
+    batches: int = 0
+    rays_traced: int = 0
+    rays_sent: int = 0
+    rays_received: int = 0
+    packet_visits: int = 0
+    counts: dict = field(default_factory=lambda: defaultdict(int))
+
+    @property
+    def cost(self) -> int:
+        """Work done, in the engine's own units: tests, voxel steps and rays."""
+        return (self.counts["intersection_tests"] + self.counts["voxel_steps"]
+                + self.rays_traced)  # fmt: skip
+
+
+@dataclass
+class Outcome:
+    deposits: list  # DEPOSIT arrays that reached the host
+    nodes: list[NodeRecord]
+    rounds: int
+
+    def totals(self) -> dict[str, int]:
+        out: dict[str, int] = defaultdict(int)
+        for n in self.nodes:
+            for k, v in n.counts.items():
+                out[k] += v
+        return dict(out)
+
+
+def simulate(scenes, spec: RenderSpec, part: Partition, seed: int = 0, delay=None,
+             eye_batch: int = EYE_BATCH) -> Outcome:  # fmt: skip
+    """Render on a simulated mesh; `scenes[n]` holds node n's objects. `delay` = (src, dst,
+    rounds): messages on that link arrive that many rounds late; `eye_batch`: eye rays per
+    primary batch (small ones interleave more)."""
+    plan = spec.plan
+    cores = [NodeCore(n, scenes[n], spec, part, eye_batch) for n in range(plan.nodes)]
+    mesh = _Mesh(cores, spec, seed, delay)
+    return mesh.run()
+
+
+class _Mesh:
+    def __init__(self, cores, spec: RenderSpec, seed, delay):
+        torus = Torus(spec.plan.rows, spec.plan.cols)
+        self.cores = cores
+        self.scheds = [Scheduler(n, torus.ring_next(n), torus.size) for n in range(torus.size)]
+        self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
+        self.rng = np.random.default_rng(seed)
+        self.delay = delay
+        self.transit: list = []  # (arrival round, destination, kind, payload)
+        self.deposits: list = []
+        self.round = 0
+
+    def run(self) -> Outcome:
+        while not all(s.done for s in self.scheds) or self.transit:
+            self.round += 1
+            if self.round > MAX_ROUNDS:
+                states = [s.state.name for s in self.scheds]
+                raise RuntimeError(f"simulated mesh did not finish in {MAX_ROUNDS} rounds "
+                                   f"(node states {states})")  # fmt: skip
+            self._deliver()
+            for n in self.rng.permutation(len(self.cores)):
+                self._act(int(n))
+        return Outcome(self.deposits, self.records, self.round)
+
+    def _send(self, src: int, dst: int, kind: str, payload) -> None:
+        late = self.delay[2] if self.delay and (src, dst) == tuple(self.delay[:2]) else 0
+        self.transit.append((self.round + 1 + late, dst, kind, payload))
+        if kind != "state":
+            self.scheds[src].message_out()
+
+    def _deliver(self) -> None:
+        due = [m for m in self.transit if m[0] <= self.round]
+        self.transit = [m for m in self.transit if m[0] > self.round]
+        for _, dst, kind, payload in due:
+            sched = self.scheds[dst]
+            if kind == "rays":
+                self.records[dst].rays_received += len(payload)
+                sched.rays_in(payload)
+            elif kind == "pixels":
+                sched.message_in()
+                self.cores[dst].film.add(payload["pixel"], payload["rgb"])
+            else:
+                sched.packet_in(payload)
+
+    def _act(self, n: int) -> None:
+        """Node n acts until it has traced one batch or must wait."""
+        sched = self.scheds[n]
+        while (step := sched.next()) is not None:
+            if isinstance(step, Enter):
+                self._enter(n, step.state)
+            elif isinstance(step, SendPacket):
+                self.records[n].packet_visits += 1
+                self._send(n, step.to, "state", step.packet)
+            elif isinstance(step, Trace):
+                self._trace(n, step.rays, step.primary)
+                return
+            elif not isinstance(step, Flush):
+                raise TypeError(f"unknown scheduler step {step!r}")
+
+    def _enter(self, n: int, state: State) -> None:
+        sched, core = self.scheds[n], self.cores[n]
+        if state in (State.TRACE, State.REFINE):
+            sched.primaries = Primaries(core.primaries(state))
+        elif state == State.FLUSH:
+            self.deposits.extend(core.finished_pixels())
+
+    def _trace(self, n: int, rays, primary: bool) -> None:
+        rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
+        batch = core.trace(rays)
+        batch.counts.pop("cpu_seconds")
+        rec.batches += 1
+        rec.rays_traced += len(rays)
+        for k, v in batch.counts.items():
+            if k != "eye_rays":  # counted where made: passed eye rays are not new ones
+                rec.counts[k] += v
+        if primary:
+            rec.counts["eye_rays"] += len(rays)
+        for dest, deposits in batch.deposits.items():
+            if dest == HOST:
+                self.deposits.append(deposits)
+            elif dest == n:
+                core.film.add(deposits["pixel"], deposits["rgb"])
+            else:
+                self._send(n, dest, "pixels", deposits)
+        for dest, passed in batch.outgoing.items():
+            if dest == n:
+                sched.rays_in(passed, message=False)
+            else:
+                rec.rays_sent += len(passed)
+                self._send(n, dest, "rays", passed)
+        sched.batch_done()

@@ -1,0 +1,57 @@
+"""One node's statistics for one render: rays by kind, rays per link, busy and idle time.
+
+Busy time is wall time with at least one batch on a tracing thread; CPU time is the tracing
+threads' own, so a node sharing its core with others is not charged for their work.
+"""
+
+import time
+from collections import defaultdict
+
+
+class NodeStats:
+    def __init__(self, node: int):
+        self.node = node
+        self.counts: dict[str, int] = defaultdict(int)
+        self.rays_in: dict[int, int] = defaultdict(int)  # neighbour -> rays received from it
+        self.rays_out: dict[int, int] = defaultdict(int)  # next hop -> rays sent to it
+        self.pixel_packets = 0
+        self.batches = 0
+        self.cpu = 0.0
+        self.busy = 0.0
+        self.busy_since = 0.0
+        self.started = time.perf_counter()
+
+    def traced(self, counts: dict, primaries: int) -> None:
+        """A batch finished: its counters, and the primary rays it started here."""
+        self.batches += 1
+        self.cpu += counts.pop("cpu_seconds")
+        for k, v in counts.items():
+            if k != "eye_rays":  # counted where made: passed eye rays are not new ones
+                self.counts[k] += v
+        self.counts["eye_rays"] += primaries
+
+    def turn_busy(self) -> None:
+        self.busy_since = time.perf_counter()
+
+    def turn_idle(self) -> None:
+        self.busy += time.perf_counter() - self.busy_since
+
+    def report(self, engine_stats: dict | None, links: dict[int, dict]) -> dict:
+        """The STATS message's body; `links`: each neighbour link's byte counters."""
+        elapsed = time.perf_counter() - self.started
+        per_link = {str(m): dict(s, rays_sent=self.rays_out[m], rays_received=self.rays_in[m])
+                    for m, s in links.items()}  # fmt: skip
+        return {
+            "node": self.node,
+            "objects": engine_stats["objects"] if engine_stats else 0,
+            "engine": engine_stats or {},
+            "rays": dict(self.counts),
+            "rays_sent": sum(self.rays_out.values()),
+            "rays_received": sum(self.rays_in.values()),
+            "pixel_packets": self.pixel_packets,
+            "batches": self.batches,
+            "busy_seconds": self.busy,
+            "busy_cpu_seconds": self.cpu,
+            "idle_seconds": max(elapsed - self.busy, 0.0),
+            "links": per_link,
+        }

@@ -1,0 +1,218 @@
+"""The records that describe one render, each setting in exactly one place.
+
+    ImageSpec   what picture: size, SPD rules, samples per pixel, ray depth, seed
+    EngineSpec  how each engine is built: grid storage, density, threads
+    MeshPlan    how the work is spread: rows x cols nodes, box overlap, image cuts
+    Partition   what the host planned from those: each node's image rectangle and box
+    RenderSpec  image + engine + plan (+ camera): what the host sends every node in CONFIG
+
+The command line builds them (its defaults are these fields' defaults), the host sends them,
+the node reads them; `sample_grid` is the one place the SPD corner-sampling rule lives.
+"""
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from protocols.camera import CameraSpec
+from protocols.spec import Spec, SpecError
+
+SPD_SIZE = 512  # the SPD rules: 512x512 pixels from 513x513 corner rays ...
+SPD_DEPTH = 5  # ... traced to depth 5 (also the default depth of every render)
+MAX_SIDE = 32768  # pixels along an image side
+MAX_SPP = 65536
+MAX_DEPTH = 64
+MAX_NODES = 1024  # nodes in one mesh
+STORAGES = ("auto", "csr", "hash")
+BALANCES = ("even", "cost")
+
+
+@dataclass(frozen=True)
+class ImageSpec(Spec):
+    """The picture. width/height None: the scene's resolution (`sized` fills them in). spd:
+    the SPD rules (512x512 from 513x513 corner rays, four averaged per pixel, depth 5; a size
+    given with them keeps corner sampling at that size); spp:
+    jittered pinhole samples per pixel (stratified when a square); depth: maximum ray tree
+    depth (eye ray = 1); seed: of every random choice (jitter, lens and film samples)."""
+
+    width: int | None = None
+    height: int | None = None
+    spd: bool = False
+    spp: int = 1
+    depth: int = SPD_DEPTH
+    seed: int = 0
+
+    def check(self) -> None:
+        self.want_int("width", 1, MAX_SIDE, optional=True)
+        self.want_int("height", 1, MAX_SIDE, optional=True)
+        self.want_bool("spd")
+        self.want_int("spp", 1, MAX_SPP)
+        self.want_int("depth", 1, MAX_DEPTH)
+        self.want_int("seed", 0, 2**63 - 1)
+        if self.spd:
+            for name, rule in (("spp", 1), ("depth", SPD_DEPTH)):
+                if getattr(self, name) != rule:
+                    self.fail(name, f"the SPD rules fix it at {rule}")
+
+    def sized(self, view) -> "ImageSpec":
+        """This image with its size filled in from the scene's view (or the SPD rules)."""
+        if self.spd:  # a size given with the SPD rules: corner sampling at that size
+            return replace(self, width=self.width or SPD_SIZE, height=self.height or SPD_SIZE)
+        return replace(self, width=self.width or view.width, height=self.height or view.height)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        if self.width is None or self.height is None:
+            raise SpecError("ImageSpec: size unknown until sized() by the scene's view")
+        return self.width, self.height
+
+    def corners(self, camera: bool = False) -> bool:
+        """Eye rays at pixel corners (the SPD rule), unless a camera makes the rays."""
+        return self.spd and not camera
+
+    def sample_grid(self, camera: bool = False) -> tuple[int, int]:
+        """Columns and rows of primary sample positions: pixel corners under the SPD rules
+        (one more each way), else pixels. Image cuts and node rectangles are on this grid."""
+        w, h = self.size
+        return (w + 1, h + 1) if self.corners(camera) else (w, h)
+
+
+@dataclass(frozen=True)
+class EngineSpec(Spec):
+    """How every engine is built: grid storage (auto: the smaller in memory), density (voxels
+    per object to start from, refined until a voxel holds about 4/density objects), tracing
+    threads (0: one per core; on a mesh, at most this many per node), brute (test every
+    object against every ray: the reference the grid must agree with)."""
+
+    storage: str = "auto"
+    density: float = 1.0
+    threads: int = 0
+    brute: bool = False
+
+    def check(self) -> None:
+        self.want_choice("storage", STORAGES)
+        self.want_number("density", 0.0, 1e6, open_lo=True)
+        self.want_int("threads", 0, 4096)
+        self.want_bool("brute")
+
+
+@dataclass(frozen=True)
+class MeshPlan(Spec):
+    """How the work is spread: a rows x cols torus of nodes, each node's box grown by
+    `overlap` percent of its size, the image cut evenly or where a simulated pre-pass says
+    the nodes' work is even ("cost")."""
+
+    rows: int = 1
+    cols: int = 1
+    overlap: float = 1.0
+    balance: str = "even"
+
+    def check(self) -> None:
+        self.want_int("rows", 1, MAX_NODES)
+        self.want_int("cols", 1, MAX_NODES)
+        if self.rows * self.cols > MAX_NODES:
+            self.fail("cols", f"a mesh has at most {MAX_NODES} nodes ({self.rows} rows)")
+        self.want_number("overlap", 0.0, 1000.0)
+        self.want_choice("balance", BALANCES)
+
+    @property
+    def nodes(self) -> int:
+        return self.rows * self.cols
+
+
+@dataclass(frozen=True)
+class Partition(Spec):
+    """The plan made concrete: node n's rectangle (x0, x1, y0, y1) of the sample grid and its
+    box (lo, hi), and the scene's box."""
+
+    rects: tuple
+    los: tuple
+    his: tuple
+    scene_lo: tuple
+    scene_hi: tuple
+
+    def check(self) -> None:
+        n = len(self.rects) if isinstance(self.rects, tuple) else -1
+        if not 1 <= n <= MAX_NODES:
+            self.fail("rects", f"must list 1 to {MAX_NODES} rectangles")
+        r = _array(self, "rects", np.int64, (n, 4))
+        if np.any(r < 0) or np.any(r > MAX_SIDE + 1) or np.any(r[:, 1] < r[:, 0]) or np.any(
+            r[:, 3] < r[:, 2]):  # fmt: skip
+            self.fail("rects", "each must be x0 <= x1, y0 <= y1 inside the image")
+        los, his = _array(self, "los", float, (n, 3)), _array(self, "his", float, (n, 3))
+        if np.any(los > his):
+            self.fail("his", "every box needs lo <= hi")
+        if np.any(_array(self, "scene_lo", float, (3,)) > _array(self, "scene_hi", float, (3,))):
+            self.fail("scene_hi", "the scene box needs lo <= hi")
+
+    @classmethod
+    def make(cls, rects, los, his, scene_box) -> "Partition":
+        def rows(a):
+            return tuple(tuple(x) for x in np.asarray(a).tolist())
+
+        return cls(rows(rects), rows(los), rows(his), *(tuple(np.asarray(b, float).tolist())
+                                                       for b in scene_box))  # fmt: skip
+
+    @classmethod
+    def decode(cls, values: dict) -> dict:
+        def tup(v):
+            return tuple(tup(x) for x in v) if isinstance(v, list | tuple) else v
+
+        return {k: tup(v) for k, v in values.items()}
+
+    @property
+    def nodes(self) -> int:
+        return len(self.rects)
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.los, float), np.array(self.his, float)
+
+    @property
+    def scene_box(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.scene_lo, float), np.array(self.scene_hi, float)
+
+
+def _array(spec: Spec, name: str, dtype, shape) -> np.ndarray:
+    """A field of nested tuples as a finite array of `shape`, or SpecError naming it."""
+    try:
+        a = np.array(getattr(spec, name), dtype=dtype)
+    except (TypeError, ValueError, OverflowError):
+        spec.fail(name, f"must be numbers shaped {shape}")
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        spec.fail(name, f"must be finite numbers shaped {shape}")
+    return a
+
+
+@dataclass(frozen=True)
+class RenderSpec(Spec):
+    """One render as every node receives it: the image (sized), engine choices, mesh plan,
+    and the camera (None: the NFF pinhole)."""
+
+    image: ImageSpec
+    engine: EngineSpec = EngineSpec()
+    plan: MeshPlan = MeshPlan()
+    camera: CameraSpec | None = None
+
+    NESTED: ClassVar[dict] = {"image": ImageSpec, "engine": EngineSpec, "plan": MeshPlan,
+                              "camera": CameraSpec}  # fmt: skip
+
+    def check(self) -> None:
+        for name, record in self.NESTED.items():
+            value = getattr(self, name)
+            if not isinstance(value, record) and not (name == "camera" and value is None):
+                self.fail(name, f"must be a {record.__name__}")
+        if self.image.width is None or self.image.height is None:
+            self.fail("image", "a render needs a sized image (ImageSpec.sized)")
+        if self.camera is not None and self.image.spp != 1:
+            self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, "
+                               "not spp")  # fmt: skip
+
+    @property
+    def sample_grid(self) -> tuple[int, int]:
+        return self.image.sample_grid(self.camera is not None)
+
+    @property
+    def corners(self) -> bool:
+        return self.image.corners(self.camera is not None)

@@ -1,0 +1,84 @@
+"""The node's scheduler alone (no sockets, no clock): what it traces first, what it holds
+back, when it passes the state packet, and that a ring of one walks every state once."""
+
+import numpy as np
+
+from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.termination import Packet, State
+from protocols.dtypes import RAY
+
+
+def rays(n: int) -> np.ndarray:
+    return np.zeros(n, RAY)
+
+
+def tracing(nodes: int = 2, threads: int = 1, high: int = 1000) -> Scheduler:
+    """Node 1 of a ring of `nodes`, in TRACE with three primary batches of 10 rays."""
+    s = Scheduler(1, 0, nodes, threads, high)
+    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(nodes, np.int64),
+                       np.zeros(nodes, np.int64)))  # fmt: skip
+    assert s.next() == Enter(State.TRACE)
+    s.primaries = Primaries(rays(10) for _ in range(3))
+    return s
+
+
+def test_incoming_rays_go_before_primaries_and_threads_bound_the_batches():
+    s = tracing(threads=2)
+    s.rays_in(rays(7))
+    first, second = s.next(), s.next()
+    assert isinstance(first, Trace) and not first.primary and len(first.rays) == 7
+    assert isinstance(second, Trace) and second.primary
+    assert s.next() is None  # two threads, two batches in flight
+    s.batch_done()
+    assert isinstance(s.next(), Trace)
+
+
+def test_no_new_primaries_while_the_links_are_full_but_incoming_rays_still_run():
+    s = tracing()
+    assert s.next(room=False) is None
+    s.rays_in(rays(3))
+    step = s.next(room=False)
+    assert isinstance(step, Trace) and not step.primary
+    s.batch_done()
+    assert s.next(room=False) == Flush()  # idle: buffered deposits go out
+    assert s.next(room=False) is None  # primaries wait for room; the packet waits for them
+    assert isinstance(s.next(room=True), Trace)
+
+
+def test_output_is_flushed_before_the_packet_moves_and_the_packet_waits_for_work():
+    s = tracing()
+    for _ in range(3):
+        assert isinstance(s.next(), Trace)
+        s.batch_done()
+    assert s.next() == Flush()
+    step = s.next()
+    assert isinstance(step, SendPacket) and step.to == 0
+    assert step.packet.last_busy == 1  # it worked since the packet's last visit
+    assert s.next() is None
+
+
+def test_reading_stops_above_the_high_water_mark_and_resumes_at_a_quarter():
+    s = tracing(high=100)
+    assert not s.rays_in(rays(60))
+    assert s.rays_in(rays(60))  # 120 queued: stop reading
+    assert not s.may_read
+    s.next()  # 60 taken to trace: 60 left, above a quarter
+    assert not s.may_read
+    s.batch_done()
+    s.next()
+    assert s.may_read
+
+
+def test_a_ring_of_one_walks_every_state_once_and_stops():
+    s = Scheduler(0, 0, 1)
+    entered, steps = [], 0
+    while (step := s.next()) is not None and steps < 100:
+        steps += 1
+        if isinstance(step, Enter):
+            entered.append(step.state)
+            if step.state == State.TRACE:
+                s.primaries = Primaries([rays(5)])
+        elif isinstance(step, Trace):
+            s.batch_done()
+    assert entered == [State.TRACE, State.REFINE, State.FLUSH, State.DONE]
+    assert s.done and steps < 100

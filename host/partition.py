@@ -72,7 +72,7 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
 
 
 def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
-               overlap: float = 1.0, xs=None, ys=None):  # fmt: skip
+               overlap: float, xs=None, ys=None):  # fmt: skip
     """(los, his), each (rows*cols, 3): node r*cols+c's box of object space, cut where rays
     through the rectangles' boundaries (`xs`, `ys`; default even) meet the scene."""
     if overlap < 0:

@@ -13,6 +13,7 @@ import logging
 
 import numpy as np
 
+from meshnode.config import Config
 from meshnode.link import Link, LinkClosed, Outbox
 from meshnode.node import HOST, NodeCore
 from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
@@ -20,39 +21,13 @@ from meshnode.stats import NodeStats
 from meshnode.termination import Packet, State
 from protocols.errors import BadFrame, describe
 from protocols.messages import OBJECT_TABLES, Kind, make
-from protocols.render import Partition, RenderSpec
-from protocols.scene import SceneData, View
-from protocols.spec import SpecError
-from protocols.topology import Router, Torus
+from protocols.scene import SceneData
+from protocols.topology import Router
 
 log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
-
-
-class Config:
-    """A CONFIG message read and checked: SpecError or BadFrame name what is wrong."""
-
-    def __init__(self, f: dict):
-        self.render = RenderSpec.from_wire(f["render"])
-        self.partition = Partition.from_wire(f["partition"])
-        plan = self.render.plan
-        self.torus = Torus(plan.rows, plan.cols)
-        if self.partition.nodes != plan.nodes:
-            raise SpecError(f"Partition has {self.partition.nodes} nodes, the plan {plan.nodes}")
-        if not 0 <= f["node"] < plan.nodes:
-            raise BadFrame(f"CONFIG.node = {f['node']}: must be from 0 to {plan.nodes - 1}")
-        self.node = f["node"]
-        self.neighbours = f["neighbours"]
-        for m in self.torus.links(self.node):
-            if not isinstance(self.neighbours.get(str(m)), str):
-                raise BadFrame(f"CONFIG.neighbours has no address for node {m}")
-        try:
-            view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
-        except TypeError as e:
-            raise BadFrame(f"CONFIG.view: {e}") from None
-        self.view, self.background = view, tuple(f["background"])
 
 
 class Session:

@@ -155,3 +155,17 @@ def test_torus_rejects_empty_and_foreign_nodes():
         Torus(0, 3)
     with pytest.raises(ValueError):
         Torus(2, 2).coords(4)
+
+
+def test_error_descriptions_are_never_empty():
+    from protocols.errors import describe
+
+    assert describe(TimeoutError()) == "TimeoutError (no message)"
+    assert describe(ValueError("bad depth")) == "ValueError: bad depth"
+    try:
+        try:
+            raise ConnectionResetError("peer reset")
+        except ConnectionResetError as e:
+            raise TimeoutError() from e
+    except TimeoutError as e:
+        assert describe(e) == "TimeoutError (ConnectionResetError: peer reset)"

@@ -1,0 +1,36 @@
+"""A node's configuration for one render: the CONFIG message read and checked.
+
+Everything the host sends is checked before the node acts on it: the render's records check
+their own fields, and the message's node index, neighbour addresses and view must fit the
+plan. SpecError or BadFrame names what is wrong; the service sends that back to the host.
+"""
+
+from protocols.errors import BadFrame
+from protocols.render import Partition, RenderSpec
+from protocols.scene import View
+from protocols.spec import SpecError
+from protocols.topology import Torus
+
+
+class Config:
+    """A CONFIG message read and checked: SpecError or BadFrame name what is wrong."""
+
+    def __init__(self, f: dict):
+        self.render = RenderSpec.from_wire(f["render"])
+        self.partition = Partition.from_wire(f["partition"])
+        plan = self.render.plan
+        self.torus = Torus(plan.rows, plan.cols)
+        if self.partition.nodes != plan.nodes:
+            raise SpecError(f"Partition has {self.partition.nodes} nodes, the plan {plan.nodes}")
+        if not 0 <= f["node"] < plan.nodes:
+            raise BadFrame(f"CONFIG.node = {f['node']}: must be from 0 to {plan.nodes - 1}")
+        self.node = f["node"]
+        self.neighbours = f["neighbours"]
+        for m in self.torus.links(self.node):
+            if not isinstance(self.neighbours.get(str(m)), str):
+                raise BadFrame(f"CONFIG.neighbours has no address for node {m}")
+        try:
+            view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
+        except TypeError as e:
+            raise BadFrame(f"CONFIG.view: {e}") from None
+        self.view, self.background = view, tuple(f["background"])

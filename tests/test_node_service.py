@@ -1,0 +1,94 @@
+"""The node service in this process, on loopback: its lifecycle and what it tells a host
+that it cannot serve. No subprocesses; every wait is bounded."""
+
+import asyncio
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+
+from meshnode.link import Link, LinkClosed
+from meshnode.service import NodeService
+from protocols.handshake import check_hello, hello
+from protocols.messages import Kind, make
+from protocols.render import ImageSpec, MeshPlan, Partition, RenderSpec
+from protocols.scene import View
+
+VIEW = View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0)
+
+
+def config(node=0, plan=None, **render_wire):
+    plan = plan or MeshPlan()
+    spec = RenderSpec(ImageSpec(width=4, height=4), plan=plan)
+    n = plan.nodes
+    part = Partition.make([(0, 4, 0, 4)] * n, np.zeros((n, 3)), np.ones((n, 3)),
+                          (np.zeros(3), np.ones(3)))  # fmt: skip
+    render = spec.to_wire()
+    for record, changes in render_wire.items():
+        render[record].update(changes)
+    return make(Kind.CONFIG, node=node, neighbours={str(m): "127.0.0.1:9" for m in range(n)},
+                render=render, partition=part.to_wire(), view=asdict(VIEW),
+                background=[0, 0, 0])  # fmt: skip
+
+
+async def host_link(port: int) -> Link:
+    link = await Link.connect(f"127.0.0.1:{port}", "node under test")
+    await link.send(hello("meshtrace", "host"))
+    check_hello(await link.recv_raw(), "meshtrace")
+    return link
+
+
+async def started() -> NodeService:
+    service = NodeService("127.0.0.1", 0)
+    await service.start()
+    return service
+
+
+async def test_a_bad_config_is_answered_with_the_field_it_names():
+    service = await started()
+    try:
+        link = await host_link(service.port)
+        await link.send(config(image={"depth": 0}))
+        kind, f = await asyncio.wait_for(link.recv(), 10)
+        assert kind is Kind.ERROR and "ImageSpec.depth = 0" in f["reason"]
+        link = await host_link(service.port)
+        await link.send(config(node=7))
+        kind, f = await asyncio.wait_for(link.recv(), 10)
+        assert kind is Kind.ERROR and "CONFIG.node = 7" in f["reason"]
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_second_host_is_refused_while_one_renders():
+    service = await started()
+    try:
+        first = await host_link(service.port)
+        await first.send(config())  # a session starts; no objects yet
+        await _heartbeat(first)
+        second = await host_link(service.port)
+        kind, f = await asyncio.wait_for(second.recv(), 10)
+        assert kind is Kind.ERROR and "another host" in f["reason"]
+        assert service.session is not None  # the first render goes on
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_shutdown_closes_every_link_and_awaits_every_task():
+    service = await started()
+    link = await host_link(service.port)
+    await link.send(config())
+    await _heartbeat(link)
+    session = service.session
+    tasks = set(session.tasks) | set(service.tasks)
+    assert tasks
+    await asyncio.wait_for(service.shutdown(), 10)
+    assert all(t.done() for t in tasks)
+    assert not service.server.is_serving()
+    with pytest.raises(LinkClosed):  # the host sees its link closed, not a hang
+        await asyncio.wait_for(link.recv(), 10)
+
+
+async def _heartbeat(link: Link) -> None:
+    """The session's first sign of life: a PROGRESS that says it is not ready yet."""
+    kind, f = await asyncio.wait_for(link.recv(), 10)
+    assert kind is Kind.PROGRESS and not f["ready"]

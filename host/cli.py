@@ -8,6 +8,7 @@ import argparse
 import asyncio
 import json
 import os
+import secrets
 import sys
 from pathlib import Path
 
@@ -64,6 +65,8 @@ def _parser() -> argparse.ArgumentParser:
                         "auto: one node per core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
+                   "a local mesh makes its own")  # fmt: skip
     _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
            type=float)  # fmt: skip
     _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
@@ -265,18 +268,22 @@ def _records(args):
 def _run(scene, image, engine, camera, args):
     """Single node in this process, a local mesh of processes, or a running cluster."""
     if args.cluster:
+        from protocols.handshake import read_secret
+
         rows, cols, addresses = read_cluster(args.cluster)
         plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
-        return _mesh(scene, image, engine, plan, camera, addresses, args)
+        secret = read_secret(args.secret_file)
+        return _mesh(scene, image, engine, plan, camera, addresses, secret, args)
     rows, cols = parse_mesh(args.mesh)
     plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
     if plan.nodes == 1:
         return render(scene, image, engine, camera, progress=not args.quiet)
-    with LocalMesh(plan.nodes) as addresses:
-        return _mesh(scene, image, engine, plan, camera, addresses, args)
+    secret = secrets.token_hex(32).encode()  # this render's own: other users cannot join
+    with LocalMesh(plan.nodes, secret=secret) as addresses:
+        return _mesh(scene, image, engine, plan, camera, addresses, secret, args)
 
 
-def _mesh(scene, image, engine, plan, camera, addresses, args):
+def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
     from tqdm import tqdm
 
     sized = image.sized(scene.view)
@@ -288,7 +295,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, args):
                file=sys.stderr, disable=args.quiet, leave=False)  # fmt: skip
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
-                                          progress=bar.update))  # fmt: skip
+                                          secret=secret, progress=bar.update))  # fmt: skip
     finally:
         bar.close()
 

@@ -9,32 +9,36 @@ import numpy as np
 
 
 class Framebuffer:
-    """Sample colours of one frame. SPD mode holds (W+1) x (H+1) corner samples averaged four to
-    a pixel; otherwise W x H x spp samples averaged per pixel."""
+    """Colour sums of one frame. SPD mode holds (W+1) x (H+1) corner samples averaged four to
+    a pixel; otherwise one sum per pixel over its `spp` samples (memory does not grow with
+    the samples per pixel), divided by spp at the end."""
 
     def __init__(self, width: int, height: int, corners: bool, spp: int = 1):
         self.width, self.height, self.corners = width, height, corners
         self.spp = 1 if corners else spp
-        n = (width + 1) * (height + 1) if corners else width * height * self.spp
-        self.samples = np.zeros((n, 3))
+        n = (width + 1) * (height + 1) if corners else width * height
+        self.sums = np.zeros((n, 3))
 
     def add(self, sample_ids: np.ndarray, rgb: np.ndarray) -> None:
-        """Sum deposits into their samples (ids may repeat); work is over the ids' range only,
-        so adding a band of rays costs the band, not the frame."""
+        """Sum deposits into their corner samples or pixels (ids may repeat); work is over the
+        ids' range only, so adding a band of rays costs the band, not the frame."""
         if len(sample_ids) == 0:
             return
-        lo, hi = int(sample_ids.min()), int(sample_ids.max()) + 1
-        local = sample_ids - lo
+        cells = sample_ids if self.corners else sample_ids // self.spp
+        lo, hi = int(cells.min()), int(cells.max()) + 1
+        if lo < 0 or hi > len(self.sums):
+            raise ValueError(f"deposits for samples outside the frame ({lo}..{hi - 1})")
+        local = cells - lo
         for c in range(3):
-            self.samples[lo:hi, c] += np.bincount(local, weights=rgb[:, c], minlength=hi - lo)
+            self.sums[lo:hi, c] += np.bincount(local, weights=rgb[:, c], minlength=hi - lo)
 
     def image(self) -> np.ndarray:
         """Linear float image (H, W, 3), row 0 at the top."""
         w, h = self.width, self.height
         if self.corners:
-            s = self.samples.reshape(h + 1, w + 1, 3)
+            s = self.sums.reshape(h + 1, w + 1, 3)
             return 0.25 * (s[:-1, :-1] + s[:-1, 1:] + s[1:, :-1] + s[1:, 1:])
-        return self.samples.reshape(h, w, self.spp, 3).mean(axis=2)
+        return self.sums.reshape(h, w, 3) / self.spp
 
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:

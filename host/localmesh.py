@@ -17,12 +17,15 @@ class LocalMesh:
     HOST:PORT per node) and `wrap` (a command prefix per node, such as `ip netns exec NS`)
     place nodes elsewhere on this machine, for tests over real network devices; `module`
     (a `meshnode.cli` look-alike), `options` (more `serve` options) and `env` start them
-    differently, for tests that inject faults."""
+    differently, for tests that inject faults; `secret`: the cluster secret the nodes get
+    (in their environment, never on a command line other users can read)."""
 
     def __init__(self, n: int, cluster: str = "meshtrace", start_timeout: float = 60.0,
                  listen: list[str] | None = None, wrap=None, threads: int = 1,
-                 module: str = "meshnode.cli", options=(), env=None):  # fmt: skip
+                 module: str = "meshnode.cli", options=(), env=None,
+                 secret: bytes | None = None):  # fmt: skip
         self.n, self.cluster, self.timeout, self.threads = n, cluster, start_timeout, threads
+        self.secret = secret
         self.module, self.options, self.env = module, list(options), env
         self.listen = listen or ["127.0.0.1:0"] * n
         self.wrap = wrap or (lambda i: [])
@@ -35,12 +38,19 @@ class LocalMesh:
                     [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
                      self.listen[i], "--cluster", self.cluster, "--once", "--threads",
                      str(self.threads), *self.options],
-                    stdout=subprocess.PIPE, text=True, env={**os.environ, **(self.env or {})},
+                    stdout=subprocess.PIPE, text=True, env=self._environment(),
                 ))  # fmt: skip
             return [self._address(p) for p in self.procs]
         except BaseException:
             self.__exit__(None, None, None)
             raise
+
+    def _environment(self) -> dict:
+        env = {**os.environ, **(self.env or {})}
+        env.pop("MESHTRACE_SECRET", None)
+        if self.secret is not None:
+            env["MESHTRACE_SECRET"] = self.secret.decode()
+        return env
 
     def _address(self, proc: subprocess.Popen) -> str:
         """The address a node prints once bound; waiting at most `timeout` seconds for it."""

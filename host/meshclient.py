@@ -16,9 +16,8 @@ from host.camerasetup import CameraSetup
 from host.framebuffer import Framebuffer
 from host.partition import subset
 from host.plan import Planned, plan_render
-from meshnode.link import Link, LinkClosed
+from meshnode.link import Link, LinkClosed, dial
 from protocols.errors import ProtocolError, describe
-from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from protocols.scene import SceneData
@@ -48,9 +47,10 @@ async def _download(link: Link, scene: SceneData) -> None:
 async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str],
                          plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
-                         progress=None, silence: float = 15.0,
+                         secret: bytes | None = None, progress=None, silence: float = 15.0,
                          stall: float = 180.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
+    `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced; `silence`: seconds
     without a message from a node (they send one a second) before the render is given up
     naming it; `stall`: seconds in which no node traces anything once all are built (all
@@ -60,7 +60,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          f"got {len(addresses)}")  # fmt: skip
     start = time.perf_counter()
     planned = plan_render(scene, image, engine, plan, camera)
-    links = await _configure(scene, planned, addresses, cluster)
+    links = await _configure(scene, planned, addresses, cluster, secret)
     setup = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
@@ -82,17 +82,15 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     return fb.image(), summary
 
 
-async def _configure(scene, planned: Planned, addresses, cluster) -> list[Link]:
-    """Connect to every node, say HELLO, send its CONFIG and its objects."""
+async def _configure(scene, planned: Planned, addresses, cluster, secret) -> list[Link]:
+    """Connect to every node (both sides proving the secret), send its CONFIG and objects."""
     links: list[Link] = []
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     render, part = planned.spec.to_wire(), planned.partition.to_wire()
     try:
         for n, address in enumerate(addresses):
-            link = await Link.connect(address, f"node {n} ({address})")
+            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host")
             links.append(link)
-            await link.send(hello(cluster, "host"))
-            check_hello(await link.recv_raw(), cluster)
         for n, link in enumerate(links):
             await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,
                                  partition=part, view=asdict(scene.view),

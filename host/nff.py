@@ -227,15 +227,18 @@ class _Scan:
         if not 0.0 < angle[0] < 180.0:
             raise self.error(at + 1, f"view angle must be in (0, 180) degrees, got {angle[0]:g}")
         width, height = got.get("resolution", ([512, 512], i))[0]
-        self.view = View(
-            eye=tuple(got["from"][0]),
-            at=tuple(got["at"][0]),
-            up=tuple(got["up"][0]),
-            angle=angle[0],
-            hither=got.get("hither", ([0.0], i))[0][0],
-            width=width,
-            height=height,
-        )
+        try:
+            self.view = View(
+                eye=tuple(got["from"][0]),
+                at=tuple(got["at"][0]),
+                up=tuple(got["up"][0]),
+                angle=angle[0],
+                hither=got.get("hither", ([0.0], i))[0][0],
+                width=width,
+                height=height,
+            )
+        except ValueError as e:
+            raise self.error(i, str(e)) from None
         return j
 
     def read_material(self, i: int) -> None:

@@ -55,7 +55,14 @@ def parse(argv=None) -> argparse.Namespace:
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("warmup", help="compile the tracing kernels into the disk cache")
     s = sub.add_parser("serve", help="serve as a mesh node")
-    s.add_argument("--listen", default="0.0.0.0:7700", help="HOST:PORT (port 0: any free)")
+    s.add_argument("--listen", default="127.0.0.1:7700",
+                   help="HOST:PORT (default 127.0.0.1:7700; port 0: any free); another "
+                        "address than loopback needs a cluster secret")  # fmt: skip
+    s.add_argument("--secret-file", help="the cluster secret (default: $MESHTRACE_SECRET); "
+                   "every host and node of the cluster must prove it holds the same one")
+    s.add_argument("--insecure", action="store_true",
+                   help="listen beyond loopback without a secret: anyone who reaches the port "
+                        "can use the node")  # fmt: skip
     s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
     s.add_argument("--once", action="store_true", help="exit after one render")
     s.add_argument("--threads", type=int, default=0,
@@ -70,13 +77,37 @@ def main(argv=None) -> int:
     args = parse(argv)
     if args.command == "warmup":
         print(f"kernels ready in {warmup():.2f} s", file=sys.stderr)
-    elif args.command == "serve":
-        return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high)
-    return 0
+        return 0
+    try:
+        secret = serving_secret(args)
+    except (ValueError, OSError) as e:
+        print(f"meshnode: {e}", file=sys.stderr)
+        return 2
+    return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
+                 secret=secret)  # fmt: skip
+
+
+def serving_secret(args) -> bytes | None:
+    """The cluster secret, and the rule that only loopback may go without one."""
+    import ipaddress
+
+    from protocols.handshake import read_secret
+
+    secret = read_secret(args.secret_file)
+    host = args.listen.rsplit(":", 1)[0].strip("[]")
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = host == "localhost"
+    if secret is None and not loopback and not args.insecure:
+        raise ValueError(f"--listen {args.listen} reaches beyond this machine: give a cluster "
+                         "secret (MESHTRACE_SECRET or --secret-file), or --insecure")
+    return secret
 
 
 def serve(listen: str, cluster: str, once: bool, threads: int = 0,
-          incoming_high: int = INCOMING_HIGH, service_class=None) -> int:  # fmt: skip
+          incoming_high: int = INCOMING_HIGH, service_class=None,
+          secret: bytes | None = None) -> int:  # fmt: skip
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
     import logging
@@ -91,8 +122,12 @@ def serve(listen: str, cluster: str, once: bool, threads: int = 0,
 
     async def main():
         service = service_class(host, int(port), cluster, once, threads or os.cpu_count() or 1,
-                                incoming_high)  # fmt: skip
-        bound = await service.start()
+                                incoming_high, secret)  # fmt: skip
+        try:
+            bound = await service.start()
+        except OSError as e:
+            print(f"meshnode: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
+            return 2
         print(f"listening {host}:{bound}", flush=True)
         await service.run()
 
@@ -103,10 +138,9 @@ def serve(listen: str, cluster: str, once: bool, threads: int = 0,
     except ImportError:
         runner = asyncio.run
     try:
-        runner(main())
+        return runner(main()) or 0
     except KeyboardInterrupt:
         return 130
-    return 0
 
 
 if __name__ == "__main__":

@@ -31,6 +31,6 @@ class Config:
                 raise BadFrame(f"CONFIG.neighbours has no address for node {m}")
         try:
             view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
-        except TypeError as e:
+        except (TypeError, ValueError) as e:
             raise BadFrame(f"CONFIG.view: {e}") from None
         self.view, self.background = view, tuple(f["background"])

@@ -9,11 +9,14 @@ names the peer and chains the cause.
 import asyncio
 from collections import deque
 
-from protocols.errors import ProtocolError
+from protocols.errors import AuthFailed, ProtocolError, describe
 from protocols.framing import MAX_FRAME, FrameDecoder, encode
-from protocols.messages import parse
+from protocols.handshake import auth, check_auth, check_hello, hello, nonce
+from protocols.messages import Kind, make, parse
 
 HIGH_WATER = 4 * 1024 * 1024  # bytes buffered in the transport before send() waits
+HANDSHAKE_FRAME = 4096  # largest frame a peer may send before it has proved the secret
+HANDSHAKE_SECONDS = 10.0  # a peer that has not finished the handshake by then is dropped
 
 
 class LinkClosed(ConnectionError):
@@ -33,14 +36,19 @@ class Link:
         self._ready: list = []
         self.stats = {"messages_out": 0, "bytes_out": 0, "messages_in": 0, "bytes_in": 0}
 
+    def allow(self, max_frame: int) -> None:
+        """Accept frames up to `max_frame` bytes from now on (after the handshake)."""
+        self.max_frame = self._decoder.max_frame = max_frame
+
     @classmethod
-    async def connect(cls, address: str, peer: str, retries: int = 50) -> "Link":
+    async def connect(cls, address: str, peer: str, retries: int = 50,
+                      max_frame: int = MAX_FRAME) -> "Link":  # fmt: skip
         """Connect to HOST:PORT, retrying briefly while the peer starts listening."""
         host, port = address.rsplit(":", 1)
         for attempt in range(retries):
             try:
                 reader, writer = await asyncio.open_connection(host, int(port))
-                return cls(reader, writer, peer)
+                return cls(reader, writer, peer, max_frame)
             except OSError as e:
                 if attempt == retries - 1:
                     raise LinkClosed(peer, f"cannot connect to {address}: {e}") from e
@@ -130,3 +138,65 @@ class Outbox:
         self.task.cancel()
         await asyncio.gather(self.task, return_exceptions=True)
         await self.link.close()
+
+
+async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
+               node: int = -1) -> tuple[Link, dict]:  # fmt: skip
+    """Connect to a node and prove the cluster secret both ways (protocols.handshake); returns
+    the link, open for whole frames, and the node's HELLO fields. LinkClosed names the peer
+    and why it refused or could not be reached."""
+    link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME)
+    try:
+        theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node),
+                                        HANDSHAKE_SECONDS)  # fmt: skip
+    except (ProtocolError, LinkClosed, TimeoutError) as e:
+        await link.close()
+        reason = e.reason if isinstance(e, LinkClosed) else describe(e)
+        raise LinkClosed(peer, f"handshake failed: {reason}") from e
+    link.allow(MAX_FRAME)
+    return link, theirs
+
+
+async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int) -> dict:
+    mine = parse(hello(cluster, role, node, nonce()))[1]
+    await link.send(make(Kind.HELLO, **mine))
+    theirs = check_hello(await link.recv_raw(), cluster)
+    check_auth(await link.recv_raw(), secret, "listener", mine, theirs["nonce"])
+    await link.send(auth(secret, "dialler", mine, theirs["nonce"]))
+    kind, f = parse(await link.recv_raw())
+    if kind is Kind.ERROR:
+        raise AuthFailed(f"refused by the node: {f['reason']}")
+    if kind is not Kind.WELCOME:
+        raise AuthFailed(f"expected WELCOME, got {kind.name}")
+    return theirs
+
+
+async def answer(link: Link, cluster: str, secret: bytes | None, node: int) -> dict:
+    """The listener's side of the handshake, bounded in time and frame size: the dialler's
+    HELLO fields once it has proved the secret; otherwise it is told why, the link is
+    closed and ProtocolError or LinkClosed raised."""
+    link.allow(HANDSHAKE_FRAME)
+    try:
+        return await asyncio.wait_for(_listener(link, cluster, secret or b"", node),
+                                      HANDSHAKE_SECONDS)  # fmt: skip
+    except TimeoutError:
+        await link.close()
+        raise LinkClosed(link.peer, f"no handshake within {HANDSHAKE_SECONDS:g} s") from None
+    except ProtocolError as e:
+        try:
+            await link.send(make(Kind.ERROR, reason=describe(e)))
+        except LinkClosed:
+            pass
+        await link.close()
+        raise
+
+
+async def _listener(link: Link, cluster: str, secret: bytes, node: int) -> dict:
+    dialler = check_hello(await link.recv_raw(), cluster)
+    mine = nonce()
+    await link.send(hello(cluster, "node", node, mine))
+    await link.send(auth(secret, "listener", dialler, mine))
+    check_auth(await link.recv_raw(), secret, "dialler", dialler, mine)
+    await link.send(make(Kind.WELCOME))
+    link.allow(MAX_FRAME)
+    return dialler

@@ -10,25 +10,28 @@ import asyncio
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
-from meshnode.link import Link, LinkClosed
+from meshnode.link import Link, LinkClosed, answer, dial
 from meshnode.scheduler import INCOMING_HIGH
 from meshnode.session import Config, Session
 from protocols.errors import BadFrame, ProtocolError, describe
-from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make
 
 log = logging.getLogger("meshnode")
+MAX_CONNECTIONS = 64  # links open at once (a mesh node needs its host and four neighbours)
 
 
 class NodeService:
     """Listens on one address; serves renders one after another until stopped.
 
     `threads`: batches traced at once; `incoming_high`: queued incoming rays at which the
-    node stops reading from its neighbours; `once`: stop after the first host leaves."""
+    node stops reading from its neighbours; `once`: stop after the first host leaves;
+    `secret`: the cluster secret every peer must prove (None: the empty key, loopback use)."""
 
     def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False,
-                 threads: int = 1, incoming_high: int = INCOMING_HIGH):  # fmt: skip
+                 threads: int = 1, incoming_high: int = INCOMING_HIGH,
+                 secret: bytes | None = None):  # fmt: skip
         self.address, self.port, self.cluster, self.once = host, port, cluster, once
+        self.secret = secret
         self.threads = max(1, threads)
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
@@ -86,14 +89,12 @@ class NodeService:
         return link
 
     async def dial(self, m: int, address: str) -> Link:
-        """Connect to neighbour m and exchange HELLO."""
-        link = await Link.connect(address, f"node {m} ({address})")
-        try:
-            await link.send(hello(self.cluster, "node", self.session.node))
-            check_hello(await link.recv_raw(), self.cluster)
-        except (ProtocolError, LinkClosed):
+        """Connect to neighbour m, both sides proving the cluster secret."""
+        link, theirs = await dial(address, f"node {m} ({address})", self.cluster, self.secret,
+                                  "node", self.session.node)  # fmt: skip
+        if theirs["node"] != m:
             await link.close()
-            raise
+            raise LinkClosed(link.peer, f"it says it is node {theirs['node']}, not node {m}")
         return self.wrap(m, link)
 
     async def wait_links(self, session: Session) -> None:
@@ -113,20 +114,41 @@ class NodeService:
     async def accept(self, reader, writer) -> None:
         peer = "{}:{}".format(*writer.get_extra_info("peername")[:2])
         link = Link(reader, writer, peer)
-        try:
-            fields = check_hello(await link.recv_raw(), self.cluster)
-            me = self.session.node if self.session else -1
-            await link.send(hello(self.cluster, "node", me))
-        except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
-            log.warning("refused %s: %s", peer, describe(e))
+        if len(self.tasks) > MAX_CONNECTIONS:
+            log.warning("refused %s: %d links open already", peer, MAX_CONNECTIONS)
             await link.close()
             return
+        me = self.session.node if self.session else -1
+        try:
+            fields = await answer(link, self.cluster, self.secret, me)
+        except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
+            log.warning("refused %s: %s", peer, describe(e))
+            return
         if fields["role"] == "node":
-            link.peer = f"node {fields['node']} ({peer})"
-            self.pending[fields["node"]] = self.wrap(fields["node"], link)
-            self.links_ready.set()
+            self.neighbour(fields["node"], link)
             return
         await self.serve_host(link)
+
+    def neighbour(self, m: int, link: Link) -> None:
+        """Keep a link a neighbour opened until its session takes it: only the current
+        session's neighbours, one link each (a newer one replaces an older)."""
+        session = self.session
+        if session is not None and m not in session.config.torus.links(session.node):
+            log.warning("refused %s: node %d is not a neighbour of node %d", link.peer, m,
+                        session.node)  # fmt: skip
+            self._spawn(link.close())
+            return
+        link.peer = f"node {m} ({link.peer})"
+        old = self.pending.pop(m, None)
+        if old is not None:
+            self._spawn(old.close())
+        self.pending[m] = self.wrap(m, link)
+        self.links_ready.set()
+
+    def _spawn(self, coro) -> None:
+        task = asyncio.create_task(coro)
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
 
     # ------------------------------------------------------------------ the host
     async def serve_host(self, link: Link) -> None:

@@ -28,6 +28,7 @@ log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
+MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node
 
 
 class Session:
@@ -43,6 +44,7 @@ class Session:
                                threads, service.incoming_high)  # fmt: skip
         self.stats = NodeStats(self.node)
         self.tables: dict[str, list] = {}
+        self.object_bytes = 0
         self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
         self.wake = asyncio.Event()
@@ -75,6 +77,10 @@ class Session:
 
     # ------------------------------------------------------------------ setup
     def add_objects(self, table: str, records: np.ndarray) -> None:
+        """Keep a batch of the node's objects; a render may send at most MAX_OBJECT_BYTES."""
+        self.object_bytes += records.nbytes
+        if self.object_bytes > MAX_OBJECT_BYTES:
+            raise BadFrame(f"OBJECTS: more than {MAX_OBJECT_BYTES >> 20} MiB of objects")
         self.tables.setdefault(table, []).append(np.array(records))
 
     def scene(self) -> SceneData:

@@ -4,6 +4,8 @@ Busy time is wall time with at least one batch on a tracing thread; CPU time is 
 threads' own, so a node sharing its core with others is not charged for their work.
 """
 
+import resource
+import sys
 import time
 from collections import defaultdict
 
@@ -54,4 +56,11 @@ class NodeStats:
             "busy_cpu_seconds": self.cpu,
             "idle_seconds": max(elapsed - self.busy, 0.0),
             "links": per_link,
+            "peak_rss_bytes": peak_rss(),
         }
+
+
+def peak_rss() -> int:
+    """This process's peak resident memory in bytes (Linux reports KiB, macOS bytes)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)

@@ -22,6 +22,10 @@ class VersionMismatch(ProtocolError):
     """The peer speaks another protocol version or belongs to another cluster."""
 
 
+class AuthFailed(ProtocolError):
+    """The peer could not prove it holds the cluster secret (or this side could not)."""
+
+
 def describe(error: BaseException) -> str:
     """`Type: message`; with an empty message (`str(TimeoutError())` is ""), the type and
     its cause, so no report ever ends in nothing."""

@@ -12,11 +12,11 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 
 
 class Kind(IntEnum):
-    HELLO = 1  # handshake: protocol version, cluster id, who is speaking
+    HELLO = 1  # handshake: protocol version, cluster id, who is speaking, a fresh nonce
     CONFIG = 2  # node configuration from the host: mesh shape, coordinates, boxes, settings
     OBJECTS = 3  # a batch of one primitive kind's records for the node's box
     RAYS = 4  # a batch of rays (eye, reflected, refracted or shadow) entering a node's box
@@ -28,12 +28,14 @@ class Kind(IntEnum):
     PROGRESS = 10  # a node to the host: primary rays traced since its last report, batches
     # traced in all, whether its engine is built and its links are up (a heartbeat every
     # second, so the host tells alive from working, and building from stuck)
+    AUTH = 11  # handshake: proof of the cluster secret over both nonces (protocols.handshake)
+    WELCOME = 12  # handshake: the listener accepted the dialler's proof
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
 _NUM = (int, float)
 FIELDS = {
-    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int},
+    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int, "nonce": bytes},
     # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms)
     Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,
                   "view": dict, "background": list},  # fmt: skip
@@ -46,6 +48,8 @@ FIELDS = {
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
     Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool},
+    Kind.AUTH: {"proof": bytes},
+    Kind.WELCOME: {},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),

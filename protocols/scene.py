@@ -24,6 +24,33 @@ class View:
     width: int = 512
     height: int = 512
 
+    def __post_init__(self):
+        """A view every node can build a camera basis from: finite, the eye apart from the
+        target, `up` not along the line of sight (a degenerate basis would hang or blacken
+        a render)."""
+        try:
+            eye, at, up = (np.asarray(v, float) for v in (self.eye, self.at, self.up))
+            numbers = np.concatenate([eye, at, up, [self.angle, self.hither]]).astype(float)
+        except (TypeError, ValueError):
+            raise ValueError("view: eye, at and up must be three numbers each") from None
+        if eye.shape != (3,) or at.shape != (3,) or up.shape != (3,):
+            raise ValueError("view: eye, at and up must be three numbers each")
+        if not np.all(np.isfinite(numbers)):
+            raise ValueError("view: every number must be finite")
+        sight = at - eye
+        scale = max(float(np.abs(np.concatenate([eye, at])).max()), 1e-300)
+        if not np.linalg.norm(sight) > 1e-12 * scale:
+            raise ValueError(f"view: 'from' {tuple(eye)} and 'at' {tuple(at)} coincide")
+        across = np.cross(sight / np.linalg.norm(sight), up)
+        if not np.linalg.norm(up) > 0 or not np.linalg.norm(across) > 1e-9 * np.linalg.norm(up):
+            raise ValueError(f"view: 'up' {tuple(up)} is zero or along the line of sight")
+        if not 0.0 < self.angle < 180.0 or self.hither < 0:
+            raise ValueError("view: angle must be in (0, 180) degrees and hither >= 0")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or not 0 < v <= 32768:
+                raise ValueError(f"view: {name} must be a whole number from 1 to 32768")
+
 
 def _empty(dtype):
     return field(default_factory=lambda: np.zeros(0, dtype))

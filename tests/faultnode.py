@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     slow = service_class(int(src), int(dst), float(seconds), int(count))
     args = cli.parse(argv)
     return cli.serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
-                     service_class=slow)  # fmt: skip
+                     service_class=slow, secret=cli.serving_secret(args))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ Needs root and iproute2 (`ip`, `tc`); `available()` says whether this machine ha
 """
 
 import os
+import secrets
 import subprocess
 from contextlib import contextmanager
 
@@ -84,15 +85,17 @@ class Network:
 
 @contextmanager
 def namespaced_mesh(n: int, shape=None):
-    """(network, mesh, addresses): n meshnode processes, node i in namespace i; `shape(net)`
-    may shape the cables before the nodes start."""
+    """(network, mesh, addresses): n meshnode processes, node i in namespace i, sharing the
+    secret `mesh.secret`; `shape(net)` may shape the cables before the nodes start."""
     net = Network(n)
     try:
         net.up()
         if shape:
             shape(net)
         wrap = lambda i: ["ip", "netns", "exec", net.spaces[i]]  # noqa: E731
-        mesh = LocalMesh(n, listen=[net.address(i) for i in range(n)], wrap=wrap)
+        # Beyond loopback every node needs the cluster secret: the real, authenticated setup.
+        mesh = LocalMesh(n, listen=[net.address(i) for i in range(n)], wrap=wrap,
+                         secret=secrets.token_hex(16).encode())  # fmt: skip
         with mesh as addresses:
             yield net, mesh, addresses
     finally:

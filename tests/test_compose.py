@@ -32,6 +32,10 @@ def test_node_services_serve_where_the_host_looks_for_them():
         assert node.listen.rsplit(":", 1)[1] == port
         assert node.cluster == "meshtrace"  # the host's default cluster id
         assert "build" in services[name] or services[name]["image"] == host["image"]
+        # Listening beyond loopback, a node needs the cluster secret; the host proves it too.
+        assert node.listen.startswith("0.0.0.0") and "MESHTRACE_SECRET" in services[name][
+            "environment"]  # fmt: skip
+    assert "MESHTRACE_SECRET" in host["environment"]
     assert set(host["depends_on"]) == set(services)
 
 

@@ -60,6 +60,7 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     created = r["eye_rays"] + r["reflected_rays"] + r["refracted_rays"] + r["shadow_rays"]
     assert created == r["hits"] + r["escaped"] + r["shadow_rays_blocked"] + r["shadow_rays_lit"]
     assert all(n["packet_visits"] >= 3 for n in nodes)
+    assert all(50e6 < n["peak_rss_bytes"] < 4e9 for n in nodes)  # reported, and plausible
     assert len(nodes) == rows * cols
 
 

@@ -29,9 +29,10 @@ def test_mesh_across_namespaces_equals_single_node():
     scene = read_nff(spd_scene("rings_s1.nff"))
     rs = records(width=64, height=64, threads=1)
     ref, ref_stats = render(scene, *rs)
-    with netns.namespaced_mesh(4, _shape) as (_, _, addresses):
+    with netns.namespaced_mesh(4, _shape) as (_, mesh, addresses):
         assert all(a.startswith("10.213.") for a in addresses)
-        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine)
+        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine,
+                              secret=mesh.secret)  # fmt: skip
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
@@ -42,11 +43,12 @@ def test_mesh_across_namespaces_equals_single_node():
 def test_a_node_cut_off_the_network_is_named_within_seconds():
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=400, height=400, spp=4)  # several seconds' work
-    with netns.namespaced_mesh(2) as (net, _, addresses):
+    with netns.namespaced_mesh(2) as (net, mesh, addresses):
 
         async def run():
             started = asyncio.Event()
             coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), silence=3.0,
+                                  secret=mesh.secret,
                                   progress=lambda n: started.set())  # fmt: skip
             task = asyncio.create_task(coro)
             await asyncio.wait_for(started.wait(), 60)  # tracing has begun

@@ -463,3 +463,14 @@ def test_generated_100k_scene():
     np.testing.assert_array_equal(s.spheres["center"][:, 0], k)
     np.testing.assert_array_equal(s.triangles["v"][:, 1, 0], k + 1)
     np.testing.assert_array_equal(s.triangles["n"][:, 2], np.tile([0.0, 0, 1], (n, 1)))
+
+
+@pytest.mark.parametrize("view,what", [
+    ("from 1 2 3\nat 1 2 3\nup 0 1 0", "coincide"),
+    ("from 0 0 -5\nat 0 0 0\nup 0 0 1", "along the line of sight"),
+    ("from 0 0 -5\nat 0 0 0\nup 0 0 0", "zero or along"),
+])  # fmt: skip
+def test_a_degenerate_view_is_refused_with_its_line(view, what):
+    text = f"b 0 0 0\nv\n{view}\nangle 45\nhither 1\nresolution 8 8\n"
+    with pytest.raises(SceneError, match=rf"scene.nff:2: view: .*{what}"):
+        parse_nff(text, "scene.nff")

@@ -7,9 +7,8 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from meshnode.link import Link, LinkClosed
+from meshnode.link import Link, LinkClosed, dial
 from meshnode.service import NodeService
-from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make
 from protocols.render import ImageSpec, MeshPlan, Partition, RenderSpec
 from protocols.scene import View
@@ -31,15 +30,14 @@ def config(node=0, plan=None, **render_wire):
                 background=[0, 0, 0])  # fmt: skip
 
 
-async def host_link(port: int) -> Link:
-    link = await Link.connect(f"127.0.0.1:{port}", "node under test")
-    await link.send(hello("meshtrace", "host"))
-    check_hello(await link.recv_raw(), "meshtrace")
+async def host_link(port: int, secret: bytes | None = None, role: str = "host",
+                    node: int = -1) -> Link:  # fmt: skip
+    link, _ = await dial(f"127.0.0.1:{port}", "node under test", "meshtrace", secret, role, node)
     return link
 
 
-async def started() -> NodeService:
-    service = NodeService("127.0.0.1", 0)
+async def started(secret: bytes | None = None) -> NodeService:
+    service = NodeService("127.0.0.1", 0, secret=secret)
     await service.start()
     return service
 

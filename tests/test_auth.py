@@ -1,0 +1,149 @@
+"""Only peers that hold the cluster secret use a node: host links and node links alike prove
+it both ways before anything else is accepted; strangers, floods and second hosts are refused
+with a reason and leave the node serving the next real render."""
+
+import asyncio
+import socket
+import struct
+
+import numpy as np
+import pytest
+
+from meshnode import cli
+from meshnode.link import HANDSHAKE_FRAME, LinkClosed, dial
+from meshnode.service import NodeService
+from protocols.errors import AuthFailed
+from protocols.framing import FrameDecoder
+from protocols.handshake import auth, check_auth, hello, nonce, read_secret
+from protocols.messages import Kind, parse
+from tests.test_node_service import config, host_link
+
+SECRET = b"correct horse battery staple"
+
+
+async def serving(secret=SECRET) -> NodeService:
+    service = NodeService("127.0.0.1", 0, secret=secret)
+    await service.start()
+    return service
+
+
+async def still_serves(service: NodeService, secret=SECRET) -> None:
+    """A real host with the secret gets a session (its first heartbeat) after all that."""
+    link = await host_link(service.port, secret)
+    await link.send(config())
+    kind, f = await asyncio.wait_for(link.recv(), 10)
+    assert kind is Kind.PROGRESS and f["node"] == 0
+    await link.close()
+
+
+@pytest.mark.parametrize("host_secret", [None, b"wrong secret"])
+@pytest.mark.parametrize("role", ["host", "node"])
+async def test_a_peer_without_the_secret_is_refused(host_secret, role):
+    service = await serving()
+    try:
+        with pytest.raises(LinkClosed, match="does not hold this cluster's secret"):
+            await host_link(service.port, host_secret, role, node=1)
+        await still_serves(service)
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_node_without_a_secret_cannot_pass_for_one_with_it():
+    # The dialler checks the listener's proof first: a host with the secret will not talk
+    # to a node (or an impostor) that lacks it.
+    service = await serving(secret=None)
+    try:
+        with pytest.raises(LinkClosed, match="listener does not hold"):
+            await host_link(service.port, SECRET)
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_replayed_or_forged_proof_fails():
+    dialler = parse(hello("c", "host", -1, nonce()))[1]
+    theirs = nonce()
+    good = auth(SECRET, "dialler", dialler, theirs)
+    check_auth(good, SECRET, "dialler", dialler, theirs)
+    with pytest.raises(AuthFailed):  # the same proof against a fresh listener nonce
+        check_auth(good, SECRET, "dialler", dialler, nonce())
+    with pytest.raises(AuthFailed):  # the listener's own proof played back as the dialler's
+        check_auth(auth(SECRET, "listener", dialler, theirs), SECRET, "dialler", dialler, theirs)
+    with pytest.raises(AuthFailed):  # a claimed node index changed in between
+        check_auth(good, SECRET, "dialler", {**dialler, "node": 0}, theirs)
+
+
+async def test_floods_before_the_handshake_are_cut_off():
+    service = await serving()
+    loop = asyncio.get_running_loop()
+    try:
+        for payload in (struct.pack(">I", 64 * 1024 * 1024),  # announces a 64 MiB frame
+                        struct.pack(">I", HANDSHAKE_FRAME + 1) + b"x" * 100,
+                        b"\0\0\0\5hello-not-msgpack"):  # fmt: skip
+            s = socket.create_connection(("127.0.0.1", service.port))
+            s.setblocking(False)
+            await loop.sock_sendall(s, payload)
+            reply = await asyncio.wait_for(loop.sock_recv(s, 1 << 16), 10)
+            while reply and (more := await asyncio.wait_for(loop.sock_recv(s, 1 << 16), 10)):
+                reply += more
+            s.close()  # the node hung up (EOF above): at most an ERROR frame came back
+            assert all(parse(m)[0] is Kind.ERROR for m in FrameDecoder().feed(reply))
+        await still_serves(service)
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_stranger_cannot_register_as_a_neighbour():
+    # A peer that claims to be node 0 without the secret never reaches the pending links.
+    service = await serving()
+    try:
+        with pytest.raises(LinkClosed):
+            await dial(f"127.0.0.1:{service.port}", "node 1", "meshtrace", b"guess", "node", 0)
+        assert service.pending == {}
+        await still_serves(service)
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
+def test_only_loopback_may_listen_without_a_secret(tmp_path, monkeypatch):
+    monkeypatch.delenv("MESHTRACE_SECRET", raising=False)
+    args = cli.parse(["serve", "--listen", "0.0.0.0:7700"])
+    with pytest.raises(ValueError, match="beyond this machine"):
+        cli.serving_secret(args)
+    assert cli.serving_secret(cli.parse(["serve", "--listen", "0.0.0.0:7700", "--insecure"])) \
+        is None
+    assert cli.serving_secret(cli.parse(["serve"])) is None  # the default: loopback
+    f = tmp_path / "secret"
+    f.write_text("  s3cret\n")
+    args = cli.parse(["serve", "--listen", "0.0.0.0:7700", "--secret-file", str(f)])
+    assert cli.serving_secret(args) == b"s3cret"
+    monkeypatch.setenv("MESHTRACE_SECRET", "from-env")
+    assert read_secret() == b"from-env"
+    f.write_text("\n")
+    with pytest.raises(ValueError, match="empty"):
+        read_secret(f)
+
+
+def test_a_busy_port_is_one_clear_line(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert cli.main(["serve", "--listen", f"127.0.0.1:{port}", "--once"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"cannot listen on 127.0.0.1:{port}" in err[0]
+
+
+def test_a_local_mesh_renders_with_its_own_secret(tmp_path):
+    # The CLI's local mesh makes a secret, gives it to its nodes in their environment and
+    # proves it itself: the image equals one node's.
+    from host.cli import main
+    from host.framebuffer import read_pfm
+    from tests.conftest import spd_scene
+
+    scene = spd_scene("tetra_s1.nff")
+    one, two = tmp_path / "one.png", tmp_path / "two.png"
+    common = ["--width", "24", "--height", "24", "--quiet"]
+    assert main(["render", str(scene), "-o", str(one), "--mesh", "1x1", *common]) == 0
+    assert main(["render", str(scene), "-o", str(two), "--mesh", "1x2", *common]) == 0
+    np.testing.assert_allclose(read_pfm(two.with_suffix(".pfm")),
+                               read_pfm(one.with_suffix(".pfm")), atol=1e-5)  # fmt: skip

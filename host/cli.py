@@ -22,6 +22,8 @@ from protocols.render import BALANCES, STORAGES, EngineSpec, ImageSpec, MeshPlan
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
+AUTO_WHY = ("on one machine, threads in one process beat a local mesh of processes: no rays or "
+            "pixels cross process boundaries; --mesh ROWSxCOLS starts a local mesh")
 
 
 def _field(group, flag: str, record: type, name: str, help: str, **kw) -> None:
@@ -62,7 +64,7 @@ def _parser() -> argparse.ArgumentParser:
            "mesh, at most this many per node)", type=int)  # fmt: skip
     r.add_argument("--mesh", default="auto",
                    help="ROWSxCOLS local meshnode processes; 1x1 traces in this process; "
-                        "auto: one node per core")  # fmt: skip
+                        "auto (default): on this one machine, 1x1 on every core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
     r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
@@ -211,9 +213,9 @@ def _render(args) -> int:
 
 
 def parse_mesh(text: str) -> tuple[int, int]:
-    """'2x3' -> (2, 3); 'auto' -> one row with a node per core."""
+    """'2x3' -> (2, 3); 'auto' -> 1x1: on one machine, one process tracing on every core."""
     if text == "auto":
-        return 1, max(1, os.cpu_count() or 1)
+        return 1, 1
     try:
         rows, cols = (int(v) for v in text.lower().split("x"))
     except ValueError:
@@ -273,14 +275,26 @@ def _run(scene, image, engine, camera, args):
         rows, cols, addresses = read_cluster(args.cluster)
         plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
         secret = read_secret(args.secret_file)
-        return _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
+        return img, stats
     rows, cols = parse_mesh(args.mesh)
     plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
     if plan.nodes == 1:
-        return render(scene, image, engine, camera, progress=not args.quiet)
+        why = (AUTO_WHY if args.mesh == "auto" else "asked for with --mesh 1x1")
+        threads = engine.threads or os.cpu_count() or 1
+        if not args.quiet:
+            print(f"host: plan: one process, {threads} tracing threads ({why})",
+                  file=sys.stderr)  # fmt: skip
+        img, stats = render(scene, image, engine, camera, progress=not args.quiet)
+        stats["plan"] = {"choice": "one process", "threads": threads, "why": why}
+        return img, stats
     secret = secrets.token_hex(32).encode()  # this render's own: other users cannot join
     with LocalMesh(plan.nodes, secret=secret) as addresses:
-        return _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+    stats["plan"] = {"choice": f"local mesh {plan.rows}x{plan.cols}", "why": "asked for with "
+                     f"--mesh {args.mesh}"}  # fmt: skip
+    return img, stats
 
 
 def _mesh(scene, image, engine, plan, camera, addresses, secret, args):

@@ -92,3 +92,13 @@ def test_pfm_round_trip(tmp_path):
     img = np.random.default_rng(0).random((5, 7, 3))
     write_pfm(tmp_path / "x.pfm", img)
     np.testing.assert_allclose(read_pfm(tmp_path / "x.pfm"), img.astype(np.float32))
+
+
+def test_the_default_plan_on_one_machine_is_one_process_and_says_why(tmp_path, capsys):
+    stats = tmp_path / "s.json"
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.png"), "--width", "16",
+                 "--height", "16", "--stats", str(stats)]) == 0  # fmt: skip
+    plan = json.loads(stats.read_text())["plan"]
+    assert plan["choice"] == "one process" and "one machine" in plan["why"]
+    first = capsys.readouterr().err.strip().splitlines()[0]
+    assert first.startswith("host: plan: one process")

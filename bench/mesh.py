@@ -3,7 +3,7 @@ processes, against one node in this process.
 
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
-                         [--json FILE]
+                         [--modes object,image] [--json FILE]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's, imbalance (Tmax - Tmin) / Tmax over node CPU seconds,
@@ -41,12 +41,12 @@ def single(scene):
     return time.perf_counter() - start, stats
 
 
-def on_mesh(scene, rows, cols, overlap, threads=1, balance="even"):
+def on_mesh(scene, rows, cols, overlap, threads=1, balance="even", mode="object"):
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from protocols.render import ImageSpec, MeshPlan
 
-    plan = MeshPlan(rows, cols, overlap, balance)
+    plan = MeshPlan(rows, cols, overlap, balance, mode)
     with LocalMesh(rows * cols, threads=threads) as addresses:
         start = time.perf_counter()
         _, stats = asyncio.run(render_on_mesh(scene, ImageSpec(spd=True), addresses, plan))
@@ -66,6 +66,9 @@ def main(argv=None) -> int:
     p.add_argument("--overlaps", default="2,24,100")
     p.add_argument("--node-threads", default="1", help="tracing threads per node to compare")
     p.add_argument("--balance", default="even", help="image cuts to compare: even,cost")
+    p.add_argument("--modes", default="object",
+                   help="object,image: object space (every overlap and cut) and image space "
+                        "(static tiles; overlap and cuts do not apply)")  # fmt: skip
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
     from host.nff import read_nff
@@ -77,32 +80,35 @@ def main(argv=None) -> int:
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
         wall1, s1 = single(scene)
-        cpu1 = s1["trace_seconds"]
+        cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
         print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
-        print(f"{'mesh':>5} {'overlap':>7} {'thr':>3} {'cuts':>5} {'wall s':>7} "
+        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>5} {'wall s':>7} "
               f"{'busiest CPU s':>13} "
               f"{'speedup':>7} "
               f"{'imbalance':>9} {'rays passed':>11} {'bytes/link mean':>15} "
               f"{'max':>11}")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
+        runs = [(m, o, t, c) for m in args.modes.split(",") for t in threads
+                for o, c in ([(o, c) for o in overlaps for c in cuts] if m == "object"
+                             else [(0.0, "even")])]  # fmt: skip
         for rows, cols in meshes:
-            for overlap, thr, cut in ((o, t, c) for o in overlaps for t in threads for c in cuts):
-                wall, st = on_mesh(scene, rows, cols, overlap, thr, cut)
+            for mode, overlap, thr, cut in runs:
+                wall, st = on_mesh(scene, rows, cols, overlap, thr, cut, mode)
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
-                    bad.append(f"{name} {rows}x{cols} {overlap}%: {counts} != {ref}")
+                    bad.append(f"{name} {rows}x{cols} {mode} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
                 mean, top = link_bytes(st)
-                row = {"scene": name, "mesh": f"{rows}x{cols}", "overlap": overlap,
+                row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
                        "node_threads": thr, "cuts": cut,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "imbalance": st["imbalance"],
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
                        "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {overlap:>7g} {thr:>3} {cut:>5} {wall:>7.2f} "
+                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>5} {wall:>7.2f} "
                       f"{busiest:>13.3f} "
                       f"{row['speedup']:>7.2f} {st['imbalance']:>9.2f} {st['rays_passed']:>11} "
                       f"{mean:>15,.0f} {top:>11,}")  # fmt: skip

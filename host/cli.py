@@ -18,7 +18,7 @@ from host.meshclient import MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
 from host.render import render
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
-from protocols.render import BALANCES, STORAGES, EngineSpec, ImageSpec, MeshPlan
+from protocols.render import BALANCES, MODES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
@@ -74,6 +74,12 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
            "simulated pass that evens the nodes' work (costs a fraction of a second up front)",
            choices=BALANCES)  # fmt: skip
+    _field(r, "--mode", MeshPlan, "mode", "object: each node holds its box of space and "
+           "passes rays; image: every node holds the whole scene and traces pixel tiles",
+           choices=MODES)  # fmt: skip
+    _field(r, "--tiles", MeshPlan, "tiles", "image space: none (a band of rows a node) or "
+           "static (tiles dealt round-robin)", choices=TILINGS)  # fmt: skip
+    _field(r, "--tile", MeshPlan, "tile", "image-space tile side, pixels", type=int)
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _camera_options(r.add_argument_group("camera (with --camera)"))
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")

@@ -195,7 +195,7 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
             totals[k] = totals.get(k, 0) + v
     busy = [s["busy_cpu_seconds"] for s in nodes]
     return {
-        "mesh": {"rows": plan.rows, "cols": plan.cols, "overlap_percent": plan.overlap},
+        "mesh": plan.to_wire(),
         "rays": totals,
         "deposits_received": deposits,
         "rays_passed": sum(s["rays_sent"] for s in nodes),

@@ -198,11 +198,30 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
 
 
 def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None) -> tuple[Partition, np.ndarray]:
-    """The plan made concrete: every node's rectangle of the sample grid (cut at `xs`, `ys`;
-    default even) and box, and which objects each node holds (nodes x objects, bool)."""
+    """The plan made concrete: every node's rectangles of the sample grid and its box, and
+    which objects each node holds (nodes x objects, bool). Object space: one rectangle a
+    node, cut at `xs`, `ys` (default even), boxes cut to match. Image space: tiles, every box
+    the scene's, every object on every node."""
     plan, (width, height) = spec.plan, spec.image.size
     gw, gh = spec.sample_grid
     box = scene_box(scene)
+    if plan.mode == "image":
+        rects, owner = tiles(gw, gh, plan)
+        los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
+        keep = np.ones((plan.nodes, build_tables(scene).n), bool)
+        return Partition.make(rects, los, his, box, owner), keep
     los, his = node_boxes(scene, box, width, height, plan.rows, plan.cols, plan.overlap, xs, ys)
     rects = rectangles(gw, gh, plan.rows, plan.cols, xs, ys)
     return Partition.make(rects, los, his, box), holders(scene, los, his)
+
+
+def tiles(width: int, height: int, plan) -> tuple[list, list]:
+    """Image-space rectangles of a width x height sample grid and their nodes: "none", one
+    band of rows a node; "static", near-square tiles of `plan.tile` dealt round-robin."""
+    if plan.tiles == "none":
+        ys = splits(height, plan.nodes)
+        return [(0, width, ys[i], ys[i + 1]) for i in range(plan.nodes)], list(range(plan.nodes))
+    t = plan.tile
+    rects = [(x, min(x + t, width), y, min(y + t, height))
+             for y in range(0, height, t) for x in range(0, width, t)]  # fmt: skip
+    return rects, [i % plan.nodes for i in range(len(rects))]

@@ -42,8 +42,7 @@ def render(scene: SceneData, image: ImageSpec = ImageSpec(),
     bands = [(y, min(y + BAND_ROWS, grid_h)) for y in range(0, grid_h, BAND_ROWS)]
 
     def trace_band(rows):
-        rays = eye_rays(scene.view, image, rows=rows)
-        return rays, *tracer.trace(rays)
+        return _traced(tracer, eye_rays(scene.view, image, rows=rows))
 
     return _run_batches(job, fb, [(bands, fb)], trace_band, len(bands))
 
@@ -65,6 +64,7 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
     deposits added to its sink (the framebuffer, or an adaptive film); `total` jobs or None."""
     threads = job.engine.threads or os.cpu_count() or 1
     totals: dict[str, int] = {}
+    cpu = 0.0
     start = time.perf_counter()
     bar = _progress(total, job.progress)
     with ThreadPoolExecutor(max_workers=threads) as pool:
@@ -72,11 +72,13 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
             for rays, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
                 sink.add(rays["pixel"], rgb)
                 counts["eye_rays"] = len(rays)
+                cpu += counts.pop("cpu_seconds")
                 for k, v in counts.items():
                     totals[k] = totals.get(k, 0) + v
                 bar.update(1)
     bar.close()
     stats = _stats(job, totals, time.perf_counter() - start, threads)
+    stats["trace_cpu_seconds"] = cpu
     if camera is not None:
         stats["camera"] = camera
     return fb.image(), stats
@@ -90,7 +92,7 @@ def _render_camera(job: _Job, camera: CameraSetup):
     pixels = rect_pixels((0, width, 0, height), width)
 
     def trace_batch(rays):
-        return rays, *job.tracer.trace(rays)
+        return _traced(job.tracer, rays)
 
     if not spec.adaptive:  # batches made as the pool takes them: memory stays bounded
         batches = camera_batches(spec, view, width, height, pixels, seed, RAYS_PER_BATCH)
@@ -104,6 +106,15 @@ def _render_camera(job: _Job, camera: CameraSetup):
     stats["camera"]["refined_pixels"] = int(film.refined.sum())
     stats["camera"]["rays_per_pixel_traced"] = stats["rays"]["eye_rays"] / len(pixels)
     return fb.image(), stats
+
+
+def _traced(tracer: Engine, rays):
+    """(rays, colour, counts) of one job, counts with the tracing thread's CPU seconds (the
+    figure a mesh node's busiest CPU time compares with, on a loaded machine too)."""
+    cpu = time.thread_time()
+    rgb, counts = tracer.trace(rays)
+    counts["cpu_seconds"] = time.thread_time() - cpu
+    return rays, rgb, counts
 
 
 def _bounded_map(pool, fn, jobs, inflight: int):

@@ -21,36 +21,55 @@ RAYS_PER_BATCH = 16384  # camera rays made at a time: memory stays bounded at an
 SIDES = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
-def owner_of(pixels: np.ndarray, width: int, rects) -> np.ndarray:
-    """Index of the rectangle (x0, x1, y0, y1) holding each pixel (-1: none)."""
-    x, y = pixels % width, pixels // width
-    owner = np.full(len(pixels), -1, np.int64)
-    for n, (x0, x1, y0, y1) in enumerate(rects):  # one mask per node, not per pixel
-        owner[(x >= x0) & (x < x1) & (y >= y0) & (y < y1)] = n
-    return owner
+class RectIndex:
+    """Which rectangle holds a pixel, for rectangles on a grid of cuts (a mesh's rectangles,
+    image-space tiles): built once per render, then two binary searches and a table lookup
+    per pixel, whatever the number of rectangles."""
+
+    def __init__(self, rects, width: int):
+        r = np.asarray(rects, np.int64).reshape(-1, 4)
+        self.width = width
+        self.xs, self.ys = np.unique(r[:, :2]), np.unique(r[:, 2:])
+        self.table = np.full((max(len(self.ys) - 1, 0), max(len(self.xs) - 1, 0)), -1, np.int64)
+        xa, xb = np.searchsorted(self.xs, r[:, 0]), np.searchsorted(self.xs, r[:, 1])
+        ya, yb = np.searchsorted(self.ys, r[:, 2]), np.searchsorted(self.ys, r[:, 3])
+        for i in range(len(r)):  # once per rectangle, at set-up
+            self.table[ya[i] : yb[i], xa[i] : xb[i]] = i
+
+    def __call__(self, pixels: np.ndarray) -> np.ndarray:
+        """Index of the rectangle holding each pixel id (y * width + x); -1: none."""
+        x, y = pixels % self.width, pixels // self.width
+        i = np.searchsorted(self.xs, x, "right") - 1
+        j = np.searchsorted(self.ys, y, "right") - 1
+        inside = (i >= 0) & (i < self.table.shape[1]) & (j >= 0) & (j < self.table.shape[0])
+        out = np.full(len(pixels), -1, np.int64)
+        out[inside] = self.table[j[inside], i[inside]]
+        return out
 
 
-def deposit_routes(sample_ids, n, first, width, height, rects) -> tuple[np.ndarray, np.ndarray]:
-    """(deposit index, node) pairs, each once: every deposit to its pixel's owner, pass-1
-    deposits also to the owners of the pixel's side neighbours (their halo)."""
+def deposit_routes(sample_ids, n, first, width, height, index: RectIndex):
+    """(deposit index, rectangle) pairs, each once: every deposit to its pixel's rectangle,
+    pass-1 deposits also to the rectangles of the pixel's side neighbours (their halo);
+    rectangle -1: a pixel no rectangle of `index` holds."""
     pixels, k = sample_ids // n, sample_ids % n
     idx = [np.arange(len(pixels))]
-    dest = [owner_of(pixels, width, rects)]
+    dest = [index(pixels)]
     corner = np.flatnonzero(np.isin(k, first))
     x, y = pixels[corner] % width, pixels[corner] // width
     for dx, dy in SIDES:
         inside = (x + dx >= 0) & (x + dx < width) & (y + dy >= 0) & (y + dy < height)
         at = corner[inside]
         idx.append(at)
-        dest.append(owner_of(pixels[at] + dx + dy * width, width, rects))
+        dest.append(index(pixels[at] + dx + dy * width))
     idx, dest = np.concatenate(idx), np.concatenate(dest)
-    key = np.unique(dest * len(pixels) + idx)
-    return key % len(pixels), key // len(pixels)
+    key = np.unique((dest + 1) * len(pixels) + idx)
+    return key % len(pixels), key // len(pixels) - 1
 
 
 class AdaptiveFilm:
     """Colour sums and ray counts of a node's rectangle of pixels, and the pass-1 corner
-    colours over the rectangle and a one-pixel halo around it."""
+    colours over the rectangle and a one-pixel halo around it (their deposits come from the
+    nodes owning those pixels)."""
 
     def __init__(self, spec: CameraSpec, rect, width: int, height: int, seed: int = 0):
         self.spec, self.width, self.seed = spec, width, seed

@@ -1,10 +1,11 @@
 """What one mesh node does with rays, without any sockets: the service and the simulated mesh
 both wrap this.
 
-A node holds the objects touching its box and every node's box. It makes the primary rays of
-its rectangle (for each state of the ring that has them), traces batches, says where each
-batch's deposits and leaving rays go, and under adaptive sampling keeps the books of its own
-pixels until the frame is flushed.
+A node holds the objects touching its box and every node's box (in image space: the whole
+scene, and every box is the scene's). It makes the primary rays of its rectangles (one in
+object space, its tiles in image space) for each state of the ring that has them, traces
+batches, says where each batch's deposits and leaving rays go, and under adaptive sampling
+keeps the books of its own pixels until the frame is flushed.
 """
 
 import time
@@ -12,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm, deposit_routes
+from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm, RectIndex, deposit_routes
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
@@ -41,17 +42,25 @@ class NodeCore:
 
     def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
                  eye_batch: int = EYE_BATCH):  # fmt: skip
-        self.node, self.spec, self.view = node, spec, scene.view
+        self.node, self.spec, self.view, self.part = node, spec, scene.view, part
         self.eye_batch = eye_batch
-        self.rects = part.rects
+        self.owned = part.rects_of(node)
         self.los, self.his = part.boxes
         self.engine = Engine(scene, box=(self.los[node], self.his[node]),
                              scene_box=part.scene_box, density=spec.engine.density,
                              storage=spec.engine.storage, max_depth=spec.image.depth)  # fmt: skip
-        self.film: AdaptiveFilm | None = None
+        self.films: list[AdaptiveFilm] = []
         if spec.camera is not None and spec.camera.adaptive:
             w, h = spec.image.size
-            self.film = AdaptiveFilm(spec.camera, self.rects[node], w, h, spec.image.seed)
+            self.films = [AdaptiveFilm(spec.camera, rect, w, h, spec.image.seed)
+                          for rect in self.owned]  # fmt: skip
+            self.every_rect = RectIndex(part.rects, w)
+            self.own_rect = RectIndex(self.owned, w)
+
+    @property
+    def keeps_pixels(self) -> bool:
+        """Adaptive sampling: this node keeps the books of its own pixels."""
+        return bool(self.films)
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
@@ -70,16 +79,18 @@ class NodeCore:
         rest, where the corners differ) in REFINE. Made one batch at a time."""
         image, camera = self.spec.image, self.spec.camera
         w, h = image.size
-        if self.film is not None:
-            make = self.film.pass1 if state == State.TRACE else self.film.pass2
-            return make(self.view, w, h) if state in (State.TRACE, State.REFINE) else iter(())
+        if self.films:
+            if state not in (State.TRACE, State.REFINE):
+                return iter(())
+            return (batch for f in self.films
+                    for batch in (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
         if state != State.TRACE:
             return iter(())
-        rect = self.rects[self.node]
         if camera is not None:
-            pixels = rect_pixels(rect, w)
-            return camera_batches(camera, self.view, w, h, pixels, image.seed, RAYS_PER_BATCH)
-        return self._eye_batches(rect)
+            return (batch for rect in self.owned
+                    for batch in camera_batches(camera, self.view, w, h, rect_pixels(rect, w),
+                                                image.seed, RAYS_PER_BATCH))  # fmt: skip
+        return (batch for rect in self.owned for batch in self._eye_batches(rect))
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect
@@ -103,12 +114,26 @@ class NodeCore:
         each deposit's pixel (and pass-1 ones to the owners of its side neighbours)."""
         if len(deposits) == 0:
             return {}
-        if self.film is None:
+        if not self.films:
             return {HOST: deposits}
-        f = self.film
+        idx, rect = self._routes(deposits, self.every_rect)
+        node = np.asarray(self.part.owner, np.int64)[rect]
+        keep = np.unique(node * len(deposits) + idx)  # once per node, however many tiles
+        return _group(deposits[keep % len(deposits)], keep // len(deposits))
+
+    def keep(self, deposits: np.ndarray) -> None:
+        """Deposits routed to this node under adaptive sampling: into the film of each own
+        rectangle that holds their pixel, or has it in its halo."""
+        idx, film = self._routes(deposits, self.own_rect)
+        for i in np.unique(film).tolist():
+            mine = idx[film == i]
+            self.films[i].add(deposits["pixel"][mine], deposits["rgb"][mine])
+
+    def _routes(self, deposits, index: RectIndex):
+        f = self.films[0]
         w, h = self.spec.image.size
-        idx, dest = deposit_routes(deposits["pixel"], f.n, f.first, w, h, self.rects)
-        return _group(deposits[idx], dest)
+        idx, rect = deposit_routes(deposits["pixel"], f.n, f.first, w, h, index)
+        return idx[rect >= 0], rect[rect >= 0]
 
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
         """Rays grouped by the node that takes them on."""
@@ -122,13 +147,16 @@ class NodeCore:
     def finished_pixels(self):
         """Adaptive sampling, once every deposit is in: DEPOSIT batches of this node's
         finished pixels for the host (none otherwise)."""
-        if self.film is None:
-            return
-        pixels, rgb = self.film.finish()
-        for i in range(0, len(pixels), RAYS_PER_BATCH):
-            d = np.zeros(len(pixels[i : i + RAYS_PER_BATCH]), DEPOSIT)
-            d["pixel"], d["rgb"] = pixels[i : i + RAYS_PER_BATCH], rgb[i : i + RAYS_PER_BATCH]
-            yield d
+        for film in self.films:
+            pixels, rgb = film.finish()
+            for i in range(0, len(pixels), RAYS_PER_BATCH):
+                d = np.zeros(len(pixels[i : i + RAYS_PER_BATCH]), DEPOSIT)
+                d["pixel"], d["rgb"] = pixels[i : i + RAYS_PER_BATCH], rgb[i : i + RAYS_PER_BATCH]
+                yield d
+
+    @property
+    def refined_pixels(self) -> int:
+        return sum(int(f.refined.sum()) for f in self.films)
 
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:

@@ -185,8 +185,8 @@ class Session:
         deposits = np.array(f["deposits"])
         if f["dest"] != self.node:
             self.post_data(f["dest"], Kind.PIXELS, deposits)
-        elif self.core.film is not None:
-            self.core.film.add(deposits["pixel"], deposits["rgb"])
+        elif self.core.keeps_pixels:
+            self.core.keep(deposits)
         else:
             self.to_host(deposits)
 
@@ -234,10 +234,10 @@ class Session:
         """Act on a state the packet brought."""
         if state in (State.TRACE, State.REFINE):
             self.sched.primaries = Primaries(self.core.primaries(state))
-        elif state == State.FLUSH and self.core.film is not None:
+        elif state == State.FLUSH and self.core.keeps_pixels:
             for d in self.core.finished_pixels():
                 self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
-            self.stats.counts["refined_pixels"] = int(self.core.film.refined.sum())
+            self.stats.counts["refined_pixels"] = self.core.refined_pixels
         elif state == State.DONE:
             links = {m: o.link.stats for m, o in self.outboxes.items()}
             report = self.stats.report(self.core.engine.stats, links)
@@ -286,7 +286,7 @@ class Session:
                 if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
                     self.flush()
             elif dest == self.node:
-                self.core.film.add(deposits["pixel"], deposits["rgb"])
+                self.core.keep(deposits)
             else:
                 self.post_data(dest, Kind.PIXELS, deposits)
         for dest, passed in batch.outgoing.items():

@@ -106,7 +106,7 @@ class _Mesh:
                 sched.rays_in(payload)
             elif kind == "pixels":
                 sched.message_in()
-                self.cores[dst].film.add(payload["pixel"], payload["rgb"])
+                self.cores[dst].keep(payload)
             else:
                 sched.packet_in(payload)
 
@@ -147,7 +147,7 @@ class _Mesh:
             if dest == HOST:
                 self.deposits.append(deposits)
             elif dest == n:
-                core.film.add(deposits["pixel"], deposits["rgb"])
+                core.keep(deposits)
             else:
                 self._send(n, dest, "pixels", deposits)
         for dest, passed in batch.outgoing.items():

@@ -24,8 +24,11 @@ MAX_SIDE = 32768  # pixels along an image side
 MAX_SPP = 65536
 MAX_DEPTH = 64
 MAX_NODES = 1024  # nodes in one mesh
+MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
 STORAGES = ("auto", "csr", "hash")
 BALANCES = ("even", "cost")
+MODES = ("object", "image")
+TILINGS = ("none", "static")
 
 
 @dataclass(frozen=True)
@@ -99,14 +102,22 @@ class EngineSpec(Spec):
 
 @dataclass(frozen=True)
 class MeshPlan(Spec):
-    """How the work is spread: a rows x cols torus of nodes, each node's box grown by
-    `overlap` percent of its size, the image cut evenly or where a simulated pre-pass says
-    the nodes' work is even ("cost")."""
+    """How the work is spread over a rows x cols torus of nodes.
+
+    mode "object" (DESIGN.md 5): each node holds the objects of its box of space, grown by
+    `overlap` percent of its size, and traces the rays that pass through it; the image is cut
+    evenly or where a simulated pre-pass says the nodes' work is even (balance "cost").
+    mode "image" (DESIGN.md 6): every node holds the whole scene and traces whole pixel tiles,
+    no rays passed; `tiles` "none" gives each node one band of rows, "static" deals near-square
+    tiles of `tile` pixels round-robin."""
 
     rows: int = 1
     cols: int = 1
     overlap: float = 1.0
     balance: str = "even"
+    mode: str = "object"
+    tiles: str = "static"
+    tile: int = 32
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -115,6 +126,11 @@ class MeshPlan(Spec):
             self.fail("cols", f"a mesh has at most {MAX_NODES} nodes ({self.rows} rows)")
         self.want_number("overlap", 0.0, 1000.0)
         self.want_choice("balance", BALANCES)
+        self.want_choice("mode", MODES)
+        self.want_choice("tiles", TILINGS)
+        self.want_int("tile", 1, MAX_SIDE)
+        if self.mode == "image" and self.balance != "even":
+            self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 
     @property
     def nodes(self) -> int:
@@ -123,23 +139,31 @@ class MeshPlan(Spec):
 
 @dataclass(frozen=True)
 class Partition(Spec):
-    """The plan made concrete: node n's rectangle (x0, x1, y0, y1) of the sample grid and its
-    box (lo, hi), and the scene's box."""
+    """The plan made concrete: node n's rectangles (x0, x1, y0, y1) of the sample grid (one in
+    object space, its tiles in image space; `owner[i]` is rectangle i's node) and its box
+    (lo, hi), and the scene's box."""
 
     rects: tuple
+    owner: tuple
     los: tuple
     his: tuple
     scene_lo: tuple
     scene_hi: tuple
 
     def check(self) -> None:
-        n = len(self.rects) if isinstance(self.rects, tuple) else -1
+        n = len(self.los) if isinstance(self.los, tuple) else -1
         if not 1 <= n <= MAX_NODES:
-            self.fail("rects", f"must list 1 to {MAX_NODES} rectangles")
-        r = _array(self, "rects", np.int64, (n, 4))
+            self.fail("los", f"must list 1 to {MAX_NODES} boxes")
+        m = len(self.rects) if isinstance(self.rects, tuple) else -1
+        if not 1 <= m <= MAX_RECTS:
+            self.fail("rects", f"must list 1 to {MAX_RECTS} rectangles")
+        r = _array(self, "rects", np.int64, (m, 4))
         if np.any(r < 0) or np.any(r > MAX_SIDE + 1) or np.any(r[:, 1] < r[:, 0]) or np.any(
             r[:, 3] < r[:, 2]):  # fmt: skip
             self.fail("rects", "each must be x0 <= x1, y0 <= y1 inside the image")
+        owner = _array(self, "owner", np.int64, (m,))
+        if np.any(owner < 0) or np.any(owner >= n):
+            self.fail("owner", f"every rectangle's node must be from 0 to {n - 1}")
         los, his = _array(self, "los", float, (n, 3)), _array(self, "his", float, (n, 3))
         if np.any(los > his):
             self.fail("his", "every box needs lo <= hi")
@@ -147,12 +171,19 @@ class Partition(Spec):
             self.fail("scene_hi", "the scene box needs lo <= hi")
 
     @classmethod
-    def make(cls, rects, los, his, scene_box) -> "Partition":
+    def make(cls, rects, los, his, scene_box, owner=None) -> "Partition":
+        """From arrays; `owner` None: rectangle n is node n's (object space)."""
+
         def rows(a):
             return tuple(tuple(x) for x in np.asarray(a).tolist())
 
-        return cls(rows(rects), rows(los), rows(his), *(tuple(np.asarray(b, float).tolist())
-                                                       for b in scene_box))  # fmt: skip
+        owner = range(len(rects)) if owner is None else owner
+        return cls(rows(rects), tuple(int(o) for o in owner), rows(los), rows(his),
+                   *(tuple(np.asarray(b, float).tolist()) for b in scene_box))  # fmt: skip
+
+    def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
+        """The rectangles node `node` owns, in order."""
+        return [r for r, o in zip(self.rects, self.owner, strict=True) if o == node]
 
     @classmethod
     def decode(cls, values: dict) -> dict:
@@ -163,7 +194,7 @@ class Partition(Spec):
 
     @property
     def nodes(self) -> int:
-        return len(self.rects)
+        return len(self.los)
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:

@@ -14,12 +14,14 @@ from protocols.render import ImageSpec, MeshPlan, RenderSpec
 
 
 def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1, depth=5,
-                seed=0, delay=None, camera=None, batch=512):  # fmt: skip
+                seed=0, delay=None, camera=None, batch=512, **plan):  # fmt: skip
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
-    `delay` = (src, dst, rounds): messages on that link arrive that many rounds late."""
+    `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `plan`:
+    more MeshPlan fields (mode, tiles, tile)."""
     image = ImageSpec(width=width, height=height, spd=corners, spp=spp, depth=depth, seed=seed)
-    spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(rows, cols, overlap), camera=camera)
+    spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan),
+                      camera=camera)  # fmt: skip
     part, keep = partition(scene, spec)
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
     out = simulate(scenes, spec, part, seed, delay, batch)

@@ -152,7 +152,7 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     # the pixel and its four side neighbours are refined (their corner means differ by 1),
     # nothing else. Split into two rectangles with deposits routed to owners and halos, the
     # two nodes decide exactly as one node does.
-    from meshnode.adaptive import AdaptiveFilm, deposit_routes
+    from meshnode.adaptive import AdaptiveFilm, RectIndex, deposit_routes
 
     spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05,
                       CameraSampling(rays=4, sampling="adaptive"))
@@ -171,7 +171,7 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     films = [AdaptiveFilm(spec, r, width, height) for r in rects]
     for film in films:
         film.corner_alive[:] = True
-    idx, dest = deposit_routes(ids, n, first_pass(spec), width, height, rects)
+    idx, dest = deposit_routes(ids, n, first_pass(spec), width, height, RectIndex(rects, width))
     for node, film in enumerate(films):
         mine = idx[dest == node]
         film.add(ids[mine], rgb[mine])
@@ -227,3 +227,22 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
                          CameraSampling(generation=generation, film_area="rectangle",
                                         special=True))  # fmt: skip
     assert first_pass(special).tolist() == ([1, 4] if generation < 6 else [0, 8])
+
+
+def test_rect_index_finds_the_rectangle_of_every_pixel():
+    # Mesh rectangles with uneven cuts and image tiles with a ragged last row and column:
+    # the index agrees with a test of every rectangle, and pixels outside all are -1.
+    from meshnode.adaptive import RectIndex
+
+    width, height = 37, 23
+    meshes = [[(0, 10, 0, 8), (10, 37, 0, 8), (0, 10, 8, 23), (10, 37, 8, 23)],
+              [(x, min(x + 8, width), y, min(y + 8, height)) for y in range(0, height, 8)
+               for x in range(0, width, 8)],
+              [(0, 37, 0, 5), (0, 37, 9, 23)]]  # fmt: skip
+    pixels = np.arange(width * height)
+    x, y = pixels % width, pixels // width
+    for rects in meshes:
+        want = np.full(len(pixels), -1)
+        for i, (x0, x1, y0, y1) in enumerate(rects):
+            want[(x >= x0) & (x < x1) & (y >= y0) & (y < y1)] = i
+        assert (RectIndex(rects, width)(pixels) == want).all()

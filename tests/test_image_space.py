@@ -1,0 +1,104 @@
+"""Image-space mode (DESIGN.md 6): every node holds the whole scene and traces whole tiles,
+no rays passed. On every mesh shape and tiling, pinhole, supersampled, camera and adaptive
+renders give the single node's image and exactly its ray counts; adaptive pixels at tile
+seams decide as on one node; every pixel is finished exactly once."""
+
+import numpy as np
+import pytest
+
+from host.camerasetup import CameraSetup
+from host.nff import read_nff
+from host.partition import partition, tiles
+from host.render import render
+from protocols.camera import CameraSampling
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_sampling import dof_scene, thin_camera
+
+COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
+          "shadow_rays_blocked")  # fmt: skip
+SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
+TILINGS = [dict(tiles="none"), dict(tiles="static", tile=7)]
+
+
+def reference(scene, image, camera=None):
+    img, stats = render(scene, image, EngineSpec(threads=1), camera)
+    return img, {k: stats["rays"][k] for k in COUNTS}
+
+
+@pytest.mark.parametrize("tiling", TILINGS, ids=["none", "static"])
+@pytest.mark.parametrize("spp", [1, 4])
+def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
+    scene = read_nff(spd_scene("rings_s1.nff"))
+    ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=spp))
+    for rows, cols in SHAPES:
+        img, totals, nodes, _ = render_mesh(scene, rows, cols, 0, 30, 26, spp=spp,
+                                            mode="image", **tiling)  # fmt: skip
+        assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+        assert sum(n.rays_sent for n in nodes) == 0  # no ray leaves a node
+
+
+@pytest.mark.parametrize("sampling", ["jittered", "adaptive"])
+def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling):
+    scene = dof_scene()
+    image = ImageSpec(width=30, height=24, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+    ref, counts = reference(scene, image, setup)
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    for rows, cols in SHAPES:
+        for tiling in TILINGS:
+            img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
+                                            mode="image", **tiling)  # fmt: skip
+            assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
+            np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+
+
+def test_tiles_cover_every_pixel_exactly_once_and_are_dealt_round_robin():
+    for w, h, tile, n in ((30, 26, 7, 4), (64, 64, 32, 9), (5, 3, 8, 4)):
+        plan = MeshPlan(1, n, mode="image", tile=tile)
+        rects, owner = tiles(w, h, plan)
+        cover = np.zeros((h, w), int)
+        for x0, x1, y0, y1 in rects:
+            cover[y0:y1, x0:x1] += 1
+            assert x1 - x0 <= tile and y1 - y0 <= tile
+        assert (cover == 1).all()
+        assert owner == [i % n for i in range(len(rects))]
+        bands, band_owner = tiles(w, h, MeshPlan(1, n, mode="image", tiles="none"))
+        assert band_owner == list(range(n)) and sum(y1 - y0 for *_, y0, y1 in bands) == h
+
+
+def test_every_node_holds_the_whole_scene_and_box():
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    spec = RenderSpec(ImageSpec(width=16, height=16), plan=MeshPlan(2, 2, mode="image"))
+    part, keep = partition(scene, spec)
+    assert keep.all()
+    los, his = part.boxes
+    lo, hi = part.scene_box
+    assert (los == lo).all() and (his == hi).all()
+
+
+@pytest.mark.parametrize("sampling", [None, "adaptive"])
+def test_image_space_over_tcp_equals_one_node(sampling):
+    # Real node processes: the whole scene downloaded to each, tiles dealt, no rays passed;
+    # adaptive seams travel as pixel packets between the tiles' owners.
+    import asyncio
+
+    from host.localmesh import LocalMesh
+    from host.meshclient import render_on_mesh
+
+    if sampling is None:
+        scene, image, setup = read_nff(spd_scene("gears_s1.nff")), ImageSpec(40, 40), None
+    else:
+        scene, image = dof_scene(), ImageSpec(width=30, height=24, seed=3)
+        setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+    ref, counts = reference(scene, image, setup)
+    plan = MeshPlan(2, 2, mode="image", tile=8)
+    with LocalMesh(plan.nodes) as addresses:
+        coro = render_on_mesh(scene, image, addresses, plan, EngineSpec(threads=1), setup)
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in COUNTS} == counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    assert stats["rays_passed"] == 0
+    assert stats["objects_per_node"] == [stats["objects_per_node"][0]] * 4

@@ -63,9 +63,15 @@ def test_partition_round_trips_and_checks_its_shapes():
     with pytest.raises(SpecError, match=r"Partition\.his"):
         Partition.make([(0, 1, 0, 1)], np.ones((1, 3)), np.zeros((1, 3)), (np.zeros(3),) * 2)
     with pytest.raises(SpecError, match=r"Partition\.los"):
-        Partition(((0, 1, 0, 1),), ((0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+        Partition(((0, 1, 0, 1),), (0,), ((0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
     with pytest.raises(SpecError, match=r"Partition\.rects"):
-        Partition(((5, 1, 0, 1),), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+        Partition(((5, 1, 0, 1),), (0,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+    with pytest.raises(SpecError, match=r"Partition\.owner"):
+        Partition(((0, 1, 0, 1),), (3,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+    tiled = Partition.make([(0, 2, 0, 2), (2, 4, 0, 2), (0, 4, 2, 4)], np.zeros((2, 3)),
+                           np.ones((2, 3)), (np.zeros(3), np.ones(3)), owner=[0, 1, 0])
+    assert over_the_wire(tiled) == tiled and tiled.nodes == 2
+    assert tiled.rects_of(0) == [(0, 2, 0, 2), (0, 4, 2, 4)]
 
 
 @pytest.mark.parametrize("record,field,value", [

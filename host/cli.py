@@ -77,9 +77,11 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--mode", MeshPlan, "mode", "object: each node holds its box of space and "
            "passes rays; image: every node holds the whole scene and traces pixel tiles",
            choices=MODES)  # fmt: skip
-    _field(r, "--tiles", MeshPlan, "tiles", "image space: none (a band of rows a node) or "
-           "static (tiles dealt round-robin)", choices=TILINGS)  # fmt: skip
+    _field(r, "--tiles", MeshPlan, "tiles", "image space: none (a band of rows a node), "
+           "static (tiles dealt round-robin) or dynamic (dealt by the host as nodes finish)",
+           choices=TILINGS)  # fmt: skip
     _field(r, "--tile", MeshPlan, "tile", "image-space tile side, pixels", type=int)
+    _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _camera_options(r.add_argument_group("camera (with --camera)"))
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")

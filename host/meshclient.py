@@ -17,6 +17,7 @@ from host.framebuffer import Framebuffer
 from host.partition import subset
 from host.plan import Planned, plan_render
 from meshnode.link import Link, LinkClosed, dial
+from meshnode.scheduler import TileDealer
 from protocols.errors import ProtocolError, describe
 from protocols.messages import Kind, make
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
@@ -65,8 +66,13 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
-    collector = _Collector(fb, addresses, progress, silence, stall)
+    dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
+        if plan.dynamic else None  # fmt: skip
+    collector = _Collector(fb, addresses, progress, silence, stall, dealer)
     try:
+        if dealer is not None:
+            for n, (tiles, last) in dealer.first().items():
+                await links[n].send(make(Kind.TILES, tiles=tiles, last=last))
         await collector.run(links)
     finally:
         await _close(links)
@@ -75,6 +81,9 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance
     summary["plan_seconds"] = planned.seconds
+    if dealer is not None:
+        summary["tiles_per_node"] = np.bincount(list(dealer.dealt.values()),
+                                                minlength=plan.nodes).tolist()  # fmt: skip
     if planned.camera is not None:
         summary["camera"] = planned.camera
         if "refined_pixels" in summary["rays"]:
@@ -115,8 +124,9 @@ async def _close(links: list[Link], shutdown: bool = True) -> None:
 class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
-    def __init__(self, fb: Framebuffer, addresses, progress, silence: float, stall: float):
-        self.fb, self.addresses, self.progress = fb, addresses, progress
+    def __init__(self, fb: Framebuffer, addresses, progress, silence: float, stall: float,
+                 dealer: TileDealer | None = None):  # fmt: skip
+        self.fb, self.addresses, self.progress, self.dealer = fb, addresses, progress, dealer
         self.silence, self.stall = silence, stall
         n = len(addresses)
         now = time.monotonic()
@@ -164,6 +174,11 @@ class _Collector:
                 self.work[n], self.ready[n] = f["work"], f["ready"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
+            elif kind is Kind.TILE_DONE and self.dealer is not None:
+                for _ in f["tiles"]:  # one more tile for each finished, while any are left
+                    tiles, last = self.dealer.finished(n)
+                    if tiles or last:
+                        await link.send(make(Kind.TILES, tiles=tiles, last=last))
             elif kind is Kind.STATS:
                 self.stats[n] = f["stats"]
             elif kind is Kind.ERROR:

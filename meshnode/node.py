@@ -18,6 +18,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.trace import owners
+from meshnode.scheduler import Primaries, TileFeed
 from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
@@ -44,7 +45,8 @@ class NodeCore:
                  eye_batch: int = EYE_BATCH):  # fmt: skip
         self.node, self.spec, self.view, self.part = node, spec, scene.view, part
         self.eye_batch = eye_batch
-        self.owned = part.rects_of(node)
+        self.feed = TileFeed() if spec.plan.dynamic else None
+        self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
         self.engine = Engine(scene, box=(self.los[node], self.his[node]),
                              scene_box=part.scene_box, density=spec.engine.density,
@@ -73,24 +75,41 @@ class NodeCore:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
             camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
 
-    def primaries(self, state: State):
+    def primaries(self, state: State) -> Primaries:
         """Batches of this node's primary rays for a state of the ring: every eye or camera
         ray in TRACE, or adaptive sampling's first pass (corner rays) in TRACE and second (the
-        rest, where the corners differ) in REFINE. Made one batch at a time."""
-        image, camera = self.spec.image, self.spec.camera
-        w, h = image.size
+        rest, where the corners differ) in REFINE; under dynamic tiles, the feed the host's
+        tiles arrive in. Made one batch at a time."""
+        w, h = self.spec.image.size
         if self.films:
             if state not in (State.TRACE, State.REFINE):
-                return iter(())
-            return (batch for f in self.films
-                    for batch in (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
+                return Primaries()
+            return Primaries(batch for f in self.films for batch in
+                             (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
         if state != State.TRACE:
-            return iter(())
-        if camera is not None:
-            return (batch for rect in self.owned
-                    for batch in camera_batches(camera, self.view, w, h, rect_pixels(rect, w),
-                                                image.seed, RAYS_PER_BATCH))  # fmt: skip
-        return (batch for rect in self.owned for batch in self._eye_batches(rect))
+            return Primaries()
+        if self.feed is not None:
+            return self.feed
+        return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
+
+    def rect_batches(self, rect):
+        """Every primary ray of one rectangle (no adaptive sampling), batch by batch."""
+        image, camera = self.spec.image, self.spec.camera
+        if camera is None:
+            return self._eye_batches(rect)
+        w, h = image.size
+        return camera_batches(camera, self.view, w, h, rect_pixels(rect, w), image.seed,
+                              RAYS_PER_BATCH)  # fmt: skip
+
+    def add_tiles(self, tiles: list[int], last: bool) -> None:
+        """Dynamic image space: tiles the host dealt (indices of the partition's rectangles),
+        and whether it will deal no more."""
+        for t in tiles:
+            if not 0 <= t < len(self.part.rects):
+                raise ValueError(f"TILES: tile {t} is not one of the {len(self.part.rects)}")
+            self.feed.add(t, self.rect_batches(self.part.rects[t]))
+        if last:
+            self.feed.close()
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect

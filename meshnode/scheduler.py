@@ -69,6 +69,86 @@ class Primaries:
         self._advance()
         return rays
 
+    @property
+    def waiting(self) -> bool:
+        """More batches may still come (a tile feed the host has not closed)."""
+        return False
+
+
+class TileFeed(Primaries):
+    """Primary batches of tiles the host deals while the frame is traced (dynamic image
+    space): tiles are added as they arrive, `finished` lists the tiles whose last batch has
+    been handed out (the node reports them, and gets new ones), and until the host closes
+    the feed an empty one means "wait", not "done"."""
+
+    def __init__(self):
+        self.tiles: deque = deque()  # (tile index, batches)
+        self.finished: list[int] = []
+        self.open = True
+        super().__init__()
+
+    def add(self, tile: int, batches) -> None:
+        self.tiles.append((tile, iter(batches)))
+        if self.next is None:
+            self._advance()
+
+    def close(self) -> None:
+        self.open = False
+
+    def _advance(self) -> None:
+        self.next = None
+        while self.next is None and self.tiles:
+            tile, batches = self.tiles[0]
+            self.next = next(batches, None)
+            while self.next is not None and len(self.next) == 0:
+                self.next = next(batches, None)
+            if self.next is None:
+                self.tiles.popleft()
+                self.finished.append(tile)
+
+    @property
+    def waiting(self) -> bool:
+        return self.open
+
+
+class TileDealer:
+    """The host's side of dynamic image space: `buffer` tiles to every node at first, then
+    one more whenever a node reports one finished, until none are left; then each node that
+    reports is told it gets no more. Pure: the host and the simulated mesh both drive it."""
+
+    def __init__(self, tiles: int, nodes: int, buffer: int):
+        self.left = deque(range(tiles))
+        self.nodes, self.buffer = nodes, max(1, buffer)
+        self.closed: set[int] = set()
+        self.dealt: dict[int, int] = {}  # tile -> node
+
+    def first(self) -> dict[int, tuple[list[int], bool]]:
+        """Each node's first tiles, dealt round-robin, and whether that is all it gets (a
+        node dealt none when there are fewer tiles than nodes)."""
+        out: dict[int, list[int]] = {n: [] for n in range(self.nodes)}
+        for _ in range(self.buffer):
+            for n in range(self.nodes):
+                if self.left:
+                    out[n].append(self._deal(n))
+        for n, tiles in out.items():
+            if not tiles:
+                self.closed.add(n)
+        return {n: (tiles, not tiles) for n, tiles in out.items()}
+
+    def finished(self, node: int) -> tuple[list[int], bool]:
+        """A node finished a tile: (its next tiles, whether it gets no more after them)."""
+        if self.left:
+            return [self._deal(node)], False
+        if node in self.closed:
+            return [], True
+        self.closed.add(node)
+        return [], True
+
+    def _deal(self, node: int) -> int:
+        tile = self.left.popleft()
+        self.dealt[tile] = node
+        return tile
+
 
 class Scheduler:
     """One node's decisions. `ring_next`: the node after this one on the packet's ring;
@@ -138,8 +218,9 @@ class Scheduler:
                 rays = self.incoming.popleft()
                 self.incoming_rays -= len(rays)
                 return self._trace(rays, primary=False)
-            tracing = self.state in (State.TRACE, State.REFINE) and bool(self.primaries)
-            if tracing and free and room:
+            tracing = self.state in (State.TRACE, State.REFINE) and (
+                bool(self.primaries) or self.primaries.waiting)
+            if tracing and free and room and self.primaries:
                 return self._trace(self.primaries.pop(), primary=True)
             if self.in_flight:
                 return None

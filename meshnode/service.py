@@ -166,6 +166,8 @@ class NodeService:
                     session.add_objects(f["table"], f["records"])
                     if f["last"]:
                         session.spawn(session.build())
+                elif kind is Kind.TILES and session is not None:
+                    session.on_tiles(f)
                 elif kind is Kind.SHUTDOWN:
                     break
                 else:

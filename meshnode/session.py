@@ -16,7 +16,7 @@ import numpy as np
 from meshnode.config import Config
 from meshnode.link import Link, LinkClosed, Outbox
 from meshnode.node import HOST, NodeCore
-from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, Trace
 from meshnode.stats import NodeStats
 from meshnode.termination import Packet, State
 from protocols.errors import BadFrame, describe
@@ -45,6 +45,7 @@ class Session:
         self.stats = NodeStats(self.node)
         self.tables: dict[str, list] = {}
         self.object_bytes = 0
+        self.early_tiles: list[dict] = []  # TILES that came before the engine was built
         self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
         self.wake = asyncio.Event()
@@ -104,6 +105,8 @@ class Session:
                 self.service.pool, lambda: NodeCore(self.node, self.scene(), c.render,
                                                     c.partition))  # fmt: skip
             await loop.run_in_executor(self.service.pool, self.core.warmup)
+            for f in self.early_tiles:
+                self.core.add_tiles(f["tiles"], f["last"])
             for m in c.torus.links(self.node):
                 if self.node < m:  # the lower index dials, the higher accepts
                     self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
@@ -190,6 +193,16 @@ class Session:
         else:
             self.to_host(deposits)
 
+    def on_tiles(self, f: dict) -> None:
+        """Tiles the host dealt (dynamic image space); kept until the engine is built."""
+        if not self.config.render.plan.dynamic:
+            raise BadFrame("TILES for a render without dynamic tiles")
+        if self.core is None:
+            self.early_tiles.append(f)
+            return
+        self.core.add_tiles(f["tiles"], f["last"])
+        self.wake.set()
+
     def on_state(self, f: dict) -> None:
         if f["dest"] != self.node:
             self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
@@ -218,6 +231,10 @@ class Session:
     def act(self, step) -> None:
         if isinstance(step, Trace):
             self.start(step.rays, step.primary)
+            feed = self.core.feed
+            if step.primary and feed is not None and feed.finished:
+                self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=feed.finished))
+                feed.finished = []
         elif isinstance(step, Enter):
             self.enter(step.state)
         elif isinstance(step, Flush):
@@ -233,7 +250,7 @@ class Session:
     def enter(self, state: State) -> None:
         """Act on a state the packet brought."""
         if state in (State.TRACE, State.REFINE):
-            self.sched.primaries = Primaries(self.core.primaries(state))
+            self.sched.primaries = self.core.primaries(state)
         elif state == State.FLUSH and self.core.keeps_pixels:
             for d in self.core.finished_pixels():
                 self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)

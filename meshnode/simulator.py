@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshnode.node import EYE_BATCH, HOST, NodeCore
-from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, TileDealer, Trace
 from meshnode.termination import State
 from protocols.render import Partition, RenderSpec
 from protocols.topology import Torus
@@ -77,6 +77,11 @@ class _Mesh:
         self.transit: list = []  # (arrival round, destination, kind, payload)
         self.deposits: list = []
         self.round = 0
+        self.dealer = None
+        if spec.plan.dynamic:  # the host deals tiles; its messages take a round each way
+            self.dealer = TileDealer(len(cores[0].part.rects), torus.size, spec.plan.buffer)
+            for n, dealt in self.dealer.first().items():
+                self.transit.append((1, n, "tiles", dealt))
 
     def run(self) -> Outcome:
         while not all(s.done for s in self.scheds) or self.transit:
@@ -100,13 +105,20 @@ class _Mesh:
         due = [m for m in self.transit if m[0] <= self.round]
         self.transit = [m for m in self.transit if m[0] > self.round]
         for _, dst, kind, payload in due:
-            sched = self.scheds[dst]
+            sched = self.scheds[dst] if dst >= 0 else None  # -1: the host
             if kind == "rays":
                 self.records[dst].rays_received += len(payload)
                 sched.rays_in(payload)
             elif kind == "pixels":
                 sched.message_in()
                 self.cores[dst].keep(payload)
+            elif kind == "tiles":
+                self.cores[dst].add_tiles(*payload)
+            elif kind == "done":  # at the host: one more tile for each finished
+                for _ in payload[1]:
+                    tiles, last = self.dealer.finished(payload[0])
+                    if tiles or last:
+                        self.transit.append((self.round + 1, payload[0], "tiles", (tiles, last)))
             else:
                 sched.packet_in(payload)
 
@@ -120,6 +132,10 @@ class _Mesh:
                 self.records[n].packet_visits += 1
                 self._send(n, step.to, "state", step.packet)
             elif isinstance(step, Trace):
+                feed = self.cores[n].feed
+                if step.primary and feed is not None and feed.finished:
+                    self.transit.append((self.round + 1, -1, "done", (n, feed.finished)))
+                    feed.finished = []
                 self._trace(n, step.rays, step.primary)
                 return
             elif not isinstance(step, Flush):
@@ -128,7 +144,7 @@ class _Mesh:
     def _enter(self, n: int, state: State) -> None:
         sched, core = self.scheds[n], self.cores[n]
         if state in (State.TRACE, State.REFINE):
-            sched.primaries = Primaries(core.primaries(state))
+            sched.primaries = core.primaries(state)
         elif state == State.FLUSH:
             self.deposits.extend(core.finished_pixels())
 

@@ -13,6 +13,7 @@ from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
 PROTOCOL_VERSION = 3
+MAX_TILES_PER_MESSAGE = 1024
 
 
 class Kind(IntEnum):
@@ -30,6 +31,8 @@ class Kind(IntEnum):
     # second, so the host tells alive from working, and building from stuck)
     AUTH = 11  # handshake: proof of the cluster secret over both nonces (protocols.handshake)
     WELCOME = 12  # handshake: the listener accepted the dialler's proof
+    TILES = 13  # host to node, dynamic image space: tiles to trace (partition rectangles)
+    TILE_DONE = 14  # node to host: tiles whose every primary ray has started
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -50,6 +53,8 @@ FIELDS = {
     Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool},
     Kind.AUTH: {"proof": bytes},
     Kind.WELCOME: {},
+    Kind.TILES: {"tiles": list, "last": bool},
+    Kind.TILE_DONE: {"node": int, "tiles": list},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),
@@ -98,6 +103,12 @@ def parse(message: dict) -> tuple[Kind, dict]:
         raise BadFrame(f"{kind.name}: missing {sorted(missing)}, unexpected {sorted(extra)}")
     for name, value in fields.items():
         _check(kind, name, value, spec[name])
+    if kind in (Kind.TILES, Kind.TILE_DONE):
+        tiles = fields["tiles"]
+        if len(tiles) > MAX_TILES_PER_MESSAGE or not all(
+                isinstance(t, int) and not isinstance(t, bool) and t >= 0 for t in tiles):
+            raise BadFrame(f"{kind.name}.tiles must be at most {MAX_TILES_PER_MESSAGE} "
+                           "tile indices")  # fmt: skip
     if kind is Kind.OBJECTS:
         want = OBJECT_TABLES.get(fields["table"])
         if want is None:

@@ -28,7 +28,7 @@ MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
 STORAGES = ("auto", "csr", "hash")
 BALANCES = ("even", "cost")
 MODES = ("object", "image")
-TILINGS = ("none", "static")
+TILINGS = ("none", "static", "dynamic")
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,8 @@ class MeshPlan(Spec):
     evenly or where a simulated pre-pass says the nodes' work is even (balance "cost").
     mode "image" (DESIGN.md 6): every node holds the whole scene and traces whole pixel tiles,
     no rays passed; `tiles` "none" gives each node one band of rows, "static" deals near-square
-    tiles of `tile` pixels round-robin."""
+    tiles of `tile` pixels round-robin, "dynamic" deals `buffer` tiles to each node at first
+    and one more whenever a node reports one finished (a node never waits on the network)."""
 
     rows: int = 1
     cols: int = 1
@@ -118,6 +119,7 @@ class MeshPlan(Spec):
     mode: str = "object"
     tiles: str = "static"
     tile: int = 32
+    buffer: int = 2
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -129,12 +131,18 @@ class MeshPlan(Spec):
         self.want_choice("mode", MODES)
         self.want_choice("tiles", TILINGS)
         self.want_int("tile", 1, MAX_SIDE)
+        self.want_int("buffer", 1, 1024)
         if self.mode == "image" and self.balance != "even":
             self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 
     @property
     def nodes(self) -> int:
         return self.rows * self.cols
+
+    @property
+    def dynamic(self) -> bool:
+        """Tiles dealt while the frame is traced, by the host."""
+        return self.mode == "image" and self.tiles == "dynamic"
 
 
 @dataclass(frozen=True)
@@ -236,6 +244,9 @@ class RenderSpec(Spec):
                 self.fail(name, f"must be a {record.__name__}")
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
+        if self.plan.dynamic and self.camera is not None and self.camera.adaptive:
+            self.fail("plan", "adaptive sampling with dynamic tiles is not supported yet (its "
+                              "seams need every tile's owner up front): use static tiles")
         if self.camera is not None and self.image.spp != 1:
             self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, "
                                "not spp")  # fmt: skip

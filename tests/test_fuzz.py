@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, given, note, settings
 from hypothesis import strategies as st
 
-from host.camera import Camera, CameraError, read_camera, read_table, read_toml
+from host.camera import Camera, CameraError, read_camera
 from host.nff import SceneError, parse_nff
 from meshnode.config import Config
 from protocols import dtypes
@@ -44,6 +44,10 @@ CAMERAS = ROOT / "host" / "cameras"
 FUZZ = settings(deadline=None, derandomize=True, database=None, print_blob=False,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                        HealthCheck.function_scoped_fixture])  # fmt: skip
+
+
+def fuzz(examples: int) -> settings:
+    return settings(FUZZ, max_examples=examples)
 
 # Reported bugs the property tests tolerate until fixed: (exception type, project file, the
 # function that raised it) -> the xfail test reproducing it.
@@ -214,8 +218,7 @@ def reference(stream: bytes, max_frame: int):
     return messages, None
 
 
-@FUZZ
-@settings(max_examples=300)
+@fuzz(300)
 @given(stream=streams(), cuts=st.lists(st.integers(0, 400), max_size=8),
        max_frame=st.sampled_from([0, 1, 16, 64, 4096, MAX_FRAME]))  # fmt: skip
 def test_framer_is_split_invariant_and_bounded(stream, cuts, max_frame):
@@ -245,8 +248,7 @@ def test_framer_is_split_invariant_and_bounded(stream, cuts, max_frame):
     assert all(isinstance(m, dict) for m in got)
 
 
-@FUZZ
-@settings(max_examples=200)
+@fuzz(200)
 @given(size=st.one_of(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 4095, 4096, 4097,
                                                                    MAX_FRAME, MAX_FRAME + 1])),
        max_frame=st.sampled_from([4096, MAX_FRAME]), body=st.binary(max_size=64))  # fmt: skip
@@ -296,8 +298,7 @@ def payloads(draw):
     return raw
 
 
-@FUZZ
-@settings(max_examples=300)
+@fuzz(300)
 @given(payload=payloads())
 def test_decode_payload_returns_a_map_or_raises_bad_frame(payload):
     """Any payload decodes to a dict (arrays only of wire dtypes, sized to their bytes) or
@@ -318,8 +319,7 @@ def test_decode_payload_returns_a_map_or_raises_bad_frame(payload):
 # ------------------------------------------------------------------ messages and handshake
 
 
-@FUZZ
-@settings(max_examples=400)
+@fuzz(400)
 @given(message=VALID_MESSAGES.flatmap(mutated_message))
 def test_parse_checks_every_kind_against_its_fields(message):
     """parse on any mutated message, as received from a frame, returns exactly the kind's
@@ -331,8 +331,7 @@ def test_parse_checks_every_kind_against_its_fields(message):
         assert_well_formed(*result)
 
 
-@FUZZ
-@settings(max_examples=200)
+@fuzz(200)
 @given(base=st.builds(hello, st.sampled_from(["meshtrace", "other", ""]), st.sampled_from(ROLES),
                       st.integers(-1, 4), st.binary(min_size=32, max_size=32)),
        data=st.data())  # fmt: skip
@@ -376,8 +375,7 @@ def auth_messages(draw):
     return draw(mutated_message(make(Kind.AUTH, proof=right)))
 
 
-@FUZZ
-@settings(max_examples=200)
+@fuzz(200)
 @given(message=auth_messages())
 def test_check_auth_passes_only_the_right_proof(message):
     """check_auth returns only for an AUTH carrying exactly HMAC(secret, dialler, both nonces);
@@ -451,8 +449,7 @@ def config_fields(draw):
     return draw(mutated_tree(fields))
 
 
-@FUZZ
-@settings(max_examples=300)
+@fuzz(300)
 @given(fields=config_fields())
 def test_config_refuses_bad_fields_with_spec_error_bad_frame_or_value_error(fields):
     """A mutated CONFIG goes through parse and then Config as on a node: parse raises a
@@ -539,8 +536,7 @@ def nff_texts(draw):
     return text
 
 
-@FUZZ
-@settings(max_examples=300)
+@fuzz(300)
 @given(text=nff_texts(), source=st.sampled_from(["scene.nff", "<string>", "dir/ü ber:1.nff"]))
 def test_nff_reader_raises_only_scene_errors_that_name_the_line(text, source):
     """parse_nff on mutated scenes and token soup returns a consistent scene (materials,
@@ -624,8 +620,7 @@ def _assert_camera(result, path: Path) -> None:
         assert result.film_z is None or result.film_z < float(result.elements["z"].min())
 
 
-@FUZZ
-@settings(max_examples=150)
+@fuzz(150)
 @given(text=camera_files())
 def test_toml_camera_reader_raises_only_camera_errors_naming_the_file(tmp_path, text):
     """read_camera on a mutated .toml camera returns a camera whose film lies behind its
@@ -673,8 +668,7 @@ def lens_tables(draw):
     return data
 
 
-@FUZZ
-@settings(max_examples=150)
+@fuzz(150)
 @given(data=lens_tables())
 def test_lens_table_reader_raises_only_camera_errors_naming_the_file(tmp_path, data):
     """read_camera on a mutated lens table returns a camera or raises CameraError whose

@@ -19,7 +19,8 @@ from tests.test_sampling import dof_scene, thin_camera
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
 SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
-TILINGS = [dict(tiles="none"), dict(tiles="static", tile=7)]
+TILINGS = [dict(tiles="none"), dict(tiles="static", tile=7),
+           dict(tiles="dynamic", tile=5, buffer=2)]  # fmt: skip
 
 
 def reference(scene, image, camera=None):
@@ -27,7 +28,7 @@ def reference(scene, image, camera=None):
     return img, {k: stats["rays"][k] for k in COUNTS}
 
 
-@pytest.mark.parametrize("tiling", TILINGS, ids=["none", "static"])
+@pytest.mark.parametrize("tiling", TILINGS, ids=["none", "static", "dynamic"])
 @pytest.mark.parametrize("spp", [1, 4])
 def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
     scene = read_nff(spd_scene("rings_s1.nff"))
@@ -48,7 +49,7 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling):
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
-        for tiling in TILINGS:
+        for tiling in TILINGS[: 3 if sampling != "adaptive" else 2]:
             img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
                                             mode="image", **tiling)  # fmt: skip
             assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
@@ -102,3 +103,53 @@ def test_image_space_over_tcp_equals_one_node(sampling):
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     assert stats["rays_passed"] == 0
     assert stats["objects_per_node"] == [stats["objects_per_node"][0]] * 4
+
+
+def test_dynamic_tiles_over_tcp_finish_every_tile_once_and_equal_one_node():
+    import asyncio
+
+    from host.localmesh import LocalMesh
+    from host.meshclient import render_on_mesh
+
+    scene, image = read_nff(spd_scene("balls_s1.nff")), ImageSpec(48, 40, spp=2)
+    ref, counts = reference(scene, image)
+    plan = MeshPlan(2, 2, mode="image", tiles="dynamic", tile=6, buffer=2)
+    with LocalMesh(plan.nodes) as addresses:
+        coro = render_on_mesh(scene, image, addresses, plan, EngineSpec(threads=1))
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in COUNTS} == counts  # every pixel traced exactly once
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    assert sum(stats["tiles_per_node"]) == 8 * 7 and min(stats["tiles_per_node"]) > 0
+
+
+def test_the_dealer_deals_every_tile_once_and_closes_every_node():
+    from meshnode.scheduler import TileDealer
+
+    for count, nodes, buffer in ((20, 3, 2), (2, 4, 3), (0, 2, 1)):
+        dealer = TileDealer(count, nodes, buffer)
+        given, closed = [], set()
+        pending = []
+        for n, (first, last) in dealer.first().items():
+            given += first
+            pending += [n] * len(first)
+            if last:
+                closed.add(n)
+        while pending:  # nodes report their tiles finished, in turn
+            n = pending.pop(0)
+            more, last = dealer.finished(n)
+            given += more
+            pending += [n] * len(more)
+            if last:
+                closed.add(n)
+        assert sorted(given) == list(range(count)) and closed == set(range(nodes))
+
+
+def test_adaptive_sampling_with_dynamic_tiles_is_refused_by_name():
+    from protocols.spec import SpecError
+
+    scene = dof_scene()
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    image = ImageSpec(width=8, height=8).sized(scene.view)
+    spec, _ = setup.spec(scene, image, lambda: None)
+    with pytest.raises(SpecError, match=r"RenderSpec\.plan.*dynamic"):
+        RenderSpec(image, plan=MeshPlan(2, 2, mode="image", tiles="dynamic"), camera=spec)

@@ -9,9 +9,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # What the host may use of the node side: the engine (a compute library), the adaptive
-# sampling books, the simulated mesh (it drives the node's own scheduler), and the framed
-# link both ends speak. Never the service, its session, scheduler or node internals.
-HOST_MAY_USE = ("meshnode.engine", "meshnode.adaptive", "meshnode.simulator", "meshnode.link")
+# sampling books, the scheduler (pure: the host deals dynamic tiles with it) and the
+# simulated mesh that drives it, and the framed link both ends speak. Never the service,
+# its session or node internals.
+HOST_MAY_USE = ("meshnode.engine", "meshnode.adaptive", "meshnode.simulator", "meshnode.link",
+                "meshnode.scheduler")
 
 
 def imports(path: Path, full: bool = False) -> set[str]:
@@ -59,3 +61,4 @@ def test_the_rule_checker_catches_node_internals(tmp_path):
     found = imports(probe, full=True)
     assert found == {"meshnode.service", "meshnode.engine.grid"}
     assert [m for m in sorted(found) if not m.startswith(HOST_MAY_USE)] == ["meshnode.service"]
+    assert "meshnode.session" not in HOST_MAY_USE and "meshnode.node" not in HOST_MAY_USE

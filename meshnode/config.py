@@ -1,15 +1,22 @@
-"""A node's configuration for one render: the CONFIG message read and checked.
+"""A node's configuration for one render: the CONFIG message read and checked, and the
+objects the host downloads after it.
 
 Everything the host sends is checked before the node acts on it: the render's records check
 their own fields, and the message's node index, neighbour addresses and view must fit the
-plan. SpecError or BadFrame names what is wrong; the service sends that back to the host.
+plan; the objects may not exceed MAX_OBJECT_BYTES. SpecError or BadFrame names what is
+wrong; the service sends that back to the host.
 """
 
+import numpy as np
+
 from protocols.errors import BadFrame
+from protocols.messages import OBJECT_TABLES
 from protocols.render import Partition, RenderSpec
-from protocols.scene import View
+from protocols.scene import SceneData, View
 from protocols.spec import SpecError
 from protocols.topology import Torus
+
+MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node
 
 
 class Config:
@@ -34,3 +41,29 @@ class Config:
         except (TypeError, ValueError) as e:
             raise BadFrame(f"CONFIG.view: {e}") from None
         self.view, self.background = view, tuple(f["background"])
+
+
+class Objects:
+    """The node's objects as they arrive, table by table, bounded in bytes."""
+
+    def __init__(self):
+        self.tables: dict[str, list] = {}
+        self.bytes = 0
+
+    def add(self, table: str, records: np.ndarray) -> None:
+        self.bytes += records.nbytes
+        if self.bytes > MAX_OBJECT_BYTES:
+            raise BadFrame(f"OBJECTS: more than {MAX_OBJECT_BYTES >> 20} MiB of objects")
+        self.tables.setdefault(table, []).append(np.array(records))
+
+    def scene(self, view: View, background) -> SceneData:
+        def table(name):
+            parts = self.tables.get(name)
+            return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
+
+        return SceneData(
+            view=view, background=background, lights=table("lights"),
+            materials=table("materials"), spheres=table("spheres"),
+            triangles=table("triangles"), polygons=table("polygons"),
+            vertices=table("vertices").reshape(-1, 3), cones=table("cones"),
+        )  # fmt: skip

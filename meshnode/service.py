@@ -163,7 +163,7 @@ class NodeService:
                 if kind is Kind.CONFIG and session is None:
                     session = self.session = Session(self, link, Config(f))
                 elif kind is Kind.OBJECTS and session is not None:
-                    session.add_objects(f["table"], f["records"])
+                    session.objects.add(f["table"], f["records"])
                     if f["last"]:
                         session.spawn(session.build())
                 elif kind is Kind.TILES and session is not None:

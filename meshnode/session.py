@@ -13,22 +13,20 @@ import logging
 
 import numpy as np
 
-from meshnode.config import Config
+from meshnode.config import Config, Objects
 from meshnode.link import Link, LinkClosed, Outbox
 from meshnode.node import HOST, NodeCore
 from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, Trace
 from meshnode.stats import NodeStats
 from meshnode.termination import Packet, State
 from protocols.errors import BadFrame, describe
-from protocols.messages import OBJECT_TABLES, Kind, make
-from protocols.scene import SceneData
+from protocols.messages import Kind, make
 from protocols.topology import Router
 
 log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
-MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node
 
 
 class Session:
@@ -43,8 +41,7 @@ class Session:
         self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
                                threads, service.incoming_high)  # fmt: skip
         self.stats = NodeStats(self.node)
-        self.tables: dict[str, list] = {}
-        self.object_bytes = 0
+        self.objects = Objects()
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
         self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
@@ -77,33 +74,14 @@ class Session:
                                 work=self.stats.batches, ready=self.ready))  # fmt: skip
 
     # ------------------------------------------------------------------ setup
-    def add_objects(self, table: str, records: np.ndarray) -> None:
-        """Keep a batch of the node's objects; a render may send at most MAX_OBJECT_BYTES."""
-        self.object_bytes += records.nbytes
-        if self.object_bytes > MAX_OBJECT_BYTES:
-            raise BadFrame(f"OBJECTS: more than {MAX_OBJECT_BYTES >> 20} MiB of objects")
-        self.tables.setdefault(table, []).append(np.array(records))
-
-    def scene(self) -> SceneData:
-        def table(name):
-            parts = self.tables.get(name)
-            return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
-
-        return SceneData(
-            view=self.config.view, background=self.config.background, lights=table("lights"),
-            materials=table("materials"), spheres=table("spheres"),
-            triangles=table("triangles"), polygons=table("polygons"),
-            vertices=table("vertices").reshape(-1, 3), cones=table("cones"),
-        )  # fmt: skip
-
     async def build(self) -> None:
         """Build the engine off the loop, link to the neighbours, then start working."""
         try:
             loop = asyncio.get_running_loop()
             c = self.config
+            scene = self.objects.scene(c.view, c.background)
             self.core = await loop.run_in_executor(
-                self.service.pool, lambda: NodeCore(self.node, self.scene(), c.render,
-                                                    c.partition))  # fmt: skip
+                self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition))
             await loop.run_in_executor(self.service.pool, self.core.warmup)
             for f in self.early_tiles:
                 self.core.add_tiles(f["tiles"], f["last"])

@@ -178,6 +178,7 @@ def _render(args) -> int:
         print(f"host: cannot read scene: {e}", file=sys.stderr)
         return 2
     try:
+        outputs = _outputs(args)
         image, engine, camera = _records(args)
         img, stats = _run(scene, image, engine, camera, args)
     except (ValueError, OSError) as e:  # SpecError and CameraError included
@@ -186,12 +187,11 @@ def _render(args) -> int:
     except MeshError as e:
         print(f"host: render failed: {e}", file=sys.stderr)
         return 1
-    out = Path(args.output or Path(args.scene).with_suffix(".png").name)
+    out, float_path, stats_path = outputs
     write_png(out, img)
-    float_path = Path(args.float_path or out.with_suffix(".pfm"))
     write_pfm(float_path, img)
-    if args.stats:
-        Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
+    if stats_path:
+        stats_path.write_text(json.dumps(stats, indent=2) + "\n")
     leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
     if leaving < 0.5:
         print(f"host: only {leaving:.0%} of the camera rays leave the camera (the rest are "
@@ -255,6 +255,26 @@ def read_cluster(path) -> tuple[int, int, list[str]]:
     if missing:
         raise ValueError(f"{path}: no address for node(s) {missing}")
     return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]
+
+
+def _outputs(args) -> tuple[Path, Path, Path | None]:
+    """The PNG, PFM and statistics paths, checked before any work: the right suffix, and a
+    folder that exists and can be written (a render is never lost to a bad path)."""
+    out = Path(args.output or Path(args.scene).with_suffix(".png").name)
+    float_path = Path(args.float_path or out.with_suffix(".pfm"))
+    stats = Path(args.stats) if args.stats else None
+    for path, suffix, flag in ((out, ".png", "-o"), (float_path, ".pfm", "--float")):
+        if path.suffix.lower() != suffix:
+            raise ValueError(f"{flag} {path}: writes {suffix} images, not {path.suffix!r}")
+    for path in (out, float_path, stats):
+        if path is None:
+            continue
+        folder = path.parent if str(path.parent) else Path(".")
+        if not folder.is_dir():
+            raise ValueError(f"cannot write {path}: no folder {folder}")
+        if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+            raise ValueError(f"cannot write {path}: permission denied")
+    return out, float_path, stats
 
 
 def _records(args):

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from host.cli import main
@@ -102,3 +103,18 @@ def test_the_default_plan_on_one_machine_is_one_process_and_says_why(tmp_path, c
     assert plan["choice"] == "one process" and "one machine" in plan["why"]
     first = capsys.readouterr().err.strip().splitlines()[0]
     assert first.startswith("host: plan: one process")
+
+
+@pytest.mark.parametrize("flags,what", [
+    (["-o", "{tmp}/missing/a.png"], "no folder"),
+    (["-o", "{tmp}/a.exr"], "writes .png images"),
+    (["-o", "{tmp}/a.jpgg"], "writes .png images"),
+    (["-o", "{tmp}/a.png", "--float", "{tmp}/a.tiff"], "writes .pfm images"),
+    (["-o", "{tmp}/a.png", "--stats", "{tmp}/nowhere/s.json"], "no folder"),
+])  # fmt: skip
+def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
+    argv = ["render", str(EXAMPLE), "--quiet", *[f.format(tmp=tmp_path) for f in flags]]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert what in err and "Traceback" not in err
+    assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written

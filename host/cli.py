@@ -7,6 +7,7 @@ Every render option is one field of a record of `protocols.render` (or `protocol
 import argparse
 import asyncio
 import json
+import math
 import os
 import secrets
 import sys
@@ -26,6 +27,15 @@ AUTO_WHY = ("on one machine, threads in one process beat a local mesh of process
             "pixels cross process boundaries; --mesh ROWSxCOLS starts a local mesh")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("meshtrace")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def _field(group, flag: str, record: type, name: str, help: str, **kw) -> None:
     """An option that sets `record.name`; unset, the record's own default applies."""
     d = default(record, name)
@@ -42,6 +52,7 @@ def _given(args, record: type) -> dict:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="host", description="Meshtrace host: render NFF scenes.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render an NFF scene")
     r.add_argument("scene", help="NFF scene file")
@@ -132,9 +143,13 @@ def _focus(text: str):
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    if args.command == "camera":
-        return _camera(args)
-    return _render(args)
+    try:
+        code = _camera(args) if args.command == "camera" else _render(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
+        return code
+    except BrokenPipeError:  # `host camera ... | head`: the reader left; not an error here
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _camera(args) -> int:
@@ -146,7 +161,7 @@ def _camera(args) -> int:
         print(f"host: {e}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(d, indent=2))
+        print(json.dumps(_finite(d), indent=2, allow_nan=False))
         return 0
     fov = d["field_of_view_deg"]
     mm = 1000.0
@@ -164,6 +179,17 @@ def _camera(args) -> int:
           f"hyperfocal distance     {d['hyperfocal_distance_m']:.2f} m (circle of confusion "
           f"{d['circle_of_confusion_m'] * mm:.3f} mm)")  # fmt: skip
     return 0
+
+
+def _finite(value):
+    """JSON has no Infinity: infinite figures (focus at infinity) are written "infinity"."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return "infinity" if value > 0 else "-infinity" if value < 0 else "nan"
+    return value
 
 
 def _render(args) -> int:

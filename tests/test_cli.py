@@ -1,6 +1,7 @@
 """`host render` end to end: images, statistics JSON, and clear errors before any work."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -118,3 +119,30 @@ def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
     err = capsys.readouterr().err
     assert what in err and "Traceback" not in err
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written
+
+
+def test_camera_json_is_strict_json_even_focused_at_infinity(capsys):
+    cameras = Path(__file__).resolve().parents[1] / "host" / "cameras"
+    assert main(["camera", str(cameras / "thin_f2.8.toml"), "--json", "--focus", "inf"]) == 0
+    d = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(c))
+    assert d["focus_distance_m"] == "infinity" and d["effective_focal_length_m"] > 0
+
+
+def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
+    r = subprocess.run([sys.executable, "-m", "host.cli", "--version"], capture_output=True,
+                       text=True, check=True)  # fmt: skip
+    assert r.stdout.startswith("host ")
+
+    class ClosedPipe:  # what stdout is once `| head` has read enough and left
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self):
+            return os.open(os.devnull, os.O_WRONLY)
+
+    cameras = Path(__file__).resolve().parents[1] / "host" / "cameras"
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert main(["camera", str(cameras / "thin_f2.8.toml")]) == 0

@@ -12,9 +12,10 @@ import time
 
 import numpy as np
 
+from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import build_grid
-from meshnode.engine.tables import build_tables
-from meshnode.engine.trace import COUNTER_NAMES, N_COUNTERS, first_hits, trace_batch
+from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
+from meshnode.engine.trace import first_hits, trace_batch
 from protocols.dtypes import RAY
 from protocols.scene import SceneData
 
@@ -40,7 +41,6 @@ class Engine:
     ):
         start = time.perf_counter()
         self.scene = scene
-        self.max_depth = int(max_depth)
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)
         if box is not None:
@@ -58,11 +58,18 @@ class Engine:
         extent = float(np.max(self.scene_hi - self.scene_lo))
         scale = max(extent, float(np.max(np.abs(np.concatenate([self.scene_lo, self.scene_hi])))))
         # Secondary rays exclude their own surface; this guard only absorbs round-off.
-        self.t_eps = 1e-12 * scale
+        t_eps = 1e-12 * scale
         n_lights = 0 if tb.lights is None else len(tb.lights)
-        self.ambient = math.sqrt(max(n_lights, 1)) / (2.0 * max(n_lights, 1))
-        self.background = np.asarray(scene.background, float)
-        self.transmit = np.ascontiguousarray(tb.materials[:, 6]) if tb.transmitters else None
+        ambient = math.sqrt(max(n_lights, 1)) / (2.0 * max(n_lights, 1))
+        self.shading = Shading(
+            mat=tb.mat, materials=tb.materials, tri_n=tb.tri_normals, ambient=ambient,
+            background=np.asarray(scene.background, float), max_depth=int(max_depth), t_eps=t_eps,
+        )  # fmt: skip
+        self.transmit = (
+            np.ascontiguousarray(tb.materials[:, MAT_TRANSMIT]) if tb.transmitters else None
+        )
+        self.geometry = tb.geometry()
+        self.grid_arrays = self.grid.arrays()
         self.preprocess_seconds = time.perf_counter() - start
         self.stats = {
             "objects": int(len(np.unique(tb.gid))),
@@ -85,11 +92,6 @@ class Engine:
         parts.append("refraction" if tb.transmitters else "no-refraction")
         parts.append("brute-force" if self.brute else self.grid.storage)
         return "/".join(parts)
-
-    def _geometry(self):
-        tb = self.tables
-        return (tb.gid, tb.offsets, tb.spheres, tb.triangles, tb.polygons, tb.poly_info,
-                tb.poly_uv, tb.cones)  # fmt: skip
 
     def warmup(self) -> float:
         """Compile (or load from the disk cache) this variant's kernels, single-node and mesh
@@ -119,8 +121,8 @@ class Engine:
             raise ValueError("directions must be finite and non-zero; origins finite")
         d = d / norm[:, None]
         counters = np.zeros(N_COUNTERS, np.int64)
-        t, u = first_hits(o, d, float(t_min), self.brute, counters, *self._geometry(),
-                          *self.grid.kernel_args())  # fmt: skip
+        t, u = first_hits(o, d, float(t_min), self.brute, counters, self.geometry,
+                          self.grid_arrays)  # fmt: skip
         gid = np.full(len(u), -1, np.int64)
         gid[u >= 0] = self.tables.gid[u[u >= 0]]
         return t, gid
@@ -140,14 +142,12 @@ class Engine:
         if out_rgb is None:
             out_rgb = np.zeros((len(rays), 3))
         counters = np.zeros(N_COUNTERS, np.int64)
-        tb = self.tables
         out, n_out = trace_batch(
-            np.ascontiguousarray(rays), out_rgb, counters, self.max_depth, self.t_eps,
-            self.ambient, self.background, self.brute, tb.materials, self.transmit, tb.lights,
-            tb.gid, tb.mat, tb.offsets, tb.spheres, tb.triangles, tb.tri_normals, tb.polygons,
-            tb.poly_info, tb.poly_uv, tb.cones, *self.grid.kernel_args(),
+            np.ascontiguousarray(rays), out_rgb, counters, self.brute, self.geometry,
+            self.grid_arrays, self.shading, self.transmit, self.tables.lights,
             # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
-            # more arrays early in the list (code layout), so keep the hot ones first
+            # more arrays early in the list (code layout), so keep the hot ones first (tetra:
+            # 2-4% slower with the shading table ahead of the geometry and grid)
             self.scene_lo, self.scene_hi, out,
         )  # fmt: skip
         passed = None if out is None else out[:n_out].copy()

@@ -4,6 +4,7 @@ CSR arrays or as a hash table plus a bit table, whichever costs less memory (DES
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -15,6 +16,26 @@ MAX_REFS = 1 << 26
 MACRO_SHIFT = 2  # macro cells of 4^3 voxels, for skipping empty space
 MACRO = 1 << MACRO_SHIFT
 STORAGES = ("auto", "csr", "hash")
+
+
+class GridArrays(NamedTuple):
+    """The grid as the traversal kernels read it (`Grid.arrays`). Both storages' arrays are
+    always set, the unused one's empty: the storage is a branch taken per voxel at run time
+    (perfectly predicted), which halves the compiled variants."""
+
+    glo: np.ndarray  # (3,) box corner
+    cell: np.ndarray  # (3,) voxel size
+    res: np.ndarray  # (3,) int64 voxels per axis
+    offsets: np.ndarray  # CSR: (V+1,) int32 start of each voxel's refs; empty with hash
+    slots: np.ndarray  # hash: (M+1,) int32 start of each slot's entries; empty with CSR
+    e_vox: np.ndarray  # hash: (E,) int64 true voxel id of each entry
+    e_start: np.ndarray  # hash: (E,) int32 first ref of each entry
+    e_count: np.ndarray  # hash: (E,) int32 refs of each entry
+    bits: np.ndarray  # hash: (V/8,) uint8, one bit per non-empty voxel
+    refs: np.ndarray  # (R,) int32 local object ids, grouped by voxel
+    macro: np.ndarray  # (Mz*My*Mx,) uint8 distance to the nearest occupied macro cell
+    mres: np.ndarray  # (3,) int64 macro cells per axis
+    mshift: int  # macro cells are 2^mshift voxels a side
 
 
 @dataclass
@@ -41,14 +62,11 @@ class Grid:
     def hi(self) -> np.ndarray:
         return self.lo + self.cell * self.res
 
-    def kernel_args(self) -> tuple:
-        """The grid as the positional arguments every traversal kernel takes.
-
-        The unused storage's arrays are passed empty, not None: the storage is a branch taken
-        per voxel at run time (perfectly predicted), which halves the compiled variants."""
+    def arrays(self) -> GridArrays:
+        """The grid as the traversal kernels take it."""
         i32, i64, u8 = np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros(0, np.uint8)
         csr = self.storage == "csr"
-        return (
+        return GridArrays(
             self.lo, self.cell, self.res,
             self.offsets if csr else i32,
             i32 if csr else self.slots,
@@ -82,7 +100,7 @@ def choose_resolution(lo, hi, n_objects: int, density: float) -> np.ndarray:
 
 
 @kernel
-def _voxel_refs(glo, cell, res, lo, hi, off, sph, tri, poly, fill, counts, starts, refs):
+def _voxel_refs(glo, cell, res, lo, hi, geo, fill, counts, starts, refs):
     """Count (fill=False) or write (fill=True) the references of every object.
 
     Bounds give a voxel range; spheres and planar objects then keep only voxels they touch
@@ -100,7 +118,8 @@ def _voxel_refs(glo, cell, res, lo, hi, off, sph, tri, poly, fill, counts, start
         for iz in range(ijk_lo[2], ijk_hi[2] + 1):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
-                    if not _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
+                    if not _touches(u, ix, iy, iz, glo, cell, geo.off, geo.sph, geo.tri,
+                                    geo.poly):  # fmt: skip
                         continue
                     v = ix + nx * (iy + ny * iz)
                     if fill:
@@ -112,7 +131,8 @@ def _voxel_refs(glo, cell, res, lo, hi, off, sph, tri, poly, fill, counts, start
 
 @kernel
 def _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
-    """Conservative voxel-object overlap for the kinds that have a cheap exact-enough test."""
+    """Conservative voxel-object overlap for the kinds that have a cheap exact-enough test
+    (kinds passed as None are compiled out)."""
     c0 = glo[0] + (ix + 0.5) * cell[0]
     c1 = glo[1] + (iy + 0.5) * cell[1]
     c2 = glo[2] + (iz + 0.5) * cell[2]
@@ -160,8 +180,7 @@ def _plane_straddles(px, py, pz, nx, ny, nz, c0, c1, c2, h0, h1, h2):
 def _count(tables: Tables, glo, ghi, res):
     """References per voxel at resolution `res` (the first of the two build passes)."""
     cell = (ghi - glo) / res
-    args = (glo, cell, res, tables.lo, tables.hi, tables.offsets, tables.spheres,
-            tables.triangles, tables.polygons)  # fmt: skip
+    args = (glo, cell, res, tables.lo, tables.hi, tables.geometry())
     counts = np.zeros(int(np.prod(res)), np.int32)
     _voxel_refs(*args, False, counts, counts, np.zeros(0, np.int32))
     return cell, args, counts

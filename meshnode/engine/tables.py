@@ -7,12 +7,49 @@ local id back to the scene.
 """
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from protocols.scene import SceneData
 
 SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 6, 10
+# Columns of a materials row and of a lights row (MAT_RGB, LIGHT_POS and LIGHT_RGB: the first
+# of three).
+MAT_RGB, MAT_KD, MAT_KS, MAT_SHINE, MAT_TRANSMIT, MAT_IOR, MAT_COLS = 0, 3, 4, 5, 6, 7, 8
+LIGHT_POS, LIGHT_RGB, LIGHT_COLS = 0, 3, 6
+
+
+class Geometry(NamedTuple):
+    """The objects as the intersection kernels read them; row layouts in `intersect.py`.
+
+    A kind the node does not hold is None. numba compiles out an `x is None` branch only when x
+    is an argument of the compiled function that branches (inlined code included), never a
+    field of a tuple: so the kernels that branch on kinds, or inline code that does
+    (`traverse.walk` and `brute_force`, `shade.normals`, `grid._touches`), take these fields as
+    arguments; the tracing entry points take the whole tuple and pass its fields on."""
+
+    gid: np.ndarray  # (n,) int32 scene object id per local id
+    off: np.ndarray  # (5,) int64 first local id of spheres, triangles, polygons, cones; then n
+    sph: np.ndarray | None  # (ns, SPHERE_COLS)
+    tri: np.ndarray | None  # (nt, TRIANGLE_COLS)
+    poly: np.ndarray | None  # (np, POLYGON_COLS) plane rows
+    pinfo: np.ndarray | None  # (np, 4) int64 start count axis_u axis_v
+    puv: np.ndarray | None  # (nv, 2) polygon vertices in their plane, relative to p0
+    cone: np.ndarray | None  # (nc, CONE_COLS)
+
+
+class Shading(NamedTuple):
+    """What the tracing kernel reads at a hit, besides the lights and transmittances (which
+    stay arguments of their own: None compiles out shadow rays and refraction)."""
+
+    mat: np.ndarray  # (n,) int32 material per local id
+    materials: np.ndarray  # (m, MAT_COLS) columns MAT_RGB ... MAT_IOR
+    tri_n: np.ndarray | None  # (nt, 9) vertex normals, None when every triangle is flat
+    ambient: float  # intensity of the ambient term
+    background: np.ndarray  # (3,) colour of rays that escape
+    max_depth: int  # rays at this depth spawn no reflected or refracted rays
+    t_eps: float  # secondary rays start here: absorbs round-off, not a scene-sized epsilon
 
 
 @dataclass
@@ -31,14 +68,19 @@ class Tables:
     lo: np.ndarray  # (n, 3) object bounds
     hi: np.ndarray  # (n, 3)
     offsets: np.ndarray  # (5,) int64 first local id of each kind, plus n
-    materials: np.ndarray  # (m, 8) r g b kd ks shine t ior
-    lights: np.ndarray | None  # (L, 6) position and intensity-scaled colour
+    materials: np.ndarray  # (m, MAT_COLS) columns MAT_RGB ... MAT_IOR
+    lights: np.ndarray | None  # (L, LIGHT_COLS) position, intensity-scaled colour
     kinds: tuple[str, ...]
     transmitters: bool
 
     @property
     def n(self) -> int:
         return len(self.gid)
+
+    def geometry(self) -> Geometry:
+        """The object tables as the intersection kernels take them."""
+        return Geometry(self.gid, self.offsets, self.spheres, self.triangles, self.polygons,
+                        self.poly_info, self.poly_uv, self.cones)  # fmt: skip
 
 
 def _or_none(a: np.ndarray) -> np.ndarray | None:
@@ -117,10 +159,12 @@ def _cone_tables(scene: SceneData, transmits):
 def build_tables(scene: SceneData) -> Tables:
     """Convert scene records into kernel tables (vectorised: no loop per object)."""
     mats = scene.materials
-    materials = np.column_stack(
-        [mats["rgb"], mats["kd"], mats["ks"], mats["shine"], mats["t"], mats["ior"]]
-    ).reshape(-1, 8)
-    transmits_mat = materials[:, 6] > 0.0 if len(materials) else np.zeros(0, bool)
+    materials = np.empty((len(mats), MAT_COLS))
+    materials[:, MAT_RGB : MAT_RGB + 3] = mats["rgb"]
+    for col, field in ((MAT_KD, "kd"), (MAT_KS, "ks"), (MAT_SHINE, "shine"),
+                       (MAT_TRANSMIT, "t"), (MAT_IOR, "ior")):  # fmt: skip
+        materials[:, col] = mats[field]
+    transmits_mat = materials[:, MAT_TRANSMIT] > 0.0
 
     s = scene.spheres
     sph = np.column_stack(
@@ -150,7 +194,9 @@ def build_tables(scene: SceneData) -> Tables:
     if len(scene.lights):
         # SPD rule: every light (and the ambient term) has intensity sqrt(L) / (2 L).
         scale = np.sqrt(len(scene.lights)) / (2.0 * len(scene.lights))
-        lights = np.column_stack([scene.lights["pos"], scene.lights["rgb"] * scale])
+        lights = np.empty((len(scene.lights), LIGHT_COLS))
+        lights[:, LIGHT_POS : LIGHT_POS + 3] = scene.lights["pos"]
+        lights[:, LIGHT_RGB : LIGHT_RGB + 3] = scene.lights["rgb"] * scale
     names = ("spheres", "triangles", "polygons", "cones")
     return Tables(
         spheres=_or_none(sph),
@@ -165,7 +211,7 @@ def build_tables(scene: SceneData) -> Tables:
         lo=np.concatenate([sph_lo, v.min(axis=1), pl_lo, cn_lo]).reshape(-1, 3),
         hi=np.concatenate([sph_hi, v.max(axis=1), pl_hi, cn_hi]).reshape(-1, 3),
         offsets=offsets,
-        materials=np.ascontiguousarray(materials) if len(materials) else np.zeros((1, 8)),
+        materials=materials if len(materials) else np.zeros((1, MAT_COLS)),
         lights=lights,
         kinds=tuple(nm for nm, c in zip(names, counts, strict=False) if c),
         transmitters=any(bool(transmits_mat[g["mat"]].any()) for g in groups if len(g)),

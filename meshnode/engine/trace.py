@@ -10,22 +10,23 @@ import math
 
 import numpy as np
 
+from meshnode.engine.counters import (
+    ESCAPED,
+    EYE_HITS,
+    FORWARDED,
+    HITS,
+    REFLECTED_RAYS,
+    REFRACTED_RAYS,
+    SEGMENTS,
+    SHADOW_BLOCKED,
+    SHADOW_LIT,
+    SHADOW_RAYS,
+)
 from meshnode.engine.jit import inline, kernel
 from meshnode.engine.shade import normals, phong, refract
-from meshnode.engine.traverse import box_span, brute_force, test_object, walk
+from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
+from meshnode.engine.traverse import box_span, brute_force, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
-
-# Indices of the counters array every kernel call adds to.
-EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
-TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED = range(6, 13)
-N_COUNTERS = 13
-COUNTER_NAMES = (
-    "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-    "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
-    "hits", "shadow_rays_lit", "rays_forwarded",
-)  # fmt: skip
-# Every ray ends exactly once: created = eye + reflected + refracted + shadow rays, ended =
-# hits + escaped + shadow rays blocked + shadow rays lit; forwarded rays end on another node.
 
 
 @inline
@@ -42,10 +43,10 @@ def _push(so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi
 
 
 @kernel
-def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
-               glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-               macro, mres, mshift):  # fmt: skip
-    """Nearest hit distance and local object id of each (origin, unit direction) pair."""
+def first_hits(orig, dirs, t_lo, brute, counters, geo, grid):
+    """Nearest hit distance and local object id of each (origin, unit direction) pair, among
+    the objects of the `Geometry` geo through the `GridArrays` grid (or all, with brute)."""
+    gid, off, sph, tri, poly, pinfo, puv, cone = geo
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
     u_out = np.full(n, -1, np.int64)
@@ -57,11 +58,8 @@ def first_hits(orig, dirs, t_lo, brute, counters, gid, off, sph, tri, poly, pinf
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
         else:
-            ray = (ox, oy, oz, dx, dy, dz, t_lo, math.inf)
-            t, u = walk(ray, -1, False, i, mail, counters,
-                        gid, off, sph, tri, poly, pinfo, puv, cone,
-                        glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-                        macro, mres, mshift)  # fmt: skip
+            t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
+                        gid, off, sph, tri, poly, pinfo, puv, cone, grid)  # fmt: skip
         counters[SEGMENTS] += 1
         t_out[i] = t
         u_out[i] = u
@@ -86,14 +84,13 @@ def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, o
 
 
 @kernel
-def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, brute,
-                materials, transmit, lights, gid, mat, off,
-                sph, tri, tri_n, poly, pinfo, puv, cone,
-                glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-                macro, mres, mshift, scene_lo, scene_hi, out):  # fmt: skip
+def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, lights,
+                scene_lo, scene_hi, out):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
-    `lights` None compiles out shadow rays, `transmit` None compiles out refraction.
+    The objects are the `Geometry` geo in the `GridArrays` grid (or all tested, with brute),
+    shaded by the `Shading` shading. `lights` (rows by LIGHT_* columns) None compiles out
+    shadow rays, `transmit` (each material's transmittance) None compiles out refraction.
 
     On a mesh node `out` is a RAY array: a segment that is not in this node's box (the grid's)
     where it starts, or leaves it before ending, is written there with t_min where to resume
@@ -101,6 +98,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
     and the count written are returned. A hit beyond the box is not trusted (an object held
     elsewhere may come first); a shadow ray blocked by any object it meets is blocked.
     With `out` None (one node, box = scene) this code is compiled out."""
+    # Fields into locals once: numba counts references at each read of a tuple's field, and
+    # reads in the ray loop made balls and rings trace 10% slower.
+    gid, off, sph, tri, poly, pinfo, puv, cone = geo
+    mat, materials, tri_n, amb, background, max_depth, t_eps = shading
+    glo, cell, res = grid.glo, grid.cell, grid.res
     n_lights = 0 if lights is None else lights.shape[0]
     cap = int(max_depth) * (n_lights + 2) + 4
     so = np.empty((cap, 3))
@@ -109,12 +111,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
     st = np.empty((cap, 2))
     sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
     mail = np.full(gid.shape[0], -1, np.int64)
-    # Shadow cache: the object that last blocked each light is tried first, before any walk.
+    # Shadow cache: the object that last blocked each light is tried first (walk's hint).
     blocker = np.full(max(n_lights, 1), -1, np.int64)
     fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
     ibits = fbits.view(np.int64)
     ray_id = 0
-    amb = ambient
     buf = out  # `out` itself must stay unassigned for numba to prune on `out is None`
     n_out = 0
     ghi0 = glo[0] + cell[0] * res[0]
@@ -160,22 +161,14 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
-            if shadow and not brute and blocker[light] >= 0:
-                counters[TESTS] += 1
-                t = test_object(blocker[light], ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin,
-                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-                if t < t_hi:
-                    counters[SHADOW_BLOCKED] += 1
-                    continue
             if brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
             else:
-                ray = (ox, oy, oz, dx, dy, dz, t_lo, t_hi)
-                t, u = walk(ray, origin, shadow, ray_id, mail, counters,
-                            gid, off, sph, tri, poly, pinfo, puv, cone,
-                            glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits,
-                            refs, macro, mres, mshift)  # fmt: skip
+                hint = blocker[light] if shadow else -1
+                t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, ray_id,
+                            mail, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                            grid)  # fmt: skip
             if out is not None:
                 if u >= 0 and not shadow and t > n1:
                     u = -1  # a hit beyond this box: another node may hold a nearer object
@@ -216,11 +209,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
             if not entering:
                 gx, gy, gz, nx, ny, nz = -gx, -gy, -gz, -nx, -ny, -nz
             m = mat[u]
-            kd = materials[m, 3]
-            ks = materials[m, 4]
-            cr += wr * amb * kd * materials[m, 0]
-            cg += wg * amb * kd * materials[m, 1]
-            cb += wb * amb * kd * materials[m, 2]
+            kd = materials[m, MAT_KD]
+            ks = materials[m, MAT_KS]
+            cr += wr * amb * kd * materials[m, MAT_RGB]
+            cg += wg * amb * kd * materials[m, MAT_RGB + 1]
+            cb += wb * amb * kd * materials[m, MAT_RGB + 2]
             dn = dx * nx + dy * ny + dz * nz
             rx = dx - 2.0 * dn * nx
             ry = dy - 2.0 * dn * ny
@@ -233,11 +226,11 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
             rz *= rn
             hit_gid = gid[u]
             if lights is not None:
-                shine = materials[m, 5]
+                shine = materials[m, MAT_SHINE]
                 for li in range(n_lights):
-                    lx = lights[li, 0] - px
-                    ly = lights[li, 1] - py
-                    lz = lights[li, 2] - pz
+                    lx = lights[li, LIGHT_POS] - px
+                    ly = lights[li, LIGHT_POS + 1] - py
+                    lz = lights[li, LIGHT_POS + 2] - pz
                     ln = math.sqrt(lx * lx + ly * ly + lz * lz)
                     lx /= ln
                     ly /= ln
@@ -250,11 +243,13 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                     if ks > 0.0 and rl > 0.0:
                         spec = ks * phong(rl, shine, fbits, ibits)
                     counters[SHADOW_RAYS] += 1
+                    dr = kd * cos * materials[m, MAT_RGB] + spec
+                    dg = kd * cos * materials[m, MAT_RGB + 1] + spec
+                    db = kd * cos * materials[m, MAT_RGB + 2] + spec
                     sp = _push(so, sd, sw, st, sk, sp, px, py, pz, lx, ly, lz,
-                               wr * lights[li, 3] * (kd * cos * materials[m, 0] + spec),
-                               wg * lights[li, 4] * (kd * cos * materials[m, 1] + spec),
-                               wb * lights[li, 5] * (kd * cos * materials[m, 2] + spec),
-                               t_eps, ln, SHADOW, depth + 1, hit_gid, li)  # fmt: skip
+                               wr * lights[li, LIGHT_RGB] * dr, wg * lights[li, LIGHT_RGB + 1] * dg,
+                               wb * lights[li, LIGHT_RGB + 2] * db, t_eps, ln, SHADOW, depth + 1,
+                               hit_gid, li)  # fmt: skip
             if depth >= max_depth:
                 continue
             kt = 0.0
@@ -262,7 +257,7 @@ def trace_batch(rays, out_rgb, counters, max_depth, t_eps, ambient, background, 
                 kt = transmit[m]
             refl = ks
             if kt > 0.0:
-                eta = 1.0 / materials[m, 7] if entering else materials[m, 7]
+                eta = 1.0 / materials[m, MAT_IOR] if entering else materials[m, MAT_IOR]
                 ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
                 if ok:
                     counters[REFRACTED_RAYS] += 1

@@ -9,6 +9,7 @@ but the walk goes on until the voxel that contains it: a nearer hit may still co
 
 import math
 
+from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.intersect import hit_cone, hit_polygon, hit_sphere, hit_triangle
 from meshnode.engine.jit import inline, leaf
 
@@ -81,19 +82,25 @@ def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
 
 
 @leaf
-def walk(ray, origin, any_hit, ray_id, mail, counters,
-         gid, off, sph, tri, poly, pinfo, puv, cone,
-         glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs,
-         macro, mres, mshift):  # fmt: skip
-    """First hit (or, with any_hit, any hit) in (t_lo, t_hi): returns (t, local id or -1).
+def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail, counters,
+         gid, off, sph, tri, poly, pinfo, puv, cone, grid):  # fmt: skip
+    """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `GridArrays` grid:
+    returns (t, local id or -1). mail[u] == ray_id marks object u as tested for this ray.
 
-    `ray` is the tuple (ox, oy, oz, dx, dy, dz, t_lo, t_hi): calls with more than 30
-    arguments are compiled by CPython as *args calls, which numba makes through a tuple that
-    costs more than the walk itself.
+    gid ... cone are the fields of a `Geometry`, as arguments: only so does numba compile out
+    the absent kinds. An any-hit query may pass in `hint` (else -1) the object most likely to
+    block it, the one that blocked the last shadow ray towards the same light: it is tested
+    first, and a hit on it is returned without walking.
 
     In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
     the empty cube of radius k - 1 around it in one step and the walk restarts there."""
-    ox, oy, oz, dx, dy, dz, t_lo, t_hi = ray
+    if hint >= 0:
+        counters[TESTS] += 1
+        t = test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
+                        sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+        if t < t_hi:
+            return t, hint
+    glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs, macro, mres, mshift = grid
     nx = res[0]
     ny = res[1]
     nz = res[2]
@@ -230,20 +237,21 @@ def walk(ray, origin, any_hit, ray_id, mail, counters,
             step = sz * nx * ny
         v += step
         slot = (slot + step) & slot_mask
-    counters[6] += tests
-    counters[7] += steps
+    counters[TESTS] += tests
+    counters[STEPS] += steps
     return best_t, best_u
 
 
 @leaf
 def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
                 gid, off, sph, tri, poly, pinfo, puv, cone):  # fmt: skip
-    """Every object against the ray: the no-grid reference the grid must agree with."""
+    """Every object against the ray: the no-grid reference the grid must agree with (gid ...
+    cone: a `Geometry`'s fields, as in `walk`)."""
     best_t = t_hi
     best_u = -1
     n = gid.shape[0]
     for u in range(n):
-        counters[6] += 1
+        counters[TESTS] += 1
         bound = best_t if best_u < 0 else best_t * TIE
         t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
                         sph, tri, poly, pinfo, puv, cone)  # fmt: skip

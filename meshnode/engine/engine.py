@@ -17,7 +17,9 @@ from meshnode.engine.grid import build_grid
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
 from meshnode.engine.trace import first_hits, trace_batch
 from protocols.dtypes import RAY
+from protocols.render import SPD_DEPTH, EngineSpec
 from protocols.scene import SceneData
+from protocols.spec import default
 
 
 class Engine:
@@ -31,10 +33,10 @@ class Engine:
         self,
         scene: SceneData,
         *,
-        density: float = 1.0,
-        storage: str = "auto",
+        density: float = default(EngineSpec, "density"),
+        storage: str = default(EngineSpec, "storage"),
         resolution=None,
-        max_depth: int = 5,
+        max_depth: int = SPD_DEPTH,
         brute: bool = False,
         box: tuple | None = None,
         scene_box: tuple | None = None,

@@ -10,6 +10,8 @@ import numpy as np
 
 from meshnode.engine.jit import kernel
 from meshnode.engine.tables import Tables
+from protocols.render import EngineSpec
+from protocols.spec import default
 
 MAX_VOXELS = 1 << 24
 MAX_REFS = 1 << 26
@@ -234,8 +236,8 @@ def build_grid(
     tables: Tables,
     lo: np.ndarray,
     hi: np.ndarray,
-    density: float = 1.0,
-    storage: str = "auto",
+    density: float = default(EngineSpec, "density"),
+    storage: str = default(EngineSpec, "storage"),
     res: np.ndarray | None = None,
 ) -> Grid:
     """Grid over [lo, hi] holding every object of `tables`; storage by memory cost unless forced.

@@ -40,7 +40,7 @@ def spd_scene(name: str) -> Path:
 
 
 @pytest.fixture(scope="session", autouse=True)
-def kernels():
+def kernels(request):
     """Compile (cold cache) or load (warm) the all-kinds engine and camera kernels once,
     before any test, so node processes started later load them from disk."""
     import numba
@@ -53,13 +53,27 @@ def kernels():
     start = time.perf_counter()
     warmup()
     KERNEL_LOAD["seconds"] = time.perf_counter() - start
+    report = getattr(request.config, "workeroutput", None)  # a pytest-xdist worker
+    if report is not None:
+        report["kernel_load"] = dict(KERNEL_LOAD)
+
+
+WORKER_LOADS: list[dict] = []
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """pytest-xdist: a worker's kernel load figures, for the summary."""
+    load = getattr(node, "workeroutput", {}).get("kernel_load")
+    if load:
+        WORKER_LOADS.append(load)
 
 
 def pytest_terminal_summary(terminalreporter):
-    if KERNEL_LOAD:
-        kind = "compiled (cold cache)" if KERNEL_LOAD["cold"] else "loaded (warm cache)"
-        terminalreporter.write_line(f"kernels {kind} in {KERNEL_LOAD['seconds']:.1f} s, "
-                                    f"cache {KERNEL_LOAD['cache']}")  # fmt: skip
+    for load in ([KERNEL_LOAD] if KERNEL_LOAD else []) + WORKER_LOADS:
+        kind = "compiled (cold cache)" if load["cold"] else "loaded (warm cache)"
+        terminalreporter.write_line(f"kernels {kind} in {load['seconds']:.1f} s, "
+                                    f"cache {load['cache']}")  # fmt: skip
 
 
 def make_scene(

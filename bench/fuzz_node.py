@@ -7,13 +7,14 @@ Starts `python -m meshnode.cli serve --listen 127.0.0.1:0 --threads 1` with MESH
 its environment (stderr to a temporary file, address from its `listening HOST:PORT` line) and
 sends it cases from several lanes at once:
 
-    garbage     noise on a fresh connection, then end of file: the node must hang up
+    garbage     noise on a fresh connection, then end of file: the node must hang up too
     oversized   a length prefix over the handshake limit: refused without our end of file
-    truncated   a HELLO cut short, then end of file
+    truncated   a HELLO cut short, then end of file: the node must hang up too
     hello       a mutated HELLO (fields dropped, added, retyped, wrong version/cluster/nonce)
     auth        a real HELLO, then a wrong secret, a mutated AUTH or another message
     frame       a real handshake, then one mutated frame of any kind, or corrupt frame bytes
-    config      (session lane) a real handshake, then a mutated CONFIG; when accepted, the
+    config      (session lane, alone, for the last 2% of the cases)
+                a real handshake, then a mutated CONFIG; when accepted, the
     objects       same connection carries mutated OBJECTS batches, then SHUTDOWN
     render      (session lane) a small all-kinds scene with mutated records and background,
                   rendered to the end (STATS) or refused (ERROR)
@@ -22,13 +23,20 @@ sends it cases from several lanes at once:
     burst       (once at start and end) 80 half-open connections at once, past the node's limit
                   of 64: refused at once or dropped by the handshake timeout
 
-A case sent on a connection that the node has already refused is not counted. The node's RSS
-(VmRSS) is sampled every 0.5 s and its liveness checked; a node that dies is counted as a
-crash, its last inputs saved, and restarted. At the end one real 8x8 render runs through
-host.meshclient.render_on_mesh. Printed: cases sent (and per kind, with outcomes), crashes,
+A case sent on a connection that the node has already refused is not counted. The node runs
+under `python -X faulthandler` with an address-space limit (--memory-mb), so an unbounded
+allocation is a MemoryError rather than the machine's OOM killer. Its RSS (VmRSS) is sampled
+every 0.5 s and its liveness checked; a node that dies is a crash, its last 200 inputs pickled
+and the node restarted. A node that still sends heartbeats but never finishes a render or a
+build is wedged (its one tracing thread is stuck): it gets SIGABRT, so faulthandler writes
+every thread's stack to its stderr, its last inputs are pickled, and it is restarted. At the
+end one real 8x8 render runs through host.meshclient.render_on_mesh.
+
+Printed: cases sent (and per kind, with outcomes), the node's refusal reasons, crashes, wedges,
 tracebacks in the node's stderr (with their last lines), hangs (cases past their timeout),
-peak and final RSS, the final render, and where the stderr and crash inputs were kept. Exits 1
-on any crash, traceback, hang or a failed final render.
+connections the node left open after our end of file, cases over 5 s, peak and final RSS, the
+final render, and where the stderr was kept. Exits 1 on any crash, wedge, traceback, hang or
+connection left open, or a failed final render.
 """
 
 import argparse
@@ -40,6 +48,7 @@ import random
 import re
 import resource
 import select
+import signal
 import subprocess
 import sys
 import tempfile
@@ -66,7 +75,10 @@ from protocols.render import EngineSpec, ImageSpec, MeshPlan  # noqa: E402
 SECRET = b"fuzz-node secret"
 CLUSTER = "meshtrace"
 CASE_TIMEOUT = 15.0  # s: the node drops a stalled handshake after 10 s
-BUILD_TIMEOUT = 180.0  # s: a render's engine build may compile a new kernel variant
+BUILD_TIMEOUT = 90.0  # s: a render's engine build may compile a new kernel variant
+EOF_SECONDS = 2.0  # s: after our end of file, the node closes its side within this
+EOF_WAITERS = 48  # connections waiting for the node's close at once
+SPIN_SECONDS = 40.0  # s of CPU in one tracing thread within ~60 s: stuck, not rendering 8x8
 HANDSHAKE_LIMIT = 4096  # meshnode.link.HANDSHAKE_FRAME
 ODD_NUMBERS = [0, 1, -1, 2, 3, 7, 255, 256, 65535, 65536, 2**31 - 1, 2**31, -(2**31) - 1,
                2**63 - 1, -(2**63), 2**64 - 1, 0.5, -0.0, 5e-324, 1e-300, 1e300, 1e308, -1e308,
@@ -171,15 +183,16 @@ def mutate_tree(rng: random.Random, tree, changes: int = 3):
     return tree
 
 
-def mutate_records(rng: random.Random, records: np.ndarray) -> np.ndarray:
+def mutate_records(rng: random.Random, records: np.ndarray, tame: bool = False) -> np.ndarray:
     """Records with some fields set to odd values (NaN, infinite, huge, negative, out of any
-    table's range), or some bytes replaced."""
+    table's range), or some bytes replaced; `tame`: floats stay finite and within 1e6 (the
+    known wedges come from non-finite and overflowing geometry)."""
     out = np.array(records)
     if len(out) == 0:
         return out
     for _ in range(rng.randint(1, 4)):
         i = rng.randrange(len(out))
-        if out.dtype.names is None or rng.random() < 0.2:
+        if out.dtype.names is None or (rng.random() < 0.2 and not tame):
             raw = bytearray(out.tobytes())
             at = rng.randrange(len(raw))
             raw[at : at + 8] = rng.randbytes(min(8, len(raw) - at))
@@ -188,7 +201,8 @@ def mutate_records(rng: random.Random, records: np.ndarray) -> np.ndarray:
         name = rng.choice(out.dtype.names)
         kind = out.dtype[name].base.kind
         if kind == "f":
-            value = rng.choice([math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300])
+            value = rng.choice([0.0, -1.0, 1e-300, 1e6, -1e6, 0.5] if tame else [
+                math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300])
         else:
             info = np.iinfo(out.dtype[name].base)
             value = rng.choice([info.min, info.max, -1, 0, 1, 2, 3, 7, 1000, 2**31 - 1])
@@ -207,7 +221,8 @@ class Node:
         self.stderr_path, self.memory_mb = stderr_path, memory_mb
         self.proc: subprocess.Popen | None = None
         self.port = 0
-        self.crashes: list[dict] = []
+        self.crashes: list[dict] = []  # the process died
+        self.wedges: list[dict] = []  # alive, but its tracing thread never came back
         self.rss_peak = self.rss_last = 0
 
     def start(self) -> None:
@@ -219,8 +234,9 @@ class Node:
 
         with open(self.stderr_path, "ab") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "meshnode.cli", "serve", "--listen", "127.0.0.1:0",
-                 "--threads", "1"], stdout=subprocess.PIPE, stderr=err, text=True, env=env,
+                [sys.executable, "-X", "faulthandler", "-m", "meshnode.cli", "serve",
+                 "--listen", "127.0.0.1:0", "--threads", "1"], stdout=subprocess.PIPE,
+                stderr=err, text=True, env=env,
                 preexec_fn=cap if self.memory_mb else None)  # fmt: skip
         ready, _, _ = select.select([self.proc.stdout], [], [], 120)
         line = self.proc.stdout.readline() if ready else ""
@@ -230,6 +246,20 @@ class Node:
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
+
+    def busiest_thread(self) -> float:
+        """CPU seconds of the node's busiest thread other than the event loop's."""
+        ticks = os.sysconf("SC_CLK_TCK")
+        most = 0.0
+        for task in Path(f"/proc/{self.proc.pid}/task").glob("*"):
+            if task.name == str(self.proc.pid):
+                continue
+            try:
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            most = max(most, (int(fields[11]) + int(fields[12])) / ticks)
+        return most
 
     def sample(self) -> None:
         try:
@@ -369,7 +399,13 @@ class Fuzzer:
         self.scene = _all_kinds_scene()
         self.one = self._session(MeshPlan(1, 1), 0, ImageSpec(width=8, height=8))
         self.two = self._session(MeshPlan(1, 2), 1, ImageSpec(width=8, height=8))
-        self.restarting = asyncio.Lock()
+        self.slow: list = []  # (seconds, kind, when) of cases that took over 5 s
+        self.tame = False  # set after the first wedge: fuzz past the known ones
+        self.left_open = 0  # connections the node kept open after our end of file
+        self.in_session = False  # the session lane is in a case (the node refuses hosts)
+        self.eof_waiters = asyncio.Semaphore(EOF_WAITERS)
+        self.background: set[asyncio.Task] = set()
+        self.eof_close: dict = collections.defaultdict(list)  # kind -> s until the node hung up
 
     def _session(self, plan: MeshPlan, n: int, image: ImageSpec):
         """A real CONFIG for node n and its objects, as host.meshclient makes them."""
@@ -401,24 +437,26 @@ class Fuzzer:
 
     # -------------------------------------------------------------- lanes
 
-    def session_phase(self) -> bool:
-        return int(time.monotonic() / PHASE) % 2 == 1
-
-    async def lane(self, kinds: dict, session: bool = False) -> None:
-        """Cases of `kinds` (name: weight) one after another; the session lane works in
-        session phases only, and other lanes leave out `frame` cases then."""
-        while self.more():
-            if session and not self.session_phase():
-                await asyncio.sleep(0.05)
-                continue
-            names = [k for k in kinds if session or k != "frame" or not self.session_phase()]
+    async def lane(self, kinds: dict, share: float = 1.0, session: bool = False) -> None:
+        """Cases of `kinds` (name: weight) one after another, until `share` of all cases are
+        sent. A session makes the node refuse other hosts, so the session lane starts once
+        the other lanes are done (and they leave `frame` cases out while it is in a case)."""
+        while session and self.more() and self.sent < (1.0 - SESSION_SHARE) * self.limit:
+            await asyncio.sleep(0.1)
+        while self.more() and self.sent < share * self.limit:
+            names = [k for k in kinds if session or k != "frame" or not self.in_session]
             if not names:
                 await asyncio.sleep(0.05)
                 continue
             kind = self.rng.choices(names, [kinds[k] for k in names])[0]
-            port = self.node.port
+            port, start = self.node.port, time.monotonic()
+            if session:
+                self.in_session = True
             try:
                 await getattr(self, kind)()
+                took = time.monotonic() - start
+                if took > 5.0:
+                    self.slow.append((round(took, 1), kind, time.strftime("%H:%M:%S")))
             except Hang as e:
                 self.hangs.append(f"{kind}: {e}")
                 self.outcomes[kind, "hang"] += 1
@@ -426,6 +464,9 @@ class Fuzzer:
                 if self.node.port == port and self.node.alive():
                     self.outcomes[kind, f"connection: {type(e).__name__}"] += 1
                 await asyncio.sleep(0.01)
+            finally:
+                if session:
+                    self.in_session = False
 
     async def garbage(self) -> None:
         c = await Conn.open(self.node.port)
@@ -434,10 +475,33 @@ class Fuzzer:
             data = HEADER.pack(self.rng.randint(0, 64)) + data
         c.send(data)
         c.end()
-        msgs = await c.until_closed()
-        self.refusal(msgs[-1] if msgs else None)
-        self.count("garbage", "closed", data)
-        await c.close()
+        await self.after_eof(c, "garbage", data)
+
+    async def after_eof(self, c: Conn, kind: str, data: bytes) -> None:
+        """After our end of file the node must hang up too; one that keeps its side open for
+        EOF_SECONDS leaks the connection (it no longer counts toward its limit). Waited for
+        in the background, at most EOF_WAITERS connections at once, so the lane goes on."""
+        await self.eof_waiters.acquire()
+
+        async def wait():
+            start = time.monotonic()
+            try:
+                msgs = await c.until_closed(EOF_SECONDS)
+                self.eof_close[kind].append(time.monotonic() - start)
+                self.refusal(msgs[-1] if msgs else None)
+                self.count(kind, "closed", data)
+            except Hang:
+                self.left_open += 1
+                self.count(kind, "left open", data)
+            except (ConnectionError, OSError):
+                self.count(kind, "closed", data)
+            finally:
+                await c.close()
+                self.eof_waiters.release()
+
+        task = asyncio.create_task(wait())
+        self.background.add(task)
+        task.add_done_callback(self.background.discard)
 
     async def oversized(self) -> None:
         c = await Conn.open(self.node.port)
@@ -456,9 +520,7 @@ class Fuzzer:
         data = frame[: self.rng.randint(0, len(frame) - 1)]
         c.send(data)
         c.end()
-        await c.until_closed()
-        self.count("truncated", "closed", data)
-        await c.close()
+        await self.after_eof(c, "truncated", data)
 
     async def hello(self) -> None:
         c = await Conn.open(self.node.port)
@@ -551,7 +613,7 @@ class Fuzzer:
             return
         c.send(data)
         # A refusal comes at once; an accepted CONFIG starts a session, heard within 1 s.
-        m = await c.recv(BUILD_TIMEOUT)
+        m = await c.recv()
         self.refusal(m)
         if m is None or m.get("k") == Kind.ERROR:
             self.count("config", "refused", data)
@@ -599,7 +661,7 @@ class Fuzzer:
         tables = list(self.one[1].items())
         for i, (table, records) in enumerate(tables):
             if self.rng.random() < 0.4:
-                records = mutate_records(self.rng, records)
+                records = mutate_records(self.rng, records, self.tame)
             if table == "polygons" and self.rng.random() < 0.02:
                 records = np.array(records)
                 records["count"][:1] = 2**31 - 1  # one record asking for a huge vertex range
@@ -607,7 +669,7 @@ class Fuzzer:
             c.send(encode(make(Kind.OBJECTS, table=table, records=np.ascontiguousarray(records),
                                last=i == len(tables) - 1)))  # fmt: skip
         self.recent.append(("render", inputs))
-        outcome = "hang"
+        outcome = "wedged"
         deadline = time.monotonic() + BUILD_TIMEOUT
         while time.monotonic() < deadline:
             m = await c.recv(max(0.01, deadline - time.monotonic()))
@@ -618,9 +680,11 @@ class Fuzzer:
             if m.get("k") == Kind.STATS:
                 outcome = "rendered"
                 break
-        if outcome == "hang":
-            raise Hang("render: neither STATS nor ERROR")
         self.count("render", outcome)
+        if outcome == "wedged":  # heartbeats, but no end: the tracing thread is stuck
+            await c.close()
+            self.wedged("render")
+            return
         c.send(encode(make(Kind.SHUTDOWN)))
         await c.until_closed()
         await c.close()
@@ -635,7 +699,7 @@ class Fuzzer:
         for i, (table, records) in enumerate(tables):
             host.send(encode(make(Kind.OBJECTS, table=table, records=records,
                                   last=i == len(tables) - 1)))  # fmt: skip
-        first = await host.recv(BUILD_TIMEOUT)
+        first = await host.recv()
         if first is None or first.get("k") == Kind.ERROR:
             self.refusal(first)
             self.outcomes["neighbour", "session refused"] += 1
@@ -643,6 +707,24 @@ class Fuzzer:
             return
         peer = await Conn.open(self.node.port)
         await peer.handshake("node", 0)
+        # The node is ready (engine built, our link attached) when its heartbeat says so.
+        deadline = time.monotonic() + BUILD_TIMEOUT
+        while time.monotonic() < deadline:
+            m = await host.recv(max(0.01, deadline - time.monotonic()))
+            if m is None or m.get("k") == Kind.ERROR or m.get("ready") is True:
+                break
+        else:
+            self.outcomes["neighbour", "wedged"] += 1
+            await host.close()
+            await peer.close()
+            self.wedged("neighbour")
+            return
+        if m is None or m.get("k") == Kind.ERROR:
+            self.refusal(m)
+            self.outcomes["neighbour", "session refused"] += 1
+            await host.close()
+            await peer.close()
+            return
         heard: list[dict] = []
 
         async def drain(conn):  # keep reading, so the node's sends never block on us
@@ -653,7 +735,9 @@ class Fuzzer:
                 pass
 
         readers = [asyncio.create_task(drain(host)), asyncio.create_task(drain(peer))]
-        for _ in range(self.rng.randint(10, 80)):
+        for _ in range(self.rng.randint(10, 120)):
+            if any(m.get("k") == Kind.ERROR for m in heard):
+                break  # the node failed the session: what follows would go unread
             message = self._neighbour_message()
             try:
                 data = encode(message)
@@ -686,8 +770,13 @@ class Fuzzer:
             rays["t_max"], rays["w"], rays["origin"], rays["depth"] = np.inf, 1.0, -1, 1
             rays["pixel"] = np.arange(len(rays)) % 64
             dest = rng.choice([1, 1, 1, 0, 2, -1, 2**40])
-            return make(Kind.RAYS, rays=mutate_records(rng, rays) if rng.random() < 0.7
-                        else rays, dest=dest)  # fmt: skip
+            if rng.random() < 0.7:
+                mutated = mutate_records(rng, rays)
+                if self.tame:
+                    bad = ~np.isfinite(mutated["o"]).all(1) | ~np.isfinite(mutated["d"]).all(1)
+                    mutated[bad] = rays[bad]
+                rays = mutated
+            return make(Kind.RAYS, rays=rays, dest=dest)
         if r < 0.65:
             deposits = np.zeros(rng.randint(0, 16), dtypes.DEPOSIT)
             deposits["pixel"] = rng.choice([0, 63, 64, -1, 2**62])
@@ -723,12 +812,46 @@ class Fuzzer:
             else:
                 self.count("burst", "refused at once" if w < 1.0 else "timed out by the node")
 
+    def wedged(self, kind: str) -> None:
+        """The node lives but its one tracing thread is stuck: keep the last inputs, make it
+        print every thread's stack (faulthandler, on SIGABRT) and start another."""
+        import pickle
+
+        path = self.save / f"wedge-{len(self.node.wedges)}.pickle"
+        path.write_bytes(pickle.dumps(list(self.recent)))
+        self.node.wedges.append({"kind": kind, "inputs": str(path), "after_cases": self.sent})
+        print(f"node wedged ({kind}) after {self.sent} cases; last inputs in {path}",
+              file=sys.stderr)  # fmt: skip
+        self.node.proc.send_signal(signal.SIGABRT)
+        try:
+            self.node.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            pass
+        self.node.stop()
+        self.node.start()
+        if not self.tame:
+            self.tame = True
+            print("from now on RAYS keep finite origins and directions and render records keep "
+                  "finite floats within 1e6 (known wedges: a ray with a NaN direction, a light "
+                  "at NaN, never finish tracing)", file=sys.stderr)
+
     async def watch(self) -> None:
-        """Sample RSS; a dead node is a crash: keep its last inputs and start another."""
+        """Sample RSS; a dead node is a crash: keep its last inputs and start another. A
+        tracing thread that burns SPIN_SECONDS of CPU within as many seconds is wedged (the
+        renders here are 8x8; a kernel compile takes less)."""
+        history: collections.deque = collections.deque()
         while self.more():
             await asyncio.sleep(0.5)
             if self.node.alive():
                 self.node.sample()
+                now, cpu = time.monotonic(), self.node.busiest_thread()
+                history.append((now, cpu, self.node.port))
+                while history and now - history[0][0] > SPIN_SECONDS * 1.5:
+                    history.popleft()
+                t0, c0, port = history[0]
+                if port == self.node.port and cpu - c0 > SPIN_SECONDS * 0.9:
+                    self.wedged("a tracing thread spins")
+                    history.clear()
                 continue
             code = self.node.proc.returncode
             path = self.save / f"crash-{len(self.node.crashes)}.pickle"
@@ -767,7 +890,8 @@ def _valid(kind: Kind, rng: random.Random) -> dict:
 CONNECTION_KINDS = {"garbage": 3, "oversized": 1, "truncated": 1, "hello": 3, "auth": 2,
                     "frame": 4}  # fmt: skip
 SESSION_KINDS = {"config": 6, "render": 1, "neighbour": 3}
-PHASE = 10.0  # s: session cases and `frame` cases take turns (a session refuses other hosts)
+SESSION_SHARE = 0.02  # of all cases, left to the session lane alone at the end (its cases
+# build engines and render: a few a second, against thousands for the other lanes)
 
 
 async def fuzz(args, node: Node, save: Path) -> Fuzzer:
@@ -779,9 +903,11 @@ async def fuzz(args, node: Node, save: Path) -> Fuzzer:
         await f.burst()
     mine = {k: w for k, w in CONNECTION_KINDS.items() if k in kinds}
     theirs = {k: w for k, w in SESSION_KINDS.items() if k in kinds}
-    lanes = [f.lane(mine) for _ in range(max(1, args.lanes - 1)) if mine]
+    share = 1.0 - SESSION_SHARE if theirs else 1.0
+    lanes = [f.lane(mine, share) for _ in range(max(1, args.lanes - 1)) if mine]
     lanes += [f.lane(theirs, session=True)] if theirs else []
     await asyncio.gather(*lanes)
+    await asyncio.gather(*f.background)
     if time.monotonic() < f.deadline and "burst" in kinds:
         await f.burst()
     watcher.cancel()
@@ -800,7 +926,7 @@ async def final_render(port: int) -> str:
     try:
         image, _ = await asyncio.wait_for(render_on_mesh(
             scene, ImageSpec(width=8, height=8), [f"127.0.0.1:{port}"], MeshPlan(1, 1),
-            secret=SECRET), BUILD_TIMEOUT)  # fmt: skip
+            secret=SECRET), 60)  # fmt: skip
     except Exception as e:  # noqa: BLE001 - whatever failed is the figure to print
         return f"{type(e).__name__}: {e}"
     if image.shape[:2] != (8, 8) or not np.all(np.isfinite(image)) or not image.any():
@@ -852,6 +978,9 @@ def main(argv=None) -> int:
             node.start()
         failure = run(final_render(node.port))
         node.sample()
+        if failure and node.alive():  # where is it stuck? faulthandler prints every thread
+            node.proc.send_signal(signal.SIGABRT)
+            node.proc.wait(10)
     finally:
         node.stop()
     count, ends = tracebacks(node.stderr_path)
@@ -871,16 +1000,28 @@ def main(argv=None) -> int:
     print(f"crashes (node deaths): {crashes}")
     for c in node.crashes:
         print(f"  {c}")
+    print(f"wedges (node alive, tracing thread stuck; restarted): {len(node.wedges)}"
+          + ("; after the first, RAYS and render records kept finite" if f.tame else ""))
+    for w in node.wedges:
+        print(f"  {w}")
     print(f"tracebacks in node stderr: {count}")
     for line, c in ends.most_common(10):
         print(f"  {c:7d}  {line}")
+    print(f"connections left open by the node {EOF_SECONDS:g} s after our end of file: "
+          f"{f.left_open}")
+    for kind, waits in sorted(f.eof_close.items()):
+        w = np.array(waits)
+        print(f"  {kind}: the node hung up {np.median(w) * 1e3:.0f} ms (median), "
+              f"{np.percentile(w, 99) * 1e3:.0f} ms (99th), {w.max() * 1e3:.0f} ms (max) "
+              f"after our end of file; {np.mean(w > 0.1) * 100:.0f}% took over 100 ms")
     print(f"hangs (cases past {CASE_TIMEOUT:g} s): {len(f.hangs)}")
     for h in f.hangs[:10]:
         print(f"  {h}")
+    print(f"cases over 5 s: {len(f.slow)}  {sorted(f.slow, reverse=True)[:8]}")
     print(f"node RSS: peak {node.rss_peak / 2**20:.0f} MiB, final {node.rss_last / 2**20:.0f} MiB")
     print(f"final render: {'ok' if not failure else 'FAILED: ' + failure}")
     print(f"node stderr: {node.stderr_path}")
-    return 1 if crashes or count or f.hangs or failure else 0
+    return 1 if crashes or node.wedges or count or f.hangs or f.left_open or failure else 0
 
 
 if __name__ == "__main__":

@@ -86,12 +86,21 @@ def _element(spec: dict, where: str) -> np.void:
 
 
 def read_toml(path) -> Camera:
-    """A camera file in SI units."""
+    """A camera file in SI units; any value of the wrong kind is a CameraError naming it."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise CameraError(f"{path}: {e}") from e
+    try:
+        return _camera_from_toml(path, data)
+    except CameraError:
+        raise
+    except (AttributeError, TypeError, ValueError, OverflowError) as e:
+        raise CameraError(f"{path}: a value of the wrong kind or size ({e})") from e
+
+
+def _camera_from_toml(path: Path, data: dict) -> Camera:
     specs = data.get("element", [])
     if not specs:
         raise CameraError(f"{path}: no [[element]] tables")
@@ -111,7 +120,11 @@ def read_table(path, film_width=0.036, film_height=0.024) -> Camera:
     """A lens prescription table (millimetres, scene side first)."""
     path = Path(path)
     rows = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as e:
+        raise CameraError(f"{path}: not a text file ({e})") from e
+    for number, line in enumerate(text.splitlines(), 1):
         words = line.split("#", 1)[0].split()
         if not words:
             continue

@@ -100,7 +100,8 @@ def parse(message: dict) -> tuple[Kind, dict]:
     missing = set(spec) - set(fields)
     extra = set(fields) - set(spec)
     if missing or extra:
-        raise BadFrame(f"{kind.name}: missing {sorted(missing)}, unexpected {sorted(extra)}")
+        raise BadFrame(f"{kind.name}: missing {sorted(missing)}, unexpected "
+                       f"{sorted(map(repr, extra))}")  # keys of any type: sort their reprs
     for name, value in fields.items():
         _check(kind, name, value, spec[name])
     if kind in (Kind.TILES, Kind.TILE_DONE):

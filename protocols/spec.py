@@ -58,7 +58,8 @@ class Spec:
                             f"and <= {hi:g}")  # fmt: skip
 
     def want_choice(self, name: str, choices) -> None:
-        if getattr(self, name) not in choices:
+        value = getattr(self, name)
+        if not isinstance(value, str | int) or isinstance(value, bool) or value not in choices:
             self.fail(name, f"must be one of {', '.join(map(str, choices))}")
 
     def want_bool(self, name: str) -> None:

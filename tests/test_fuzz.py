@@ -6,9 +6,9 @@ Documented errors: ProtocolError subclasses on the wire; SpecError, BadFrame or 
 CONFIG; SceneError worded `source:line: ...` for NFF; CameraError naming the file for cameras.
 Runs are deterministic (derandomize, no example database) and the file takes seconds.
 
-KNOWN_BUGS lists failures these tests found that are reported and not fixed yet: the property
-tests tolerate exactly those (type and raising function), and one strict xfail test per bug
-reproduces it, so fixing a bug turns its xfail into a failure that says to drop both.
+KNOWN_BUGS lists failures found here that are reported and not fixed yet (none now): the
+property tests tolerate exactly those (type and raising function) while a strict xfail test
+reproduces each. The last section keeps the first bugs these tests found as regression tests.
 """
 
 import functools
@@ -51,14 +51,8 @@ def fuzz(examples: int) -> settings:
     return settings(FUZZ, max_examples=examples)
 
 # Reported bugs the property tests tolerate until fixed: (exception types, project file, the
-# functions that raise them) -> the xfail test reproducing it.
-KNOWN_BUGS = {
-    ((TypeError,), "protocols/messages.py", ("parse",)): "test_bug_parse_sorts_mixed_key_types",
-    ((TypeError,), "protocols/spec.py", ("want_choice",)): "test_bug_choice_field_holding_an_array",
-    ((AttributeError, TypeError, ValueError, OverflowError), "host/camera.py",
-     ("read_toml", "_element", "validate")): "test_bug_toml_camera_value_of_another_type",
-    ((UnicodeDecodeError,), "host/camera.py", ("read_table",)): "test_bug_lens_table_not_utf8",
-}  # fmt: skip
+# functions that raise them) -> the strict xfail test reproducing it.
+KNOWN_BUGS: dict = {}
 
 
 def known_bug(error: BaseException) -> str | None:
@@ -686,30 +680,27 @@ def test_lens_table_reader_raises_only_camera_errors_naming_the_file(tmp_path, d
     _assert_camera(outcome(lambda: read_camera(path), CameraError), path)
 
 
-# ------------------------------------------------------------------ reported bugs
+# ------------------------------------------------------------------ bugs found here
 
 
-@pytest.mark.xfail(strict=True, raises=TypeError, reason="reported bug, not fixed yet")
 def test_bug_parse_sorts_mixed_key_types():
     """A map with a bytes key and another unknown text key is a BadFrame, like any unknown
-    field. Today parse sorts the unknown keys together and raises TypeError (messages.py,
-    `sorted(extra)`), which escapes a node's handshake and host-link handlers."""
+    field (parse once sorted the unknown keys together and raised TypeError, which escaped a
+    node's handshake and host-link handlers)."""
     with pytest.raises(BadFrame):
         parse(wire({"k": int(Kind.ERROR), "reason": "x", b"a": 1, "b": 2}))
 
 
-@pytest.mark.xfail(strict=True, raises=TypeError, reason="reported bug, not fixed yet")
 def test_bug_choice_field_holding_an_array():
     """A choice field (EngineSpec.storage, MeshPlan.balance, ...) holding a wire array of
-    records is a SpecError. Today `value in choices` compares the array elementwise and
-    raises TypeError (spec.py, want_choice), which escapes the node's CONFIG handler."""
+    records is a SpecError (`value in choices` once compared the array elementwise and raised
+    TypeError, which escaped the node's CONFIG handler)."""
     fields = wire(config())
     fields["render"]["engine"]["storage"] = np.zeros(1, dtypes.RAY)
     with pytest.raises(SpecError):
         Config(parse(fields)[1])
 
 
-@pytest.mark.xfail(strict=True, reason="reported bug, not fixed yet")
 @pytest.mark.parametrize("text", [
     'film = 0\n[[element]]\ntype = "thin_lens"\nfocal = 0.05\ndiameter = 0.03\n',
     "element = 7\n",
@@ -721,20 +712,17 @@ def test_bug_choice_field_holding_an_array():
 ])  # fmt: skip
 def test_bug_toml_camera_value_of_another_type(tmp_path, text):
     """A camera file value of the wrong TOML type (a table that is a number, a number that is a
-    list or a word, an integer too large) is a CameraError naming the file. Today read_toml,
-    _element and validate use the values unchecked and raise AttributeError, TypeError,
-    ValueError or OverflowError with no file in the message."""
+    list or a word, an integer too large) is a CameraError naming the file (read_toml once
+    raised AttributeError, TypeError, ValueError or OverflowError with no file named)."""
     path = tmp_path / "camera.toml"
     path.write_text(text)
     with pytest.raises(CameraError, match=str(path)):
         read_toml(path)
 
 
-@pytest.mark.xfail(strict=True, raises=UnicodeDecodeError, reason="reported bug, not fixed yet")
 def test_bug_lens_table_not_utf8(tmp_path):
-    """A lens table with a byte that is not UTF-8 is a CameraError naming the file. Today
-    read_table's path.read_text() raises UnicodeDecodeError, which names neither file nor line
-    (the NFF reader reads latin-1 for this reason)."""
+    """A lens table with a byte that is not UTF-8 is a CameraError naming the file (read_table
+    once raised UnicodeDecodeError, naming neither file nor line)."""
     path = tmp_path / "lens.txt"
     path.write_bytes(b"50 5 1.5 30\n-50 49 0 30 \xff\n")
     with pytest.raises(CameraError, match=str(path)):

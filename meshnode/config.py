@@ -40,7 +40,11 @@ class Config:
             view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
         except (TypeError, ValueError) as e:
             raise BadFrame(f"CONFIG.view: {e}") from None
-        self.view, self.background = view, tuple(f["background"])
+        background = np.asarray(f["background"], dtype=object)
+        if background.shape != (3,) or not all(
+                isinstance(c, int | float) and np.isfinite(c) for c in background):
+            raise BadFrame("CONFIG.background must be three finite numbers")
+        self.view, self.background = view, tuple(float(c) for c in background)
 
 
 class Objects:
@@ -57,13 +61,40 @@ class Objects:
         self.tables.setdefault(table, []).append(np.array(records))
 
     def scene(self, view: View, background) -> SceneData:
+        """The objects as a scene, checked first: every number finite, every material and
+        polygon vertex index in range (a bad index would read outside an array in a kernel,
+        a NaN could keep a ray walking forever)."""
+
         def table(name):
             parts = self.tables.get(name)
             return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
 
+        tables = {name: table(name) for name in OBJECT_TABLES}
+        _check_objects(tables)
         return SceneData(
-            view=view, background=background, lights=table("lights"),
-            materials=table("materials"), spheres=table("spheres"),
-            triangles=table("triangles"), polygons=table("polygons"),
-            vertices=table("vertices").reshape(-1, 3), cones=table("cones"),
+            view=view, background=background, lights=tables["lights"],
+            materials=tables["materials"], spheres=tables["spheres"],
+            triangles=tables["triangles"], polygons=tables["polygons"],
+            vertices=tables["vertices"].reshape(-1, 3), cones=tables["cones"],
         )  # fmt: skip
+
+
+def _check_objects(tables: dict) -> None:
+    """BadFrame naming the table unless the objects are safe to build an engine from."""
+    for name, records in tables.items():
+        fields = records.dtype.names or (None,)
+        for f in fields:
+            column = records if f is None else records[f]
+            if column.dtype.kind == "f" and not np.all(np.isfinite(column)):
+                raise BadFrame(f"OBJECTS {name}: {f or 'values'} must be finite")
+    if len(tables["vertices"]) % 3:
+        raise BadFrame("OBJECTS vertices: a whole number of (x, y, z) points")
+    n_mat, n_vert = len(tables["materials"]), len(tables["vertices"]) // 3
+    for name in ("spheres", "triangles", "polygons", "cones"):
+        mat = tables[name]["mat"]
+        if len(mat) and (mat.min() < 0 or mat.max() >= n_mat):
+            raise BadFrame(f"OBJECTS {name}: material index outside the {n_mat} materials")
+    p = tables["polygons"]
+    if len(p) and (p["start"].min() < 0 or p["count"].min() < 3
+                   or (p["start"].astype(np.int64) + p["count"]).max() > n_vert):  # fmt: skip
+        raise BadFrame(f"OBJECTS polygons: vertex ranges outside the {n_vert} vertices")

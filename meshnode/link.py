@@ -182,6 +182,9 @@ async def answer(link: Link, cluster: str, secret: bytes | None, node: int) -> d
     except TimeoutError:
         await link.close()
         raise LinkClosed(link.peer, f"no handshake within {HANDSHAKE_SECONDS:g} s") from None
+    except LinkClosed:  # the peer left mid-handshake: close our side too
+        await link.close()
+        raise
     except ProtocolError as e:
         try:
             await link.send(make(Kind.ERROR, reason=describe(e)))

@@ -19,7 +19,7 @@ from meshnode.node import HOST, NodeCore
 from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, Trace
 from meshnode.stats import NodeStats
 from meshnode.termination import Packet, State
-from protocols.errors import BadFrame, describe
+from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
 from protocols.topology import Router
 
@@ -149,11 +149,26 @@ class Session:
         except LinkClosed as e:
             if self.sched.state != State.DONE:
                 self.fail(e)
+        except ProtocolError as e:  # a bad message: named, no traceback
+            self.fail(LinkClosed(f"node {m}", describe(e)))
         except Exception as e:  # noqa: BLE001 - a bad message must not silently stop reading
             log.exception("node %d: reading from node %d failed", self.node, m)
             self.fail(LinkClosed(f"node {m}", describe(e)))
 
+    def _dest(self, f: dict, kind: str) -> int:
+        """A message's destination node, checked: a neighbour cannot route outside the mesh."""
+        dest = f["dest"]
+        if not 0 <= dest < self.config.torus.size:
+            raise BadFrame(f"{kind}.dest = {dest}: no such node")
+        return dest
+
     def on_rays(self, m: int, f: dict) -> None:
+        self._dest(f, "RAYS")
+        r = f["rays"]
+        finite = np.isfinite(r["o"]).all() and np.isfinite(r["d"]).all() and np.isfinite(
+            r["w"]).all() and np.isfinite(r["t_min"]).all() and not np.isnan(r["t_max"]).any()
+        if not finite or (len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3)):
+            raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
         self.stats.rays_in[m] += len(f["rays"])
         if f["dest"] == self.node:
             self.sched.rays_in(np.array(f["rays"]))
@@ -162,6 +177,9 @@ class Session:
             self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
 
     def on_pixels(self, f: dict) -> None:
+        self._dest(f, "PIXELS")
+        if not np.isfinite(f["deposits"]["rgb"]).all():
+            raise BadFrame("PIXELS: colours must be finite")
         self.sched.message_in()
         deposits = np.array(f["deposits"])
         if f["dest"] != self.node:
@@ -182,6 +200,11 @@ class Session:
         self.wake.set()
 
     def on_state(self, f: dict) -> None:
+        self._dest(f, "STATE")
+        n = self.config.torus.size
+        if not 0 <= f["state"] <= State.DONE or not 0 <= f["last_busy"] < n or len(
+                f["sent"]) != n or len(f["received"]) != n:  # fmt: skip
+            raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
         if f["dest"] != self.node:
             self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
             return

@@ -90,3 +90,37 @@ async def _heartbeat(link: Link) -> None:
     """The session's first sign of life: a PROGRESS that says it is not ready yet."""
     kind, f = await asyncio.wait_for(link.recv(), 10)
     assert kind is Kind.PROGRESS and not f["ready"]
+
+
+@pytest.mark.parametrize("table,change,what", [
+    ("spheres", {"mat": -2**31}, "material index"),
+    ("spheres", {"radius": float("nan")}, "must be finite"),
+    ("polygons", {"count": 2**31 - 1}, "vertex ranges"),
+    ("lights", {"pos": float("nan")}, "must be finite"),
+])  # fmt: skip
+async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, change, what):
+    # Found by bench/fuzz_node.py: a bad material index read outside an array in a kernel
+    # (a segfault), a NaN kept a ray walking forever, a huge polygon count asked for 16 GiB.
+    from meshnode.cli import _all_kinds_scene
+    from protocols.messages import OBJECT_TABLES
+
+    scene = _all_kinds_scene()
+    records = getattr(scene, table).copy()
+    for field, value in change.items():
+        records[field] = value
+    service = await started()
+    try:
+        link = await host_link(service.port)
+        await link.send(config())
+        for name in OBJECT_TABLES:
+            data = records if name == table else getattr(scene, name)
+            data = data.reshape(-1) if name == "vertices" else data
+            await link.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(data),
+                                 last=name == "lights"))  # fmt: skip
+        while True:  # heartbeats, then the error naming the table
+            kind, f = await asyncio.wait_for(link.recv(), 10)
+            if kind is Kind.ERROR:
+                break
+        assert f"OBJECTS {table}" in f["reason"] and what in f["reason"]
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)

@@ -527,9 +527,8 @@ class Fuzzer:
         base = hello(self.rng.choice([CLUSTER, CLUSTER, "other"]),
                      self.rng.choice(["host", "node"]), self.rng.randint(-2, 3), nonce())
         message = mutate_message(self.rng, base)
-        try:
-            data = encode(message)
-        except (TypeError, ValueError, OverflowError):
+        data = _frame(message)
+        if data is None:
             await c.close()
             return
         c.send(data)
@@ -554,9 +553,8 @@ class Fuzzer:
         else:
             message = mutate_message(self.rng, {"k": int(Kind.CONFIG), **parse(
                 FrameDecoder().feed(self.one[0])[0])[1]})  # fmt: skip
-        try:
-            data = encode(message)
-        except (TypeError, ValueError, OverflowError):
+        data = _frame(message)
+        if data is None:
             await c.close()
             return
         c.send(data)
@@ -575,9 +573,8 @@ class Fuzzer:
             message = mutate_message(self.rng, _valid(kind, self.rng))
             if _kind(message) == Kind.CONFIG:  # no session from this lane
                 message["k"] = int(Kind.STATS)
-            try:
-                data = encode(message)
-            except (TypeError, ValueError, OverflowError):
+            data = _frame(message)
+            if data is None:
                 await c.close()
                 return
         elif how < 0.8:  # a real frame with bytes flipped (the prefix kept)
@@ -633,9 +630,8 @@ class Fuzzer:
                     message["k"] = int(Kind.OBJECTS)
                 if message.get("last") is True:
                     message["last"] = False
-            try:
-                data = encode(message)
-            except (TypeError, ValueError, OverflowError):
+            data = _frame(message)
+            if data is None:
                 continue
             if not c.send(data):
                 break
@@ -739,9 +735,8 @@ class Fuzzer:
             if any(m.get("k") == Kind.ERROR for m in heard):
                 break  # the node failed the session: what follows would go unread
             message = self._neighbour_message()
-            try:
-                data = encode(message)
-            except (TypeError, ValueError, OverflowError):
+            data = _frame(message)
+            if data is None:
                 continue
             if not peer.send(data):
                 break
@@ -864,6 +859,15 @@ class Fuzzer:
                   file=sys.stderr)  # fmt: skip
             self.node.stop()
             self.node.start()
+
+
+def _frame(message: dict) -> bytes | None:
+    """The message as a frame, or None when a mutation made it unframeable (too big, a
+    value msgpack cannot hold): such a case is skipped, it never reaches the node."""
+    try:
+        return encode(message)
+    except (TypeError, ValueError, OverflowError):
+        return None
 
 
 def _kind(message: dict):

@@ -158,8 +158,9 @@ async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role
 
 
 async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int) -> dict:
-    mine = parse(hello(cluster, role, node, nonce()))[1]
-    await link.send(make(Kind.HELLO, **mine))
+    message = hello(cluster, role, node, nonce())
+    mine = parse(message)[1]
+    await link.send(message)
     theirs = check_hello(await link.recv_raw(), cluster)
     check_auth(await link.recv_raw(), secret, "listener", mine, theirs["nonce"])
     await link.send(auth(secret, "dialler", mine, theirs["nonce"]))

@@ -119,7 +119,6 @@ class TileDealer:
     def __init__(self, tiles: int, nodes: int, buffer: int):
         self.left = deque(range(tiles))
         self.nodes, self.buffer = nodes, max(1, buffer)
-        self.closed: set[int] = set()
         self.dealt: dict[int, int] = {}  # tile -> node
 
     def first(self) -> dict[int, tuple[list[int], bool]]:
@@ -130,18 +129,12 @@ class TileDealer:
             for n in range(self.nodes):
                 if self.left:
                     out[n].append(self._deal(n))
-        for n, tiles in out.items():
-            if not tiles:
-                self.closed.add(n)
         return {n: (tiles, not tiles) for n, tiles in out.items()}
 
     def finished(self, node: int) -> tuple[list[int], bool]:
         """A node finished a tile: (its next tiles, whether it gets no more after them)."""
         if self.left:
             return [self._deal(node)], False
-        if node in self.closed:
-            return [], True
-        self.closed.add(node)
         return [], True
 
     def _deal(self, node: int) -> int:

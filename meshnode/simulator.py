@@ -15,6 +15,7 @@ import numpy as np
 
 from meshnode.node import EYE_BATCH, HOST, NodeCore
 from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, TileDealer, Trace
+from meshnode.stats import add_counts
 from meshnode.termination import State
 from protocols.render import Partition, RenderSpec
 from protocols.topology import Torus
@@ -151,14 +152,9 @@ class _Mesh:
     def _trace(self, n: int, rays, primary: bool) -> None:
         rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
         batch = core.trace(rays)
-        batch.counts.pop("cpu_seconds")
         rec.batches += 1
         rec.rays_traced += len(rays)
-        for k, v in batch.counts.items():
-            if k != "eye_rays":  # counted where made: passed eye rays are not new ones
-                rec.counts[k] += v
-        if primary:
-            rec.counts["eye_rays"] += len(rays)
+        add_counts(rec.counts, batch.counts, len(rays) if primary else 0)
         for dest, deposits in batch.deposits.items():
             if dest == HOST:
                 self.deposits.append(deposits)

@@ -27,10 +27,7 @@ class NodeStats:
         """A batch finished: its counters, and the primary rays it started here."""
         self.batches += 1
         self.cpu += counts.pop("cpu_seconds")
-        for k, v in counts.items():
-            if k != "eye_rays":  # counted where made: passed eye rays are not new ones
-                self.counts[k] += v
-        self.counts["eye_rays"] += primaries
+        add_counts(self.counts, counts, primaries)
 
     def turn_busy(self) -> None:
         self.busy_since = time.perf_counter()
@@ -58,6 +55,15 @@ class NodeStats:
             "links": per_link,
             "peak_rss_bytes": peak_rss(),
         }
+
+
+def add_counts(into: dict, counts: dict, primaries: int) -> None:
+    """Add one batch's counters (CPU seconds taken out) to a node's, with `primaries` new eye
+    rays: eye rays are counted where they are made, not again where they are passed on."""
+    for k, v in counts.items():
+        if k not in ("eye_rays", "cpu_seconds"):
+            into[k] += v
+    into["eye_rays"] += primaries
 
 
 def peak_rss() -> int:

@@ -15,6 +15,7 @@ code path, and a side with a secret refuses a side without one.
 
 import hashlib
 import hmac
+import os
 import secrets
 
 from protocols.errors import AuthFailed, VersionMismatch
@@ -83,8 +84,6 @@ def check_auth(message: dict, secret: bytes, speaker: str, dialler: dict,
 def read_secret(path=None, environ=None) -> bytes | None:
     """The cluster secret: the file at `path` (surrounding white space dropped), else the
     MESHTRACE_SECRET environment variable, else None (no secret: loopback only)."""
-    import os
-
     if path is not None:
         with open(path, "rb") as f:
             secret = f.read().strip()

@@ -58,6 +58,7 @@ class NodeCore:
                           for rect in self.owned]  # fmt: skip
             self.every_rect = RectIndex(part.rects, w)
             self.own_rect = RectIndex(self.owned, w)
+            self.rect_owner = np.asarray(part.owner, np.int64)  # node of each rectangle
 
     @property
     def keeps_pixels(self) -> bool:
@@ -136,7 +137,7 @@ class NodeCore:
         if not self.films:
             return {HOST: deposits}
         idx, rect = self._routes(deposits, self.every_rect)
-        node = np.asarray(self.part.owner, np.int64)[rect]
+        node = self.rect_owner[rect]
         keep = np.unique(node * len(deposits) + idx)  # once per node, however many tiles
         return _group(deposits[keep % len(deposits)], keep // len(deposits))
 

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import yaml
 
-from host.cli import _parser, read_cluster
+from host.cli import _parser
+from host.cluster import read_cluster
 from meshnode.cli import parse as parse_node
 
 ROOT = Path(__file__).resolve().parents[1]

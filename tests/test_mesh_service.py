@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.cli import main, parse_mesh, read_cluster
+from host.cli import main
+from host.cluster import parse_mesh, read_cluster
 from host.framebuffer import read_pfm
 from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh

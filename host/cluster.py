@@ -1,0 +1,41 @@
+"""Where a mesh's nodes are: `--mesh ROWSxCOLS` for a local mesh, or a cluster file listing
+running nodes one per line as `ROW COL HOST:PORT` (errors name the file and line)."""
+
+from pathlib import Path
+
+
+def parse_mesh(text: str) -> tuple[int, int]:
+    """'2x3' -> (2, 3); 'auto' -> 1x1: on one machine, one process tracing on every core."""
+    if text == "auto":
+        return 1, 1
+    try:
+        rows, cols = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--mesh wants ROWSxCOLS, like 2x2, not {text!r}") from None
+    if rows < 1 or cols < 1:
+        raise ValueError(f"--mesh {text}: rows and columns must be at least 1")
+    return rows, cols
+
+
+def read_cluster(path) -> tuple[int, int, list[str]]:
+    """Cluster file: one `ROW COL HOST:PORT` per node, `#` comments; every cell once."""
+    cells = {}
+    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        ok = len(words) == 3 and words[0].isdigit() and words[1].isdigit() and ":" in words[2]
+        if not ok:
+            raise ValueError(f"{path}:{number}: expected ROW COL HOST:PORT")
+        key = (int(words[0]), int(words[1]))
+        if key in cells:
+            raise ValueError(f"{path}:{number}: node {key} listed twice")
+        cells[key] = words[2]
+    if not cells:
+        raise ValueError(f"{path}: no nodes listed")
+    rows = max(r for r, _ in cells) + 1
+    cols = max(c for _, c in cells) + 1
+    missing = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in cells]
+    if missing:
+        raise ValueError(f"{path}: no address for node(s) {missing}")
+    return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]

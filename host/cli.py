@@ -16,7 +16,7 @@ from pathlib import Path
 from host.camerasetup import CameraSetup, Focus
 from host.cluster import parse_mesh, read_cluster
 from host.localmesh import LocalMesh
-from host.meshclient import MeshError, render_on_mesh
+from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
 from host.render import render
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
@@ -81,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
     r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
                    "a local mesh makes its own")  # fmt: skip
+    r.add_argument("--on-node-loss", choices=NODE_LOSS, default="replan",
+                   help="when a node dies or falls silent mid-frame: replan (finish the frame "
+                        "on the nodes left, same image) or fail (default replan)")  # fmt: skip
     _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
            type=float)  # fmt: skip
     _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
@@ -327,7 +330,10 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
                file=sys.stderr, disable=args.quiet, leave=False)  # fmt: skip
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
-                                          secret=secret, progress=bar.update))  # fmt: skip
+                                          secret=secret, progress=bar.update,
+                                          on_node_loss=args.on_node_loss,
+                                          notice=lambda text: bar.write(f"host: {text}",
+                                                                        file=sys.stderr)))
     finally:
         bar.close()
 

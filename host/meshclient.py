@@ -2,13 +2,17 @@
 statistics, over one link per node (DESIGN.md 5).
 
 The host talks to every node directly for control; rays and pixel packets use the torus. A
-node that fails, or whose link breaks, stops the render with an error naming it; so does a
-node that falls silent, or a mesh whose nodes all live but none works.
+node whose link breaks or that falls silent is lost: under `on_node_loss="replan"` (the
+default) the host gives the render up on every node (ABORT, answered by ABORTED), plans it
+again on the nodes that answered and renders the frame from the start on them: the image and
+ray counts are the single node's, whatever was lost. A node that reports an error (with every
+node still there), or a mesh whose nodes all live but none works, fails the render, named.
 """
 
 import asyncio
+import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -30,6 +34,14 @@ class MeshError(RuntimeError):
     """The render failed on the mesh; the message names the node."""
 
 
+class NodeLost(MeshError):
+    """Node `node`'s link broke or it fell silent: a re-plan can go on without it."""
+
+    def __init__(self, node: int, message: str):
+        super().__init__(message)
+        self.node = node
+
+
 async def _download(link: Link, scene: SceneData) -> None:
     """The node's objects, table by table, in bounded messages."""
     tables = [("materials", scene.materials), ("lights", scene.lights),
@@ -49,33 +61,98 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
-                         stall: float = 180.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         stall: float = 180.0, on_node_loss: str = "replan",
+                         notice=None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
-    `progress(n)` is called as nodes report n more primary rays traced; `silence`: seconds
-    without a message from a node (they send one a second) before the render is given up
-    naming it; `stall`: seconds in which no node traces anything once all are built (all
-    alive, none working, the render unfinished: a stuck kernel or a protocol fault)."""
+    `progress(n)` is called as nodes report n more primary rays traced (negative when a
+    re-plan starts the frame again); `silence`: seconds without a message from a node (they
+    send one a second) before it is taken for lost; `stall`: seconds in which no node traces
+    anything once all are built (all alive, none working: a stuck kernel or a protocol
+    fault); `on_node_loss`: "replan" (finish the frame on the nodes left) or "fail";
+    `notice(text)` hears of every lost node."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
+    if on_node_loss not in NODE_LOSS:
+        raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
+    start = time.perf_counter()
+    alive = list(range(len(addresses)))  # the original index of each node still rendering
+    links = await _connect(addresses, cluster, secret)
+    lost: list[dict] = []
+    first_loss = None
+    try:
+        while True:
+            names = [f"node {n} ({addresses[n]})" for n in alive]
+            try:
+                fb, summary = await _attempt(scene, image, engine, plan, camera,
+                                             [links[n] for n in alive],
+                                             [addresses[n] for n in alive], names, progress,
+                                             silence, stall)  # fmt: skip
+                break
+            except MeshError as e:
+                if on_node_loss == "fail":
+                    raise
+                t_loss = time.perf_counter()
+                gone = await _give_up([links[n] for n in alive], e, silence)
+                if not gone or len(gone) == len(alive):
+                    raise
+                first_loss = t_loss if first_loss is None else first_loss
+                for i in gone:
+                    lost.append({"node": alive[i], "address": addresses[alive[i]],
+                                 "reason": str(e) if getattr(e, "node", None) == i else
+                                 "did not answer the host's ABORT",
+                                 "at_seconds": t_loss - start})  # fmt: skip
+                    if notice is not None:
+                        notice(f"lost {names[i]}: {lost[-1]['reason']}; re-planning the frame "
+                               f"on the {len(alive) - len(gone)} nodes left")  # fmt: skip
+                alive = [n for i, n in enumerate(alive) if i not in gone]
+                plan = shrink(plan, len(alive))
+    finally:
+        await _close([links[n] for n in alive])
+    end = time.perf_counter()
+    summary["wall_seconds"] = end - start
+    summary["addresses"] = [addresses[n] for n in alive]
+    summary["lost_nodes"] = lost
+    summary["recovery_seconds"] = end - first_loss if first_loss is not None else 0.0
+    return fb.image(), summary
+
+
+NODE_LOSS = ("replan", "fail")
+
+
+def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
+    """The plan on `nodes` nodes: the most nearly square rows x cols that uses them all."""
+    rows = max(d for d in range(1, math.isqrt(nodes) + 1) if nodes % d == 0)
+    return replace(plan, rows=rows, cols=nodes // rows)
+
+
+async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,
+                   progress, silence, stall):  # fmt: skip
+    """One try at the frame on `links` (node i is links[i] at addresses[i], called
+    names[i] in messages): (framebuffer, summary)."""
     start = time.perf_counter()
     planned = plan_render(scene, image, engine, plan, camera)
-    links = await _configure(scene, planned, addresses, cluster, secret)
+    await _configure(scene, planned, links, addresses)
     setup = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
         if plan.dynamic else None  # fmt: skip
-    collector = _Collector(fb, addresses, progress, silence, stall, dealer)
+    collector = _Collector(fb, names, progress, silence, stall, dealer)
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
                 await links[n].send(make(Kind.TILES, tiles=tiles, last=last))
         await collector.run(links)
-    finally:
-        await _close(links)
+    except LinkClosed as e:  # a TILES send to a node that is gone
+        n = next(i for i, link in enumerate(links) if link.peer == e.peer)
+        raise NodeLost(n, f"{names[n]}: {e.reason}") from e
+    except MeshError:
+        if progress and collector.traced:
+            progress(-collector.traced)  # the frame starts again: so does the count
+        raise
     summary = _summary(collector.stats, plan, planned.holders, collector.deposits, setup,
                        time.perf_counter() - start)  # fmt: skip
     summary["render"] = spec.to_wire() | {"camera": None}
@@ -88,27 +165,62 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
         summary["camera"] = planned.camera
         if "refined_pixels" in summary["rays"]:
             planned.camera["refined_pixels"] = summary["rays"].pop("refined_pixels")
-    return fb.image(), summary
+    return fb, summary
 
 
-async def _configure(scene, planned: Planned, addresses, cluster, secret) -> list[Link]:
-    """Connect to every node (both sides proving the secret), send its CONFIG and objects."""
+async def _connect(addresses, cluster, secret) -> list[Link]:
+    """One link to every node, both sides proving the secret."""
     links: list[Link] = []
-    neighbours = {str(n): a for n, a in enumerate(addresses)}
-    render, part = planned.spec.to_wire(), planned.partition.to_wire()
     try:
         for n, address in enumerate(addresses):
             link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host")
             links.append(link)
-        for n, link in enumerate(links):
-            await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,
-                                 partition=part, view=asdict(scene.view),
-                                 background=list(scene.background)))  # fmt: skip
-            await _download(link, subset(scene, planned.holders[n]))
     except (LinkClosed, ProtocolError) as e:
         await _close(links, shutdown=False)
         raise MeshError(f"setting up the mesh: {describe(e)}") from e
     return links
+
+
+async def _configure(scene, planned: Planned, links: list[Link], addresses) -> None:
+    """Every node's CONFIG (all of them first: a node links to its neighbours once its
+    objects are in, and they must know the render by then), then its objects."""
+    neighbours = {str(n): a for n, a in enumerate(addresses)}
+    render, part = planned.spec.to_wire(), planned.partition.to_wire()
+    n = 0
+    try:
+        for n, link in enumerate(links):
+            await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,
+                                 partition=part, view=asdict(scene.view),
+                                 background=list(scene.background)))  # fmt: skip
+        for n, link in enumerate(links):
+            await _download(link, subset(scene, planned.holders[n]))
+    except LinkClosed as e:
+        raise NodeLost(n, f"setting up the mesh: {describe(e)}") from e
+
+
+async def _give_up(links: list[Link], error: MeshError, deadline: float) -> set[int]:
+    """Tell every node the render is given up (ABORT) and wait up to `deadline` seconds for
+    each to answer (ABORTED comes after everything it sent for the render); the nodes lost
+    (the one the error names, links that broke, nodes that did not answer) are returned,
+    their links dropped."""
+    lost = {error.node} if isinstance(error, NodeLost) else set()
+
+    async def aborted(link: Link) -> None:
+        await link.send(make(Kind.ABORT, reason=str(error)))
+        while (await link.recv())[0] is not Kind.ABORTED:
+            pass  # what the node sent for the given-up render
+
+    waits = {asyncio.ensure_future(aborted(link)): i for i, link in enumerate(links)
+             if i not in lost}  # fmt: skip
+    if waits:
+        done, pending = await asyncio.wait(waits, timeout=deadline)
+        for t in pending:
+            t.cancel()
+        await asyncio.gather(*pending, return_exceptions=True)
+        lost |= {waits[t] for t in pending} | {waits[t] for t in done if t.exception()}
+    for i in lost:
+        links[i].abort()
+    return lost
 
 
 async def _close(links: list[Link], shutdown: bool = True) -> None:
@@ -124,11 +236,12 @@ async def _close(links: list[Link], shutdown: bool = True) -> None:
 class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
-    def __init__(self, fb: Framebuffer, addresses, progress, silence: float, stall: float,
-                 dealer: TileDealer | None = None):  # fmt: skip
-        self.fb, self.addresses, self.progress, self.dealer = fb, addresses, progress, dealer
+    def __init__(self, fb: Framebuffer, names: list[str], progress, silence: float,
+                 stall: float, dealer: TileDealer | None = None):  # fmt: skip
+        self.fb, self.names, self.progress, self.dealer = fb, names, progress, dealer
         self.silence, self.stall = silence, stall
-        n = len(addresses)
+        self.traced = 0  # primary rays reported so far
+        n = len(names)
         now = time.monotonic()
         self.stats: dict[int, dict] = {}
         self.deposits = 0
@@ -138,7 +251,7 @@ class _Collector:
         self.last_work = now
 
     def name(self, n: int) -> str:
-        return f"node {n} ({self.addresses[n]})"
+        return self.names[n]
 
     async def run(self, links: list[Link]) -> None:
         tasks = [asyncio.ensure_future(self.collect(n, link)) for n, link in enumerate(links)]
@@ -161,7 +274,7 @@ class _Collector:
             try:
                 kind, f = await link.recv()
             except LinkClosed as e:
-                raise MeshError(f"{self.name(n)}: {e.reason}") from e
+                raise NodeLost(n, f"{self.name(n)}: {e.reason}") from e
             now = self.last_heard[n] = time.monotonic()
             if kind is Kind.PIXELS:
                 d = f["deposits"]
@@ -172,6 +285,7 @@ class _Collector:
                 if f["work"] > self.work[n] or f["ready"] != self.ready[n]:
                     self.last_work = now
                 self.work[n], self.ready[n] = f["work"], f["ready"]
+                self.traced += f["rays"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
             elif kind is Kind.TILE_DONE and self.dealer is not None:
@@ -193,8 +307,8 @@ class _Collector:
             now = time.monotonic()
             for n in self.last_heard:
                 if n not in self.stats and now - self.last_heard[n] > self.silence:
-                    raise MeshError(f"{self.name(n)}: no message for {self.silence:g} s "
-                                    "(stopped, hung or cut off)")  # fmt: skip
+                    raise NodeLost(n, f"{self.name(n)}: no message for {self.silence:g} s "
+                                      "(stopped, hung or cut off)")  # fmt: skip
             if not all(self.ready.values()):
                 self.last_work = now
             elif now - self.last_work > self.stall:

@@ -17,6 +17,7 @@ from protocols.messages import Kind, make, parse
 HIGH_WATER = 4 * 1024 * 1024  # bytes buffered in the transport before send() waits
 HANDSHAKE_FRAME = 4096  # largest frame a peer may send before it has proved the secret
 HANDSHAKE_SECONDS = 10.0  # a peer that has not finished the handshake by then is dropped
+CLOSE_SECONDS = 5.0  # a closing link's queued bytes must be taken by then, or are dropped
 
 
 class LinkClosed(ConnectionError):
@@ -94,12 +95,20 @@ class Link:
         return self._ready.pop(0)
 
     async def close(self) -> None:
+        """Close, flushing what is queued; a peer that stopped reading (paused, hung) gets
+        CLOSE_SECONDS to take it, then the connection is dropped: closing never hangs."""
         if not self.writer.is_closing():
             self.writer.close()
         try:
-            await self.writer.wait_closed()
+            await asyncio.wait_for(self.writer.wait_closed(), CLOSE_SECONDS)
+        except TimeoutError:
+            self.writer.transport.abort()
         except (ConnectionError, RuntimeError):
             pass
+
+    def abort(self) -> None:
+        """Drop the connection now, discarding what is queued (a peer given up for lost)."""
+        self.writer.transport.abort()
 
 
 class Outbox:
@@ -132,12 +141,6 @@ class Outbox:
                         self.sent.set()
         except LinkClosed as e:
             on_error(e)
-
-    async def close(self) -> None:
-        """Stop sending and close the link; waits for the sending task to end."""
-        self.task.cancel()
-        await asyncio.gather(self.task, return_exceptions=True)
-        await self.link.close()
 
 
 async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,

@@ -152,7 +152,9 @@ class NodeService:
 
     # ------------------------------------------------------------------ the host
     async def serve_host(self, link: Link) -> None:
-        """CONFIG, then the objects, then wait for SHUTDOWN; one render at a time."""
+        """CONFIG, then the objects, then wait for SHUTDOWN; one render at a time. ABORT ends
+        the render without ending the link: the host re-plans on the nodes left and sends a
+        new CONFIG on the same link (so `once` nodes stay for it)."""
         if self.session is not None:
             await self._refuse(link, "this node is rendering for another host")
             return
@@ -168,6 +170,11 @@ class NodeService:
                         session.spawn(session.build())
                 elif kind is Kind.TILES and session is not None:
                     session.on_tiles(f)
+                elif kind is Kind.ABORT:
+                    log.warning("host gave up the render: %s", f["reason"])
+                    await self._end(session)
+                    session = None
+                    await link.send(make(Kind.ABORTED))
                 elif kind is Kind.SHUTDOWN:
                     break
                 else:
@@ -177,13 +184,21 @@ class NodeService:
         except (ProtocolError, ValueError) as e:  # a bad CONFIG: tell the host what
             await self._refuse(link, describe(e))
         finally:
-            if session is not None:
-                await session.close()
-            if self.session is session:
-                self.session = None
+            await self._end(session)
             await link.close()
             if self.once:
                 self.stopped.set()
+
+    async def _end(self, session: Session | None) -> None:
+        """Close a render's session and drop neighbour links it never took: a link kept
+        past its render would be handed to the next one as if it were its neighbour's."""
+        if session is not None:
+            await session.close()
+        if self.session is session:
+            self.session = None
+        for link in self.pending.values():
+            self._spawn(link.close())
+        self.pending.clear()
 
     async def _refuse(self, link: Link, reason: str) -> None:
         log.warning("refused host %s: %s", link.peer, reason)

@@ -314,12 +314,17 @@ class Session:
                 self.post_data(dest, Kind.RAYS, passed)
 
     async def close(self) -> None:
-        """Cancel and await every task of this render, then close its links."""
+        """Cancel and await every task of this render, then drop its neighbour links: the
+        render is over (every node sent its STATS) or given up, so nothing queued on them
+        matters, and a neighbour that stopped reading must not hold this node up."""
         tasks = list(self.tasks)
         for t in tasks:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        await asyncio.gather(*(o.close() for o in self.outboxes.values()),
-                             return_exceptions=True)  # fmt: skip
+        for o in self.outboxes.values():
+            o.task.cancel()
+        await asyncio.gather(*(o.task for o in self.outboxes.values()), return_exceptions=True)
+        for o in self.outboxes.values():
+            o.link.abort()
         self.host_out.task.cancel()
         await asyncio.gather(self.host_out.task, return_exceptions=True)

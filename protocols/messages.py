@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 MAX_TILES_PER_MESSAGE = 1024
 
 
@@ -33,6 +33,9 @@ class Kind(IntEnum):
     WELCOME = 12  # handshake: the listener accepted the dialler's proof
     TILES = 13  # host to node, dynamic image space: tiles to trace (partition rectangles)
     TILE_DONE = 14  # node to host: tiles whose every primary ray has started
+    ABORT = 15  # host to node: give up this render (a node was lost); a new CONFIG may follow
+    ABORTED = 16  # node to host: the render is given up, its links closed; after everything
+    # the node sent for it, so the host knows what follows belongs to the next render
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -55,6 +58,8 @@ FIELDS = {
     Kind.WELCOME: {},
     Kind.TILES: {"tiles": list, "last": bool},
     Kind.TILE_DONE: {"node": int, "tiles": list},
+    Kind.ABORT: {"reason": str},
+    Kind.ABORTED: {},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),

@@ -65,14 +65,15 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     assert len(nodes) == rows * cols
 
 
-def test_dead_node_stops_the_render_naming_it():
+def test_dead_node_stops_the_render_naming_it_when_told_to_fail():
     scene = read_nff(spd_scene("balls_s3.nff"))
     rs = records(width=800, height=800, spp=4)  # ~10 s of tracing
 
     async def run(mesh, addresses, tracing: bool):
         started = asyncio.Event()
         task = asyncio.create_task(on_mesh(scene, rs, addresses, MeshPlan(2, 2, 1),
-                                           progress=lambda n: started.set()))  # fmt: skip
+                                           progress=lambda n: started.set(),
+                                           on_node_loss="fail"))  # fmt: skip
         if tracing:  # the first primary rays traced somewhere
             await asyncio.wait_for(started.wait(), 60)
         mesh.procs[1].kill()
@@ -131,7 +132,7 @@ def test_tiny_receive_buffers_do_not_deadlock(high):
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
 
 
-def test_a_silent_mesh_fails_instead_of_hanging():
+def test_a_silent_node_fails_the_render_when_told_to_fail():
     # Node 1 stopped (SIGSTOP: alive, its sockets open, but silent): the watchdog names it.
     import os
     import signal
@@ -144,7 +145,8 @@ def test_a_silent_mesh_fails_instead_of_hanging():
         async def run():
             started = asyncio.Event()
             task = asyncio.create_task(on_mesh(scene, rs, addresses, MeshPlan(1, 2), silence=2.0,
-                                               progress=lambda n: started.set()))  # fmt: skip
+                                               progress=lambda n: started.set(),
+                                               on_node_loss="fail"))  # fmt: skip
             await asyncio.wait_for(started.wait(), 60)  # tracing has begun
             os.kill(mesh.procs[1].pid, signal.SIGSTOP)
             try:

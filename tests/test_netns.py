@@ -48,7 +48,7 @@ def test_a_node_cut_off_the_network_is_named_within_seconds():
         async def run():
             started = asyncio.Event()
             coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), silence=3.0,
-                                  secret=mesh.secret,
+                                  secret=mesh.secret, on_node_loss="fail",
                                   progress=lambda n: started.set())  # fmt: skip
             task = asyncio.create_task(coro)
             await asyncio.wait_for(started.wait(), 60)  # tracing has begun

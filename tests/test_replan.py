@@ -1,0 +1,69 @@
+"""Re-planning when a node is lost mid-frame: a node killed (its links break) or paused
+(alive, sockets open, silent) on 2x2 and 3x3 meshes; the host gives the render up on the
+others, plans it again on the nodes left and the frame ends in the single node's image and
+ray counts, naming the lost node."""
+
+import asyncio
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from host.meshclient import render_on_mesh, shrink
+from host.nff import read_nff
+from host.render import render
+from protocols.render import MeshPlan
+from tests.conftest import records, spd_scene
+from tests.test_mesh_service import COUNTS, slow_mesh
+
+
+def test_shrink_uses_every_node_left_nearly_square():
+    for nodes, want in [(1, (1, 1)), (3, (1, 3)), (8, (2, 4)), (7, (1, 7)), (12, (3, 4))]:
+        plan = shrink(MeshPlan(4, 4, mode="image", tiles="dynamic"), nodes)
+        assert (plan.rows, plan.cols) == want and plan.mode == "image" and plan.tiles == "dynamic"
+
+
+@pytest.mark.parametrize("rows,cols,fault,mode", [
+    (2, 2, "kill", "object"), (2, 2, "pause", "object"), (3, 3, "kill", "object"),
+    (3, 3, "pause", "object"), (2, 2, "kill", "image")])  # fmt: skip
+def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols, fault, mode):
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=48, height=48, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    n = rows * cols
+    victim = n - 1
+    plan = MeshPlan(rows, cols, 10, mode=mode, **({"tiles": "dynamic", "tile": 8}
+                                                   if mode == "image" else {}))  # fmt: skip
+    # Node 0's first ray messages to node 1 are held back 1.5 s (object space), so the frame
+    # cannot end before the fault lands; image space has no such link, so its tiles are small
+    # and the fault comes with the first traced rays.
+    mesh = slow_mesh(n, 0, 1, 1.5, 2)
+    notices: list[str] = []
+    with mesh as addresses:
+
+        async def run():
+            started = asyncio.Event()
+            task = asyncio.create_task(render_on_mesh(
+                scene, rs.image, addresses, plan, rs.engine, silence=4.0,
+                progress=lambda k: started.set(), notice=notices.append))  # fmt: skip
+            await asyncio.wait_for(started.wait(), 60)  # tracing has begun
+            proc = mesh.procs[victim]
+            os.kill(proc.pid, signal.SIGKILL if fault == "kill" else signal.SIGSTOP)
+            try:
+                return await asyncio.wait_for(task, 90)
+            finally:
+                if fault == "pause":
+                    os.kill(proc.pid, signal.SIGCONT)
+
+        img, stats = asyncio.run(run())
+    assert [d["node"] for d in stats["lost_nodes"]] == [victim]
+    assert addresses[victim] not in stats["addresses"] and len(stats["addresses"]) == n - 1
+    assert f"node {victim} ({addresses[victim]})" in notices[0]
+    if fault == "pause":
+        assert "no message for 4 s" in stats["lost_nodes"][0]["reason"]
+    assert stats["recovery_seconds"] > 0
+    assert stats["mesh"]["rows"] * stats["mesh"]["cols"] == n - 1
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh

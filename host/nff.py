@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from protocols import dtypes
-from protocols.scene import SceneData, View
+from protocols.scene import MAX_COORDINATE, SceneData, View
 
 _COMMENT = re.compile(r"#[^\n]*")
 _INT = re.compile(r"[+-]?[0-9]+")
@@ -167,12 +167,16 @@ class _Scan:
             raise  # unreachable: map() failed, so one token fails alone
         if len(vals) < k:
             self.need(i, k, at)
-        # One sum instead of k isfinite calls; an overflowing sum of finite values just costs
-        # the slow look.
-        if not math.isfinite(sum(vals)):
+        # One sum, max and min instead of k checks; an overflowing sum of finite values
+        # just costs the slow look.
+        if not math.isfinite(sum(vals)) or max(vals) > MAX_COORDINATE or min(
+                vals) < -MAX_COORDINATE:  # fmt: skip
             for j, v in enumerate(vals):
                 if not math.isfinite(v):
                     raise self.error(i + j, f"non-finite number {seg[j]!r}")
+                if abs(v) > MAX_COORDINATE:
+                    raise self.error(i + j, f"{seg[j]} is beyond +-{MAX_COORDINATE:g} (the "
+                                     "tracer's products would overflow)")  # fmt: skip
         return vals
 
     def is_number(self, i: int) -> bool:

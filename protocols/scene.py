@@ -10,6 +10,15 @@ import numpy as np
 
 from protocols import dtypes
 
+# Scene numbers the tracer can square and multiply in float64 without overflow or underflow
+# (lengths, dot products, quadratic discriminants): beyond them a render would go non-finite.
+MAX_COORDINATE = 1e100
+MIN_LENGTH = 1e-100
+
+
+def _point(v) -> str:
+    return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
 
 @dataclass(frozen=True)
 class View:
@@ -35,15 +44,16 @@ class View:
             raise ValueError("view: eye, at and up must be three numbers each") from None
         if eye.shape != (3,) or at.shape != (3,) or up.shape != (3,):
             raise ValueError("view: eye, at and up must be three numbers each")
-        if not np.all(np.isfinite(numbers)):
-            raise ValueError("view: every number must be finite")
+        if not np.all(np.isfinite(numbers)) or np.abs(numbers).max() > MAX_COORDINATE:
+            raise ValueError(f"view: every number must be finite and within +-{MAX_COORDINATE:g}")
         sight = at - eye
-        scale = max(float(np.abs(np.concatenate([eye, at])).max()), 1e-300)
-        if not np.linalg.norm(sight) > 1e-12 * scale:
-            raise ValueError(f"view: 'from' {tuple(eye)} and 'at' {tuple(at)} coincide")
+        scale = max(float(np.abs(np.concatenate([eye, at])).max()), MIN_LENGTH)
+        if not np.linalg.norm(sight) > max(1e-12 * scale, MIN_LENGTH):
+            raise ValueError(f"view: 'from' {_point(eye)} and 'at' {_point(at)} coincide (or are "
+                             f"closer than {MIN_LENGTH:g}: scale the scene up)")  # fmt: skip
         across = np.cross(sight / np.linalg.norm(sight), up)
         if not np.linalg.norm(up) > 0 or not np.linalg.norm(across) > 1e-9 * np.linalg.norm(up):
-            raise ValueError(f"view: 'up' {tuple(up)} is zero or along the line of sight")
+            raise ValueError(f"view: 'up' {_point(up)} is zero or along the line of sight")
         if not 0.0 < self.angle < 180.0 or self.hither < 0:
             raise ValueError("view: angle must be in (0, 180) degrees and hither >= 0")
         for name in ("width", "height"):

@@ -474,3 +474,20 @@ def test_a_degenerate_view_is_refused_with_its_line(view, what):
     text = f"b 0 0 0\nv\n{view}\nangle 45\nhither 1\nresolution 8 8\n"
     with pytest.raises(SceneError, match=rf"scene.nff:2: view: .*{what}"):
         parse_nff(text, "scene.nff")
+
+
+@pytest.mark.parametrize("k,where,what", [
+    (1e-300, ":1:", "coincide (or are closer than 1e-100"),
+    (1e300, ":2:", "beyond +-1e+100")])  # fmt: skip
+def test_a_scene_scaled_past_float64_is_refused_naming_the_line(k, where, what):
+    # Scaled by 1e-300 the eye and target cannot be told apart; by 1e300 squares overflow.
+    text = (f"v\nfrom {2 * k:g} {k:g} {k:g}\nat 0 0 0\nup 0 0 1\nangle 40\nhither 0\n"
+            f"f 1 0 0 1 0 1 0 0\ns 0 0 0 {k:g}\n")  # fmt: skip
+    with pytest.raises(SceneError, match=where) as e:
+        parse_nff(text, "scaled.nff")
+    assert what in str(e.value)
+
+
+def test_an_ior_past_the_tracers_range_is_refused():
+    with pytest.raises(SceneError, match=r"t\.nff:1: 1e308 is beyond"):
+        parse_nff("f 1 1 1 0 0 1 0.5 1e308\n", "t.nff")

@@ -184,3 +184,28 @@ def test_far_tiny_and_huge_scenes_render_the_same(scale, offset):
     img, counts = small(transformed(scene, scale, offset))
     assert counts == base_counts
     np.testing.assert_allclose(img, base_img, rtol=0, atol=1e-6)
+
+
+def test_rays_of_extreme_finite_numbers_end_on_every_kernel_path():
+    # What a peer can send (finite, so it passes the RAYS checks) and what a scene near the
+    # float64 limits makes: origins and directions from 1e-300 to 1e300, unnormalised, spans
+    # from 0 to 1e308. Overflowing arithmetic (inf - inf = NaN) must not keep a ray walking:
+    # every kernel loop is bounded, so each batch comes back, on one node and as a mesh node.
+    rng = np.random.default_rng(5)
+    scene = lit_glass_scene(rng, n=30)
+    values = np.array([0.0, 1e-300, -1e-300, 1e-150, 0.5, -2.0, 1e150, -1e150, 1e300, -1e300])
+    n = 2000
+    rays = np.zeros(n, dtypes.RAY)
+    rays["o"] = rng.choice(values, (n, 3))
+    rays["d"] = rng.choice(values, (n, 3))
+    rays["d"][np.all(rays["d"] == 0, axis=1)] = (0.0, 0.0, 1.0)
+    rays["t_min"] = rng.choice([0.0, 1e-300, 1.0, 1e300], n)
+    rays["t_max"] = rng.choice([math.inf, 1e308, 1.0], n)
+    rays["w"], rays["origin"], rays["kind"] = 1.0, -1, rng.integers(0, 4, n)
+    rays["depth"] = rng.integers(1, 6, n)
+    for brute in (False, True):
+        engine = Engine(scene, brute=brute)
+        rgb, counts = engine.trace(rays)
+        assert counts["eye_rays"] + counts["reflected_rays"] + counts["refracted_rays"] >= 0
+        _, _, passed = engine.trace_node(rays)
+        assert len(rgb) == n and passed is not None

@@ -136,7 +136,11 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
     best_u = -1
     tests = 0
     steps = 0
-    while True:
+    # Every step leaves a voxel (or a cube of them) for one further along the ray, so a walk
+    # takes at most nx + ny + nz steps; the bound keeps a ray whose arithmetic went non-finite
+    # or overflowed (a peer's rays, a scene at 1e300) from walking forever.
+    max_steps = 2 * (nx + ny + nz) + 16
+    while steps <= max_steps:
         # Empty macro cell: jump out of the empty cube of macro cells around it without
         # touching the voxel table (the small macro table stays in cache).
         mx = ix >> mshift

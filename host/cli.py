@@ -19,6 +19,7 @@ from host.localmesh import LocalMesh
 from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
 from host.render import render
+from meshnode.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
 from protocols.render import BALANCES, MODES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
 from protocols.spec import default
@@ -81,6 +82,7 @@ def _parser() -> argparse.ArgumentParser:
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
     r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
                    "a local mesh makes its own")  # fmt: skip
+    add_tls_options(r.add_argument_group("TLS to the nodes (with --cluster)"), "the host's client")
     r.add_argument("--on-node-loss", choices=NODE_LOSS, default="replan",
                    help="when a node dies or falls silent mid-frame: replan (finish the frame "
                         "on the nodes left, same image) or fail (default replan)")  # fmt: skip
@@ -296,9 +298,13 @@ def _run(scene, image, engine, camera, args):
         rows, cols, addresses = read_cluster(args.cluster)
         plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
         secret = read_secret(args.secret_file)
-        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls)
         stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
         return img, stats
+    if args.tls_cert or args.tls_key or args.tls_ca:
+        raise ValueError("--tls-cert, --tls-key and --tls-ca are for nodes of a --cluster (a "
+                         "local mesh talks over loopback with a secret of its own)")  # fmt: skip
     rows, cols = parse_mesh(args.mesh)
     plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
     if plan.nodes == 1:
@@ -318,7 +324,7 @@ def _run(scene, image, engine, camera, args):
     return img, stats
 
 
-def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
+def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None):
     from tqdm import tqdm
 
     sized = image.sized(scene.view)
@@ -331,7 +337,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
                                           secret=secret, progress=bar.update,
-                                          on_node_loss=args.on_node_loss,
+                                          on_node_loss=args.on_node_loss, tls=tls,
                                           notice=lambda text: bar.write(f"host: {text}",
                                                                         file=sys.stderr)))
     finally:

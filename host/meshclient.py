@@ -11,6 +11,7 @@ node still there), or a mesh whose nodes all live but none works, fails the rend
 
 import asyncio
 import math
+import ssl
 import time
 from dataclasses import asdict, replace
 
@@ -62,7 +63,8 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
                          stall: float = 180.0, on_node_loss: str = "replan",
-                         notice=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         notice=None, tls: ssl.SSLContext | None = None,
+                         ) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced (negative when a
@@ -70,7 +72,8 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     send one a second) before it is taken for lost; `stall`: seconds in which no node traces
     anything once all are built (all alive, none working: a stuck kernel or a protocol
     fault); `on_node_loss`: "replan" (finish the frame on the nodes left) or "fail";
-    `notice(text)` hears of every lost node."""
+    `notice(text)` hears of every lost node; `tls`: a client context (meshnode.tls) when
+    the nodes listen with TLS."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
@@ -78,7 +81,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
         raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
     start = time.perf_counter()
     alive = list(range(len(addresses)))  # the original index of each node still rendering
-    links = await _connect(addresses, cluster, secret)
+    links = await _connect(addresses, cluster, secret, tls)
     lost: list[dict] = []
     first_loss = None
     try:
@@ -168,12 +171,13 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     return fb, summary
 
 
-async def _connect(addresses, cluster, secret) -> list[Link]:
+async def _connect(addresses, cluster, secret, tls) -> list[Link]:
     """One link to every node, both sides proving the secret."""
     links: list[Link] = []
     try:
         for n, address in enumerate(addresses):
-            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host")
+            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host",
+                                 tls=tls)  # fmt: skip
             links.append(link)
     except (LinkClosed, ProtocolError) as e:
         await _close(links, shutdown=False)

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from meshnode.scheduler import INCOMING_HIGH
+from meshnode.tls import NO_TLS, TlsFiles, add_tls_options
 from protocols import dtypes
 from protocols.scene import SceneData, View
 
@@ -63,6 +64,7 @@ def parse(argv=None) -> argparse.Namespace:
     s.add_argument("--insecure", action="store_true",
                    help="listen beyond loopback without a secret: anyone who reaches the port "
                         "can use the node")  # fmt: skip
+    add_tls_options(s, "this node's")
     s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
     s.add_argument("--once", action="store_true", help="exit after one render")
     s.add_argument("--threads", type=int, default=0,
@@ -80,11 +82,16 @@ def main(argv=None) -> int:
         return 0
     try:
         secret = serving_secret(args)
+        tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca)
+        if tls.ca is not None and tls.cert is None:
+            raise ValueError("--tls-ca needs --tls-cert and --tls-key: a node listening with "
+                             "TLS needs its own certificate")  # fmt: skip
+        tls.server()
     except (ValueError, OSError) as e:
         print(f"meshnode: {e}", file=sys.stderr)
         return 2
     return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
-                 secret=secret)  # fmt: skip
+                 secret=secret, tls=tls)  # fmt: skip
 
 
 def serving_secret(args) -> bytes | None:
@@ -107,7 +114,7 @@ def serving_secret(args) -> bytes | None:
 
 def serve(listen: str, cluster: str, once: bool, threads: int = 0,
           incoming_high: int = INCOMING_HIGH, service_class=None,
-          secret: bytes | None = None) -> int:  # fmt: skip
+          secret: bytes | None = None, tls: TlsFiles = NO_TLS) -> int:  # fmt: skip
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
     import logging
@@ -122,7 +129,7 @@ def serve(listen: str, cluster: str, once: bool, threads: int = 0,
 
     async def main():
         service = service_class(host, int(port), cluster, once, threads or os.cpu_count() or 1,
-                                incoming_high, secret)  # fmt: skip
+                                incoming_high, secret, tls)  # fmt: skip
         try:
             bound = await service.start()
         except OSError as e:

@@ -7,6 +7,7 @@ names the peer and chains the cause.
 """
 
 import asyncio
+import ssl
 from collections import deque
 
 from protocols.errors import AuthFailed, ProtocolError, describe
@@ -41,15 +42,28 @@ class Link:
         """Accept frames up to `max_frame` bytes from now on (after the handshake)."""
         self.max_frame = self._decoder.max_frame = max_frame
 
+    @property
+    def tls(self) -> str | None:
+        """The TLS version the link runs, or None on plain TCP."""
+        ssl_object = self.writer.get_extra_info("ssl_object")
+        return ssl_object.version() if ssl_object is not None else None
+
     @classmethod
     async def connect(cls, address: str, peer: str, retries: int = 50,
-                      max_frame: int = MAX_FRAME) -> "Link":  # fmt: skip
-        """Connect to HOST:PORT, retrying briefly while the peer starts listening."""
+                      max_frame: int = MAX_FRAME,
+                      tls: ssl.SSLContext | None = None) -> "Link":  # fmt: skip
+        """Connect to HOST:PORT (over TLS with a context: the peer's certificate must name
+        HOST), retrying briefly while the peer starts listening; a TLS failure is final."""
         host, port = address.rsplit(":", 1)
+        host = host.strip("[]")
+        tls_options = {"ssl": tls, "server_hostname": host,
+                       "ssl_handshake_timeout": HANDSHAKE_SECONDS} if tls else {}  # fmt: skip
         for attempt in range(retries):
             try:
-                reader, writer = await asyncio.open_connection(host, int(port))
+                reader, writer = await asyncio.open_connection(host, int(port), **tls_options)
                 return cls(reader, writer, peer, max_frame)
+            except ssl.SSLError as e:
+                raise LinkClosed(peer, f"TLS with {address} failed: {e.reason or e}") from e
             except OSError as e:
                 if attempt == retries - 1:
                     raise LinkClosed(peer, f"cannot connect to {address}: {e}") from e
@@ -144,17 +158,19 @@ class Outbox:
 
 
 async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
-               node: int = -1) -> tuple[Link, dict]:  # fmt: skip
-    """Connect to a node and prove the cluster secret both ways (protocols.handshake); returns
-    the link, open for whole frames, and the node's HELLO fields. LinkClosed names the peer
-    and why it refused or could not be reached."""
-    link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME)
+               node: int = -1, tls: ssl.SSLContext | None = None) -> tuple[Link, dict]:
+    """Connect to a node (over TLS with a context) and prove the cluster secret both ways
+    (protocols.handshake); returns the link, open for whole frames, and the node's HELLO
+    fields. LinkClosed names the peer and why it refused or could not be reached."""
+    link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME, tls=tls)
     try:
         theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node),
                                         HANDSHAKE_SECONDS)  # fmt: skip
     except (ProtocolError, LinkClosed, TimeoutError) as e:
         await link.close()
         reason = e.reason if isinstance(e, LinkClosed) else describe(e)
+        if tls is None and isinstance(e, LinkClosed):
+            reason += " (a node that listens with TLS closes plain connections: --tls-ca)"
         raise LinkClosed(peer, f"handshake failed: {reason}") from e
     link.allow(MAX_FRAME)
     return link, theirs

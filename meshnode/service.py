@@ -10,9 +10,10 @@ import asyncio
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
-from meshnode.link import Link, LinkClosed, answer, dial
+from meshnode.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
 from meshnode.scheduler import INCOMING_HIGH
 from meshnode.session import Config, Session
+from meshnode.tls import NO_TLS, TlsFiles
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
 
@@ -25,13 +26,15 @@ class NodeService:
 
     `threads`: batches traced at once; `incoming_high`: queued incoming rays at which the
     node stops reading from its neighbours; `once`: stop after the first host leaves;
-    `secret`: the cluster secret every peer must prove (None: the empty key, loopback use)."""
+    `secret`: the cluster secret every peer must prove (None: the empty key, loopback use);
+    `tls`: certificate, key and CA files for TLS on every link (meshnode.tls)."""
 
     def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False,
                  threads: int = 1, incoming_high: int = INCOMING_HIGH,
-                 secret: bytes | None = None):  # fmt: skip
+                 secret: bytes | None = None, tls: TlsFiles = NO_TLS):  # fmt: skip
         self.address, self.port, self.cluster, self.once = host, port, cluster, once
         self.secret = secret
+        self.tls_server, self.tls_client = tls.server(), tls.client()
         self.threads = max(1, threads)
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
@@ -43,7 +46,9 @@ class NodeService:
         self.server: asyncio.Server | None = None
 
     async def start(self) -> int:
-        self.server = await asyncio.start_server(self._accepted, self.address, self.port)
+        tls = {"ssl": self.tls_server, "ssl_handshake_timeout": HANDSHAKE_SECONDS} \
+            if self.tls_server else {}  # fmt: skip
+        self.server = await asyncio.start_server(self._accepted, self.address, self.port, **tls)
         self.port = self.server.sockets[0].getsockname()[1]
         return self.port
 
@@ -91,7 +96,7 @@ class NodeService:
     async def dial(self, m: int, address: str) -> Link:
         """Connect to neighbour m, both sides proving the cluster secret."""
         link, theirs = await dial(address, f"node {m} ({address})", self.cluster, self.secret,
-                                  "node", self.session.node)  # fmt: skip
+                                  "node", self.session.node, self.tls_client)  # fmt: skip
         if theirs["node"] != m:
             await link.close()
             raise LinkClosed(link.peer, f"it says it is node {theirs['node']}, not node {m}")

@@ -257,7 +257,7 @@ class Session:
                 self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
             self.stats.counts["refined_pixels"] = self.core.refined_pixels
         elif state == State.DONE:
-            links = {m: o.link.stats for m, o in self.outboxes.items()}
+            links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
             report = self.stats.report(self.core.engine.stats, links)
             report["packet_visits"] = self.sched.term.visits
             self.host_out.post(make(Kind.STATS, node=self.node, stats=report))

@@ -10,10 +10,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 # What the host may use of the node side: the engine (a compute library), the adaptive
 # sampling books, the scheduler (pure: the host deals dynamic tiles with it) and the
-# simulated mesh that drives it, and the framed link both ends speak. Never the service,
-# its session or node internals.
+# simulated mesh that drives it, and the framed link both ends speak (and its TLS options).
+# Never the service, its session or node internals.
 HOST_MAY_USE = ("meshnode.engine", "meshnode.adaptive", "meshnode.simulator", "meshnode.link",
-                "meshnode.scheduler")
+                "meshnode.scheduler", "meshnode.tls")
 
 
 def imports(path: Path, full: bool = False) -> set[str]:

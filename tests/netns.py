@@ -61,7 +61,9 @@ class Network:
             _ip("-n", ns, "link", "set", "lo", "up")
 
     def shape(self, i: int, mtu: int | None = None, rate: str | None = None) -> None:
-        """Node i's cable: a smaller MTU, and/or a token-bucket rate limit (e.g. '200mbit')."""
+        """Node i's cable: a smaller MTU, and/or a token-bucket rate limit (e.g. '200mbit').
+        (Delays need the netem qdisc, which kernels here lack: tests.faultnode delays a link
+        in the node instead.)"""
         if mtu:
             _ip("-n", self.spaces[i], "link", "set", self.inner[i], "mtu", str(mtu))
         if rate:
@@ -84,9 +86,10 @@ class Network:
 
 
 @contextmanager
-def namespaced_mesh(n: int, shape=None):
+def namespaced_mesh(n: int, shape=None, **node_options):
     """(network, mesh, addresses): n meshnode processes, node i in namespace i, sharing the
-    secret `mesh.secret`; `shape(net)` may shape the cables before the nodes start."""
+    secret `mesh.secret`; `shape(net)` may shape the cables before the nodes start;
+    `node_options` go to LocalMesh (module, options, env: nodes with injected faults)."""
     net = Network(n)
     try:
         net.up()
@@ -95,7 +98,7 @@ def namespaced_mesh(n: int, shape=None):
         wrap = lambda i: ["ip", "netns", "exec", net.spaces[i]]  # noqa: E731
         # Beyond loopback every node needs the cluster secret: the real, authenticated setup.
         mesh = LocalMesh(n, listen=[net.address(i) for i in range(n)], wrap=wrap,
-                         secret=secrets.token_hex(16).encode())  # fmt: skip
+                         secret=secrets.token_hex(16).encode(), **node_options)  # fmt: skip
         with mesh as addresses:
             yield net, mesh, addresses
     finally:

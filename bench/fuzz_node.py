@@ -85,6 +85,8 @@ ODD_NUMBERS = [0, 1, -1, 2, 3, 7, 255, 256, 65535, 65536, 2**31 - 1, 2**31, -(2*
                math.inf, -math.inf, math.nan, True, False]  # fmt: skip
 
 
+RENDER_ID = b"r" * 16  # the render id of the CONFIGs sent here
+
 class Hang(Exception):
     """A case got neither an answer nor a refusal within its timeout."""
 
@@ -362,9 +364,10 @@ class Conn:
             raise ConnectionError("the node closed the connection")
         return m
 
-    async def handshake(self, role: str = "host", node: int = -1, secret: bytes = SECRET):
+    async def handshake(self, role: str = "host", node: int = -1, secret: bytes = SECRET,
+                        render: bytes = b""):  # fmt: skip
         """The dialler's side of protocols.handshake; returns the node's HELLO fields."""
-        mine = parse(hello(CLUSTER, role, node, nonce()))[1]
+        mine = parse(hello(CLUSTER, role, node, nonce(), render))[1]
         self.send(encode(make(Kind.HELLO, **mine)))
         theirs = check_hello(await self.expect(), CLUSTER)
         check_auth(await self.expect(), SECRET, "listener", mine, theirs["nonce"])
@@ -413,7 +416,7 @@ class Fuzzer:
         neighbours = {str(m): "127.0.0.1:9" for m in range(plan.nodes)}
         config = make(Kind.CONFIG, node=n, neighbours=neighbours, render=planned.spec.to_wire(),
                       partition=planned.partition.to_wire(), view=asdict(self.scene.view),
-                      background=list(self.scene.background))  # fmt: skip
+                      background=list(self.scene.background), render_id=RENDER_ID)  # fmt: skip
         scene = subset(self.scene, np.ones_like(planned.holders[n]))  # every object: one variant
         tables = {"materials": scene.materials, "lights": scene.lights, "spheres": scene.spheres,
                   "triangles": scene.triangles, "polygons": scene.polygons,
@@ -702,7 +705,7 @@ class Fuzzer:
             await host.close()
             return
         peer = await Conn.open(self.node.port)
-        await peer.handshake("node", 0)
+        await peer.handshake("node", 0, render=RENDER_ID)
         # The node is ready (engine built, our link attached) when its heartbeat says so.
         deadline = time.monotonic() + BUILD_TIMEOUT
         while time.monotonic() < deadline:

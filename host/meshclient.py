@@ -11,6 +11,7 @@ node still there), or a mesh whose nodes all live but none works, fails the rend
 
 import asyncio
 import math
+import secrets
 import ssl
 import time
 from dataclasses import asdict, replace
@@ -24,6 +25,7 @@ from host.plan import Planned, plan_render
 from meshnode.link import Link, LinkClosed, dial
 from meshnode.scheduler import TileDealer
 from protocols.errors import ProtocolError, describe
+from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from protocols.scene import SceneData
@@ -101,11 +103,9 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                 if not gone or len(gone) == len(alive):
                     raise
                 first_loss = t_loss if first_loss is None else first_loss
-                for i in gone:
+                for i, reason in gone.items():
                     lost.append({"node": alive[i], "address": addresses[alive[i]],
-                                 "reason": str(e) if getattr(e, "node", None) == i else
-                                 "did not answer the host's ABORT",
-                                 "at_seconds": t_loss - start})  # fmt: skip
+                                 "reason": reason, "at_seconds": t_loss - start})  # fmt: skip
                     if notice is not None:
                         notice(f"lost {names[i]}: {lost[-1]['reason']}; re-planning the frame "
                                f"on the {len(alive) - len(gone)} nodes left")  # fmt: skip
@@ -190,24 +190,26 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
     objects are in, and they must know the render by then), then its objects."""
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     render, part = planned.spec.to_wire(), planned.partition.to_wire()
+    render_id = secrets.token_bytes(RENDER_ID_BYTES)  # links of a given-up try cannot join
     n = 0
     try:
         for n, link in enumerate(links):
             await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,
                                  partition=part, view=asdict(scene.view),
-                                 background=list(scene.background)))  # fmt: skip
+                                 background=list(scene.background),
+                                 render_id=render_id))  # fmt: skip
         for n, link in enumerate(links):
             await _download(link, subset(scene, planned.holders[n]))
     except LinkClosed as e:
         raise NodeLost(n, f"setting up the mesh: {describe(e)}") from e
 
 
-async def _give_up(links: list[Link], error: MeshError, deadline: float) -> set[int]:
+async def _give_up(links: list[Link], error: MeshError, deadline: float) -> dict[int, str]:
     """Tell every node the render is given up (ABORT) and wait up to `deadline` seconds for
-    each to answer (ABORTED comes after everything it sent for the render); the nodes lost
-    (the one the error names, links that broke, nodes that did not answer) are returned,
-    their links dropped."""
-    lost = {error.node} if isinstance(error, NodeLost) else set()
+    each to answer (ABORTED comes after everything it sent for the render); returns the
+    nodes lost (the one the error names, links that broke, nodes that did not answer) with
+    the reason for each, their links dropped."""
+    lost = {error.node: str(error)} if isinstance(error, NodeLost) else {}
 
     async def aborted(link: Link) -> None:
         await link.send(make(Kind.ABORT, reason=str(error)))
@@ -220,8 +222,11 @@ async def _give_up(links: list[Link], error: MeshError, deadline: float) -> set[
         done, pending = await asyncio.wait(waits, timeout=deadline)
         for t in pending:
             t.cancel()
+            lost[waits[t]] = f"no answer to the host's ABORT within {deadline:g} s"
         await asyncio.gather(*pending, return_exceptions=True)
-        lost |= {waits[t] for t in pending} | {waits[t] for t in done if t.exception()}
+        for t in done:
+            if t.exception() is not None:
+                lost[waits[t]] = describe(t.exception())
     for i in lost:
         links[i].abort()
     return lost

@@ -10,6 +10,7 @@ wrong; the service sends that back to the host.
 import numpy as np
 
 from protocols.errors import BadFrame
+from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
 from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
@@ -32,6 +33,9 @@ class Config:
         if not 0 <= f["node"] < plan.nodes:
             raise BadFrame(f"CONFIG.node = {f['node']}: must be from 0 to {plan.nodes - 1}")
         self.node = f["node"]
+        if len(f["render_id"]) != RENDER_ID_BYTES:
+            raise BadFrame(f"CONFIG.render_id must be {RENDER_ID_BYTES} bytes")
+        self.render_id = f["render_id"]
         self.neighbours = f["neighbours"]
         for m in self.torus.links(self.node):
             if not isinstance(self.neighbours.get(str(m)), str):

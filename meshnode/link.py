@@ -158,14 +158,16 @@ class Outbox:
 
 
 async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
-               node: int = -1, tls: ssl.SSLContext | None = None) -> tuple[Link, dict]:
+               node: int = -1, tls: ssl.SSLContext | None = None,
+               render: bytes = b"") -> tuple[Link, dict]:  # fmt: skip
     """Connect to a node (over TLS with a context) and prove the cluster secret both ways
-    (protocols.handshake); returns the link, open for whole frames, and the node's HELLO
-    fields. LinkClosed names the peer and why it refused or could not be reached."""
+    (protocols.handshake), a node naming the `render` the link is for; returns the link,
+    open for whole frames, and the node's HELLO fields. LinkClosed names the peer and why it
+    refused or could not be reached."""
     link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME, tls=tls)
     try:
-        theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node),
-                                        HANDSHAKE_SECONDS)  # fmt: skip
+        theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node,
+                                                 render), HANDSHAKE_SECONDS)  # fmt: skip
     except (ProtocolError, LinkClosed, TimeoutError) as e:
         await link.close()
         reason = e.reason if isinstance(e, LinkClosed) else describe(e)
@@ -176,8 +178,9 @@ async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role
     return link, theirs
 
 
-async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int) -> dict:
-    message = hello(cluster, role, node, nonce())
+async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int,
+                   render: bytes) -> dict:  # fmt: skip
+    message = hello(cluster, role, node, nonce(), render)
     mine = parse(message)[1]
     await link.send(message)
     theirs = check_hello(await link.recv_raw(), cluster)

@@ -39,7 +39,8 @@ class NodeService:
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
         self.session: Session | None = None
-        self.pending: dict[int, Link] = {}  # neighbour links that came before their session
+        # neighbour links that came before their session took them: node -> (render id, link)
+        self.pending: dict[int, tuple[bytes, Link]] = {}
         self.links_ready = asyncio.Event()
         self.stopped = asyncio.Event()
         self.tasks: set[asyncio.Task] = set()
@@ -71,7 +72,7 @@ class NodeService:
         for t in tasks:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        for link in self.pending.values():
+        for _, link in self.pending.values():
             await link.close()
         self.pending.clear()
         if self.server is not None:
@@ -96,7 +97,8 @@ class NodeService:
     async def dial(self, m: int, address: str) -> Link:
         """Connect to neighbour m, both sides proving the cluster secret."""
         link, theirs = await dial(address, f"node {m} ({address})", self.cluster, self.secret,
-                                  "node", self.session.node, self.tls_client)  # fmt: skip
+                                  "node", self.session.node, self.tls_client,
+                                  self.session.config.render_id)  # fmt: skip
         if theirs["node"] != m:
             await link.close()
             raise LinkClosed(link.peer, f"it says it is node {theirs['node']}, not node {m}")
@@ -108,9 +110,12 @@ class NodeService:
         as their share of the scene; the host's watchdog names a node that dies or hangs."""
         want = set(session.config.torus.links(session.node))
         while True:
-            for m in list(self.pending):
-                if m in want and m not in session.outboxes:
-                    session.attach(m, self.pending.pop(m))
+            for m, (render, link) in list(self.pending.items()):
+                if render != session.config.render_id:  # from a given-up render: never ours
+                    del self.pending[m]
+                    self._spawn(link.close())
+                elif m in want and m not in session.outboxes:
+                    session.attach(m, self.pending.pop(m)[1])
             if want <= set(session.outboxes):
                 return
             self.links_ready.clear()
@@ -130,24 +135,30 @@ class NodeService:
             log.warning("refused %s: %s", peer, describe(e))
             return
         if fields["role"] == "node":
-            self.neighbour(fields["node"], link)
+            self.neighbour(fields["node"], fields["render"], link)
             return
         await self.serve_host(link)
 
-    def neighbour(self, m: int, link: Link) -> None:
+    def neighbour(self, m: int, render: bytes, link: Link) -> None:
         """Keep a link a neighbour opened until its session takes it: only the current
-        session's neighbours, one link each (a newer one replaces an older)."""
+        session's neighbours, for its render, one link each (a newer one replaces an older).
+        Before the session's CONFIG arrives the render cannot be checked; the session drops
+        links of any other render when it takes its own."""
         session = self.session
-        if session is not None and m not in session.config.torus.links(session.node):
-            log.warning("refused %s: node %d is not a neighbour of node %d", link.peer, m,
-                        session.node)  # fmt: skip
+        why = None
+        if session is not None and render != session.config.render_id:
+            why = "its link is for another render (one given up, or another host's)"
+        elif session is not None and m not in session.config.torus.links(session.node):
+            why = f"node {m} is not a neighbour of node {session.node}"
+        if why is not None:
+            log.warning("refused %s: %s", link.peer, why)
             self._spawn(link.close())
             return
         link.peer = f"node {m} ({link.peer})"
         old = self.pending.pop(m, None)
         if old is not None:
-            self._spawn(old.close())
-        self.pending[m] = self.wrap(m, link)
+            self._spawn(old[1].close())
+        self.pending[m] = (render, self.wrap(m, link))
         self.links_ready.set()
 
     def _spawn(self, coro) -> None:
@@ -201,7 +212,7 @@ class NodeService:
             await session.close()
         if self.session is session:
             self.session = None
-        for link in self.pending.values():
+        for _, link in self.pending.values():
             self._spawn(link.close())
         self.pending.clear()
 

@@ -1,14 +1,16 @@
 """The opening of every link: protocol version, cluster id, and mutual proof of the secret.
 
-    dialler  -> HELLO  version, cluster, role, node, nonce_d
-    listener -> HELLO  version, cluster, "node", its node, nonce_l
+    dialler  -> HELLO  version, cluster, role, node, nonce_d, render
+    listener -> HELLO  version, cluster, "node", its node, nonce_l, b""
     listener -> AUTH   HMAC-SHA256(secret, "listener" | cluster | role | node | nonce_d | nonce_l)
     dialler  -> AUTH   HMAC-SHA256(secret, "dialler"  | cluster | role | node | nonce_d | nonce_l)
 
 Each side proves it holds the cluster secret over both fresh nonces, so a recorded handshake
 cannot be replayed and neither side learns anything it could use without the secret; the
 dialler's claimed role and node index are inside both proofs, so nobody in between can change
-them. Nothing but these messages is accepted before the listener has checked the dialler's
+them. A node dialling a neighbour names the render the link is for (CONFIG.render_id), also
+inside both proofs: a node still busy with a given-up render cannot pass for a neighbour in
+the next one. Nothing but these messages is accepted before the listener has checked the dialler's
 proof. A cluster without a secret (loopback development) proves with the empty key: the same
 code path, and a side with a secret refuses a side without one.
 """
@@ -23,19 +25,21 @@ from protocols.messages import PROTOCOL_VERSION, Kind, make, parse
 
 ROLES = ("host", "node")
 NONCE_BYTES = 32
+RENDER_ID_BYTES = 16
 
 
 def nonce() -> bytes:
     return secrets.token_bytes(NONCE_BYTES)
 
 
-def hello(cluster: str, role: str, node: int = -1, nonce: bytes = b"\0" * NONCE_BYTES) -> dict:
-    """What a side says first: who it is (role host or node, node index), what it speaks,
-    and its fresh nonce."""
+def hello(cluster: str, role: str, node: int = -1, nonce: bytes = b"\0" * NONCE_BYTES,
+          render: bytes = b"") -> dict:  # fmt: skip
+    """What a side says first: who it is (role host or node, node index, and for a node's
+    link to a neighbour the render it is for), what it speaks, and its fresh nonce."""
     if role not in ROLES:
         raise ValueError(f"role must be one of {ROLES}")
     return make(Kind.HELLO, version=PROTOCOL_VERSION, cluster=cluster, role=role, node=node,
-                nonce=nonce)  # fmt: skip
+                nonce=nonce, render=render)  # fmt: skip
 
 
 def check_hello(message: dict, cluster: str) -> dict:
@@ -53,6 +57,9 @@ def check_hello(message: dict, cluster: str) -> dict:
         raise VersionMismatch(f"peer claims unknown role {fields['role']!r}")
     if len(fields["nonce"]) != NONCE_BYTES:
         raise VersionMismatch(f"peer's nonce has {len(fields['nonce'])} bytes, not {NONCE_BYTES}")
+    if len(fields["render"]) not in (0, RENDER_ID_BYTES):
+        raise VersionMismatch(f"peer's render id has {len(fields['render'])} bytes, not "
+                              f"{RENDER_ID_BYTES}")  # fmt: skip
     return fields
 
 
@@ -60,7 +67,7 @@ def proof(secret: bytes, speaker: str, dialler: dict, listener_nonce: bytes) -> 
     """HMAC-SHA256 over who speaks and everything the dialler claimed, both nonces."""
     parts = [b"meshtrace-auth", speaker.encode(), dialler["cluster"].encode(),
              dialler["role"].encode(), str(dialler["node"]).encode(), dialler["nonce"],
-             listener_nonce]  # fmt: skip
+             dialler["render"], listener_nonce]  # fmt: skip
     body = b"|".join(len(p).to_bytes(4, "big") + p for p in parts)
     return hmac.new(secret, body, hashlib.sha256).digest()
 

@@ -41,10 +41,13 @@ class Kind(IntEnum):
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
 _NUM = (int, float)
 FIELDS = {
-    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int, "nonce": bytes},
-    # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms)
+    # render: the render a node's link to a neighbour belongs to (empty from a host)
+    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int, "nonce": bytes,
+                 "render": bytes},  # fmt: skip
+    # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms);
+    # render_id: this render's random id (a new one for every try at a frame)
     Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,
-                  "view": dict, "background": list},  # fmt: skip
+                  "view": dict, "background": list, "render_id": bytes},  # fmt: skip
     Kind.OBJECTS: {"table": str, "records": None, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},

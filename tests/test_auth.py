@@ -104,6 +104,31 @@ async def test_a_stranger_cannot_register_as_a_neighbour():
         await asyncio.wait_for(service.shutdown(), 10)
 
 
+async def test_a_link_for_another_render_is_refused_as_a_neighbour():
+    # A node with the secret that is still busy with a given-up render (or another host's)
+    # dials as node 0: refused; the link for this render (CONFIG.render_id) is kept.
+    from protocols.render import MeshPlan
+
+    service = await serving()
+    try:
+        host = await host_link(service.port, SECRET)
+        await host.send(config(node=1, plan=MeshPlan(1, 2)))
+        kind, _ = await asyncio.wait_for(host.recv(), 10)  # the session's first heartbeat
+        assert kind is Kind.PROGRESS
+        address = f"127.0.0.1:{service.port}"
+        stale, _ = await dial(address, "node 1", "meshtrace", SECRET, "node", 0,
+                              render=b"x" * 16)  # fmt: skip
+        with pytest.raises(LinkClosed):
+            await asyncio.wait_for(stale.recv(), 10)  # the node hangs up on it
+        assert service.pending == {}
+        await dial(address, "node 1", "meshtrace", SECRET, "node", 0, render=b"r" * 16)
+        await asyncio.wait_for(service.links_ready.wait(), 10)  # set when a link is filed
+        assert service.pending[0][0] == b"r" * 16
+        await host.close()
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
 def test_only_loopback_may_listen_without_a_secret(tmp_path, monkeypatch):
     monkeypatch.delenv("MESHTRACE_SECRET", raising=False)
     args = cli.parse(["serve", "--listen", "0.0.0.0:7700"])

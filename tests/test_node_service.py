@@ -27,7 +27,7 @@ def config(node=0, plan=None, **render_wire):
         render[record].update(changes)
     return make(Kind.CONFIG, node=node, neighbours={str(m): "127.0.0.1:9" for m in range(n)},
                 render=render, partition=part.to_wire(), view=asdict(VIEW),
-                background=[0, 0, 0])  # fmt: skip
+                background=[0, 0, 0], render_id=b"r" * 16)  # fmt: skip
 
 
 async def host_link(port: int, secret: bytes | None = None, role: str = "host",

@@ -18,10 +18,11 @@ from host.cluster import parse_mesh, read_cluster
 from host.localmesh import LocalMesh
 from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
+from host.plan import PLAN_MODES
 from host.render import render
 from meshnode.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
-from protocols.render import BALANCES, MODES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
+from protocols.render import BALANCES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
@@ -91,9 +92,13 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
            "simulated pass that evens the nodes' work (costs a fraction of a second up front)",
            choices=BALANCES)  # fmt: skip
-    _field(r, "--mode", MeshPlan, "mode", "object: each node holds its box of space and "
-           "passes rays; image: every node holds the whole scene and traces pixel tiles",
-           choices=MODES)  # fmt: skip
+    r.add_argument("--mode", choices=PLAN_MODES, default="auto",
+                   help="object: each node holds its box of space and passes rays; image: "
+                        "every node holds the whole scene and traces pixel tiles; auto "
+                        "(default): image when the scene's engine fits comfortably in every "
+                        "node's memory (the nodes report it), else object")  # fmt: skip
+    r.add_argument("--node-memory", type=_bytes, help="plan --mode auto as if every node had "
+                   "this much memory (e.g. 512M, 8G) instead of what the nodes report")
     _field(r, "--tiles", MeshPlan, "tiles", "image space: none (a band of rows a node), "
            "static (tiles dealt round-robin) or dynamic (dealt by the host as nodes finish)",
            choices=TILINGS)  # fmt: skip
@@ -137,6 +142,21 @@ def _camera_options(g) -> None:
            "many metres sharp", type=float)  # fmt: skip
     _field(g, "--coc", Focus, "coc", "largest circle of confusion on the film, m (default: "
            "diagonal/1500)", type=float)  # fmt: skip
+
+
+def _bytes(text: str) -> int:
+    """A memory size: bytes, or a number with K, M, G or T (powers of 1024)."""
+    units = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+    t = text.strip().upper().removesuffix("B").removesuffix("I")
+    unit = t[-1:] if t[-1:] in units else ""
+    try:
+        value = float(t[: len(t) - len(unit)]) * units[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a memory size (e.g. 512M, 8G)") \
+            from None
+    if not 0 < value < 1 << 62:
+        raise argparse.ArgumentTypeError(f"{text!r}: a memory size must be positive")
+    return int(value)
 
 
 def _focus(text: str):
@@ -296,7 +316,7 @@ def _run(scene, image, engine, camera, args):
         from protocols.handshake import read_secret
 
         rows, cols, addresses = read_cluster(args.cluster)
-        plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
+        plan = _plan(rows, cols, args)
         secret = read_secret(args.secret_file)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
         img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls)
@@ -306,7 +326,7 @@ def _run(scene, image, engine, camera, args):
         raise ValueError("--tls-cert, --tls-key and --tls-ca are for nodes of a --cluster (a "
                          "local mesh talks over loopback with a secret of its own)")  # fmt: skip
     rows, cols = parse_mesh(args.mesh)
-    plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
+    plan = _plan(rows, cols, args)
     if plan.nodes == 1:
         why = (AUTO_WHY if args.mesh == "auto" else "asked for with --mesh 1x1")
         threads = engine.threads or os.cpu_count() or 1
@@ -324,6 +344,12 @@ def _run(scene, image, engine, camera, args):
     return img, stats
 
 
+def _plan(rows: int, cols: int, args) -> MeshPlan:
+    """The mesh plan from the options, checked now (an asked-for mode with it)."""
+    asked = {"mode": args.mode} if args.mode != "auto" else {}
+    return MeshPlan(rows, cols, **_given(args, MeshPlan), **asked)
+
+
 def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None):
     from tqdm import tqdm
 
@@ -338,6 +364,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None)
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
                                           secret=secret, progress=bar.update,
                                           on_node_loss=args.on_node_loss, tls=tls,
+                                          mode=args.mode, node_memory=args.node_memory,
                                           notice=lambda text: bar.write(f"host: {text}",
                                                                         file=sys.stderr)))
     finally:

@@ -21,7 +21,7 @@ import numpy as np
 from host.camerasetup import CameraSetup
 from host.framebuffer import Framebuffer
 from host.partition import subset
-from host.plan import Planned, plan_render
+from host.plan import Planned, choose_mode, plan_render
 from meshnode.link import Link, LinkClosed, dial
 from meshnode.scheduler import TileDealer
 from protocols.errors import ProtocolError, describe
@@ -66,6 +66,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
                          stall: float = 180.0, on_node_loss: str = "replan",
                          notice=None, tls: ssl.SSLContext | None = None,
+                         mode: str | None = None, node_memory: int | None = None,
                          ) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
@@ -74,8 +75,10 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     send one a second) before it is taken for lost; `stall`: seconds in which no node traces
     anything once all are built (all alive, none working: a stuck kernel or a protocol
     fault); `on_node_loss`: "replan" (finish the frame on the nodes left) or "fail";
-    `notice(text)` hears of every lost node; `tls`: a client context (meshnode.tls) when
-    the nodes listen with TLS."""
+    `notice(text)` hears of the plan chosen and of every lost node; `tls`: a client context
+    (meshnode.tls) when the nodes listen with TLS; `mode`: "auto", "object" or "image" to
+    choose the plan's mode here (host.plan.choose_mode: auto weighs the scene against the
+    memory the nodes report, or `node_memory`), None to keep `plan.mode`."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
@@ -83,7 +86,12 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
         raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
     start = time.perf_counter()
     alive = list(range(len(addresses)))  # the original index of each node still rendering
-    links = await _connect(addresses, cluster, secret, tls)
+    links, memories = await _connect(addresses, cluster, secret, tls)
+    why = f"MeshPlan.mode = {plan.mode}"
+    if mode is not None:
+        plan, why = choose_mode(plan, scene, memories, mode, node_memory)
+    if notice is not None:
+        notice(f"plan: {plan.mode} space on {plan.rows}x{plan.cols} ({why})")
     lost: list[dict] = []
     first_loss = None
     try:
@@ -118,6 +126,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     summary["addresses"] = [addresses[n] for n in alive]
     summary["lost_nodes"] = lost
     summary["recovery_seconds"] = end - first_loss if first_loss is not None else 0.0
+    summary["mode"] = {"choice": plan.mode, "why": why, "node_memory_bytes": memories}
     return fb.image(), summary
 
 
@@ -171,18 +180,20 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     return fb, summary
 
 
-async def _connect(addresses, cluster, secret, tls) -> list[Link]:
-    """One link to every node, both sides proving the secret."""
+async def _connect(addresses, cluster, secret, tls) -> tuple[list[Link], list[int]]:
+    """One link to every node, both sides proving the secret; and the memory each has."""
     links: list[Link] = []
+    memories: list[int] = []
     try:
         for n, address in enumerate(addresses):
-            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host",
-                                 tls=tls)  # fmt: skip
+            link, theirs = await dial(address, f"node {n} ({address})", cluster, secret,
+                                      "host", tls=tls)  # fmt: skip
             links.append(link)
+            memories.append(theirs["memory"])
     except (LinkClosed, ProtocolError) as e:
         await _close(links, shutdown=False)
         raise MeshError(f"setting up the mesh: {describe(e)}") from e
-    return links
+    return links, memories
 
 
 async def _configure(scene, planned: Planned, links: list[Link], addresses) -> None:

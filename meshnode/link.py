@@ -194,13 +194,14 @@ async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int
     return theirs
 
 
-async def answer(link: Link, cluster: str, secret: bytes | None, node: int) -> dict:
+async def answer(link: Link, cluster: str, secret: bytes | None, node: int,
+                 memory: int = 0) -> dict:  # fmt: skip
     """The listener's side of the handshake, bounded in time and frame size: the dialler's
     HELLO fields once it has proved the secret; otherwise it is told why, the link is
     closed and ProtocolError or LinkClosed raised."""
     link.allow(HANDSHAKE_FRAME)
     try:
-        return await asyncio.wait_for(_listener(link, cluster, secret or b"", node),
+        return await asyncio.wait_for(_listener(link, cluster, secret or b"", node, memory),
                                       HANDSHAKE_SECONDS)  # fmt: skip
     except TimeoutError:
         await link.close()
@@ -217,10 +218,10 @@ async def answer(link: Link, cluster: str, secret: bytes | None, node: int) -> d
         raise
 
 
-async def _listener(link: Link, cluster: str, secret: bytes, node: int) -> dict:
+async def _listener(link: Link, cluster: str, secret: bytes, node: int, memory: int) -> dict:
     dialler = check_hello(await link.recv_raw(), cluster)
     mine = nonce()
-    await link.send(hello(cluster, "node", node, mine))
+    await link.send(hello(cluster, "node", node, mine, memory=memory))
     await link.send(auth(secret, "listener", dialler, mine))
     check_auth(await link.recv_raw(), secret, "dialler", dialler, mine)
     await link.send(make(Kind.WELCOME))

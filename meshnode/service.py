@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from meshnode.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
 from meshnode.scheduler import INCOMING_HIGH
 from meshnode.session import Config, Session
+from meshnode.stats import available_memory
 from meshnode.tls import NO_TLS, TlsFiles
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
@@ -130,7 +131,7 @@ class NodeService:
             return
         me = self.session.node if self.session else -1
         try:
-            fields = await answer(link, self.cluster, self.secret, me)
+            fields = await answer(link, self.cluster, self.secret, me, available_memory())
         except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
             log.warning("refused %s: %s", peer, describe(e))
             return

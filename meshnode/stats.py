@@ -8,6 +8,7 @@ import resource
 import sys
 import time
 from collections import defaultdict
+from pathlib import Path
 
 
 class NodeStats:
@@ -64,6 +65,23 @@ def add_counts(into: dict, counts: dict, primaries: int) -> None:
         if k not in ("eye_rays", "cpu_seconds"):
             into[k] += v
     into["eye_rays"] += primaries
+
+
+def available_memory() -> int:
+    """Bytes this node can give a render (0 when unknown): the system's MemAvailable, or
+    what the container's cgroup limit leaves when that is less (a Kubernetes pod)."""
+    free = 0
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                free = int(line.split()[1]) * 1024
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            free = min(free, max(int(limit) - used, 0)) if free else max(int(limit) - used, 0)
+    except (OSError, ValueError):
+        pass
+    return free
 
 
 def peak_rss() -> int:

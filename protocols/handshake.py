@@ -1,7 +1,7 @@
 """The opening of every link: protocol version, cluster id, and mutual proof of the secret.
 
     dialler  -> HELLO  version, cluster, role, node, nonce_d, render
-    listener -> HELLO  version, cluster, "node", its node, nonce_l, b""
+    listener -> HELLO  version, cluster, "node", its node, nonce_l, b"", its free memory
     listener -> AUTH   HMAC-SHA256(secret, "listener" | cluster | role | node | nonce_d | nonce_l)
     dialler  -> AUTH   HMAC-SHA256(secret, "dialler"  | cluster | role | node | nonce_d | nonce_l)
 
@@ -33,13 +33,14 @@ def nonce() -> bytes:
 
 
 def hello(cluster: str, role: str, node: int = -1, nonce: bytes = b"\0" * NONCE_BYTES,
-          render: bytes = b"") -> dict:  # fmt: skip
+          render: bytes = b"", memory: int = 0) -> dict:  # fmt: skip
     """What a side says first: who it is (role host or node, node index, and for a node's
-    link to a neighbour the render it is for), what it speaks, and its fresh nonce."""
+    link to a neighbour the render it is for), what it speaks, its fresh nonce, and (a
+    listening node) the memory it can give a render."""
     if role not in ROLES:
         raise ValueError(f"role must be one of {ROLES}")
     return make(Kind.HELLO, version=PROTOCOL_VERSION, cluster=cluster, role=role, node=node,
-                nonce=nonce, render=render)  # fmt: skip
+                nonce=nonce, render=render, memory=memory)  # fmt: skip
 
 
 def check_hello(message: dict, cluster: str) -> dict:
@@ -57,6 +58,8 @@ def check_hello(message: dict, cluster: str) -> dict:
         raise VersionMismatch(f"peer claims unknown role {fields['role']!r}")
     if len(fields["nonce"]) != NONCE_BYTES:
         raise VersionMismatch(f"peer's nonce has {len(fields['nonce'])} bytes, not {NONCE_BYTES}")
+    if not 0 <= fields["memory"] < 1 << 62:
+        raise VersionMismatch(f"peer reports {fields['memory']} bytes of memory")
     if len(fields["render"]) not in (0, RENDER_ID_BYTES):
         raise VersionMismatch(f"peer's render id has {len(fields['render'])} bytes, not "
                               f"{RENDER_ID_BYTES}")  # fmt: skip

@@ -41,9 +41,10 @@ class Kind(IntEnum):
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
 _NUM = (int, float)
 FIELDS = {
-    # render: the render a node's link to a neighbour belongs to (empty from a host)
+    # render: the render a node's link to a neighbour belongs to (empty from a host);
+    # memory: bytes the listening node can give a render (the host plans with it; 0 unknown)
     Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int, "nonce": bytes,
-                 "render": bytes},  # fmt: skip
+                 "render": bytes, "memory": int},  # fmt: skip
     # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms);
     # render_id: this render's random id (a new one for every try at a frame)
     Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,

@@ -1,0 +1,70 @@
+"""--mode auto: image space when the whole scene's engine fits comfortably in the smallest
+node's memory (reported by each node at the handshake, or --node-memory), object space when
+it does not; the choice and the reason are in the first line of output and in the stats."""
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from host.cli import main
+from host.localmesh import LocalMesh
+from host.meshclient import render_on_mesh
+from host.nff import read_nff
+from host.plan import FITS, choose_mode, engine_bytes
+from host.render import render
+from protocols.render import MeshPlan
+from tests.conftest import records, spd_scene
+
+
+def test_choose_mode_weighs_the_engine_against_the_smallest_node():
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    need = engine_bytes(scene)
+    assert need > 0
+    plan = MeshPlan(2, 2)
+    roomy = int(need / FITS) + 1
+    assert choose_mode(plan, scene, [roomy * 4, roomy])[0].mode == "image"
+    tight, why = choose_mode(plan, scene, [roomy * 4, roomy - 2])
+    assert tight.mode == "object" and "would take over 25%" in why
+    assert choose_mode(plan, scene, [0, 0])[0].mode == "object"  # nothing reported
+    assert choose_mode(plan, scene, [1], override=roomy)[0].mode == "image"
+    assert choose_mode(plan, scene, [roomy * 9], override=roomy - 2)[0].mode == "object"
+    cost = choose_mode(MeshPlan(2, 2, balance="cost"), scene, [roomy * 9])
+    assert cost[0].mode == "object" and "--balance cost" in cost[1]
+    asked = choose_mode(plan, scene, [roomy * 9], "object")
+    assert asked == (MeshPlan(2, 2, mode="object"), "asked for with --mode object")
+
+
+@pytest.mark.parametrize("node_memory,mode", [(None, "image"), (1000, "object")])
+def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(node_memory, mode):
+    scene = read_nff(spd_scene("balls_s1.nff"))  # ~0.3 MB of engine: fits in any node
+    rs = records(width=32, height=32, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    notices: list[str] = []
+    with LocalMesh(2) as addresses:
+        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), rs.engine,
+                              mode="auto", node_memory=node_memory,
+                              notice=notices.append)  # fmt: skip
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert stats["mode"]["choice"] == mode == stats["mesh"]["mode"]
+    assert all(m > 64 << 20 for m in stats["mode"]["node_memory_bytes"])  # real reports
+    assert notices[0].startswith(f"plan: {mode} space on 1x2 (")
+    assert (stats["rays_passed"] > 0) == (mode == "object")
+    assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+
+
+def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
+    scene = str(spd_scene("tetra_s1.nff"))
+    out = str(tmp_path / "t.png")
+    assert main(["render", scene, "-o", out, "--mesh", "1x2", "--width", "16",
+                 "--height", "16", "--node-memory", "1K"]) == 0  # fmt: skip
+    # The first line of text, among the progress bar's redraws:
+    lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    first = next(line for line in lines if line.strip() and "primary:" not in line)
+    assert first.startswith("host: plan: object space on 1x2 (the whole scene's engine")
+    assert "--node-memory" in first
+    with pytest.raises(SystemExit) as e:
+        main(["render", scene, "-o", out, "--node-memory", "lots"])
+    assert e.value.code == 2
+    assert "'lots' is not a memory size" in capsys.readouterr().err

@@ -18,14 +18,16 @@ class LocalMesh:
     place nodes elsewhere on this machine, for tests over real network devices; `module`
     (a `meshnode.cli` look-alike), `options` (more `serve` options) and `env` start them
     differently, for tests that inject faults; `secret`: the cluster secret the nodes get
-    (in their environment, never on a command line other users can read)."""
+    (in their environment, never on a command line other users can read); `once`: nodes
+    serve one render (False: until stopped, for several renders on one mesh)."""
 
     def __init__(self, n: int, cluster: str = "meshtrace", start_timeout: float = 60.0,
                  listen: list[str] | None = None, wrap=None, threads: int = 1,
                  module: str = "meshnode.cli", options=(), env=None,
-                 secret: bytes | None = None):  # fmt: skip
+                 secret: bytes | None = None, once: bool = True):  # fmt: skip
         self.n, self.cluster, self.timeout, self.threads = n, cluster, start_timeout, threads
         self.secret = secret
+        self.once = once
         self.module, self.options, self.env = module, list(options), env
         self.listen = listen or ["127.0.0.1:0"] * n
         self.wrap = wrap or (lambda i: [])
@@ -36,8 +38,8 @@ class LocalMesh:
             for i in range(self.n):
                 self.procs.append(subprocess.Popen(
                     [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
-                     self.listen[i], "--cluster", self.cluster, "--once", "--threads",
-                     str(self.threads), *self.options],
+                     self.listen[i], "--cluster", self.cluster, *(["--once"] * self.once),
+                     "--threads", str(self.threads), *self.options],
                     stdout=subprocess.PIPE, text=True, env=self._environment(),
                 ))  # fmt: skip
             return [self._address(p) for p in self.procs]

@@ -87,6 +87,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     start = time.perf_counter()
     alive = list(range(len(addresses)))  # the original index of each node still rendering
     links, memories = await _connect(addresses, cluster, secret, tls)
+    connect = time.perf_counter() - start
     why = f"MeshPlan.mode = {plan.mode}"
     if mode is not None:
         plan, why = choose_mode(plan, scene, memories, mode, node_memory)
@@ -127,6 +128,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     summary["lost_nodes"] = lost
     summary["recovery_seconds"] = end - first_loss if first_loss is not None else 0.0
     summary["mode"] = {"choice": plan.mode, "why": why, "node_memory_bytes": memories}
+    summary["connect_seconds"] = connect
     return fb.image(), summary
 
 
@@ -143,10 +145,10 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
                    progress, silence, stall):  # fmt: skip
     """One try at the frame on `links` (node i is links[i] at addresses[i], called
     names[i] in messages): (framebuffer, summary)."""
-    start = time.perf_counter()
+    start, ticks = time.perf_counter(), time.monotonic()
     planned = plan_render(scene, image, engine, plan, camera)
     await _configure(scene, planned, links, addresses)
-    setup = time.perf_counter() - start
+    sent = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
@@ -165,8 +167,10 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
         if progress and collector.traced:
             progress(-collector.traced)  # the frame starts again: so does the count
         raise
-    summary = _summary(collector.stats, plan, planned.holders, collector.deposits, setup,
+    ready = (collector.ready_at or time.monotonic()) - ticks
+    summary = _summary(collector.stats, plan, planned.holders, collector.deposits, ready,
                        time.perf_counter() - start)  # fmt: skip
+    summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance
     summary["plan_seconds"] = planned.seconds
@@ -261,6 +265,7 @@ class _Collector:
         self.fb, self.names, self.progress, self.dealer = fb, names, progress, dealer
         self.silence, self.stall = silence, stall
         self.traced = 0  # primary rays reported so far
+        self.ready_at: float | None = None  # time.monotonic() when every node was ready
         n = len(names)
         now = time.monotonic()
         self.stats: dict[int, dict] = {}
@@ -305,6 +310,8 @@ class _Collector:
                 if f["work"] > self.work[n] or f["ready"] != self.ready[n]:
                     self.last_work = now
                 self.work[n], self.ready[n] = f["work"], f["ready"]
+                if self.ready_at is None and all(self.ready.values()):
+                    self.ready_at = now
                 self.traced += f["rays"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
@@ -348,9 +355,11 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "rays": totals,
         "deposits_received": deposits,
         "rays_passed": sum(s["rays_sent"] for s in nodes),
-        "setup_seconds": setup,
+        "setup_seconds": setup,  # planned, configured, every engine built and link up
         "wall_seconds": wall,
         "busiest_node_cpu_seconds": max(busy),
+        # sum of node tracing CPU / (nodes x busiest): 1 when every node works as long
+        "parallel_efficiency": sum(busy) / (len(busy) * max(busy)) if max(busy) > 0 else 1.0,
         "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,
         "objects_per_node": keep.sum(axis=1).tolist(),
         "nodes": nodes,

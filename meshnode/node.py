@@ -8,6 +8,7 @@ batches, says where each batch's deposits and leaving rays go, and under adaptiv
 keeps the books of its own pixels until the frame is flushed.
 """
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 
@@ -37,20 +38,56 @@ class Batch:
     counts: dict[str, int] = field(default_factory=dict)
 
 
+class EngineCache:
+    """The last engine this node built, kept for the next render of the same objects in the
+    same box with the same engine settings (a user re-rendering a scene at another size,
+    sampling or camera on a running cluster pays no build). One engine: bounded memory."""
+
+    def __init__(self):
+        self.key: bytes | None = None
+        self.engine: Engine | None = None
+
+    def get(self, scene: SceneData, **options) -> tuple[Engine, bool]:
+        """(engine, whether it was reused) for `scene` built with `options`."""
+        key = _engine_key(scene, options)
+        if key != self.key or self.engine is None:
+            self.engine, self.key = None, None  # the old one's memory goes before the build
+            self.engine, self.key = Engine(scene, **options), key
+            return self.engine, False
+        return self.engine, True
+
+
+def _engine_key(scene: SceneData, options: dict) -> bytes:
+    """A digest of everything an engine is built from: objects, background, options."""
+    h = hashlib.blake2b(digest_size=32)
+    for table in (scene.materials, scene.lights, scene.spheres, scene.triangles,
+                  scene.polygons, scene.vertices, scene.cones):  # fmt: skip
+        h.update(len(table).to_bytes(8, "little"))
+        h.update(np.ascontiguousarray(table).tobytes())
+    h.update(repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))
+                  ).encode())  # fmt: skip
+    return h.digest()
+
+
 class NodeCore:
     """One node's engine, primary rays and routing, for one render; pinhole eye rays are
-    made in batches of about `eye_batch` (whole rows of the node's rectangle)."""
+    made in batches of about `eye_batch` (whole rows of the node's rectangle); `engines`
+    keeps the engine for the next render (None: always build)."""
 
     def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
-                 eye_batch: int = EYE_BATCH):  # fmt: skip
+                 eye_batch: int = EYE_BATCH, engines: EngineCache | None = None):  # fmt: skip
         self.node, self.spec, self.view, self.part = node, spec, scene.view, part
         self.eye_batch = eye_batch
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
-        self.engine = Engine(scene, box=(self.los[node], self.his[node]),
-                             scene_box=part.scene_box, density=spec.engine.density,
-                             storage=spec.engine.storage, max_depth=spec.image.depth)  # fmt: skip
+        options = dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
+                       density=spec.engine.density, storage=spec.engine.storage,
+                       max_depth=spec.image.depth)  # fmt: skip
+        if engines is None:
+            self.engine, self.engine_reused = Engine(scene, **options), False
+        else:
+            self.engine, self.engine_reused = engines.get(scene, **options)
         self.films: list[AdaptiveFilm] = []
         if spec.camera is not None and spec.camera.adaptive:
             w, h = spec.image.size

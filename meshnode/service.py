@@ -11,6 +11,7 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 
 from meshnode.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
+from meshnode.node import EngineCache
 from meshnode.scheduler import INCOMING_HIGH
 from meshnode.session import Config, Session
 from meshnode.stats import available_memory
@@ -40,6 +41,7 @@ class NodeService:
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
         self.session: Session | None = None
+        self.engines = EngineCache()  # the last render's engine, for the next of that scene
         # neighbour links that came before their session took them: node -> (render id, link)
         self.pending: dict[int, tuple[bytes, Link]] = {}
         self.links_ready = asyncio.Event()

@@ -10,6 +10,7 @@ high-water mark, which bounds the rays in flight (and so the memory).
 
 import asyncio
 import logging
+import time
 
 import numpy as np
 
@@ -51,6 +52,8 @@ class Session:
         self.deposits: list = []
         self.error: Exception | None = None
         self.ready = False  # engine built and every neighbour linked
+        self.created = time.perf_counter()
+        self.setup_seconds = 0.0
         self.tasks: set[asyncio.Task] = set()
         self.spawn(self.heartbeat())
 
@@ -81,7 +84,8 @@ class Session:
             c = self.config
             scene = self.objects.scene(c.view, c.background)
             self.core = await loop.run_in_executor(
-                self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition))
+                self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition,
+                                                    engines=self.service.engines))  # fmt: skip
             await loop.run_in_executor(self.service.pool, self.core.warmup)
             for f in self.early_tiles:
                 self.core.add_tiles(f["tiles"], f["last"])
@@ -89,6 +93,7 @@ class Session:
                 if self.node < m:  # the lower index dials, the higher accepts
                     self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
             await self.service.wait_links(self)
+            self.setup_seconds = time.perf_counter() - self.created
             self.ready = True
             self.progress(0)
             self.spawn(self.work())
@@ -260,6 +265,8 @@ class Session:
             links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
             report = self.stats.report(self.core.engine.stats, links)
             report["packet_visits"] = self.sched.term.visits
+            report["engine_reused"] = self.core.engine_reused
+            report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
             self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 
     def flush(self) -> None:

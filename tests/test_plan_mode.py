@@ -68,3 +68,25 @@ def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
         main(["render", scene, "-o", out, "--node-memory", "lots"])
     assert e.value.code == 2
     assert "'lots' is not a memory size" in capsys.readouterr().err
+
+
+def test_a_running_cluster_reuses_the_engine_of_an_unchanged_scene():
+    # Same objects, boxes and engine settings: the second render builds nothing (each node
+    # says so); another scene builds again. Images are the single node's every time.
+    balls, tetra = read_nff(spd_scene("balls_s1.nff")), read_nff(spd_scene("tetra_s2.nff"))
+    with LocalMesh(2, once=False) as addresses:
+
+        def run(scene, spp):
+            rs = records(width=24, height=24, spp=spp, threads=1)
+            coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), rs.engine)
+            img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+            np.testing.assert_allclose(img, render(scene, *rs)[0], rtol=0, atol=1e-5)
+            return [n["engine_reused"] for n in stats["nodes"]], stats
+
+        assert run(balls, 1)[0] == [False, False]
+        reused, stats = run(balls, 4)  # other sampling, same engine
+        assert reused == [True, True]
+        assert all(n["setup_seconds"] > 0 for n in stats["nodes"])
+        assert 0 < stats["connect_seconds"] and 0 < stats["setup_seconds"] < stats["wall_seconds"]
+        assert 0 < stats["parallel_efficiency"] <= 1
+        assert run(tetra, 1)[0] == [False, False]

@@ -59,7 +59,8 @@ def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols,
         img, stats = asyncio.run(run())
     assert [d["node"] for d in stats["lost_nodes"]] == [victim]
     assert addresses[victim] not in stats["addresses"] and len(stats["addresses"]) == n - 1
-    assert f"node {victim} ({addresses[victim]})" in notices[0]
+    assert notices[0].startswith(f"plan: {mode} space on {rows}x{cols}")
+    assert f"lost node {victim} ({addresses[victim]})" in notices[1]
     if fault == "pause":
         assert "no message for 4 s" in stats["lost_nodes"][0]["reason"]
     assert stats["recovery_seconds"] > 0

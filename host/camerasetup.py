@@ -13,6 +13,7 @@ import numpy as np
 from host.autofocus import autofocus_distance
 from host.camera import Camera, describe, focused
 from meshnode.engine.lenscamera import camera_rays
+from meshnode.engine.pupil import exit_pupil
 from protocols.camera import CameraSampling, CameraSpec
 from protocols.render import ImageSpec
 from protocols.spec import Spec
@@ -65,8 +66,10 @@ class CameraSetup:
         f = self.focus
         cam = focused(self.camera, f.distance, f.dof_near, f.dof_far, f.dof_tolerance, f.coc,
                       autofocus)  # fmt: skip
-        spec = CameraSpec(cam.elements, cam.film_width, cam.film_height, cam.focused_film_z(),
-                          self.sampling)  # fmt: skip
+        film_z = cam.focused_film_z()
+        pupil = exit_pupil(cam.elements, film_z, math.hypot(cam.film_width, cam.film_height) / 2)
+        spec = CameraSpec(cam.elements, cam.film_width, cam.film_height, film_z, self.sampling,
+                          *pupil)  # fmt: skip
         s = self.sampling
         return spec, {
             "source": cam.source, "notes": cam.notes, "f_number": describe(cam)["f_number"],
@@ -75,16 +78,27 @@ class CameraSetup:
             "generation": s.generation, "rays_per_pixel": s.per_pixel, "sampling": s.sampling,
             "threshold": s.threshold if s.adaptive else None, "film_area": s.film_area,
             "special_jittering": s.special, "adaptation": s.adaptation,
-            "autofocus": probe or None,
-            "centre_rays_leaving_camera": leaving_share(spec, scene.view, w, h),
+            "autofocus": probe or None, "exit_pupil_bands": len(spec.pupil) // 3,
+            "centre_rays_leaving_camera": leaving_share(spec, scene.view, w, h, centre=True),
+            "rays_leaving_lens": leaving_share(spec, scene.view, w, h),
         }  # fmt: skip
 
 
-def leaving_share(spec: CameraSpec, view, width: int, height: int) -> float:
-    """Share of 256 uniform rays from the centre pixel that leave the camera: a stop that
-    blocks most of them wastes most of the work (the CLI warns)."""
-    probe = replace(spec, sampling=replace(spec.sampling, rays=256, sampling="uniform",
-                                           film_area="centre", special=False))
-    centre = np.array([(height // 2) * width + width // 2])
-    _, alive = camera_rays(probe, view, width, height, centre)
+def leaving_share(spec: CameraSpec, view, width: int, height: int, centre=False) -> float:
+    """Share of the camera rays that leave the lens, from a probe of 64 rays (sampled as the
+    render samples them) at each of up to 32 x 32 pixels spread over the image, or of 256
+    uniform rays from the centre pixel: a lens that blocks most rays wastes most of the work
+    (the CLI warns)."""
+    if centre:
+        probe = replace(spec, sampling=replace(spec.sampling, rays=256, sampling="uniform",
+                                               film_area="centre", special=False))
+        pixels = np.array([(height // 2) * width + width // 2])
+    else:
+        rays = spec.sampling.rays if spec.sampling.kind.points else 64
+        probe = replace(spec, sampling=replace(spec.sampling, rays=rays, sampling="jittered"
+                                               if spec.adaptive else spec.sampling.sampling))
+        xs = np.unique(np.linspace(0, width - 1, min(width, 32)).astype(np.int64))
+        ys = np.unique(np.linspace(0, height - 1, min(height, 32)).astype(np.int64))
+        pixels = (ys[:, None] * width + xs[None, :]).ravel()
+    _, alive = camera_rays(probe, view, width, height, pixels)
     return float(alive.mean())

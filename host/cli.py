@@ -219,11 +219,12 @@ def _render(args) -> int:
     write_pfm(float_path, img)
     if stats_path:
         stats_path.write_text(json.dumps(stats, indent=2) + "\n")
-    leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
+    leaving = stats.get("camera", {}).get("rays_leaving_lens", 1.0)
     if leaving < 0.5:
         print(f"host: only {leaving:.0%} of the camera rays leave the camera (the rest are "
-              "stopped by rims or diaphragms): aim them at the stop by listing it first "
-              "(film side)", file=sys.stderr)  # fmt: skip
+              "stopped by rims or diaphragms): a camera whose elements are not round about "
+              "the axis is aimed at its film-most element; list its stop first (film side)",
+              file=sys.stderr)  # fmt: skip
     if not args.quiet and "mesh" in stats:
         r = {k: stats["rays"].get(k, 0) for k in ("eye_rays", "reflected_rays",
              "refracted_rays", "shadow_rays", "shadow_rays_blocked")}  # fmt: skip

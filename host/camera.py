@@ -331,13 +331,19 @@ def default_coc(cam: Camera) -> float:
 
 
 def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=None,
-            autofocus=None) -> Camera:  # fmt: skip
+            autofocus=None, f_number=None) -> Camera:  # fmt: skip
     """The camera focused and stopped as asked: `focus` in metres, "infinity" or "auto"
     (`autofocus()` gives the distance: a probe pass through the scene); `near`/`far`: the
-    depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp."""
+    depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp;
+    `f_number`: the stop scaled to it (not with near/far or tolerance, which choose it)."""
     efl = cardinal(cam.elements)["effective_focal_length"]
     c = coc or default_coc(cam)
     out = cam
+    if f_number is not None:
+        if near is not None or far is not None or tolerance is not None:
+            raise CameraError(f"{cam.source}: an f-number is chosen by the depth of field "
+                              "(near/far or tolerance); give one or the other")  # fmt: skip
+        out = cam = with_f_number(cam, f_number)
     try:
         if near is not None or far is not None:
             if near is None or focus is not None or tolerance is not None:

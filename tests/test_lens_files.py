@@ -324,3 +324,25 @@ def test_lens_table_renders_from_the_command_line_with_film_size_and_f_number(tm
     cam = json.loads(stats.read_text())["camera"]
     assert cam["f_number"] == pytest.approx(4.0, rel=1e-3)
     assert cam["rays_leaving_lens"] > 0.5
+
+
+@pytest.mark.parametrize("which", ["pinhole", "lens table"])
+def test_adaptive_pinhole_and_lens_tables_on_a_mesh_equal_one_node(which):
+    """The pinhole's camera and a lens table's exit pupil travel in the CameraSpec: a 2x2 mesh
+    (simulated) gives the single node's image."""
+    from protocols.camera import CameraSpec
+    from tests.meshsim import render_mesh
+    from tests.test_sampling import dof_scene
+
+    scene = dof_scene()
+    image = ImageSpec(width=30, height=24, seed=3)
+    if which == "pinhole":
+        setup = PinholeSetup.of("adaptive", 9)
+    else:
+        setup = CameraSetup(read_camera(shared_lens("wide.22mm.dat")), CameraSampling(rays=4))
+    ref, _ = render(scene, image, EngineSpec(threads=1), setup)
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    assert CameraSpec.from_wire(spec.to_wire()) == spec
+    img, _, nodes, _ = render_mesh(scene, 2, 2, 1.0, 30, 24, seed=3, camera=spec)
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    assert ref.mean() > 0.05

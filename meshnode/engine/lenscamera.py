@@ -1,5 +1,6 @@
 """Primary rays from a simulated camera (DESIGN.md 7): film points, generation-area points on
-the first element, the element stack, and the camera-to-scene transform from the NFF view.
+the first element (within its exit pupil when the spec has one: `aim_points`), the element
+stack, and the camera-to-scene transform from the NFF view.
 
 Vectorised over every (pixel, sample) pair asked for (no loop per pixel); the element tracing
 is the `optics.through` kernel. Rays lost in the camera (rims, diaphragms, total reflection)
@@ -185,9 +186,10 @@ def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndar
     with the image's `seed`, and
     which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
 
-    Weights: 1 / (rays of the pixel) under "all", 1 / (those that left) under "left"; under
-    adaptive sampling every ray weighs 1, `pixel` is the sample id pixel * N + k, and the node
-    owning the pixel divides (it alone knows how many rays the pixel got)."""
+    Weights: 1 / (rays of the pixel) under "all", times the area the ray was drawn from
+    (`aim_points`), 1 / (those that left) under "left"; under adaptive sampling a ray weighs
+    its area ("all") or 1, `pixel` is the sample id pixel * N + k, and the node owning the
+    pixel divides (it alone knows how many rays the pixel got)."""
     pixels = np.asarray(pixels, np.int64)
     n = spec.per_pixel
     ks = np.arange(n) if ks is None else np.asarray(ks, np.int64)

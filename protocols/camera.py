@@ -129,6 +129,11 @@ class CameraSpec(Spec):
         numbers = np.concatenate([e[n].astype(float).ravel() for n in e.dtype.names])
         if not np.all(np.isfinite(numbers)):
             self.fail("elements", "every element value must be finite")
+        if np.any(e["kind"] > dtypes.ELLIPSOID):
+            self.fail("elements", f"kinds are {dtypes.CAP} to {dtypes.ELLIPSOID}")
+        ell = e[e["kind"] == dtypes.ELLIPSOID]
+        if np.any(ell["cap_x"] <= 0) or np.any(ell["cap_y"] <= 0) or np.any(ell["radius"] == 0):
+            self.fail("elements", "an ellipsoid needs semi-axes x, y > 0 and z != 0")
         self.want_number("film_width", 0.0, 1e3, open_lo=True)
         self.want_number("film_height", 0.0, 1e3, open_lo=True)
         self.want_number("film_z", -1e3, 1e3)

@@ -172,7 +172,7 @@ def test_drawing_rays_in_the_pupil_changes_no_pixel_beyond_noise():
 
     cam = read_camera(shared_lens("wide.22mm.dat"))
     scene = _uniform_scene(6, 4)
-    setup = CameraSetup(cam, CameraSampling(rays=65536))
+    setup = CameraSetup(cam, CameraSampling(rays=32768))
     spec, _ = setup.spec(scene, ImageSpec(width=6, height=4), None)
     rear = float(spec.elements["ax"][0])
     disc = replace(spec, pupil=(0.0, 2 * rear, 2 * rear), pupil_radius=1.0)
@@ -346,3 +346,16 @@ def test_adaptive_pinhole_and_lens_tables_on_a_mesh_equal_one_node(which):
     img, _, nodes, _ = render_mesh(scene, 2, 2, 1.0, 30, 24, seed=3, camera=spec)
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     assert ref.mean() > 0.05
+
+
+def test_a_camera_spec_refuses_unknown_kinds_and_flat_ellipsoids_by_name():
+    from protocols.camera import CameraSpec
+    from protocols.spec import SpecError
+
+    good = stack(_ellipsoid(0.02, 0.02, -0.03))
+    CameraSpec(good, 0.036, 0.024, -0.05)
+    for field, value, words in (("cap_x", 0.0, "ellipsoid needs"), ("kind", 9, "kinds are")):
+        bad = good.copy()
+        bad[field] = value
+        with pytest.raises(SpecError, match=f"(?s)CameraSpec.elements .*{words}"):
+            CameraSpec(bad, 0.036, 0.024, -0.05)

@@ -5,6 +5,10 @@ depth-of-field scene, the error measured against a many-ray reference of the sam
                              [--focus 2] [--width 160 --height 120] [--ref-rays 1024]
                              [--spp 1,4,9,16,64] [--threshold 0.05[,0.1...]] [--repeat 3]
                              [--seed 1] [--threads 0] [--out bench/out] [--json FILE]
+    python -m bench.sampling --pinhole --ref-rays 256   # the scene's pinhole, no camera
+
+With `--pinhole` the rows sample each pixel's area of the scene's own pinhole (anti-aliasing,
+as `host render --sampling S --spp N` without --camera) instead of the lens.
 
 Rows: uniform, jittered and adaptive sampling (one row set per threshold) of the lens (the
 first element's ellipse, generation area 2) at each number of rays per pixel. Columns: rays per
@@ -57,6 +61,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.sampling", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", type=Path, default=DEFAULT_SCENE, help="NFF scene")
     p.add_argument("--camera", type=Path, default=DEFAULT_CAMERA, help="camera file")
+    p.add_argument("--pinhole", action="store_true",
+                   help="sample the scene's pinhole (pixel areas) instead of the camera's lens")
     p.add_argument("--focus", type=float, default=2.0, help="focus distance, metres (2)")
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
@@ -98,18 +104,24 @@ class Bench:
 
         self.args = args
         self.scene = read_nff(args.scene)
-        self.camera = read_camera(args.camera)
+        self.camera = None if args.pinhole else read_camera(args.camera)
         self.engine = Engine(self.scene)
         self.engine.warmup()
         self.pixels = args.width * args.height
 
     def settings(self, sampling: str, rays: int, seed: int, threshold: float = 0.05):
-        """Render settings: the camera's lens sampled with `rays` rays per pixel."""
-        from host.camerasetup import CameraSetup, Focus
+        """Render settings: the camera's lens (or the pinhole's pixel areas) sampled with
+        `rays` rays per pixel."""
+        from host.camerasetup import CameraSetup, Focus, PinholeSetup
         from protocols.camera import CameraSampling
         from protocols.render import EngineSpec, ImageSpec
 
         a = self.args
+        if a.pinhole:
+            return (ImageSpec(width=a.width, height=a.height, seed=seed),
+                    EngineSpec(threads=a.threads),
+                    PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive"
+                                    else None))  # fmt: skip
         sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
         return (ImageSpec(width=a.width, height=a.height, seed=seed),
                 EngineSpec(threads=a.threads),
@@ -331,8 +343,9 @@ def main(argv=None) -> int:
     bench = Bench(args)
     reference, ref_stats, ref_seconds = bench.reference()
     cam = ref_stats["camera"]
-    print(f"scene {args.scene}  camera {cam['source']}  f/{cam['f_number']:.2f} focused at "
-          f"{cam['focus_distance_m']:g} m  {args.width}x{args.height}  "
+    optics = (cam["source"] if args.pinhole else f"{cam['source']}  f/{cam['f_number']:.2f} "
+              f"focused at {cam['focus_distance_m']:g} m")  # fmt: skip
+    print(f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
           f"{ref_stats['threads']} threads")  # fmt: skip
     ref_seed = args.seed + REF_SEED_OFFSET
     print(f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
@@ -346,10 +359,13 @@ def main(argv=None) -> int:
     print(f"jittered error ~ rays^{slope:.2f}; the reference's own error, extrapolated: "
           f"~{ref_error:.2g} (smallest measured {min(r['rms'] for r in rows):.2g})")  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
-    ref_png, plot_png = args.out / "sampling_reference.png", args.out / "sampling.png"
+    name = "sampling_pinhole" if args.pinhole else "sampling"
+    ref_png, plot_png = args.out / f"{name}_reference.png", args.out / f"{name}.png"
     write_png(ref_png, reference)
-    title = (f"{args.scene.stem}: f/{cam['f_number']:.1f} focused at {cam['focus_distance_m']:g} m,"
-             f" {args.width}x{args.height}, reference {args.ref_rays} rays/pixel")  # fmt: skip
+    optics = ("pinhole" if args.pinhole else f"f/{cam['f_number']:.1f} focused at "
+              f"{cam['focus_distance_m']:g} m")  # fmt: skip
+    title = (f"{args.scene.stem}: {optics}, {args.width}x{args.height}, reference "
+             f"{args.ref_rays} rays/pixel")  # fmt: skip
     plot(rows, plot_png, title)
     print(f"\nplot: {plot_png}\nreference image: {ref_png}")
     if args.json:

@@ -1,15 +1,18 @@
 """Camera descriptions: a TOML camera file in SI units, or a lens prescription table in the
-common text format, both turned into ELEMENT records listed from the film outward.
+common text format (the one pbrt and other renderers ship), both turned into ELEMENT records
+listed from the film outward.
 
 TOML:   [film] width, height (m), z (optional; default: focused at [focus] distance)
-        [[element]] type = "cap" | "plane" | "thin_lens" | "diaphragm", z, radius, n_after,
-                    focal, diameter (or semi_x, semi_y), shape = "ellipse" | "rectangle" |
-                    "polygon", sides, rotation_deg
+        [[element]] type = "cap" | "ellipsoid" | "plane" | "thin_lens" | "diaphragm", z,
+                    radius (cap), semi_axes = [x, y, z] (ellipsoid; z > 0: centre toward the
+                    scene, as a cap's radius), n_after, focal, diameter (or semi_x, semi_y),
+                    shape = "ellipse" | "rectangle" | "polygon", sides, rotation_deg
         [focus] distance = metres or "infinity"
-Table:  one row per surface from the scene side to the film, `#` comments: curvature radius,
-        thickness to the next surface, index after it (toward the film; 0 means air),
-        aperture diameter, all in millimetres; radius 0 is the aperture stop. The last row's
-        thickness is the distance to the film.
+Table:  one row per surface from the scene side to the film, `#` comments and blank lines
+        anywhere: curvature radius, thickness to the next surface, index after it (toward the
+        film; 1 or 0 mean air), aperture diameter, all in millimetres; radius 0 is the
+        aperture stop. The last row's thickness is the distance to the film; 0 (or left out)
+        places the film by focusing, at infinity unless a focus distance is asked for.
 Errors name the file and the line (table) or the element (TOML).
 """
 
@@ -24,8 +27,9 @@ from host.focus import cardinal, dof_from_near_far, dof_from_tolerance, film_for
 from meshnode.engine.optics import trace
 from protocols import dtypes
 
-TYPES = {"cap": dtypes.CAP, "plane": dtypes.PLANE, "thin_lens": dtypes.THIN_LENS,
-         "diaphragm": dtypes.DIAPHRAGM}  # fmt: skip
+TYPES = {"cap": dtypes.CAP, "ellipsoid": dtypes.ELLIPSOID, "plane": dtypes.PLANE,
+         "thin_lens": dtypes.THIN_LENS, "diaphragm": dtypes.DIAPHRAGM}  # fmt: skip
+FULL_FRAME = (0.036, 0.024)  # film size of a lens table unless one is asked for (m)
 SHAPES = {"ellipse": dtypes.ELLIPSE, "rectangle": dtypes.RECTANGLE,
           "polygon": dtypes.POLYGON_RIM, "hexagon": dtypes.POLYGON_RIM}  # fmt: skip
 
@@ -76,6 +80,8 @@ def _element(spec: dict, where: str) -> np.void:
         e["radius"] = float(spec.get("radius", 0.0))
         if e["radius"] == 0 or abs(e["radius"]) < max(e["ax"], e["ay"]):
             raise CameraError(f"{where}: a cap needs |radius| at least its semi-aperture")
+    if kind == "ellipsoid":
+        _ellipsoid(e, spec.get("semi_axes"), where)
     if kind == "thin_lens":
         e["focal"] = float(spec.get("focal", 0.0))
         if e["focal"] == 0:
@@ -85,7 +91,20 @@ def _element(spec: dict, where: str) -> np.void:
     return e
 
 
-def read_toml(path) -> Camera:
+def _ellipsoid(e: np.void, axes, where: str) -> None:
+    """Semi-axes [x, y, z] of an ellipsoidal cap; its rim must lie inside the ellipsoid."""
+    if not isinstance(axes, list) or len(axes) != 3:
+        raise CameraError(f"{where}: an ellipsoid needs semi_axes = [x, y, z] (z > 0: centre "
+                          "toward the scene)")  # fmt: skip
+    x, y, z = (float(v) for v in axes)
+    if not (x > 0 and y > 0 and z != 0) or not all(map(math.isfinite, (x, y, z))):
+        raise CameraError(f"{where}: semi_axes need x > 0, y > 0 and z != 0, all finite")
+    if e["ax"] > x or e["ay"] > y:
+        raise CameraError(f"{where}: the rim reaches beyond the ellipsoid's semi-axes")
+    e["cap_x"], e["cap_y"], e["radius"] = x, y, z
+
+
+def read_toml(path, film_size=None) -> Camera:
     """A camera file in SI units; any value of the wrong kind is a CameraError naming it."""
     path = Path(path)
     try:
@@ -93,14 +112,14 @@ def read_toml(path) -> Camera:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise CameraError(f"{path}: {e}") from e
     try:
-        return _camera_from_toml(path, data)
+        return _camera_from_toml(path, data, film_size)
     except CameraError:
         raise
     except (AttributeError, TypeError, ValueError, OverflowError) as e:
         raise CameraError(f"{path}: a value of the wrong kind or size ({e})") from e
 
 
-def _camera_from_toml(path: Path, data: dict) -> Camera:
+def _camera_from_toml(path: Path, data: dict, film_size=None) -> Camera:
     specs = data.get("element", [])
     if not specs:
         raise CameraError(f"{path}: no [[element]] tables")
@@ -111,34 +130,28 @@ def _camera_from_toml(path: Path, data: dict) -> Camera:
     film = data.get("film", {})
     focus = data.get("focus", {}).get("distance", "infinity")
     distance = math.inf if focus == "infinity" else float(focus)
-    width, height = float(film.get("width", 0.036)), float(film.get("height", 0.024))
+    width, height = film_size or (float(film.get("width", FULL_FRAME[0])),
+                                  float(film.get("height", FULL_FRAME[1])))
     cam = Camera(elements, width, height, film.get("z"), distance, str(path))
     return validate(cam)
 
 
-def read_table(path, film_width=0.036, film_height=0.024) -> Camera:
-    """A lens prescription table (millimetres, scene side first)."""
+def read_table(path, film_size=None) -> Camera:
+    """A lens prescription table (millimetres, scene side first), as the common format ships
+    it; `film_size` (width, height) in metres, full frame by default."""
     path = Path(path)
-    rows = []
     try:
         text = path.read_text()
     except UnicodeDecodeError as e:
         raise CameraError(f"{path}: not a text file ({e})") from e
-    for number, line in enumerate(text.splitlines(), 1):
-        words = line.split("#", 1)[0].split()
-        if not words:
-            continue
-        try:
-            values = [float(w) for w in words]
-        except ValueError:
-            raise CameraError(f"{path}:{number}: expected four numbers") from None
-        if len(values) != 4:
-            raise CameraError(f"{path}:{number}: expected radius thickness ior aperture")
-        if values[3] <= 0 or values[1] < 0:
-            raise CameraError(f"{path}:{number}: aperture must be positive, thickness >= 0")
-        rows.append((number, *values))
+    rows = [row for number, line in enumerate(text.splitlines(), 1)
+            if (row := _table_row(path, number, line)) is not None]  # fmt: skip
     if not rows:
         raise CameraError(f"{path}: no lens rows")
+    for number, _, thick, *_ in rows[:-1]:
+        if thick is None:
+            raise CameraError(f"{path}:{number}: expected radius thickness index aperture "
+                              "(only the last row may leave out its thickness)")  # fmt: skip
     # Positions from the front vertex (z = 0) toward the film (negative z), in metres.
     z, out = 0.0, []
     for i, (number, radius, thick, _, aperture) in enumerate(rows):
@@ -154,17 +167,64 @@ def read_table(path, film_width=0.036, film_height=0.024) -> Camera:
             if abs(e["radius"]) < e["ax"]:
                 raise CameraError(f"{path}:{number}: |radius| is smaller than half the aperture")
         out.append(e)
-        z -= thick / 1000
+        z -= (thick or 0.0) / 1000
     elements = np.array(out[::-1], dtype=dtypes.ELEMENT)
     # The medium on the film side of the film-most surface must be air.
     if rows[-1][3] not in (0.0, 1.0):
         raise CameraError(f"{path}:{rows[-1][0]}: the last surface must leave the light in air")
-    cam = Camera(elements, film_width, film_height, z, math.inf, str(path))
+    film_z = z if rows[-1][2] else None  # thickness 0 or left out: focus places the film
+    width, height = film_size or FULL_FRAME
+    notes = [] if film_z is not None else ["film placed by focusing (last thickness 0)"]
+    cam = Camera(elements, width, height, film_z, math.inf, str(path), notes)
     return validate(cam)
 
 
-def read_camera(path) -> Camera:
-    return read_toml(path) if str(path).endswith(".toml") else read_table(path)
+def _table_row(path: Path, number: int, line: str):
+    """(line, radius, thickness or None, index, aperture) of one table line; None for a
+    comment or blank line; a CameraError naming the line for anything else."""
+    words = line.split("#", 1)[0].split()
+    if not words:
+        return None
+    try:
+        values = [float(w) for w in words]
+    except ValueError:
+        bad = next(w for w in words if not _is_number(w))
+        raise CameraError(f"{path}:{number}: {bad!r} is not a number (expected radius "
+                          "thickness index aperture, in mm)") from None  # fmt: skip
+    if len(values) == 3:  # the last row may leave out its thickness
+        values.insert(1, None)
+    if len(values) != 4:
+        raise CameraError(f"{path}:{number}: expected 4 numbers (radius thickness index "
+                          f"aperture, in mm), got {len(values)}")  # fmt: skip
+    radius, thick, index, aperture = values
+    if not all(math.isfinite(v) for v in values if v is not None):
+        raise CameraError(f"{path}:{number}: every value must be finite")
+    if aperture <= 0:
+        raise CameraError(f"{path}:{number}: the aperture diameter must be positive")
+    if thick is not None and thick < 0:
+        raise CameraError(f"{path}:{number}: the thickness must be >= 0")
+    if index != 0 and index < 1:
+        raise CameraError(f"{path}:{number}: index {index:g} is neither air (1 or 0) nor a "
+                          "glass (> 1)")  # fmt: skip
+    return number, radius, thick, index, aperture
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def read_camera(path, film_size=None) -> Camera:
+    """A TOML camera file or a lens table, on a film of `film_size` (width, height) metres
+    if given (else the file's, or full frame for a table)."""
+    if film_size is not None and not all(0 < v < 1e3 for v in film_size):
+        raise CameraError(f"{path}: the film size must be positive, got {film_size}")
+    if str(path).endswith(".toml"):
+        return read_toml(path, film_size)
+    return read_table(path, film_size)
 
 
 def validate(cam: Camera) -> Camera:
@@ -183,9 +243,13 @@ def validate(cam: Camera) -> Camera:
     if cam.focus_distance <= 0:
         raise CameraError(f"{cam.source}: focus distance must be in front of the lens")
     try:
-        cam.focused_film_z()
+        film_z = cam.focused_film_z()
     except ValueError as e:
         raise CameraError(f"{cam.source}: {e}") from e
+    if film_z >= first:
+        raise CameraError(f"{cam.source}: focused at {cam.focus_distance:g} m, the film "
+                          f"(z={film_z:.6g}) would not be behind the first element "
+                          f"(z={first})")  # fmt: skip
     return cam
 
 
@@ -267,13 +331,19 @@ def default_coc(cam: Camera) -> float:
 
 
 def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=None,
-            autofocus=None) -> Camera:  # fmt: skip
+            autofocus=None, f_number=None) -> Camera:  # fmt: skip
     """The camera focused and stopped as asked: `focus` in metres, "infinity" or "auto"
     (`autofocus()` gives the distance: a probe pass through the scene); `near`/`far`: the
-    depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp."""
+    depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp;
+    `f_number`: the stop scaled to it (not with near/far or tolerance, which choose it)."""
     efl = cardinal(cam.elements)["effective_focal_length"]
     c = coc or default_coc(cam)
     out = cam
+    if f_number is not None:
+        if near is not None or far is not None or tolerance is not None:
+            raise CameraError(f"{cam.source}: an f-number is chosen by the depth of field "
+                              "(near/far or tolerance); give one or the other")  # fmt: skip
+        out = cam = with_f_number(cam, f_number)
     try:
         if near is not None or far is not None:
             if near is None or focus is not None or tolerance is not None:

@@ -11,9 +11,10 @@ import math
 import os
 import secrets
 import sys
+from dataclasses import replace
 from pathlib import Path
 
-from host.camerasetup import CameraSetup, Focus
+from host.camerasetup import CameraSetup, Focus, PinholeSetup
 from host.cluster import parse_mesh, read_cluster
 from host.localmesh import LocalMesh
 from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
@@ -26,6 +27,8 @@ from protocols.render import BALANCES, STORAGES, TILINGS, EngineSpec, ImageSpec,
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
+PINHOLE_TOO = ("sampling", "threshold")  # CameraSampling fields the pinhole takes as well
+FLAGS: dict[str, str] = {}  # "Record.field" -> the option that sets it, for messages
 AUTO_WHY = ("on one machine, threads in one process beat a local mesh of processes: no rays or "
             "pixels cross process boundaries; --mesh ROWSxCOLS starts a local mesh")
 
@@ -42,6 +45,7 @@ def _version() -> str:
 def _field(group, flag: str, record: type, name: str, help: str, **kw) -> None:
     """An option that sets `record.name`; unset, the record's own default applies."""
     d = default(record, name)
+    FLAGS[f"{record.__name__}.{name}"] = flag
     shown = "" if d is None or kw.get("action") == "store_true" else f" (default {d})"
     group.add_argument(flag, dest=f"{record.__name__}.{name}", default=argparse.SUPPRESS,
                        help=help + shown, **kw)  # fmt: skip
@@ -65,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     _field(r, "--spd", ImageSpec, "spd", "SPD rules: 512x512 from 513x513 corner rays, depth 5",
            action="store_true")  # fmt: skip
-    _field(r, "--spp", ImageSpec, "spp", "jittered samples per pixel", type=int)
+    _field(r, "--spp", ImageSpec, "spp", "pinhole rays per pixel (placed by --sampling)",
+           type=int)  # fmt: skip
     _field(r, "--depth", ImageSpec, "depth", "maximum ray tree depth (eye ray = 1)", type=int)
     _field(r, "--width", ImageSpec, "width", "image width (default: the scene's)", type=int)
     _field(r, "--height", ImageSpec, "height", "image height", type=int)
@@ -105,13 +110,38 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--tile", MeshPlan, "tile", "image-space tile side, pixels", type=int)
     _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
+    _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")
     c.add_argument("camera", help="camera file (.toml, SI units) or lens table (mm)")
     c.add_argument("--focus", type=float, help="focus distance in metres (default: the file's)")
     c.add_argument("--coc", type=float, help="largest circle of confusion, m (default: d/1500)")
+    c.add_argument("--f-number", type=float, help="stop the lens to this f-number")
+    c.add_argument("--film-size", type=_film_size, help=FILM_SIZE_HELP)
     c.add_argument("--json", action="store_true", help="print JSON")
     return p
+
+
+FILM_SIZE_HELP = "film WIDTHxHEIGHT in mm (default: the file's; 36x24 for a lens table)"
+
+
+def _film_size(text: str) -> tuple[float, float]:
+    """'36x24' (mm) -> (0.036, 0.024) metres."""
+    try:
+        w, h = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT in mm") from None
+    if not (0 < w < 1e6 and 0 < h < 1e6):
+        raise argparse.ArgumentTypeError(f"{text!r}: both sides must be positive mm")
+    return w / 1000, h / 1000
+
+
+def _sampling_options(g) -> None:
+    _field(g, "--sampling", CameraSampling, "sampling", "how a pixel's rays are placed; "
+           "adaptive: two opposite corners first, the rest where they differ by more than "
+           "--threshold", choices=SAMPLINGS)  # fmt: skip
+    _field(g, "--threshold", CameraSampling, "threshold", "adaptive sampling's colour "
+           "difference", type=float)  # fmt: skip
 
 
 def _camera_options(g) -> None:
@@ -119,11 +149,6 @@ def _camera_options(g) -> None:
            "rays in the first element's ellipse)", type=int)  # fmt: skip
     _field(g, "--lens-rays", CameraSampling, "rays", "rays per pixel for types 2 and 3, or "
            "with a film area", type=int)  # fmt: skip
-    _field(g, "--sampling", CameraSampling, "sampling", "how a pixel's rays are placed; "
-           "adaptive: two opposite corners first, the rest where they differ by more than "
-           "--threshold", choices=SAMPLINGS)  # fmt: skip
-    _field(g, "--threshold", CameraSampling, "threshold", "adaptive sampling's colour "
-           "difference", type=float)  # fmt: skip
     _field(g, "--film-area", CameraSampling, "film_area", "where on the pixel rays start "
            "(anti-aliasing in focus)", choices=FILM_AREAS)  # fmt: skip
     _field(g, "--film-area-size", CameraSampling, "film_area_size", "film area, pixels across",
@@ -142,6 +167,8 @@ def _camera_options(g) -> None:
            "many metres sharp", type=float)  # fmt: skip
     _field(g, "--coc", Focus, "coc", "largest circle of confusion on the film, m (default: "
            "diagonal/1500)", type=float)  # fmt: skip
+    _field(g, "--f-number", Focus, "f_number", "stop the lens to this f-number", type=float)
+    g.add_argument("--film-size", type=_film_size, help=FILM_SIZE_HELP)
 
 
 def _bytes(text: str) -> int:
@@ -179,10 +206,13 @@ def main(argv=None) -> int:
 
 
 def _camera(args) -> int:
-    from host.camera import CameraError, describe, read_camera
+    from host.camera import CameraError, describe, read_camera, with_f_number
 
     try:
-        d = describe(read_camera(args.camera), args.focus, args.coc)
+        cam = read_camera(args.camera, args.film_size)
+        if args.f_number is not None:
+            cam = with_f_number(cam, args.f_number)
+        d = describe(cam, args.focus, args.coc)
     except (CameraError, ValueError, OSError) as e:
         print(f"host: {e}", file=sys.stderr)
         return 2
@@ -244,11 +274,12 @@ def _render(args) -> int:
     write_pfm(float_path, img)
     if stats_path:
         stats_path.write_text(json.dumps(stats, indent=2) + "\n")
-    leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
+    leaving = stats.get("camera", {}).get("rays_leaving_lens", 1.0)
     if leaving < 0.5:
         print(f"host: only {leaving:.0%} of the camera rays leave the camera (the rest are "
-              "stopped by rims or diaphragms): aim them at the stop by listing it first "
-              "(film side)", file=sys.stderr)  # fmt: skip
+              "stopped by rims or diaphragms): a camera whose elements are not round about "
+              "the axis is aimed at its film-most element; list its stop first (film side)",
+              file=sys.stderr)  # fmt: skip
     if not args.quiet and "mesh" in stats:
         r = {k: stats["rays"].get(k, 0) for k in ("eye_rays", "reflected_rays",
              "refracted_rays", "shadow_rays", "shadow_rays_blocked")}  # fmt: skip
@@ -293,21 +324,61 @@ def _outputs(args) -> tuple[Path, Path, Path | None]:
 
 
 def _records(args):
-    """The render's records from the options (each checked by its record)."""
+    """The render's records from the options (each checked by its record); options that do
+    not apply to the chosen camera fail, or warn when they merely change nothing, by name."""
     image, engine = ImageSpec(**_given(args, ImageSpec)), EngineSpec(**_given(args, EngineSpec))
+    sampling = _given(args, CameraSampling)
+    if "threshold" in sampling and sampling.get("sampling") != "adaptive":
+        raise ValueError("--threshold applies to --sampling adaptive only")
     if not args.camera:
-        given = [name for record in CAMERA_ONLY for name in _given(args, record)]
-        if given:
-            raise ValueError(f"camera options {given} need --camera")
-        return image, engine, None
+        pinhole = _pinhole(args, image, sampling)
+        return (image, engine, None) if pinhole is None else (replace(image, spp=1), engine,
+                                                              pinhole)  # fmt: skip
     from host.camera import read_camera
 
     if image.spp != 1:
         raise ValueError("--spp is for the pinhole; through a camera, rays per pixel are "
                          "--lens-rays N")  # fmt: skip
-    sampling = CameraSampling(**_given(args, CameraSampling))
-    return image, engine, CameraSetup(read_camera(args.camera), sampling,
+    sampled = CameraSampling(**sampling)
+    _warn_unused(sampled, sampling)
+    return image, engine, CameraSetup(read_camera(args.camera, args.film_size), sampled,
                                       Focus(**_given(args, Focus)))  # fmt: skip
+
+
+def _pinhole(args, image: ImageSpec, sampling: dict):
+    """The scene's pinhole: plain jittered samples (the eye-ray kernel; None), or, for another
+    --sampling, the pinhole set up as a camera (PinholeSetup; the image then takes its rays
+    per pixel from it)."""
+    flags = [FLAGS[f"{r.__name__}.{f}"] for r in CAMERA_ONLY for f in _given(args, r)
+             if f not in PINHOLE_TOO]  # fmt: skip
+    flags += ["--film-size"] if args.film_size is not None else []
+    if flags:
+        raise ValueError(f"{', '.join(flags)}: camera options, which need --camera")
+    how = sampling.get("sampling", "jittered")
+    if how == "jittered":
+        return None
+    if image.spd:
+        raise ValueError(f"--sampling {how}: the SPD rules fix the eye rays at pixel corners")
+    if image.spp == 1 and how == "adaptive":
+        _warn("--sampling adaptive with --spp 1 traces one ray per pixel; give --spp N")
+    return PinholeSetup.of(how, image.spp, sampling.get("threshold"))
+
+
+def _warn_unused(s: CameraSampling, given: dict) -> None:
+    """Options that change nothing with this generation area and film area, by name."""
+    if "rays" in given and s.per_pixel != s.rays:
+        why = (f"generation {s.generation} traces its fixed {s.kind.points} points"
+               if s.kind.points else f"generation {s.generation} traces one ray per pixel "
+               "without --film-area")  # fmt: skip
+        _warn(f"--lens-rays {s.rays} changes nothing: {why}")
+    if "sampling" in given and s.per_pixel == 1:
+        _warn(f"--sampling {s.sampling} changes nothing: one ray per pixel")
+    if "film_area_size" in given and s.film_area == "centre":
+        _warn("--film-area-size changes nothing without --film-area ellipse|rectangle")
+
+
+def _warn(text: str) -> None:
+    print(f"host: warning: {text}", file=sys.stderr)
 
 
 def _run(scene, image, engine, camera, args):

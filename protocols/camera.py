@@ -18,6 +18,7 @@ SAMPLINGS = ("uniform", "jittered", "random", "adaptive")
 FILM_AREAS = ("centre", "ellipse", "rectangle")
 ADAPTATIONS = ("all", "left")
 MAX_RAYS_PER_PIXEL = 65536
+MAX_PUPIL_BANDS = 1024
 
 
 class Generation(IntEnum):
@@ -101,13 +102,21 @@ class CameraSampling(Spec):
 @dataclass(frozen=True)
 class CameraSpec(Spec):
     """Everything a node needs to make camera rays: the elements (ELEMENT records, film
-    outward), the film's size and position (m), and the sampling."""
+    outward), the film's size and position (m), the sampling, and the exit pupil: for bands
+    of distance from the film's centre out to `pupil_radius`, the ellipse (centre x, semi-axes
+    x and y; flattened) in the first element's plane through which light from a film point on
+    the +x axis leaves the lens (empty: rays are aimed at the whole first element), and
+    `pupil_area`, the area of that plane passing from the film's centre, which a lens-sampled
+    ray's weight is relative to (0: every ray weighs alike)."""
 
     elements: np.ndarray
     film_width: float
     film_height: float
     film_z: float
     sampling: CameraSampling = field(default_factory=CameraSampling)
+    pupil: tuple = ()
+    pupil_radius: float = 0.0
+    pupil_area: float = 0.0
 
     NESTED: ClassVar[dict] = {"sampling": CameraSampling}
 
@@ -120,17 +129,40 @@ class CameraSpec(Spec):
         numbers = np.concatenate([e[n].astype(float).ravel() for n in e.dtype.names])
         if not np.all(np.isfinite(numbers)):
             self.fail("elements", "every element value must be finite")
+        if np.any(e["kind"] > dtypes.ELLIPSOID):
+            self.fail("elements", f"kinds are {dtypes.CAP} to {dtypes.ELLIPSOID}")
+        ell = e[e["kind"] == dtypes.ELLIPSOID]
+        if np.any(ell["cap_x"] <= 0) or np.any(ell["cap_y"] <= 0) or np.any(ell["radius"] == 0):
+            self.fail("elements", "an ellipsoid needs semi-axes x, y > 0 and z != 0")
         self.want_number("film_width", 0.0, 1e3, open_lo=True)
         self.want_number("film_height", 0.0, 1e3, open_lo=True)
         self.want_number("film_z", -1e3, 1e3)
         if not isinstance(self.sampling, CameraSampling):
             self.fail("sampling", "must be a CameraSampling")
+        self._check_pupil()
+
+    def _check_pupil(self) -> None:
+        p = self.pupil
+        if not isinstance(p, tuple) or len(p) % 3 or len(p) > 3 * MAX_PUPIL_BANDS:
+            self.fail("pupil", f"must be a tuple of up to {MAX_PUPIL_BANDS} (x, a, b) triples")
+        try:
+            bands = np.array(p, dtype=float).reshape(-1, 3)
+        except (TypeError, ValueError):
+            self.fail("pupil", "must hold numbers")
+        if not np.all(np.isfinite(bands)) or np.any(bands[:, 1:] < 0):
+            self.fail("pupil", "must be finite, with semi-axes >= 0")
+        self.want_number("pupil_area", 0.0, 1e6)
+        if p:
+            self.want_number("pupil_radius", 0.0, 1e3, open_lo=True)
+            self.want_number("pupil_area", 0.0, 1e6, open_lo=True)
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, CameraSpec):
             return NotImplemented
-        same = (self.film_width, self.film_height, self.film_z, self.sampling) == (
-            other.film_width, other.film_height, other.film_z, other.sampling)  # fmt: skip
+        same = (self.film_width, self.film_height, self.film_z, self.sampling, self.pupil,
+                self.pupil_radius, self.pupil_area) == (
+            other.film_width, other.film_height, other.film_z, other.sampling, other.pupil,
+            other.pupil_radius, other.pupil_area)  # fmt: skip
         return same and np.array_equal(self.elements, other.elements)
 
     @property
@@ -147,4 +179,6 @@ class CameraSpec(Spec):
         if not isinstance(elements, np.ndarray) or elements.dtype != dtypes.ELEMENT:
             got = getattr(elements, "dtype", type(elements).__name__)
             raise SpecError(f"CameraSpec.elements must be an ELEMENT array, got {got}")
-        return {**values, "elements": np.array(elements)}
+        pupil = values.get("pupil")
+        pupil = tuple(pupil) if isinstance(pupil, list | tuple) else pupil
+        return {**values, "elements": np.array(elements), "pupil": pupil}

@@ -76,13 +76,16 @@ CONE = np.dtype(
 DEPOSIT = np.dtype([("pixel", "<i8"), ("rgb", "<f8", 3)])
 
 # Camera elements along the optical axis z (camera frame, metres), listed from the film outward.
-CAP, PLANE, THIN_LENS, DIAPHRAGM = 0, 1, 2, 3
+CAP, PLANE, THIN_LENS, DIAPHRAGM, ELLIPSOID = 0, 1, 2, 3, 4
 ELLIPSE, RECTANGLE, POLYGON_RIM = 0, 1, 2
 ELEMENT = np.dtype(
     [
-        ("kind", "u1"),  # CAP, PLANE, THIN_LENS or DIAPHRAGM
+        ("kind", "u1"),  # CAP, PLANE, THIN_LENS, DIAPHRAGM or ELLIPSOID
         ("z", "<f8"),  # vertex (or plane) position on the axis
-        ("radius", "<f8"),  # CAP: curvature radius, > 0 when its centre lies toward +z
+        ("radius", "<f8"),  # CAP: curvature radius; ELLIPSOID: semi-axis along z; > 0 when
+        # the centre lies toward +z
+        ("cap_x", "<f8"),  # ELLIPSOID: semi-axis along x
+        ("cap_y", "<f8"),  # ELLIPSOID: semi-axis along y
         ("n_after", "<f8"),  # index of refraction on the +z side (CAP, PLANE)
         ("focal", "<f8"),  # THIN_LENS: focal length (negative: diverging)
         ("ax", "<f8"),  # rim / diaphragm half-size along x (ellipse semi-axis, half-width)

@@ -197,6 +197,8 @@ def test_adaptive_refines_pixels_whose_corner_rays_the_camera_stops():
 
 
 def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
+    """A hexagonal stop is not round about the axis, so rays are aimed at the lens rim listed
+    first (no exit pupil), and most are stopped."""
     from host.cli import main
 
     scene = tmp_path / "s.nff"
@@ -204,7 +206,8 @@ def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
                      "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n")  # fmt: skip
     camera = tmp_path / "c.toml"
     camera.write_text('[[element]]\ntype = "thin_lens"\nz = 0.0\nfocal = 0.05\ndiameter = 0.03\n'
-                      '[[element]]\ntype = "diaphragm"\nz = 0.002\ndiameter = 0.008\n')  # fmt: skip
+                      '[[element]]\ntype = "diaphragm"\nz = 0.002\ndiameter = 0.008\n'
+                      'shape = "hexagon"\n')  # fmt: skip
     args = ["render", str(scene), "-o", str(tmp_path / "o.png"), "--quiet", "--mesh", "1x1",
             "--camera", str(camera)]  # fmt: skip
     assert main(args) == 0

@@ -1,5 +1,6 @@
 """Primary rays from a simulated camera (DESIGN.md 7): film points, generation-area points on
-the first element, the element stack, and the camera-to-scene transform from the NFF view.
+the first element (within its exit pupil when the spec has one: `aim_points`), the element
+stack, and the camera-to-scene transform from the NFF view.
 
 Vectorised over every (pixel, sample) pair asked for (no loop per pixel); the element tracing
 is the `optics.through` kernel. Rays lost in the camera (rims, diaphragms, total reflection)
@@ -111,20 +112,22 @@ def _concentric(a):
 
 
 @kernel
-def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front):
+def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front, hither):
     """RAY records of the rays that left the camera, moved from the camera frame (z along the
-    view, the front vertex at the eye) to the scene; returns how many."""
+    view, the front vertex at the eye) to the scene; returns how many. `hither` > 0 (the
+    pinhole): rays start that far along the view axis, as the scene's own eye rays do."""
     n = 0
     for i in range(o.shape[0]):
         if not alive[i]:
             continue
         x, y, z = o[i, 0], o[i, 1], o[i, 2] - front
         a, b, c = d[i, 0], d[i, 1], d[i, 2]
+        t_min = hither / c if hither > 0.0 else 0.0
         set_primary(out[n], eye[0] + x * right[0] + y * up[0] + z * fwd[0],
                     eye[1] + x * right[1] + y * up[1] + z * fwd[1],
                     eye[2] + x * right[2] + y * up[2] + z * fwd[2],
                     a * right[0] + b * up[0] + c * fwd[0], a * right[1] + b * up[1] + c * fwd[1],
-                    a * right[2] + b * up[2] + c * fwd[2], 0.0, share[i], ids[i])  # fmt: skip
+                    a * right[2] + b * up[2] + c * fwd[2], t_min, share[i], ids[i])  # fmt: skip
         n += 1
     return n
 
@@ -183,9 +186,10 @@ def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndar
     with the image's `seed`, and
     which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
 
-    Weights: 1 / (rays of the pixel) under "all", 1 / (those that left) under "left"; under
-    adaptive sampling every ray weighs 1, `pixel` is the sample id pixel * N + k, and the node
-    owning the pixel divides (it alone knows how many rays the pixel got)."""
+    Weights: 1 / (rays of the pixel) under "all", times the area the ray was drawn from
+    (`aim_points`), 1 / (those that left) under "left"; under adaptive sampling a ray weighs
+    its area ("all") or 1, `pixel` is the sample id pixel * N + k, and the node owning the
+    pixel divides (it alone knows how many rays the pixel got)."""
     pixels = np.asarray(pixels, np.int64)
     n = spec.per_pixel
     ks = np.arange(n) if ks is None else np.asarray(ks, np.int64)
@@ -200,26 +204,68 @@ def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndar
     o[:, 0] = fx.ravel()
     o[:, 1] = fy.ravel()
     o[:, 2] = spec.film_z
+    ax, ay, area, lost = aim_points(spec, o[:, 0], o[:, 1], lens.reshape(-1, 2))
     d = np.empty_like(o)
-    d[:, 0] = lens[..., 0].ravel() * float(first["ax"]) - o[:, 0]
-    d[:, 1] = lens[..., 1].ravel() * float(first["ay"]) - o[:, 1]
+    d[:, 0] = ax - o[:, 0]
+    d[:, 1] = ay - o[:, 1]
     d[:, 2] = float(first["z"]) - spec.film_z
     d /= np.linalg.norm(d, axis=1)[:, None]
-    alive = np.ones(len(o), dtype=np.bool_)
-    if spec.sampling.kind != Generation.PINHOLE:  # straight through the centre, no refraction
+    alive = ~lost
+    pinhole = spec.sampling.kind == Generation.PINHOLE
+    if pinhole:  # straight through the centre, no refraction: rays start at the pinhole
+        o[:, 0], o[:, 1], o[:, 2] = 0.0, 0.0, float(first["z"])
+    else:
         through(o, d, spec.elements, False, alive)
     alive2 = alive.reshape(len(pixels), k)
+    left = spec.sampling.adaptation == "left"
     if spec.adaptive:
-        share = np.ones(len(o))
+        share = np.ones(len(o)) if left else area
         ids = (pixels[:, None] * n + ks[None, :]).ravel()
     else:
-        per = alive2.sum(axis=1) if spec.sampling.adaptation == "left" else np.full(len(pixels), k)
-        share = np.repeat(1.0 / np.maximum(per, 1), k)
+        per = alive2.sum(axis=1) if left else np.full(len(pixels), k)
+        share = np.repeat(1.0 / np.maximum(per, 1), k) * (1.0 if left else area)
         ids = np.repeat(pixels, k)
     eye, fwd, right, up, _ = view_basis(view, width, height)
     rays = np.zeros(int(alive.sum()), RAY)
-    _emit(rays, o, d, alive, share, ids, eye, right, up, fwd, float(spec.elements["z"].max()))
+    hither = float(view.hither) if pinhole else 0.0
+    _emit(rays, o, d, alive, share, ids, eye, right, up, fwd, float(spec.elements["z"].max()),
+          hither)  # fmt: skip
     return rays, alive2
+
+
+def aim_points(spec: CameraSpec, fx, fy, lens):
+    """Where in the first element's plane rays from film points (fx, fy) are aimed, for lens
+    offsets `lens` ((n, 2), in units of the sampled area's semi-axes), each ray's weight for
+    the area it was drawn from, and which rays cannot pass at all.
+
+    Rays are drawn in the exit pupil when the spec has one (the region of that plane through
+    which light from a film point at this distance from the axis reaches the scene, as an
+    ellipse per band of distance, for a point on the +x axis; the lens is round about its
+    axis, so the region turns with the film point), else in the first element's ellipse or
+    rectangle. A ray weighs the area it was drawn from over the area passing from the film's
+    centre (`pupil_area`), so the image centre is as bright as the scene whatever the lens and
+    its stop (a lens table cannot list its stop first) and however rays are aimed; vignetting
+    stays. A band through which nothing passes loses its rays untraced."""
+    first = spec.elements[int(np.argmin(spec.elements["z"]))]
+    s = spec.sampling
+    n = len(fx)
+    u, v = lens[:, 0], lens[:, 1]
+    table = np.asarray(spec.pupil, float).reshape(-1, 3)
+    lens_sampled = not s.kind.through_centre and not s.special
+    shape = 4.0 if s.kind == Generation.RECTANGLE else math.pi
+    weighed = lens_sampled and spec.pupil_area > 0
+    if len(table) == 0 or s.kind == Generation.PINHOLE:
+        ax, ay = float(first["ax"]), float(first["ay"])
+        area = np.full(n, shape * ax * ay / spec.pupil_area if weighed else 1.0)
+        return u * ax, v * ay, area, np.zeros(n, bool)
+    r = np.hypot(fx, fy)
+    band = np.minimum((r * (len(table) / spec.pupil_radius)).astype(np.int64), len(table) - 1)
+    cx, a, b = table[band].T
+    cos = np.divide(fx, r, out=np.ones(n), where=r > 0)
+    sin = np.divide(fy, r, out=np.zeros(n), where=r > 0)
+    px, py = cx + u * a, v * b
+    area = shape * a * b / spec.pupil_area if weighed else np.ones(n)
+    return cos * px - sin * py, sin * px + cos * py, area, a <= 0.0
 
 
 def camera_batches(spec: CameraSpec, view, width: int, height: int, pixels: np.ndarray,

@@ -1,5 +1,6 @@
-"""Rays through a camera's elements (DESIGN.md 7), batched: refracting spherical caps and
-planes with rims, ideal thin lenses, diaphragms of ellipse, rectangle or regular N-gon shape.
+"""Rays through a camera's elements (DESIGN.md 7), batched: refracting spherical and
+ellipsoidal caps and planes with rims, ideal thin lenses, diaphragms of ellipse, rectangle or
+regular N-gon shape.
 
 Camera frame: optical axis z, film on the -z side, elements listed from the film outward (the
 ELEMENT dtype in `protocols`). `through` moves rays in place element by element, forward
@@ -13,7 +14,7 @@ import numpy as np
 
 from meshnode.engine.jit import kernel
 from meshnode.engine.shade import refract
-from protocols.dtypes import CAP, ELLIPSE, PLANE, RECTANGLE, THIN_LENS
+from protocols.dtypes import CAP, ELLIPSE, ELLIPSOID, PLANE, RECTANGLE, THIN_LENS
 
 
 @kernel
@@ -47,7 +48,8 @@ def through(o, d, elements, backward, alive):
             # Media on either side along the direction of travel.
             n_fwd_before = 1.0 if j == 0 else elements[j - 1].n_after
             n1 = n2 = 1.0
-            if e.kind == CAP or e.kind == PLANE:
+            refracting = e.kind == CAP or e.kind == PLANE or e.kind == ELLIPSOID
+            if refracting:
                 n_after = e.n_after
                 n1, n2 = (n_after, n_fwd_before) if backward else (n_fwd_before, n_after)
             if e.kind == CAP:
@@ -64,6 +66,24 @@ def through(o, d, elements, backward, alive):
                 t = -b - h
                 if (oz + t * dz - cz) * e.radius > 0.0:
                     t = -b + h
+            elif e.kind == ELLIPSOID:
+                # In coordinates scaled by the semi-axes the ellipsoid is the unit sphere.
+                cz = e.z + e.radius
+                sz = abs(e.radius)
+                ux, uy, uz = ox / e.cap_x, oy / e.cap_y, (oz - cz) / sz
+                vx, vy, vz = dx / e.cap_x, dy / e.cap_y, dz / sz
+                a = vx * vx + vy * vy + vz * vz
+                b = ux * vx + uy * vy + uz * vz
+                c = ux * ux + uy * uy + uz * uz - 1.0
+                disc = b * b - a * c
+                if disc < 0.0:
+                    alive[i] = False
+                    break
+                h = math.sqrt(disc)
+                # The cap is the half on the vertex side of the centre, as for a sphere.
+                t = (-b - h) / a
+                if (oz + t * dz - cz) * e.radius > 0.0:
+                    t = (-b + h) / a
             else:
                 if dz == 0.0:
                     alive[i] = False
@@ -73,9 +93,15 @@ def through(o, d, elements, backward, alive):
             if not inside_rim(px, py, e.ax, e.ay, e.shape, e.sides, e.rotation):
                 alive[i] = False
                 break
-            if e.kind == CAP or e.kind == PLANE:
+            if refracting:
                 if e.kind == CAP:
                     nx, ny, nz = px / e.radius, py / e.radius, (pz - e.z - e.radius) / e.radius
+                elif e.kind == ELLIPSOID:  # the gradient of the implicit form, normalised
+                    nx = px / (e.cap_x * e.cap_x)
+                    ny = py / (e.cap_y * e.cap_y)
+                    nz = (pz - e.z - e.radius) / (e.radius * e.radius)
+                    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+                    nx, ny, nz = nx / ln, ny / ln, nz / ln
                 else:
                     nx, ny, nz = 0.0, 0.0, 1.0
                 if nx * dx + ny * dy + nz * dz > 0.0:  # face the incoming ray

@@ -94,8 +94,9 @@ class SceneBuilder:
         """The scene, with its notes (fixes made) in `self.notes`."""
         for kind, (n, line) in self._fixed.items():
             if n:
-                what = ("faces with no area dropped" if kind == "dropped"
-                        else "faces not in one plane cut into flat triangles")  # fmt: skip
+                face = "face" if n == 1 else "faces"
+                what = (f"{face} with no area dropped" if kind == "dropped"
+                        else f"{face} not in one plane cut into flat triangles")  # fmt: skip
                 self.notes.append(f"{self.source}: {n} {what} (first at line {line})")
         light = np.zeros(len(self.lights), dtypes.LIGHT)
         for i, (pos, rgb) in enumerate(self.lights):

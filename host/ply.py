@@ -28,7 +28,7 @@ def read_ply(path) -> MeshFaces:
         f.seek(0)
         header = _Header(head)
         try:
-            ply = plyfile.PlyData.read(f, mmap=False)
+            ply = _read(f, header)
         except plyfile.PlyHeaderParseError as e:
             raise SceneError(source, int(e.line or 1), f"PLY header: {e.message}") from None
         except plyfile.PlyElementParseError as e:
@@ -48,17 +48,21 @@ def read_ply(path) -> MeshFaces:
     missing = [c for c in "xyz" if c not in props]
     if missing:
         raise SceneError(source, header.decl("vertex"), f"vertex lacks {', '.join(missing)}")
-    points = np.stack([np.asarray(vert[c], float) for c in "xyz"], axis=1)
+    points = np.stack([np.array(vert[c], float) for c in "xyz"], axis=1)
     normals = None
     if {"nx", "ny", "nz"} <= props:
-        normals = np.stack([np.asarray(vert[c], float) for c in ("nx", "ny", "nz")], axis=1)
+        normals = np.stack([np.array(vert[c], float) for c in ("nx", "ny", "nz")], axis=1)
     key = next((k for k in _FACE_LISTS if k in {p.name for p in face.properties}), None)
     if key is None:
         raise SceneError(source, header.decl("face"), "face has no vertex_indices list")
     lists = face[key]
-    counts = np.fromiter(map(len, lists), np.int64, len(lists))
-    corner_v = (np.concatenate(lists).astype(np.int64) if len(lists)
-                else np.zeros(0, np.int64))  # fmt: skip
+    if lists.dtype != object:  # read as fixed-length lists: one (faces, k) array
+        counts = np.full(len(lists), lists.shape[1], np.int64)
+        corner_v = lists.astype(np.int64).reshape(-1)
+    else:
+        counts = np.fromiter(map(len, lists), np.int64, len(lists))
+        corner_v = (np.concatenate(lists).astype(np.int64) if len(lists)
+                    else np.zeros(0, np.int64))  # fmt: skip
     rows = np.arange(len(counts))
     lines = (header.row_line("face", 0, True) + rows if header.ascii
              else np.full(len(counts), header.decl("face")))  # fmt: skip
@@ -106,3 +110,18 @@ class _Header:
                 return self.end + before + int(row) + 1
             before += count
         return self.end
+
+
+def _read(f, header: _Header) -> plyfile.PlyData:
+    """The PLY data. plyfile reads a binary list property row by row (seconds for a large
+    mesh) unless told its length, when it maps all rows at once and checks every length:
+    so a binary file is tried as all triangles, then all quads, then read row by row."""
+    for k in () if header.ascii else (3, 4):
+        f.seek(0)
+        try:
+            return plyfile.PlyData.read(f, known_list_len={"face": dict.fromkeys(_FACE_LISTS, k)})
+        except plyfile.PlyElementParseError as e:
+            if e.message != "unexpected list length":
+                raise
+    f.seek(0)
+    return plyfile.PlyData.read(f)

@@ -12,8 +12,8 @@ How Inventor maps onto what the tracer draws:
   stay a circle), plus the caps Inventor draws (`parts`) as 64-sided polygons circumscribing
   the rim, so no gap shows between cap and side.
 - Cube: six polygons. IndexedFaceSet: one polygon per face (NFF `p`), corners through the
-  matrix. Faces are one-sided, counter-clockwise front, as in NFF; a mirroring matrix keeps
-  them facing out.
+  matrix. Corners stay counter-clockwise about the outward normal, also under a mirroring
+  matrix (the tracer shades polygons from both sides, as Inventor does without ShapeHints).
 - Material: diffuseColor is NFF's colour with Kd 1, the largest specularColor component is
   Ks (which in NFF also reflects), shininess * 128 the Phong exponent, transparency T with
   ior 1 (Inventor does not bend light). Fields a Material leaves out keep their value.

@@ -477,3 +477,36 @@ def test_cli_renders_every_format_and_refuses_bad_ones_in_one_line(tmp_path, cap
         assert main(["render", str(tmp_path / name), "-o", str(tmp_path / "o.png")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and what in err and "Traceback" not in err, err
+
+
+def test_obj_corner_spellings_and_binary_triangle_ply_read_alike(tmp_path):
+    tris = [[0, 1, 2], [0, 2, 3], [6, 7, 8]]
+    plain = "".join(f"v {x:g} {y:g} {z:g}\n" for x, y, z in POINTS) + "vt 0 0\nvn 0 0 1\n"
+    spelled = {"v": "{}", "vt": "{}/1", "vtn": "{}/1/1", "mixed": None}
+    scenes = []
+    for name, form in spelled.items():
+        faces = ""
+        for f in tris:
+            forms = list(spelled.values())[:3] if form is None else [form] * 3
+            faces += "f " + " ".join(fm.format(i + 1) for fm, i in zip(forms, f, strict=True))
+            faces += "\n"
+        (tmp_path / f"{name}.obj").write_text(plain + faces)
+        (tmp_path / f"{name}.toml").write_text(SETTINGS)
+        scenes.append(read_scene(tmp_path / f"{name}.obj"))
+    # v, v/t and a mix are flat; v/t/n all smooth (every corner has the one normal).
+    assert_same_records(scenes[0], scenes[1])
+    assert_same_records(scenes[0], scenes[3])
+    assert scenes[2].triangles["smooth"].all() and not scenes[0].triangles["smooth"].any()
+    np.testing.assert_array_equal(scenes[2].triangles["v"], scenes[0].triangles["v"])
+    write_ply(tmp_path / "t.ply", tris, text=False)  # all triangles: the memory-mapped path
+    (tmp_path / "t.toml").write_text(SETTINGS)
+    assert_same_records(read_scene(tmp_path / "t.ply"), scenes[0])
+
+
+@pytest.mark.parametrize("name", ["primitives.iv", "pyramid.obj"])
+def test_examples_read_without_defaults(name):
+    from pathlib import Path
+
+    notes = []
+    scene = read_scene(Path(__file__).parents[1] / "host" / "examples" / name, note=notes.append)
+    assert notes == [] and scene.n_objects > 0 and len(scene.lights) > 0

@@ -100,6 +100,8 @@ class _Check:
             if key and re.match(rf"{re.escape(key)}\s*=", s):
                 if current == table and (table is None or seen == nth):
                     return i
+        if table is None and key is not None:  # a top-level key written as a [table]
+            return self.line(key)
         return 1
 
     def fail(self, table, key, what, nth=0):

@@ -463,6 +463,16 @@ def test_settings_errors_name_file_and_line(tmp_path, toml, line, words):
     assert msg.startswith(f"{tmp_path / 't.toml'}:{line}: ") and words in msg, msg
 
 
+def test_inventor_settings_take_resolution_and_background_only(tmp_path):
+    (tmp_path / "t.iv").write_text(HEAD + "Sphere { }\n")
+    (tmp_path / "t.toml").write_text("resolution = [40, 30]\nbackground = [0, 0, 1]\n")
+    scene = read_scene(tmp_path / "t.iv")
+    assert (scene.view.width, scene.view.height, scene.background) == (40, 30, (0, 0, 1))
+    (tmp_path / "t.toml").write_text("resolution = [40, 30]\n\n[view]\nangle = 30\n")
+    with pytest.raises(SceneError, match=r"t\.toml:3: unknown key 'view'"):
+        read_scene(tmp_path / "t.iv")
+
+
 def test_cli_renders_every_format_and_refuses_bad_ones_in_one_line(tmp_path, capsys):
     (tmp_path / "m.obj").write_text(obj_of(FACES))
     (tmp_path / "s.toml").write_text(SETTINGS)

@@ -10,6 +10,7 @@ the element and row; rows of an ASCII file are lines, so errors name the file's 
 from __future__ import annotations
 
 import re
+import warnings
 
 import numpy as np
 import plyfile
@@ -113,9 +114,17 @@ class _Header:
 
 
 def _read(f, header: _Header) -> plyfile.PlyData:
-    """The PLY data. plyfile reads a binary list property row by row (seconds for a large
-    mesh) unless told its length, when it maps all rows at once and checks every length:
-    so a binary file is tried as all triangles, then all quads, then read row by row."""
+    """The PLY data; numpy's warnings (an empty list in an ASCII row) are left out, as the
+    checks after reading say what is wrong with the line."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return _read_lists(f, header)
+
+
+def _read_lists(f, header: _Header) -> plyfile.PlyData:
+    """plyfile reads a binary list property row by row (seconds for a large mesh) unless told
+    its length, when it maps all rows at once and checks every length: so a binary file is
+    tried as all triangles, then all quads, then read row by row."""
     for k in () if header.ascii else (3, 4):
         f.seek(0)
         try:

@@ -3,10 +3,13 @@ faces; Inventor transforms match hand-computed NFF geometry and its scenes rende
 mesh of nodes as on one; every bad input names its file and line."""
 
 import math
+import re
 
 import numpy as np
 import plyfile
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from host.cli import main
 from host.inventor import CAP_SIDES, parse_inventor
@@ -524,3 +527,29 @@ def test_examples_read_without_defaults(name):
     notes = []
     scene = read_scene(Path(__file__).parents[1] / "host" / "examples" / name, note=notes.append)
     assert notes == [] and scene.n_objects > 0 and len(scene.lights) > 0
+
+
+PIECES = ["{", "}", "[", "]", "(", ")", "|", ",", "-1", "0", "1e400", "nan", "DEF", "USE",
+          "Sphere", "Separator", '"', "\n", "#", "TRUE", "99", "IndexedFaceSet", "f", "v",
+          "vn", "1//", "/", "-9", "[view]", "="]  # fmt: skip
+
+
+@settings(max_examples=150, deadline=None)
+@given(edits=st.lists(st.tuples(st.floats(0, 1), st.booleans(), st.sampled_from(PIECES),
+                                st.integers(1, 8)), min_size=1, max_size=4))  # fmt: skip
+def test_mangled_inputs_fail_only_with_a_file_and_line(tmp_path_factory, edits):
+    """Whatever is inserted or deleted, a reader either reads the file or names where it is
+    wrong: no other exception, no empty message."""
+    folder = tmp_path_factory.mktemp("mangled")
+    files = {"m.iv": EVERY_NODE, "m.obj": obj_of(FACES), "m.toml": SETTINGS,
+             "p.ply": PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"}  # fmt: skip
+    for name, text in files.items():
+        for where, delete, piece, n in edits:
+            i = int(where * len(text))
+            text = text[:i] + text[i + n :] if delete else f"{text[:i]} {piece} {text[i:]}"
+        (folder / name).write_text(text)
+    for name in ("m.iv", "m.obj", "p.ply"):
+        try:
+            read_scene(folder / name)
+        except SceneError as e:
+            assert e.what and re.match(rf"{re.escape(str(folder))}/\w+\.\w+:\d+: ", str(e))

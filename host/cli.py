@@ -18,9 +18,9 @@ from host.camerasetup import CameraSetup, Focus, PinholeSetup
 from host.cluster import parse_mesh, read_cluster
 from host.localmesh import LocalMesh
 from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
-from host.nff import SceneError, read_nff
 from host.plan import PLAN_MODES
 from host.render import render
+from host.scenefile import FORMATS, SceneError, read_scene
 from meshnode.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
 from protocols.render import BALANCES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
@@ -58,11 +58,16 @@ def _given(args, record: type) -> dict:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="host", description="Meshtrace host: render NFF scenes.")
+    p = argparse.ArgumentParser(prog="host", description="Meshtrace host: render scenes (NFF, "
+                                "OBJ, PLY, Open Inventor).")  # fmt: skip
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("render", help="render an NFF scene")
-    r.add_argument("scene", help="NFF scene file")
+    formats = "; ".join(f"{ext} {what}" for ext, what in FORMATS.items())
+    r = sub.add_parser("render", help="render a scene file")
+    r.add_argument("scene", help=f"scene file, read by its extension: {formats}")
+    r.add_argument("--settings", help="view, lights and material of a .obj / .ply mesh (or "
+                   "resolution and background of a .iv) as TOML (default: SCENE's name .toml "
+                   "beside it, if there is one; what neither gives is defaulted, with a note)")
     r.add_argument("-o", "--output", help="PNG image (default: SCENE name .png)")
     r.add_argument("--float", dest="float_path", help="float image, PFM (default: beside PNG)")
     r.add_argument("--stats", help="write statistics as JSON to this file")
@@ -251,8 +256,12 @@ def _finite(value):
 def _render(args) -> int:
     from host.framebuffer import write_pfm, write_png
 
+    def note(line: str) -> None:
+        if not args.quiet:
+            print(f"host: {line}", file=sys.stderr)
+
     try:
-        scene = read_nff(args.scene)
+        scene = read_scene(args.scene, args.settings, note)
     except SceneError as e:
         print(f"host: {e}", file=sys.stderr)
         return 2

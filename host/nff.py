@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from host import polygons
+from host.scenefile import SceneError
 from protocols import dtypes
 from protocols.scene import MAX_COORDINATE, SceneData, View
 
@@ -26,23 +28,6 @@ _VIEW_ARITY = {"from": 3, "at": 3, "up": 3, "angle": 1, "hither": 1, "resolution
 _VIEW_REQUIRED = ("from", "at", "up", "angle")
 _OBJECTS = frozenset(("s", "p", "pp", "c"))
 _MATERIAL_FIELDS = ("red", "green", "blue", "Kd", "Ks", "Shine", "T", "ior")
-
-# Geometry tolerances, relative so that they hold at any scene scale.
-_AREA_EPS = 1e-12  # |Newell normal| <= eps * (longest edge)^2: no usable plane
-_PLANE_EPS = 1e-6  # a vertex farther than eps * (bounding-box diagonal) from the plane
-
-
-class SceneError(ValueError):
-    """Bad scene input, worded `file:line: what is wrong` so editors and people can jump to it."""
-
-    def __init__(self, source: str, line: int, what: str):
-        super().__init__(f"{source}:{line}: {what}")
-        self.source, self.line, self.what = source, line, what
-
-    def __reduce__(self):
-        # Default exception pickling calls cls(*args) with the one formatted message; keep the
-        # parts so the error survives crossing a process boundary.
-        return type(self), (self.source, self.line, self.what)
 
 
 def read_nff(path) -> SceneData:
@@ -376,27 +361,13 @@ class _Scan:
         cone_rec["base"], cone_rec["base_r"] = cone[:, 0:3], cone[:, 3]
         cone_rec["apex"], cone_rec["apex_r"] = cone[:, 4:7], cone[:, 7]
 
-        # `p`: triangles stay triangles (flat, geometric normal); larger ones are polygons.
         pts = np.array(self.polys, float).reshape(-1, 3)
-        counts = np.array(self.poly_n, np.int64)
-        poly_ids = np.array(self.poly_ids, np.int64).reshape(-1, 2)
-        owner = np.repeat(np.arange(len(counts)), counts)
-        is_tri = counts == 3
-        tri_rec = np.zeros(int(is_tri.sum()), dtypes.TRIANGLE)
-        tri_rec["gid"], tri_rec["mat"] = poly_ids[is_tri, 0], poly_ids[is_tri, 1]
-        tri_rec["v"] = pts[is_tri[owner]].reshape(-1, 3, 3)
-        if len(tri_rec):
-            tri_rec["n"] = self._poly_geom[is_tri][:, None, :]
-
-        big = ~is_tri
-        poly_rec = np.zeros(int(big.sum()), dtypes.POLYGON)
-        poly_rec["gid"], poly_rec["mat"] = poly_ids[big, 0], poly_ids[big, 1]
-        poly_rec["count"] = counts[big]
-        poly_rec["start"] = np.cumsum(counts[big]) - counts[big]
-        vertices = pts[big[owner]] if len(pts) else np.zeros((0, 3))
-
-        triangles = np.concatenate((tri_rec, _fan(self.patches, self.patch_n, self.patch_ids)))
-        triangles = triangles[np.argsort(triangles["gid"], kind="stable")]
+        tri_rec, poly_rec, vertices = polygons.flat_records(
+            pts, self.poly_n, self.poly_ids, self._poly_geom
+        )
+        patches = np.array(self.patches, float).reshape(-1, 6)
+        smooth = polygons.fan(patches[:, :3], patches[:, 3:], self.patch_n, self.patch_ids)
+        triangles = polygons.by_gid(tri_rec, smooth)
 
         return SceneData(
             view=self.view,
@@ -406,7 +377,7 @@ class _Scan:
             spheres=sph_rec,
             triangles=triangles,
             polygons=poly_rec,
-            vertices=np.ascontiguousarray(vertices),
+            vertices=vertices,
             cones=cone_rec,
             source=self.source,
         )
@@ -426,66 +397,25 @@ def _vertex_token(counts, toks, v: int, stride: int, offset: int = 0) -> int:
 
 
 def _check_polygons(scan: _Scan, flat: list[float], counts, toks, stride: int):
-    """Unit normals of all polygons and the first degenerate one as a SceneError (or None).
-
-    The normal is Newell's (sum of edge cross products about the first vertex), which uses
-    every vertex and so stays right when the first three are nearly collinear; its length is
-    twice the area, hence the zero-area test against the longest edge squared.
-    """
+    """Unit normals of all polygons and the first degenerate one as a SceneError (or None)."""
     if not counts:
         return np.zeros((0, 3)), None
     pts = np.array(flat, float).reshape(-1, stride)[:, :3]
-    counts = np.asarray(counts, np.int64)
-    starts = np.cumsum(counts) - counts
-    owner = np.repeat(np.arange(len(counts)), counts)
-    nxt = np.arange(1, len(pts) + 1)
-    nxt[starts + counts - 1] = starts
-    local = pts - pts[starts][owner]  # about the first vertex: no cancellation far from origin
-    normal = np.add.reduceat(np.cross(local, local[nxt]), starts)
-    length = np.linalg.norm(normal, axis=1)
-    longest = np.maximum.reduceat(np.linalg.norm(local[nxt] - local, axis=1), starts)
-    flat_poly = length <= _AREA_EPS * longest**2
-    unit = normal / np.where(flat_poly, 1.0, length)[:, None]
-
-    centroid = np.add.reduceat(local, starts) / counts[:, None]
-    dist = np.abs(np.einsum("ij,ij->i", local - centroid[owner], unit[owner]))
-    size = np.linalg.norm(
-        np.maximum.reduceat(pts, starts) - np.minimum.reduceat(pts, starts), axis=1
-    )
-    off = ~flat_poly & (np.maximum.reduceat(dist, starts) > _PLANE_EPS * size)
-
+    geom = polygons.planes(pts, counts)
+    starts = np.cumsum(counts) - np.asarray(counts, np.int64)
     err = None
-    first_flat = np.flatnonzero(flat_poly)
+    first_flat = np.flatnonzero(geom.flat)
     if len(first_flat):
         err = scan.error(toks[first_flat[0]], "degenerate polygon: no area")
-    first_off = np.flatnonzero(off)
+    first_off = np.flatnonzero(geom.off)
     if len(first_off):
         k = first_off[0]
-        v = int(np.argmax(dist[starts[k] : starts[k] + counts[k]]))
+        dist = geom.dist[starts[k] : starts[k] + counts[k]]
+        v = int(np.argmax(dist))
         e = scan.error(
             toks[k] + 2 + stride * v,
-            f"degenerate polygon: vertex {v + 1} is {dist[starts[k] + v]:.3g} off the plane",
+            f"degenerate polygon: vertex {v + 1} is {dist[v]:.3g} off the plane",
         )
         if err is None or e.line < err.line:
             err = e
-    return unit, err
-
-
-def _fan(flat: list[float], counts, ids) -> np.ndarray:
-    """Smooth triangles (v0, vi, vi+1) of each `pp`, sharing the patch's gid, normals unit."""
-    if not counts:
-        return np.zeros(0, dtypes.TRIANGLE)
-    data = np.array(flat, float).reshape(-1, 6)
-    pos = data[:, :3]
-    nrm = data[:, 3:] / np.linalg.norm(data[:, 3:], axis=1)[:, None]
-    counts = np.asarray(counts, np.int64)
-    ids = np.array(ids, np.int64).reshape(-1, 2)
-    starts = np.cumsum(counts) - counts
-    per = counts - 2
-    patch = np.repeat(np.arange(len(counts)), per)
-    k = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per) + 1
-    idx = np.stack((starts[patch], starts[patch] + k, starts[patch] + k + 1), axis=1)
-    rec = np.zeros(len(idx), dtypes.TRIANGLE)
-    rec["gid"], rec["mat"] = ids[patch, 0], ids[patch, 1]
-    rec["v"], rec["n"], rec["smooth"] = pos[idx], nrm[idx], 1
-    return rec
+    return geom.unit, err

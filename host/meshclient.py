@@ -49,13 +49,14 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
-                         stall: float = 180.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         stall: float = 180.0, watch=None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced; `silence`: seconds
     without a message from a node (they send one a second) before the render is given up
     naming it; `stall`: seconds in which no node traces anything once all are built (all
-    alive, none working, the render unfinished: a stuck kernel or a protocol fault)."""
+    alive, none working, the render unfinished: a stuck kernel or a protocol fault);
+    `watch`: a `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
@@ -68,7 +69,10 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
         if plan.dynamic else None  # fmt: skip
-    collector = _Collector(fb, addresses, progress, silence, stall, dealer)
+    collector = _Collector(fb, addresses, progress, silence, stall, dealer, watch)
+    if watch is not None:
+        watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),
+                    primary_rays(spec.image, camera))  # fmt: skip
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
@@ -125,8 +129,9 @@ class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
     def __init__(self, fb: Framebuffer, addresses, progress, silence: float, stall: float,
-                 dealer: TileDealer | None = None):  # fmt: skip
+                 dealer: TileDealer | None = None, watch=None):  # fmt: skip
         self.fb, self.addresses, self.progress, self.dealer = fb, addresses, progress, dealer
+        self.watch = watch
         self.silence, self.stall = silence, stall
         n = len(addresses)
         now = time.monotonic()
@@ -168,12 +173,18 @@ class _Collector:
                 self.fb.add(d["pixel"], d["rgb"])
                 self.deposits += len(d)
                 self.last_work = now
+                if self.watch is not None:
+                    self.watch.pixels()
             elif kind is Kind.PROGRESS:
+                if f["node"] != n:
+                    raise MeshError(f"{self.name(n)} reports progress as node {f['node']}")
                 if f["work"] > self.work[n] or f["ready"] != self.ready[n]:
                     self.last_work = now
                 self.work[n], self.ready[n] = f["work"], f["ready"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
+                if self.watch is not None:
+                    self.watch.node(n, f)
             elif kind is Kind.TILE_DONE and self.dealer is not None:
                 for _ in f["tiles"]:  # one more tile for each finished, while any are left
                     tiles, last = self.dealer.finished(n)
@@ -201,6 +212,15 @@ class _Collector:
                 waiting = [n for n in self.last_heard if n not in self.stats]
                 raise MeshError(f"no node has traced anything for {self.stall:g} s and nodes "
                                 f"{waiting} have not finished (alive but stuck)")  # fmt: skip
+
+def primary_rays(image: ImageSpec, camera) -> int | None:
+    """Primary rays of a sized image (None through a camera: rays lost in it are never
+    traced, so there is no known total)."""
+    if camera is not None:
+        return None
+    gw, gh = image.sample_grid()
+    return gw * gh * (1 if image.corners() else image.spp)
+
 
 def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
     nodes = [stats[n] for n in range(plan.nodes)]

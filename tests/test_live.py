@@ -21,7 +21,7 @@ import pytest
 from PIL import Image
 
 from host.framebuffer import Framebuffer, to_srgb8
-from host.live.monitor import Monitor
+from host.live.monitor import RAY_KINDS, Monitor
 from host.live.server import LiveServer, parse_address
 from protocols.dtypes import LINK_TRAFFIC
 
@@ -240,3 +240,43 @@ def wait_for_line(lines: queue.Queue, text: str) -> str:
 def drain(lines: queue.Queue):
     while (line := lines.get(timeout=WAIT)) is not None:
         yield line
+
+
+class Recording(Monitor):
+    """A monitor that keeps every node's PROGRESS fields."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen: dict[int, list[dict]] = {}
+
+    def node(self, n: int, f: dict) -> None:
+        self.seen.setdefault(n, []).append(f)
+        super().node(n, f)
+
+
+def test_nodes_report_state_busy_objects_and_link_traffic():
+    """Real nodes' PROGRESS, as the page gets it: counters only grow, and end no higher than
+    the STATS the node sends last."""
+    from host.localmesh import LocalMesh
+    from host.meshclient import render_on_mesh
+    from host.nff import read_nff
+    from protocols.render import ImageSpec, MeshPlan
+
+    watch = Recording()
+    with LocalMesh(2) as addresses:
+        img, stats = asyncio.run(render_on_mesh(read_nff(EXAMPLE), ImageSpec(width=24, height=16),
+                                                addresses, MeshPlan(1, 2), watch=watch))
+    watch.finish(img, stats)
+    for n, s in enumerate(stats["nodes"]):
+        seen = watch.seen[n]
+        assert {f["node"] for f in seen} == {n}
+        assert seen[-1]["objects"] == s["objects"] > 0
+        for key in ("traced", "busy_ms", "elapsed_ms", "work"):
+            values = [f[key] for f in seen]
+            assert values == sorted(values), key
+        assert all(0 <= f["busy_ms"] <= f["elapsed_ms"] + 1 for f in seen)
+        assert seen[-1]["traced"] <= sum(s["rays"].get(k, 0) for k in RAY_KINDS)
+        sent = [f["links"] for f in seen if len(f["links"])][-1]
+        assert sent["peer"].tolist() == [1 - n]
+        assert 0 <= sent["rays"][0] <= s["links"][str(1 - n)]["rays_sent"]
+    assert watch.status()["progress"]["done"] == 24 * 16

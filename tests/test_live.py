@@ -280,3 +280,26 @@ def test_nodes_report_state_busy_objects_and_link_traffic():
         assert sent["peer"].tolist() == [1 - n]
         assert 0 <= sent["rays"][0] <= s["links"][str(1 - n)]["rays_sent"]
     assert watch.status()["progress"]["done"] == 24 * 16
+
+
+def test_serve_exit_returns_when_the_render_is_done(tmp_path, capsys):
+    from host.cli import main
+
+    code = main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.png"), "--width", "8",
+                 "--height", "8", "--mesh", "1x1", "--quiet", "--serve", "0",
+                 "--serve-exit"])  # fmt: skip
+    assert code == 0 and (tmp_path / "a.png").exists()
+    assert "live view at http://127.0.0.1:" in capsys.readouterr().err
+    assert not [t for t in threading.enumerate() if t.name == "live-view"]
+
+
+@pytest.mark.parametrize("options,message", [
+    (["--serve-exit"], "--serve-exit needs --serve"),
+    (["--serve", "nowhere:port"], "expected [HOST:]PORT"),
+])  # fmt: skip
+def test_serve_options_are_checked_before_any_work(tmp_path, capsys, options, message):
+    from host.cli import main
+
+    out = tmp_path / "a.png"
+    assert main(["render", str(EXAMPLE), "-o", str(out), "--quiet", *options]) == 2
+    assert message in capsys.readouterr().err and not out.exists()

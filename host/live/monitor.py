@@ -4,7 +4,8 @@ traffic, progress and ETA, and at the end the final image and statistics.
 The render calls in from its own thread (the single-node loop, or the mesh client's event
 loop); the web server reads from another. One lock guards the state, and the framebuffer is
 copied at most `interval` seconds apart (a memcpy in the render's thread; the PNG is made in
-the server's), so the render never waits on a page.
+the server's), so the render never waits on a page. On big images copies are further apart:
+copying and encoding a frame may take at most a tenth of the time between frames (BUDGET).
 """
 
 import io
@@ -19,6 +20,7 @@ from meshnode.scheduler import State
 
 STATES = [s.name.lower() for s in State]  # a node's state by its number in PROGRESS
 RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
+BUDGET = 0.1  # share of the time between frames spent copying and encoding one
 
 
 class Monitor:
@@ -42,7 +44,8 @@ class Monitor:
         self.nodes: list[dict] = []
         self.fb: Framebuffer | None = None
         self.snapshot: Framebuffer | None = None
-        self.snapped = -math.inf  # the first pixels are copied at once
+        self.next_copy = -math.inf  # the first pixels are copied at once
+        self.cost = 0.0  # seconds the last frame took to copy and encode
         self.version = 0  # of the frame
         self.final: np.ndarray | None = None  # 8-bit sRGB, the PNG the render writes
         self.stats: dict | None = None
@@ -64,12 +67,14 @@ class Monitor:
     def pixels(self) -> None:
         """Deposits were added to the framebuffer: copy it if the last copy is old enough."""
         now = time.monotonic()
-        if self.fb is None or now - self.snapped < self.interval:
+        if self.fb is None or now < self.next_copy:
             return
         copy = Framebuffer(self.fb.width, self.fb.height, self.fb.corners, self.fb.spp)
         copy.sums = self.fb.sums.copy()
+        copied = time.monotonic() - now
         with self.lock:
-            self.snapshot, self.snapped = copy, now
+            self.snapshot = copy
+            self.next_copy = now + max(self.interval, (copied + self.cost) / BUDGET)
             self.version += 1
         self._changed()
 
@@ -144,6 +149,7 @@ class Monitor:
             version, final, snap, cached = self.version, self.final, self.snapshot, self.png
         if cached is not None and cached[0] == version:
             return cached
+        began = time.monotonic()
         if final is not None:
             rgb = final
         elif snap is not None:
@@ -152,6 +158,7 @@ class Monitor:
             return None
         png = (version, encode_png(rgb))
         with self.lock:
+            self.cost = time.monotonic() - began
             if self.version == version:
                 self.png = png
         return png

@@ -190,6 +190,8 @@ class _Collector:
                     tiles, last = self.dealer.finished(n)
                     if tiles or last:
                         await link.send(make(Kind.TILES, tiles=tiles, last=last))
+                if self.watch is not None:
+                    self.watch.tiles(n, len(f["tiles"]))
             elif kind is Kind.STATS:
                 self.stats[n] = f["stats"]
             elif kind is Kind.ERROR:

@@ -129,6 +129,10 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 assert (n1["row"], n1["col"], n1["state"]) == (0, 1, "trace")
                 assert n1["busy"] == 0.75 and n1["traced"] == 120 and n1["objects"] == 7
                 assert n1["links"] == [{"peer": 0, "rays": 40, "bytes": 4000}]
+                monitor.tiles(1, 2)
+                monitor.tiles(7, 1)  # no such node: ignored
+                status, _ = await receive_until(ws, lambda s, f: s["nodes"][1]["tiles"] == 2)
+                assert status["nodes"][0]["tiles"] == 0
 
                 fb.add(np.arange(12, 24), np.full((12, 3), 2.0))
                 stats = {"nodes": [node_stats(0, 5, 0.25), node_stats(1, 9, 0.5)],

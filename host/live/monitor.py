@@ -108,6 +108,13 @@ class Monitor:
         self.pixels()
         self._changed()
 
+    def tiles(self, n: int, count: int) -> None:
+        """Node `n` started the last rays of `count` more dynamic image-space tiles."""
+        with self.lock:
+            if 0 <= n < len(self.nodes):
+                self.nodes[n]["tiles"] += count
+        self._changed()
+
     def finish(self, image: np.ndarray, stats: dict) -> None:
         """The render is done: its image and statistics, and every node's final figures."""
         final = to_srgb8(image)
@@ -198,20 +205,22 @@ class Monitor:
             self.nodes = [node]
             return
         nodes = []
+        tiles = stats.get("tiles_per_node") or [0] * len(stats["nodes"])
         for n, s in enumerate(stats["nodes"]):
             total = s["busy_seconds"] + s["idle_seconds"]
             links = [{"peer": int(p), "rays": v["rays_sent"], "bytes": v["bytes_out"]}
                      for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))]
             node = _node(n, self.cols, s["objects"])
             node.update(state="done", ready=True, traced=_traced(s["rays"]), links=links,
-                        busy=s["busy_seconds"] / total if total > 0 else 0.0)  # fmt: skip
+                        busy=s["busy_seconds"] / total if total > 0 else 0.0,
+                        tiles=tiles[n])  # fmt: skip
             nodes.append(node)
         self.nodes = nodes
 
 
 def _node(n: int, cols: int, objects: int) -> dict:
     return {"node": n, "row": n // cols, "col": n % cols, "state": "download", "ready": False,
-            "busy": 0.0, "traced": 0, "objects": objects, "links": []}  # fmt: skip
+            "busy": 0.0, "traced": 0, "objects": objects, "links": [], "tiles": 0}  # fmt: skip
 
 
 def _traced(rays: dict) -> int:

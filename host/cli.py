@@ -72,6 +72,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--float", dest="float_path", help="float image, PFM (default: beside PNG)")
     r.add_argument("--stats", help="write statistics as JSON to this file")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    r.add_argument("--serve", metavar="[HOST:]PORT", help="watch the render in a browser at "
+                   "http://HOST:PORT/ (HOST default 127.0.0.1; PORT 0: any free port); the "
+                   "page stays until Ctrl-C")  # fmt: skip
+    r.add_argument("--serve-exit", action="store_true", help="with --serve: exit when the "
+                   "render is done and open pages have the final image")  # fmt: skip
     _field(r, "--spd", ImageSpec, "spd", "SPD rules: 512x512 from 513x513 corner rays, depth 5",
            action="store_true")  # fmt: skip
     _field(r, "--spp", ImageSpec, "spp", "pinhole rays per pixel (placed by --sampling)",
@@ -268,21 +273,27 @@ def _render(args) -> int:
     except OSError as e:
         print(f"host: cannot read scene: {e}", file=sys.stderr)
         return 2
+    live = None
     try:
         outputs = _outputs(args)
         image, engine, camera = _records(args)
-        img, stats = _run(scene, image, engine, camera, args)
-    except (ValueError, OSError) as e:  # SpecError and CameraError included
-        print(f"host: {e}", file=sys.stderr)
-        return 2
+        live = _serve(args)
+        img, stats = _run(scene, image, engine, camera, args, live and live.monitor)
+    except (ValueError, OSError) as e:  # SpecError, CameraError and LiveError included
+        return _failed(live, str(e), 2, args)
     except MeshError as e:
-        print(f"host: render failed: {e}", file=sys.stderr)
-        return 1
+        return _failed(live, f"render failed: {e}", 1, args)
+    except BaseException:  # Ctrl-C mid-render: the live view goes too
+        if live is not None:
+            live.stop()
+        raise
     out, float_path, stats_path = outputs
     write_png(out, img)
     write_pfm(float_path, img)
     if stats_path:
         stats_path.write_text(json.dumps(stats, indent=2) + "\n")
+    if live is not None:
+        live.monitor.finish(img, stats)
     leaving = stats.get("camera", {}).get("rays_leaving_lens", 1.0)
     if leaving < 0.5:
         print(f"host: only {leaving:.0%} of the camera rays leave the camera (the rest are "
@@ -309,7 +320,50 @@ def _render(args) -> int:
             f"steps/ray {stats['steps_per_ray']:.2f}  [{stats['engine']['kernel_variant']}]",
             file=sys.stderr,
         )
+    if live is not None:
+        _linger(live, args)
     return 0
+
+
+def _serve(args):
+    """The live view's server, started (its URL printed), or None without --serve."""
+    if args.serve is None:
+        if args.serve_exit:
+            raise ValueError("--serve-exit needs --serve [HOST:]PORT")
+        return None
+    from host.live.monitor import Monitor
+    from host.live.server import LiveServer, parse_address
+
+    host, port = parse_address(args.serve)
+    live = LiveServer(Monitor(), host, port).start()
+    print(f"host: live view at {live.url}", file=sys.stderr, flush=True)
+    return live
+
+
+def _failed(live, message: str, code: int, args) -> int:
+    """Report a failed render; a live view shows it too, and stays as after a render."""
+    print(f"host: {message}", file=sys.stderr)
+    if live is not None:
+        live.monitor.fail(message)
+        _linger(live, args)
+    return code
+
+
+def _linger(live, args) -> None:
+    """Keep the live view up until Ctrl-C, or with --serve-exit until every open page has
+    the final state (at most 10 s); then stop it, leaving no thread or socket behind."""
+    try:
+        if args.serve_exit:
+            live.wait_delivered(10.0)
+        else:
+            print(f"host: the live view stays at {live.url} until Ctrl-C", file=sys.stderr,
+                  flush=True)  # fmt: skip
+            while live.thread.is_alive():
+                live.thread.join(1.0)
+    except KeyboardInterrupt:
+        print("host: live view stopped", file=sys.stderr)
+    finally:
+        live.stop()
 
 
 def _outputs(args) -> tuple[Path, Path, Path | None]:
@@ -390,8 +444,9 @@ def _warn(text: str) -> None:
     print(f"host: warning: {text}", file=sys.stderr)
 
 
-def _run(scene, image, engine, camera, args):
-    """Single node in this process, a local mesh of processes, or a running cluster."""
+def _run(scene, image, engine, camera, args, watch=None):
+    """Single node in this process, a local mesh of processes, or a running cluster;
+    `watch`: the live view's monitor, or None."""
     if args.cluster:
         from protocols.handshake import read_secret
 
@@ -399,7 +454,8 @@ def _run(scene, image, engine, camera, args):
         plan = _plan(rows, cols, args)
         secret = read_secret(args.secret_file)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
-        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls)
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls,
+                           watch)  # fmt: skip
         stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
         return img, stats
     if args.tls_cert or args.tls_key or args.tls_ca:
@@ -413,12 +469,13 @@ def _run(scene, image, engine, camera, args):
         if not args.quiet:
             print(f"host: plan: one process, {threads} tracing threads ({why})",
                   file=sys.stderr)  # fmt: skip
-        img, stats = render(scene, image, engine, camera, progress=not args.quiet)
+        img, stats = render(scene, image, engine, camera, progress=not args.quiet, watch=watch)
         stats["plan"] = {"choice": "one process", "threads": threads, "why": why}
         return img, stats
     secret = secrets.token_hex(32).encode()  # this render's own: other users cannot join
     with LocalMesh(plan.nodes, secret=secret) as addresses:
-        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args,
+                           watch=watch)  # fmt: skip
     stats["plan"] = {"choice": f"local mesh {plan.rows}x{plan.cols}", "why": "asked for with "
                      f"--mesh {args.mesh}"}  # fmt: skip
     return img, stats
@@ -430,7 +487,8 @@ def _plan(rows: int, cols: int, args) -> MeshPlan:
     return MeshPlan(rows, cols, **_given(args, MeshPlan), **asked)
 
 
-def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None):
+def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
+          watch=None):  # fmt: skip
     from tqdm import tqdm
 
     sized = image.sized(scene.view)
@@ -446,7 +504,8 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None)
                                           on_node_loss=args.on_node_loss, tls=tls,
                                           mode=args.mode, node_memory=args.node_memory,
                                           notice=lambda text: bar.write(f"host: {text}",
-                                                                        file=sys.stderr)))
+                                                                        file=sys.stderr),
+                                          watch=watch))  # fmt: skip
     finally:
         bar.close()
 

@@ -67,7 +67,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          stall: float = 180.0, on_node_loss: str = "replan",
                          notice=None, tls: ssl.SSLContext | None = None,
                          mode: str | None = None, node_memory: int | None = None,
-                         ) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         watch=None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced (negative when a
@@ -78,7 +78,8 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     `notice(text)` hears of the plan chosen and of every lost node; `tls`: a client context
     (meshnode.tls) when the nodes listen with TLS; `mode`: "auto", "object" or "image" to
     choose the plan's mode here (host.plan.choose_mode: auto weighs the scene against the
-    memory the nodes report, or `node_memory`), None to keep `plan.mode`."""
+    memory the nodes report, or `node_memory`), None to keep `plan.mode`; `watch`: a
+    `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
@@ -102,7 +103,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                 fb, summary = await _attempt(scene, image, engine, plan, camera,
                                              [links[n] for n in alive],
                                              [addresses[n] for n in alive], names, progress,
-                                             silence, stall)  # fmt: skip
+                                             silence, stall, watch)  # fmt: skip
                 break
             except MeshError as e:
                 if on_node_loss == "fail":
@@ -142,7 +143,7 @@ def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
 
 
 async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,
-                   progress, silence, stall):  # fmt: skip
+                   progress, silence, stall, watch):  # fmt: skip
     """One try at the frame on `links` (node i is links[i] at addresses[i], called
     names[i] in messages): (framebuffer, summary)."""
     start, ticks = time.perf_counter(), time.monotonic()
@@ -154,7 +155,10 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
         if plan.dynamic else None  # fmt: skip
-    collector = _Collector(fb, names, progress, silence, stall, dealer)
+    collector = _Collector(fb, names, progress, silence, stall, dealer, watch)
+    if watch is not None:
+        watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),
+                    primary_rays(spec.image, camera))  # fmt: skip
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
@@ -261,8 +265,9 @@ class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
     def __init__(self, fb: Framebuffer, names: list[str], progress, silence: float,
-                 stall: float, dealer: TileDealer | None = None):  # fmt: skip
+                 stall: float, dealer: TileDealer | None = None, watch=None):  # fmt: skip
         self.fb, self.names, self.progress, self.dealer = fb, names, progress, dealer
+        self.watch = watch
         self.silence, self.stall = silence, stall
         self.traced = 0  # primary rays reported so far
         self.ready_at: float | None = None  # time.monotonic() when every node was ready
@@ -306,7 +311,11 @@ class _Collector:
                 self.fb.add(d["pixel"], d["rgb"])
                 self.deposits += len(d)
                 self.last_work = now
+                if self.watch is not None:
+                    self.watch.pixels()
             elif kind is Kind.PROGRESS:
+                if f["node"] != n:
+                    raise MeshError(f"{self.name(n)} reports progress as node {f['node']}")
                 if f["work"] > self.work[n] or f["ready"] != self.ready[n]:
                     self.last_work = now
                 self.work[n], self.ready[n] = f["work"], f["ready"]
@@ -315,11 +324,15 @@ class _Collector:
                 self.traced += f["rays"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
+                if self.watch is not None:
+                    self.watch.node(n, f)
             elif kind is Kind.TILE_DONE and self.dealer is not None:
                 for _ in f["tiles"]:  # one more tile for each finished, while any are left
                     tiles, last = self.dealer.finished(n)
                     if tiles or last:
                         await link.send(make(Kind.TILES, tiles=tiles, last=last))
+                if self.watch is not None:
+                    self.watch.tiles(n, len(f["tiles"]))
             elif kind is Kind.STATS:
                 self.stats[n] = f["stats"]
             elif kind is Kind.ERROR:
@@ -342,6 +355,15 @@ class _Collector:
                 waiting = [n for n in self.last_heard if n not in self.stats]
                 raise MeshError(f"no node has traced anything for {self.stall:g} s and nodes "
                                 f"{waiting} have not finished (alive but stuck)")  # fmt: skip
+
+def primary_rays(image: ImageSpec, camera) -> int | None:
+    """Primary rays of a sized image (None through a camera: rays lost in it are never
+    traced, so there is no known total)."""
+    if camera is not None:
+        return None
+    gw, gh = image.sample_grid()
+    return gw * gh * (1 if image.corners() else image.spp)
+
 
 def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
     nodes = [stats[n] for n in range(plan.nodes)]

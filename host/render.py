@@ -25,14 +25,15 @@ BAND_ROWS = 16  # sample rows per pinhole job: many jobs per thread, each one ke
 
 def render(scene: SceneData, image: ImageSpec = ImageSpec(),
            engine: EngineSpec = EngineSpec(), camera: CameraSetup | None = None, *,
-           progress: bool = False, built: Engine | None = None):  # fmt: skip
+           progress: bool = False, built: Engine | None = None, watch=None):  # fmt: skip
     """Render `scene` on one node; returns (linear float image, statistics dict).
-    `built`: an engine already built for this scene and `engine` (benchmarks reuse one)."""
+    `built`: an engine already built for this scene and `engine` (benchmarks reuse one);
+    `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
     tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
                              max_depth=image.depth, brute=engine.brute)  # fmt: skip
     tracer.warmup()
-    job = _Job(scene, image, engine, tracer, progress)
+    job = _Job(scene, image, engine, tracer, progress, watch)
     if camera is not None:
         return _render_camera(job, camera)
     width, height = image.size
@@ -56,6 +57,7 @@ class _Job:
     engine: EngineSpec
     tracer: Engine
     progress: bool
+    watch: object = None  # host.live.monitor.Monitor, or None
 
 
 def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
@@ -67,6 +69,9 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
     cpu = 0.0
     start = time.perf_counter()
     bar = _progress(total, job.progress)
+    watch, done = job.watch, 0
+    if watch is not None:
+        watch.start(fb, 1, 1, [job.tracer.stats["objects"]], total, unit="batches")
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for jobs, sink in passes:
             for rays, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
@@ -76,6 +81,9 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
                 for k, v in counts.items():
                     totals[k] = totals.get(k, 0) + v
                 bar.update(1)
+                done += 1
+                if watch is not None:
+                    watch.local(done, totals, cpu, threads)
     bar.close()
     stats = _stats(job, totals, time.perf_counter() - start, threads)
     stats["trace_cpu_seconds"] = cpu

@@ -73,8 +73,13 @@ class Session:
             self.progress(0)
 
     def progress(self, rays: int) -> None:
+        """Primary rays just traced, and what the host's live view shows of this node."""
+        links = {m: o.link.stats for m, o in self.outboxes.items()}
+        objects = self.core.engine.stats["objects"] if self.core is not None else 0
         self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=rays,
-                                work=self.stats.batches, ready=self.ready))  # fmt: skip
+                                work=self.stats.batches, ready=self.ready,
+                                state=int(self.sched.state), objects=objects,
+                                **self.stats.live(links)))  # fmt: skip
 
     # ------------------------------------------------------------------ setup
     async def build(self) -> None:

@@ -10,6 +10,12 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
+
+from protocols.dtypes import LINK_TRAFFIC
+
+RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
+
 
 class NodeStats:
     def __init__(self, node: int):
@@ -22,6 +28,7 @@ class NodeStats:
         self.cpu = 0.0
         self.busy = 0.0
         self.busy_since = 0.0
+        self.busy_ended = 0.0
         self.started = time.perf_counter()
 
     def traced(self, counts: dict, primaries: int) -> None:
@@ -34,7 +41,20 @@ class NodeStats:
         self.busy_since = time.perf_counter()
 
     def turn_idle(self) -> None:
-        self.busy += time.perf_counter() - self.busy_since
+        self.busy_ended = time.perf_counter()
+        self.busy += self.busy_ended - self.busy_since
+
+    def live(self, links: dict[int, dict]) -> dict:
+        """The PROGRESS message's live-view fields: busy and elapsed milliseconds (a busy
+        span still open counts), rays of every kind traced here, each link's traffic."""
+        now = time.perf_counter()
+        busy = self.busy + (now - self.busy_since if self.busy_since > self.busy_ended else 0.0)
+        traffic = np.zeros(len(links), LINK_TRAFFIC)
+        for i, (m, s) in enumerate(sorted(links.items())):
+            traffic[i] = (m, self.rays_out[m], s["bytes_out"])
+        traced = sum(self.counts.get(k, 0) for k in RAY_KINDS)
+        return {"busy_ms": int(busy * 1000), "elapsed_ms": int((now - self.started) * 1000),
+                "traced": traced, "links": traffic}
 
     def report(self, engine_stats: dict | None, links: dict[int, dict]) -> dict:
         """The STATS message's body; `links`: each neighbour link's byte counters."""

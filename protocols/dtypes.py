@@ -75,6 +75,10 @@ CONE = np.dtype(
 # One pixel deposit: colour to add to a framebuffer sample (pixel packets carry arrays of these).
 DEPOSIT = np.dtype([("pixel", "<i8"), ("rgb", "<f8", 3)])
 
+# One neighbour link's traffic so far, as a node reports it to the host in PROGRESS: rays
+# sent to that neighbour and bytes sent on the link (a node has at most four links).
+LINK_TRAFFIC = np.dtype([("peer", "<i4"), ("rays", "<i8"), ("bytes", "<i8")])
+
 # Camera elements along the optical axis z (camera frame, metres), listed from the film outward.
 CAP, PLANE, THIN_LENS, DIAPHRAGM, ELLIPSOID = 0, 1, 2, 3, 4
 ELLIPSE, RECTANGLE, POLYGON_RIM = 0, 1, 2
@@ -100,5 +104,5 @@ ELEMENT = np.dtype(
 WIRE_DTYPES = {
     "ray": RAY, "deposit": DEPOSIT, "material": MATERIAL, "light": LIGHT, "sphere": SPHERE,
     "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
-    "i8": np.dtype("<i8"), "element": ELEMENT,
+    "i8": np.dtype("<i8"), "element": ELEMENT, "link_traffic": LINK_TRAFFIC,
 }  # fmt: skip

@@ -14,6 +14,7 @@ from protocols.errors import BadFrame, UnknownKind
 
 PROTOCOL_VERSION = 4
 MAX_TILES_PER_MESSAGE = 1024
+MAX_LINKS = 4  # a torus node's neighbours
 
 
 class Kind(IntEnum):
@@ -28,7 +29,9 @@ class Kind(IntEnum):
     ERROR = 9  # the sender hit an error; `reason` says what
     PROGRESS = 10  # a node to the host: primary rays traced since its last report, batches
     # traced in all, whether its engine is built and its links are up (a heartbeat every
-    # second, so the host tells alive from working, and building from stuck)
+    # second, so the host tells alive from working, and building from stuck); and for the
+    # live view: its state, busy and elapsed milliseconds, rays traced in all, objects held,
+    # and each link's traffic so far
     AUTH = 11  # handshake: proof of the cluster secret over both nonces (protocols.handshake)
     WELCOME = 12  # handshake: the listener accepted the dialler's proof
     TILES = 13  # host to node, dynamic image space: tiles to trace (partition rectangles)
@@ -57,7 +60,9 @@ FIELDS = {
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
-    Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool},
+    Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool, "state": int,
+                    "busy_ms": int, "elapsed_ms": int, "traced": int, "objects": int,
+                    "links": dtypes.LINK_TRAFFIC},  # fmt: skip
     Kind.AUTH: {"proof": bytes},
     Kind.WELCOME: {},
     Kind.TILES: {"tiles": list, "last": bool},
@@ -119,9 +124,24 @@ def parse(message: dict) -> tuple[Kind, dict]:
                 isinstance(t, int) and not isinstance(t, bool) and t >= 0 for t in tiles):
             raise BadFrame(f"{kind.name}.tiles must be at most {MAX_TILES_PER_MESSAGE} "
                            "tile indices")  # fmt: skip
+    if kind is Kind.PROGRESS:
+        _check_progress(fields)
     if kind is Kind.OBJECTS:
         want = OBJECT_TABLES.get(fields["table"])
         if want is None:
             raise BadFrame(f"OBJECTS: unknown table {fields['table']!r}")
         _check(kind, "records", fields["records"], want)
     return kind, fields
+
+
+def _check_progress(f: dict) -> None:
+    """Counters never negative, at most a torus node's links (the host checks node numbers
+    and states against its mesh)."""
+    counts = ("node", "rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects")
+    bad = [name for name in counts if f[name] < 0]
+    links = f["links"]
+    if len(links) > MAX_LINKS or (len(links) and (links["peer"].min() < 0 or links["rays"].min()
+                                                   < 0 or links["bytes"].min() < 0)):  # fmt: skip
+        bad.append("links")
+    if bad:
+        raise BadFrame(f"PROGRESS: {', '.join(bad)} out of range")

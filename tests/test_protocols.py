@@ -89,6 +89,29 @@ def test_message_fields_are_checked():
         parse(bad)
 
 
+def progress(**change):
+    """A PROGRESS as a node sends it, with `change`d fields, through the framer."""
+    fields = {"node": 1, "rays": 5, "work": 2, "ready": True, "state": 1, "busy_ms": 9,
+              "elapsed_ms": 10, "traced": 50, "objects": 3,
+              "links": np.array([(0, 4, 400), (2, 0, 0)], dtypes.LINK_TRAFFIC)} | change
+    return FrameDecoder().feed(encode(make(Kind.PROGRESS, **fields)))[0]
+
+
+def test_progress_counters_and_links_are_checked():
+    kind, f = parse(progress())
+    assert kind is Kind.PROGRESS and f["links"]["rays"].tolist() == [4, 0]
+    for name in ("rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects"):
+        with pytest.raises(BadFrame, match=f"PROGRESS: {name} out of range"):
+            parse(progress(**{name: -1}))
+    too_many = np.zeros(5, dtypes.LINK_TRAFFIC)
+    negative = np.array([(0, -1, 0)], dtypes.LINK_TRAFFIC)
+    for links in (too_many, negative):
+        with pytest.raises(BadFrame, match="PROGRESS: links out of range"):
+            parse(progress(links=links))
+    with pytest.raises(BadFrame, match="PROGRESS.links must be an array"):
+        parse(progress() | {"links": np.zeros(1, dtypes.DEPOSIT)})
+
+
 def test_handshake_checks_version_and_cluster():
     me = check_hello(hello("c1", "node", 3), "c1")
     assert me["node"] == 3 and me["role"] == "node"

@@ -89,7 +89,7 @@ def test_the_page_shows_the_image_and_the_nodes(tmp_path, mesh):
     proc = None
     try:
         proc, url = serve(tmp_path, "--mesh", mesh, "--width", "40", "--height", "30",
-                          "--spp", "2")  # fmt: skip
+                          "--spp", "2", "--mode", "object")  # rays cross the links  # fmt: skip
         browser.get(url)
         wait_for(browser, DONE, WAIT * 6)  # a cold mesh loads its kernels first
         assert browser.execute_script("return document.body.dataset.phase") == "done"

@@ -161,6 +161,7 @@ class Scheduler:
         self.in_flight = 0
         self.unflushed = False
         self.done_passed = False
+        self.forward = False  # a state with primaries just came: pass the packet on first
         self.pending: deque = deque()  # decisions made, not yet handed out
 
     # ------------------------------------------------------------------ events
@@ -205,7 +206,16 @@ class Scheduler:
             if self.pending:
                 return self.pending.popleft()
             if self.packet is not None and self.packet.state > self.state:
+                self.forward = self.packet.state in (State.TRACE, State.REFINE)
                 return self._enter(State(self.packet.state))
+            if self.forward and self.packet is not None:
+                # The packet brought a state with primary rays: hand it on at once, so the
+                # nodes after this one start theirs now, not when this one has finished
+                # (Safra: passing it busy marks this node last busy; it stays dirty).
+                self.forward = False
+                if self._pass_packet():
+                    self.term.on_work()
+                    continue
             free = self.in_flight < self.threads
             if self.incoming and free:
                 rays = self.incoming.popleft()

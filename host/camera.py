@@ -125,14 +125,26 @@ def _camera_from_toml(path: Path, data: dict, film_size=None) -> Camera:
         raise CameraError(f"{path}: no [[element]] tables")
     elements = np.array([_element(s, f"{path}: element {i + 1}") for i, s in enumerate(specs)],
                         dtype=dtypes.ELEMENT)  # fmt: skip
+    for i, e in enumerate(elements):
+        bad = [name for name in dtypes.ELEMENT.names if dtypes.ELEMENT[name].kind == "f"
+               and not math.isfinite(float(e[name]))]  # fmt: skip
+        if bad:
+            raise CameraError(f"{path}: element {i + 1}: {', '.join(bad)} must be finite")
     if np.any(np.diff(elements["z"]) < 0):
         raise CameraError(f"{path}: elements must be listed from the film outward (z increasing)")
     film = data.get("film", {})
     focus = data.get("focus", {}).get("distance", "infinity")
     distance = math.inf if focus == "infinity" else float(focus)
+    if not distance > 0:
+        raise CameraError(f"{path}: [focus] distance must be positive metres or 'infinity'")
     width, height = film_size or (float(film.get("width", FULL_FRAME[0])),
                                   float(film.get("height", FULL_FRAME[1])))
-    cam = Camera(elements, width, height, film.get("z"), distance, str(path))
+    if not (0 < width < math.inf and 0 < height < math.inf):
+        raise CameraError(f"{path}: [film] width and height must be positive and finite")
+    film_z = film.get("z")
+    if film_z is not None and not math.isfinite(float(film_z)):
+        raise CameraError(f"{path}: [film] z must be finite")
+    cam = Camera(elements, width, height, film_z, distance, str(path))
     return validate(cam)
 
 

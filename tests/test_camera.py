@@ -203,3 +203,21 @@ def test_wide_angle_example_has_visible_barrel_distortion():
     assert abs(d[0]) < 1e-4
     assert all(a > b for a, b in zip(d, d[1:], strict=False))  # bowing grows with the field
     assert d[2] < -0.005 and d[4] < -0.02
+
+
+@pytest.mark.parametrize("film,element,what", [
+    ("width = -0.036\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
+    ("width = inf\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
+    ("width = 0.036\nheight = 0", "focal = 0.05", "width and height must be positive"),
+    ("width = 0.036\nheight = 0.024\nz = nan", "focal = 0.05", "z must be finite"),
+    ("width = 0.036\nheight = 0.024", "focal = nan", "element 1: focal must be finite"),
+    ("width = 0.036\nheight = 0.024", "focal = 0.05\nn_after = inf", "n_after must be"),
+])  # fmt: skip
+def test_a_camera_file_with_an_impossible_film_or_element_is_refused(tmp_path, film, element,
+                                                                     what):  # fmt: skip
+    f = tmp_path / "cam.toml"
+    f.write_text(f"[film]\n{film}\n[[element]]\ntype = \"thin_lens\"\n{element}\n"
+                 "diameter = 0.02\nz = 0.0\n")  # fmt: skip
+    with pytest.raises(CameraError, match="cam.toml") as e:
+        read_camera(f)
+    assert what in str(e.value)

@@ -3,6 +3,8 @@ running nodes one per line as `ROW COL HOST:PORT` (errors name the file and line
 
 from pathlib import Path
 
+MAX_LOCAL_NODES = 64  # node processes `--mesh` starts on this one machine
+
 
 def parse_mesh(text: str) -> tuple[int, int]:
     """'2x3' -> (2, 3); 'auto' -> 1x1: on one machine, one process tracing on every core."""
@@ -14,6 +16,10 @@ def parse_mesh(text: str) -> tuple[int, int]:
         raise ValueError(f"--mesh wants ROWSxCOLS, like 2x2, not {text!r}") from None
     if rows < 1 or cols < 1:
         raise ValueError(f"--mesh {text}: rows and columns must be at least 1")
+    if rows * cols > MAX_LOCAL_NODES:
+        raise ValueError(f"--mesh {text}: a local mesh starts at most {MAX_LOCAL_NODES} node "
+                         "processes on this machine (each holds its own engine and kernels, "
+                         "~0.2 GB); a larger mesh runs on a --cluster")  # fmt: skip
     return rows, cols
 
 

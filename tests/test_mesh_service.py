@@ -189,6 +189,8 @@ def test_mesh_and_cluster_arguments(tmp_path):
     assert parse_mesh("auto")[0] == 1
     with pytest.raises(ValueError):
         parse_mesh("2by3")
+    with pytest.raises(ValueError, match="at most 64 node processes"):
+        parse_mesh("9x8")  # 72 processes on one machine: refused before any starts
     f = tmp_path / "cluster.txt"
     f.write_text("# row col address\n0 0 10.0.0.1:7700\n0 1 10.0.0.2:7700\n")
     assert read_cluster(f) == (1, 2, ["10.0.0.1:7700", "10.0.0.2:7700"])

@@ -277,6 +277,7 @@ def _render(args) -> int:
     try:
         outputs = _outputs(args)
         image, engine, camera = _records(args)
+        image, camera = _fit_aspect(image, camera, scene.view, args)
         live = _serve(args)
         img, stats = _run(scene, image, engine, camera, args, live and live.monitor)
     except (ValueError, OSError) as e:  # SpecError, CameraError and LiveError included
@@ -406,6 +407,34 @@ def _records(args):
     _warn_unused(sampled, sampling)
     return image, engine, CameraSetup(read_camera(args.camera, args.film_size), sampled,
                                       Focus(**_given(args, Focus)))  # fmt: skip
+
+
+def _fit_aspect(image: ImageSpec, camera, view, args):
+    """A film of another shape than the image would stretch the picture: the image takes the
+    film's shape (its width kept) unless --width and --height both fix it, and then the film
+    is cropped to the image's shape; either way one line says so."""
+    if not isinstance(camera, CameraSetup):
+        return image, camera
+    w, h = image.sized(view).size
+    cam = camera.camera
+    film, picture = cam.film_width / cam.film_height, w / h
+    if abs(film / picture - 1) < 0.5 / min(w, h):  # within half a pixel
+        return image, camera
+    mm = f"{cam.film_width * 1000:g} x {cam.film_height * 1000:g} mm film"
+    fixed = image.spd or {"width", "height"} <= set(_given(args, ImageSpec))
+    if not fixed:
+        height = max(1, round(w / film))
+        _warn(f"the {mm} is {film:.3g}:1 and the image {w}x{h}: rendering {w}x{height} so "
+              "nothing is stretched (give --width and --height to keep a size; the film is "
+              "then cropped)")  # fmt: skip
+        return replace(image, width=w, height=height), camera
+    if film > picture:
+        fw, fh = cam.film_height * picture, cam.film_height
+    else:
+        fw, fh = cam.film_width, cam.film_width / picture
+    _warn(f"the {mm} is {film:.3g}:1 and the image {w}x{h} {picture:.3g}:1: cropping the film "
+          f"to {fw * 1000:.3g} x {fh * 1000:.3g} mm so nothing is stretched")  # fmt: skip
+    return image, replace(camera, camera=replace(cam, film_width=fw, film_height=fh))
 
 
 def _pinhole(args, image: ImageSpec, sampling: dict):

@@ -221,3 +221,21 @@ def test_a_camera_file_with_an_impossible_film_or_element_is_refused(tmp_path, f
     with pytest.raises(CameraError, match="cam.toml") as e:
         read_camera(f)
     assert what in str(e.value)
+
+
+def test_a_film_of_another_shape_than_the_image_is_reconciled_and_said(tmp_path, capsys):
+    # 36 x 24 mm (3:2) on a square scene: without --width/--height the image becomes 3:2;
+    # with both, the film is cropped to 24 x 24 mm. Never stretched, always said.
+    scene = tmp_path / "s.nff"
+    scene.write_text("v\nfrom 0 0 -5\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 48 48\n"
+                     "b 0.5 0.5 0.5\n")  # fmt: skip
+    camera = str(Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml")
+    stats = tmp_path / "s.json"
+    common = [str(scene), "-o", str(tmp_path / "a.png"), "--camera", camera, "--stats",
+              str(stats), "--quiet"]  # fmt: skip
+    assert main(["render", *common]) == 0
+    assert "rendering 48x32 so nothing is stretched" in capsys.readouterr().err
+    assert (json.loads(stats.read_text())["image"]["width"],
+            json.loads(stats.read_text())["image"]["height"]) == (48, 32)  # fmt: skip
+    assert main(["render", *common, "--width", "40", "--height", "40"]) == 0
+    assert "cropping the film to 24 x 24 mm" in capsys.readouterr().err

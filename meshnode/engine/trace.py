@@ -224,6 +224,15 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             rx *= rn
             ry *= rn
             rz *= rn
+            # A smooth-shaded triangle's normal can tilt so far from its face that the mirror
+            # direction points into the surface (teapot_s1's spout: shading normals lie in
+            # the face, reflections went inside and came back dark as isolated speckles).
+            # Mirror such a direction back above the face; elsewhere this never fires.
+            rg = rx * gx + ry * gy + rz * gz
+            if rg < 0.0:
+                rx -= 2.0 * rg * gx
+                ry -= 2.0 * rg * gy
+                rz -= 2.0 * rg * gz
             hit_gid = gid[u]
             if lights is not None:
                 shine = materials[m, MAT_SHINE]

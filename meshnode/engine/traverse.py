@@ -14,9 +14,21 @@ from meshnode.engine.intersect import hit_cone, hit_polygon, hit_sphere, hit_tri
 from meshnode.engine.jit import inline, leaf
 
 INF = math.inf
-# With a hit at best_t, objects are tested up to best_t * TIE (> best_t, no libm call) so that
-# an equal distance is seen; the exact comparison then keeps the lower gid.
-TIE = 1.0 + 1e-15
+# Hits within a relative TIE of each other are one distance, and the lower gid wins: surfaces
+# that coincide (SPD teapot_s1's spout is two sheets of triangles in one plane) would
+# otherwise be won by round-off, pixel by pixel, each with its own shading normal: speckles.
+# Objects are tested up to best_t * TIE so that such a twin is seen.
+TIE = 1.0 + 1e-9
+
+
+@inline
+def better(t, u, best_t, best_u, gid):
+    """Whether a hit at t on object u beats the best so far (ties: the lower gid)."""
+    if best_u < 0:
+        return t < best_t
+    if t * TIE < best_t:
+        return True
+    return t <= best_t * TIE and gid[u] < gid[best_u]
 
 
 @inline
@@ -207,7 +219,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
             bound = best_t if best_u < 0 else best_t * TIE
             t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
                             sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-            if t < best_t or (t == best_t and best_u >= 0 and gid[u] < gid[best_u]):
+            if t < INF and better(t, u, best_t, best_u, gid):
                 best_t = t
                 best_u = u
                 if any_hit:
@@ -215,7 +227,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
         if any_hit and best_u >= 0:
             break
         t_exit = min(ntx, min(nty, ntz))
-        if best_u >= 0 and best_t <= t_exit:
+        if best_u >= 0 and best_t * TIE <= t_exit:  # no twin can lie beyond this voxel
             break
         if t_exit > t1:
             break
@@ -259,7 +271,7 @@ def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
         bound = best_t if best_u < 0 else best_t * TIE
         t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
                         sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-        if t < best_t or (t == best_t and best_u >= 0 and gid[u] < gid[best_u]):
+        if t < INF and better(t, u, best_t, best_u, gid):
             best_t = t
             best_u = u
             if any_hit:

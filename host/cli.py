@@ -51,8 +51,14 @@ def _given(args, record: type) -> dict:
     return {k[len(prefix):]: v for k, v in vars(args).items() if k.startswith(prefix)}
 
 
+def _prog() -> str:
+    """`meshtrace` when run by that name (the same commands as `host`, which /usr/bin/host,
+    the DNS lookup tool, shadows outside a virtual environment), else `host`."""
+    return "meshtrace" if Path(sys.argv[0]).name == "meshtrace" else "host"
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="host", description="Meshtrace host: render NFF scenes.")
+    p = argparse.ArgumentParser(prog=_prog(), description="Meshtrace host: render NFF scenes.")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render an NFF scene")

@@ -128,6 +128,18 @@ def test_camera_json_is_strict_json_even_focused_at_infinity(capsys):
     assert d["focus_distance_m"] == "infinity" and d["effective_focal_length_m"] > 0
 
 
+def test_meshtrace_is_a_second_name_for_the_host_commands():
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["meshtrace"] == scripts["host"] == "host.cli:main"
+    r = subprocess.run([sys.executable, "-c", "import sys; from host.cli import main; "
+                        "sys.argv[0] = '/usr/local/bin/meshtrace'; main(['--version'])"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.stdout.startswith("meshtrace "), r.stderr
+
+
 def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
     r = subprocess.run([sys.executable, "-m", "host.cli", "--version"], capture_output=True,
                        text=True, check=True)  # fmt: skip

@@ -157,6 +157,9 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # `host camera ... | head`: the reader left; not an error here
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except KeyboardInterrupt:  # Ctrl-C: every node is already stopped (LocalMesh's exit)
+        print(f"\n{_prog()}: interrupted; nothing written", file=sys.stderr)
+        return 130
 
 
 def _camera(args) -> int:
@@ -329,11 +332,21 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
     if camera is None:
         gw, gh = sized.sample_grid()
         total = gw * gh * (1 if sized.corners() else sized.spp)
-    bar = tqdm(total=total, unit=" rays", desc=f"mesh {plan.rows}x{plan.cols} primary",
-               file=sys.stderr, disable=args.quiet, leave=False)  # fmt: skip
+    shape = f"mesh {plan.rows}x{plan.cols}"
+    bar = tqdm(total=total, unit=" rays", desc=f"{shape}: nodes building engines (compiling "
+               "kernels on a first run)", file=sys.stderr, disable=args.quiet,
+               leave=False)  # fmt: skip
+
+    def ready():
+        """Every node traces from now on: the rate and ETA count from here, without the
+        nodes' build and kernel compile time."""
+        bar.set_description(f"{shape} primary", refresh=False)
+        bar.reset(total=total)
+
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
-                                          secret=secret, progress=bar.update))  # fmt: skip
+                                          secret=secret, progress=bar.update,
+                                          ready=ready))  # fmt: skip
     finally:
         bar.close()
 

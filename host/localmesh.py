@@ -2,13 +2,19 @@
 
 Each node prints `listening HOST:PORT` once bound; the host reads that line, so ports are
 chosen by the OS. Processes are killed on any exit path (errors, Ctrl-C) by the context
-manager, so no orphan is left behind.
+manager, so no orphan is left behind. Nodes start with SIGINT ignored: a Ctrl-C at the
+terminal (sent to the whole process group) reaches the host alone, which stops them (SIGTERM,
+quietly) instead of every node printing its own traceback; they stay in the terminal's group,
+so a hang-up or Ctrl-Z still reaches them.
 """
 
 import os
 import select
+import signal
 import subprocess
 import sys
+import threading
+from contextlib import contextmanager
 
 
 class LocalMesh:
@@ -33,13 +39,14 @@ class LocalMesh:
 
     def __enter__(self) -> list[str]:
         try:
-            for i in range(self.n):
-                self.procs.append(subprocess.Popen(
-                    [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
-                     self.listen[i], "--cluster", self.cluster, "--once", "--threads",
-                     str(self.threads), *self.options],
-                    stdout=subprocess.PIPE, text=True, env=self._environment(),
-                ))  # fmt: skip
+            with _sigint_ignored():
+                for i in range(self.n):
+                    self.procs.append(subprocess.Popen(
+                        [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
+                         self.listen[i], "--cluster", self.cluster, "--once", "--threads",
+                         str(self.threads), *self.options],
+                        stdout=subprocess.PIPE, text=True, env=self._environment(),
+                    ))  # fmt: skip
             return [self._address(p) for p in self.procs]
         except BaseException:
             self.__exit__(None, None, None)
@@ -72,3 +79,17 @@ class LocalMesh:
                 p.wait()
             if p.stdout:
                 p.stdout.close()
+
+
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while children start, so they inherit it ignored (Python and asyncio
+    then leave it so); only the main thread may change signal handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

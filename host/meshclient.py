@@ -49,10 +49,11 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
-                         stall: float = 180.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         stall: float = 180.0, ready=None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
-    `progress(n)` is called as nodes report n more primary rays traced; `silence`: seconds
+    `progress(n)` is called as nodes report n more primary rays traced; `ready()` once every
+    node has built its engine (compiled its kernels on a first run) and linked; `silence`: seconds
     without a message from a node (they send one a second) before the render is given up
     naming it; `stall`: seconds in which no node traces anything once all are built (all
     alive, none working, the render unfinished: a stuck kernel or a protocol fault)."""
@@ -68,7 +69,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
         if plan.dynamic else None  # fmt: skip
-    collector = _Collector(fb, addresses, progress, silence, stall, dealer)
+    collector = _Collector(fb, addresses, progress, silence, stall, dealer, ready)
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
@@ -125,8 +126,9 @@ class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
     def __init__(self, fb: Framebuffer, addresses, progress, silence: float, stall: float,
-                 dealer: TileDealer | None = None):  # fmt: skip
+                 dealer: TileDealer | None = None, on_ready=None):  # fmt: skip
         self.fb, self.addresses, self.progress, self.dealer = fb, addresses, progress, dealer
+        self.on_ready = on_ready  # called once, when every node is first ready
         self.silence, self.stall = silence, stall
         n = len(addresses)
         now = time.monotonic()
@@ -172,6 +174,9 @@ class _Collector:
                 if f["work"] > self.work[n] or f["ready"] != self.ready[n]:
                     self.last_work = now
                 self.work[n], self.ready[n] = f["work"], f["ready"]
+                if self.on_ready and all(self.ready.values()):
+                    self.on_ready, announce = None, self.on_ready
+                    announce()
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])
             elif kind is Kind.TILE_DONE and self.dealer is not None:

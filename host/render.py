@@ -31,6 +31,9 @@ def render(scene: SceneData, image: ImageSpec = ImageSpec(),
     image = image.sized(scene.view)
     tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
                              max_depth=image.depth, brute=engine.brute)  # fmt: skip
+    if progress and not tracer.compiled:  # minutes of silence otherwise; progress starts after
+        print(f"host: compiling kernels for {tracer.variant()}, first run only",
+              file=sys.stderr, flush=True)  # fmt: skip
     tracer.warmup()
     job = _Job(scene, image, engine, tracer, progress)
     if camera is not None:

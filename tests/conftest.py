@@ -45,7 +45,7 @@ def kernels(request):
     before any test, so node processes started later load them from disk."""
     import numba
 
-    from meshnode.cli import warmup
+    from meshnode.warmup import warmup
 
     cache = Path(numba.config.CACHE_DIR)
     KERNEL_LOAD["cache"] = str(cache)

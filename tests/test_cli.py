@@ -106,6 +106,27 @@ def test_the_default_plan_on_one_machine_is_one_process_and_says_why(tmp_path, c
     assert first.startswith("host: plan: one process")
 
 
+@pytest.mark.parametrize("cached", [False, True])
+def test_a_first_run_says_kernels_compile_before_the_progress_starts(tmp_path, capsys,
+                                                                      monkeypatch, cached):
+    from meshnode.engine import kernelcache
+
+    monkeypatch.setattr(kernelcache, "is_warm", lambda name: cached)
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.png"), "--width", "8",
+                 "--height", "8"]) == 0  # fmt: skip
+    lines = capsys.readouterr().err.splitlines()
+    said = [line for line in lines if "compiling kernels" in line]
+    if cached:
+        assert not said
+    else:
+        assert len(said) == 1 and said[0].startswith("host: compiling kernels for spheres+")
+        assert said[0].endswith("/refraction/csr, first run only")
+        assert lines.index(said[0]) < min(i for i, x in enumerate(lines) if "tracing:" in x)
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "b.png"), "--width", "8",
+                 "--height", "8", "--quiet"]) == 0  # fmt: skip
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("flags,what", [
     (["-o", "{tmp}/missing/a.png"], "no folder"),
     (["-o", "{tmp}/a.exr"], "writes .png images"),

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from host.camerasetup import CameraSetup, Focus
 from host.cluster import parse_mesh, read_cluster
+from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
 from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh
 from host.nff import SceneError, read_nff
@@ -24,6 +25,7 @@ from protocols.render import BALANCES, MODES, STORAGES, TILINGS, EngineSpec, Ima
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
+WRITERS = {".png": write_png, ".pfm": write_pfm, ".exr": write_exr}
 AUTO_WHY = ("on one machine, threads in one process beat a local mesh of processes: no rays or "
             "pixels cross process boundaries; --mesh ROWSxCOLS starts a local mesh")
 
@@ -63,8 +65,10 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render an NFF scene")
     r.add_argument("scene", help="NFF scene file")
-    r.add_argument("-o", "--output", help="PNG image (default: SCENE name .png)")
-    r.add_argument("--float", dest="float_path", help="float image, PFM (default: beside PNG)")
+    r.add_argument("-o", "--output", help="image: .png (8-bit sRGB) or .exr (linear float) "
+                   "(default: SCENE name .png)")  # fmt: skip
+    r.add_argument("--float", dest="float_path", help="linear float image, .pfm or .exr "
+                   "(default: a .pfm beside a .png output)")  # fmt: skip
     r.add_argument("--stats", help="write statistics as JSON to this file")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     _field(r, "--spd", ImageSpec, "spd", "SPD rules: 512x512 from 513x513 corner rays, depth 5",
@@ -203,8 +207,6 @@ def _finite(value):
 
 
 def _render(args) -> int:
-    from host.framebuffer import write_pfm, write_png
-
     try:
         scene = read_nff(args.scene)
     except SceneError as e:
@@ -224,8 +226,9 @@ def _render(args) -> int:
         print(f"host: render failed: {e}", file=sys.stderr)
         return 1
     out, float_path, stats_path = outputs
-    write_png(out, img)
-    write_pfm(float_path, img)
+    for path in (out, float_path):
+        if path is not None:
+            WRITERS[path.suffix.lower()](path, img)
     if stats_path:
         stats_path.write_text(json.dumps(stats, indent=2) + "\n")
     leaving = stats.get("camera", {}).get("centre_rays_leaving_camera", 1.0)
@@ -256,15 +259,23 @@ def _render(args) -> int:
     return 0
 
 
-def _outputs(args) -> tuple[Path, Path, Path | None]:
-    """The PNG, PFM and statistics paths, checked before any work: the right suffix, and a
-    folder that exists and can be written (a render is never lost to a bad path)."""
+def _outputs(args) -> tuple[Path, Path | None, Path | None]:
+    """The image, float image and statistics paths, checked before any work: a format this
+    run can write, and a folder that exists and can be written (a render is never lost to a
+    bad path or a missing library). A .png output gets a .pfm beside it unless --float says
+    where; an .exr output is the float image itself."""
     out = Path(args.output or Path(args.scene).with_suffix(".png").name)
-    float_path = Path(args.float_path or out.with_suffix(".pfm"))
+    float_path = Path(args.float_path) if args.float_path else None
+    if float_path is None and out.suffix.lower() == ".png":
+        float_path = out.with_suffix(".pfm")
     stats = Path(args.stats) if args.stats else None
-    for path, suffix, flag in ((out, ".png", "-o"), (float_path, ".pfm", "--float")):
-        if path.suffix.lower() != suffix:
-            raise ValueError(f"{flag} {path}: writes {suffix} images, not {path.suffix!r}")
+    for path, suffixes, flag in ((out, (".png", ".exr"), "-o"),
+                                 (float_path, (".pfm", ".exr"), "--float")):  # fmt: skip
+        if path is not None and path.suffix.lower() not in suffixes:
+            raise ValueError(f"{flag} {path}: writes {' or '.join(suffixes)} images, not "
+                             f"{path.suffix or 'a name without a suffix'!r}")  # fmt: skip
+        if path is not None and path.suffix.lower() == ".exr" and exr_missing():
+            raise ValueError(f"{flag} {path}: {exr_missing()}")
     for path in (out, float_path, stats):
         if path is None:
             continue

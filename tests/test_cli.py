@@ -129,9 +129,10 @@ def test_a_first_run_says_kernels_compile_before_the_progress_starts(tmp_path, c
 
 @pytest.mark.parametrize("flags,what", [
     (["-o", "{tmp}/missing/a.png"], "no folder"),
-    (["-o", "{tmp}/a.exr"], "writes .png images"),
-    (["-o", "{tmp}/a.jpgg"], "writes .png images"),
-    (["-o", "{tmp}/a.png", "--float", "{tmp}/a.tiff"], "writes .pfm images"),
+    (["-o", "{tmp}/a.jpgg"], "writes .png or .exr images, not '.jpgg'"),
+    (["-o", "{tmp}/a"], "not 'a name without a suffix'"),
+    (["-o", "{tmp}/a.png", "--float", "{tmp}/a.tiff"], "writes .pfm or .exr images"),
+    (["-o", "{tmp}/missing/a.exr"], "no folder"),
     (["-o", "{tmp}/a.png", "--stats", "{tmp}/nowhere/s.json"], "no folder"),
 ])  # fmt: skip
 def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
@@ -140,6 +141,32 @@ def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
     err = capsys.readouterr().err
     assert what in err and "Traceback" not in err
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written
+
+
+def test_exr_output_holds_the_linear_image_of_the_pfm(tmp_path):
+    import OpenEXR
+
+    small = ["--width", "12", "--height", "8", "--quiet"]
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.exr"), *small]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr"]  # the float image itself
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "b.png"), "--float",
+                 str(tmp_path / "b.exr"), *small]) == 0  # fmt: skip
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "c.png"), *small]) == 0
+    reference = read_pfm(tmp_path / "c.pfm")
+    assert reference.shape == (8, 12, 3) and reference.max() > 0
+    for name in ("a.exr", "b.exr"):
+        with OpenEXR.File(str(tmp_path / name)) as f:
+            rgb = f.channels()["RGB"].pixels
+        np.testing.assert_array_equal(rgb, reference.astype(np.float32))
+
+
+def test_exr_without_its_library_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # import OpenEXR now fails
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"host: -o {tmp_path / 'a.exr'}: writing .exr needs the OpenEXR package " \
+                  "(pip install OpenEXR)\n"  # fmt: skip
+    assert not list(tmp_path.iterdir())
 
 
 def test_camera_json_is_strict_json_even_focused_at_infinity(capsys):

@@ -89,6 +89,10 @@ def _parser() -> argparse.ArgumentParser:
                         "auto (default): on this one machine, 1x1 on every core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    r.add_argument("--wait", type=float, default=60.0, metavar="SECONDS",
+                   help="with --cluster: how long to wait for every node to accept a "
+                        "connection (nodes still starting) before naming the first that does "
+                        "not (default 60)")  # fmt: skip
     r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
                    "a local mesh makes its own")  # fmt: skip
     _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
@@ -313,7 +317,8 @@ def _run(scene, image, engine, camera, args):
         rows, cols, addresses = read_cluster(args.cluster)
         plan = MeshPlan(rows, cols, **_given(args, MeshPlan))
         secret = read_secret(args.secret_file)
-        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args)
+        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args,
+                           args.wait)  # fmt: skip
         stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
         return img, stats
     rows, cols = parse_mesh(args.mesh)
@@ -335,7 +340,7 @@ def _run(scene, image, engine, camera, args):
     return img, stats
 
 
-def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
+def _mesh(scene, image, engine, plan, camera, addresses, secret, args, wait=5.0):
     from tqdm import tqdm
 
     sized = image.sized(scene.view)
@@ -344,9 +349,9 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
         gw, gh = sized.sample_grid()
         total = gw * gh * (1 if sized.corners() else sized.spp)
     shape = f"mesh {plan.rows}x{plan.cols}"
-    bar = tqdm(total=total, unit=" rays", desc=f"{shape}: nodes building engines (compiling "
-               "kernels on a first run)", file=sys.stderr, disable=args.quiet,
-               leave=False)  # fmt: skip
+    bar = tqdm(total=total, unit=" rays", desc=f"{shape}: waiting for the nodes (connecting, "
+               "building engines; a first run compiles kernels)", file=sys.stderr,
+               disable=args.quiet, leave=False)  # fmt: skip
 
     def ready():
         """Every node traces from now on: the rate and ETA count from here, without the
@@ -357,7 +362,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args):
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
                                           secret=secret, progress=bar.update,
-                                          ready=ready))  # fmt: skip
+                                          ready=ready, wait=wait))  # fmt: skip
     finally:
         bar.close()
 

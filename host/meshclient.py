@@ -49,20 +49,23 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
                          camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
                          secret: bytes | None = None, progress=None, silence: float = 15.0,
-                         stall: float = 180.0, ready=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         stall: float = 180.0, ready=None,
+                         wait: float = 5.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced; `ready()` once every
     node has built its engine (compiled its kernels on a first run) and linked; `silence`: seconds
     without a message from a node (they send one a second) before the render is given up
     naming it; `stall`: seconds in which no node traces anything once all are built (all
-    alive, none working, the render unfinished: a stuck kernel or a protocol fault)."""
+    alive, none working, the render unfinished: a stuck kernel or a protocol fault); `wait`:
+    seconds for every node to accept a connection (nodes still starting), then the first one
+    that does not is named."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
     start = time.perf_counter()
     planned = plan_render(scene, image, engine, plan, camera)
-    links = await _configure(scene, planned, addresses, cluster, secret)
+    links = await _configure(scene, planned, addresses, cluster, secret, wait)
     setup = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
@@ -92,14 +95,19 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     return fb.image(), summary
 
 
-async def _configure(scene, planned: Planned, addresses, cluster, secret) -> list[Link]:
-    """Connect to every node (both sides proving the secret), send its CONFIG and objects."""
+async def _configure(scene, planned: Planned, addresses, cluster, secret,
+                     wait: float) -> list[Link]:  # fmt: skip
+    """Connect to every node (both sides proving the secret) within `wait` seconds in all,
+    send its CONFIG and objects."""
     links: list[Link] = []
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     render, part = planned.spec.to_wire(), planned.partition.to_wire()
+    deadline = time.monotonic() + wait
     try:
         for n, address in enumerate(addresses):
-            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host")
+            left = max(deadline - time.monotonic(), 0.1)
+            link, _ = await dial(address, f"node {n} ({address})", cluster, secret, "host",
+                                 wait=left)  # fmt: skip
             links.append(link)
         for n, link in enumerate(links):
             await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,

@@ -7,6 +7,7 @@ names the peer and chains the cause.
 """
 
 import asyncio
+import time
 from collections import deque
 
 from protocols.errors import AuthFailed, ProtocolError, describe
@@ -41,19 +42,23 @@ class Link:
         self.max_frame = self._decoder.max_frame = max_frame
 
     @classmethod
-    async def connect(cls, address: str, peer: str, retries: int = 50,
+    async def connect(cls, address: str, peer: str, wait: float = 5.0,
                       max_frame: int = MAX_FRAME) -> "Link":  # fmt: skip
-        """Connect to HOST:PORT, retrying briefly while the peer starts listening."""
+        """Connect to HOST:PORT, retrying for `wait` seconds while the peer starts (its name
+        may not resolve yet, or nothing listens yet), then giving up naming it."""
         host, port = address.rsplit(":", 1)
-        for attempt in range(retries):
+        deadline = time.monotonic() + wait
+        pause = 0.1
+        while True:
             try:
                 reader, writer = await asyncio.open_connection(host, int(port))
                 return cls(reader, writer, peer, max_frame)
             except OSError as e:
-                if attempt == retries - 1:
-                    raise LinkClosed(peer, f"cannot connect to {address}: {e}") from e
-                await asyncio.sleep(0.1)
-        raise AssertionError("unreachable")
+                if time.monotonic() + pause > deadline:
+                    raise LinkClosed(peer, f"cannot connect to {address} within {wait:.3g} s: "
+                                     f"{e.strerror or e}") from e  # fmt: skip
+                await asyncio.sleep(pause)
+                pause = min(2 * pause, 1.0)
 
     async def send(self, message: dict) -> None:
         try:
@@ -141,11 +146,11 @@ class Outbox:
 
 
 async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
-               node: int = -1) -> tuple[Link, dict]:  # fmt: skip
-    """Connect to a node and prove the cluster secret both ways (protocols.handshake); returns
-    the link, open for whole frames, and the node's HELLO fields. LinkClosed names the peer
-    and why it refused or could not be reached."""
-    link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME)
+               node: int = -1, wait: float = 5.0) -> tuple[Link, dict]:  # fmt: skip
+    """Connect to a node (retrying for `wait` seconds) and prove the cluster secret both ways
+    (protocols.handshake); returns the link, open for whole frames, and the node's HELLO
+    fields. LinkClosed names the peer and why it refused or could not be reached."""
+    link = await Link.connect(address, peer, wait, max_frame=HANDSHAKE_FRAME)
     try:
         theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node),
                                         HANDSHAKE_SECONDS)  # fmt: skip

@@ -169,6 +169,21 @@ def test_exr_without_its_library_is_refused_before_any_work(tmp_path, capsys, mo
     assert not list(tmp_path.iterdir())
 
 
+def test_a_cluster_node_that_never_comes_up_is_named_after_the_wait(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cluster = tmp_path / "cluster.txt"
+    cluster.write_text(f"0 0 127.0.0.1:{port}\n")
+    assert main(["render", str(EXAMPLE), "--cluster", str(cluster), "--wait", "1.5",
+                 "-o", str(tmp_path / "a.png"), "--quiet"]) == 1  # fmt: skip
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and f"node 0 (127.0.0.1:{port})" in err[0]
+    assert f"cannot connect to 127.0.0.1:{port} within 1.5 s" in err[0]
+
+
 def test_camera_json_is_strict_json_even_focused_at_infinity(capsys):
     cameras = Path(__file__).resolve().parents[1] / "host" / "cameras"
     assert main(["camera", str(cameras / "thin_f2.8.toml"), "--json", "--focus", "inf"]) == 0

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from host.camerasetup import CameraSetup, Focus
-from host.cluster import parse_mesh, read_cluster
+from host.cluster import parse_mesh, read_cluster, statefulset_cluster
 from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
 from host.localmesh import LocalMesh
 from host.meshclient import MeshError, render_on_mesh
@@ -110,6 +110,15 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _camera_options(r.add_argument_group("camera (with --camera)"))
+    k = sub.add_parser("cluster-file", help="the cluster file of a Kubernetes StatefulSet of "
+                       "nodes (pod i is node i // COLS, i % COLS)")  # fmt: skip
+    k.add_argument("--statefulset", required=True, help="the nodes' StatefulSet name")
+    k.add_argument("--service", required=True, help="its headless Service (pod DNS names)")
+    k.add_argument("--rows", type=int, required=True, help="mesh rows")
+    k.add_argument("--cols", type=int, required=True, help="mesh columns")
+    k.add_argument("--port", type=int, default=7700, help="the nodes' port (default 7700)")
+    k.add_argument("--namespace", help="write full names (POD.SERVICE.NS.svc.cluster.local)")
+    k.add_argument("-o", "--output", help="write to FILE (default: standard output)")
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")
     c.add_argument("camera", help="camera file (.toml, SI units) or lens table (mm)")
     c.add_argument("--focus", type=float, help="focus distance in metres (default: the file's)")
@@ -159,7 +168,8 @@ def _focus(text: str):
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        code = _camera(args) if args.command == "camera" else _render(args)
+        run = {"camera": _camera, "cluster-file": _cluster_file, "render": _render}
+        code = run[args.command](args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
         return code
     except BrokenPipeError:  # `host camera ... | head`: the reader left; not an error here
@@ -196,6 +206,20 @@ def _camera(args) -> int:
           f"({fov['diagonal']:.1f} diagonal)\n"
           f"hyperfocal distance     {d['hyperfocal_distance_m']:.2f} m (circle of confusion "
           f"{d['circle_of_confusion_m'] * mm:.3f} mm)")  # fmt: skip
+    return 0
+
+
+def _cluster_file(args) -> int:
+    try:
+        text = statefulset_cluster(args.statefulset, args.service, args.rows, args.cols,
+                                   args.port, args.namespace)  # fmt: skip
+        if args.output:
+            Path(args.output).write_text(text)
+        else:
+            sys.stdout.write(text)
+    except (ValueError, OSError) as e:
+        print(f"{_prog()}: {e}", file=sys.stderr)
+        return 2
     return 0
 
 

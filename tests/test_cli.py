@@ -127,6 +127,15 @@ def test_a_first_run_says_kernels_compile_before_the_progress_starts(tmp_path, c
     assert capsys.readouterr().err == ""
 
 
+def test_a_mesh_render_waits_for_its_nodes_before_counting_progress(tmp_path, capsys):
+    assert main(["render", str(EXAMPLE), "--mesh", "1x2", "-o", str(tmp_path / "a.png"),
+                 "--width", "16", "--height", "16"]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    waiting = err.index("mesh 1x2: waiting for the nodes")
+    assert waiting < err.index("mesh 1x2 primary:")  # the bar restarts once all are ready
+    assert "Traceback" not in err
+
+
 @pytest.mark.parametrize("flags,what", [
     (["-o", "{tmp}/missing/a.png"], "no folder"),
     (["-o", "{tmp}/a.jpgg"], "writes .png or .exr images, not '.jpgg'"),

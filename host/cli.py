@@ -176,7 +176,7 @@ def main(argv=None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except KeyboardInterrupt:  # Ctrl-C: every node is already stopped (LocalMesh's exit)
-        print(f"\n{_prog()}: interrupted; nothing written", file=sys.stderr)
+        print(f"\n{_prog()}: interrupted", file=sys.stderr)
         return 130
 
 

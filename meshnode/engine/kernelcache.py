@@ -1,7 +1,7 @@
-"""What the on-disk kernel cache holds, for telling a first run (kernels compile, minutes)
-from a later one (they load, about a second), and for checking that a warmup left nothing to
-compile. The cache folder itself is chosen in `jit.py`; this module stays out of the hash that
-names it, so it can change without a recompile."""
+"""What the on-disk kernel cache holds, for telling a first run (kernels compile, tens of
+seconds) from a later one (they load, about a second), and for checking that a warmup left
+nothing to compile. The cache folder itself is chosen in `jit.py`; this module stays out of
+the hash that names it, so it can change without a recompile."""
 
 import hashlib
 import sys
@@ -9,11 +9,14 @@ from pathlib import Path
 
 import numba
 
-from meshnode.engine import jit  # noqa: F401 - sets numba.config.CACHE_DIR
+from meshnode.engine.trace import trace_batch
 
 
 def _marker(name: str) -> Path:
-    return Path(numba.config.CACHE_DIR, "warm", hashlib.sha256(name.encode()).hexdigest()[:16])
+    """numba keeps a folder per source location inside the cache (a checkout and an installed
+    copy of the same sources share the cache but not their kernels): mark in that one."""
+    folder = Path(trace_batch.stats.cache_path)
+    return folder / "warm" / hashlib.sha256(name.encode()).hexdigest()[:16]
 
 
 def is_warm(name: str) -> bool:

@@ -120,7 +120,7 @@ def test_a_first_run_says_kernels_compile_before_the_progress_starts(tmp_path, c
         assert not said
     else:
         assert len(said) == 1 and said[0].startswith("host: compiling kernels for spheres+")
-        assert said[0].endswith("/refraction/csr, first run only")
+        assert said[0].endswith("/shadows/refraction, first run only")
         assert lines.index(said[0]) < min(i for i, x in enumerate(lines) if "tracing:" in x)
     assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "b.png"), "--width", "8",
                  "--height", "8", "--quiet"]) == 0  # fmt: skip

@@ -84,11 +84,16 @@ class Engine:
         brute: bool = False,
         box: tuple | None = None,
         scene_box: tuple | None = None,
+        announce=None,
     ):
+        """`announce(variant name)` is called, before anything compiles, when this variant's
+        kernels are not in the disk cache yet (building the grid compiles some of them)."""
         start = time.perf_counter()
         self.scene = scene
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)
+        if announce is not None and not kernelcache.is_warm(variant_of(tb).name):
+            announce(variant_of(tb).name)
         if box is not None:
             lo, hi = (np.asarray(b, float) for b in box)
         elif tb.n:

@@ -71,6 +71,12 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter):
+    missing = [r for r in terminalreporter.stats.get("skipped", [])
+               if str(SCENES) in str(getattr(r, "longrepr", ""))]  # fmt: skip
+    if missing:
+        terminalreporter.write_line(
+            f"{len(missing)} tests skipped: no SPD scenes in {SCENES} (set MESHTRACE_SCENES; "
+            "the README says where the scenes come from)")  # fmt: skip
     for load in ([KERNEL_LOAD] if KERNEL_LOAD else []) + WORKER_LOADS:
         kind = "compiled (cold cache)" if load["cold"] else "loaded (warm cache)"
         terminalreporter.write_line(f"kernels {kind} in {load['seconds']:.1f} s, "

@@ -15,7 +15,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from host.camerasetup import CameraSetup, Focus, PinholeSetup
-from host.cluster import parse_mesh, read_cluster
+from host.cluster import parse_mesh, read_cluster, statefulset_cluster
+from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
 from host.localmesh import LocalMesh
 from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
 from host.plan import PLAN_MODES
@@ -29,6 +30,7 @@ from protocols.spec import default
 CAMERA_ONLY = (CameraSampling, Focus)
 PINHOLE_TOO = ("sampling", "threshold")  # CameraSampling fields the pinhole takes as well
 FLAGS: dict[str, str] = {}  # "Record.field" -> the option that sets it, for messages
+WRITERS = {".png": write_png, ".pfm": write_pfm, ".exr": write_exr}
 AUTO_WHY = ("on one machine, threads in one process beat a local mesh of processes: no rays or "
             "pixels cross process boundaries; --mesh ROWSxCOLS starts a local mesh")
 
@@ -57,9 +59,15 @@ def _given(args, record: type) -> dict:
     return {k[len(prefix):]: v for k, v in vars(args).items() if k.startswith(prefix)}
 
 
+def _prog() -> str:
+    """`meshtrace` when run by that name (the same commands as `host`, which /usr/bin/host,
+    the DNS lookup tool, shadows outside a virtual environment), else `host`."""
+    return "meshtrace" if Path(sys.argv[0]).name == "meshtrace" else "host"
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="host", description="Meshtrace host: render scenes (NFF, "
-                                "OBJ, PLY, Open Inventor).")  # fmt: skip
+    p = argparse.ArgumentParser(prog=_prog(), description="Meshtrace host: render scenes "
+                                "(NFF, OBJ, PLY, Open Inventor).")  # fmt: skip
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
     formats = "; ".join(f"{ext} {what}" for ext, what in FORMATS.items())
@@ -68,8 +76,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--settings", help="view, lights and material of a .obj / .ply mesh (or "
                    "resolution and background of a .iv) as TOML (default: SCENE's name .toml "
                    "beside it, if there is one; what neither gives is defaulted, with a note)")
-    r.add_argument("-o", "--output", help="PNG image (default: SCENE name .png)")
-    r.add_argument("--float", dest="float_path", help="float image, PFM (default: beside PNG)")
+    r.add_argument("-o", "--output", help="image: .png (8-bit sRGB) or .exr (linear float) "
+                   "(default: SCENE name .png)")  # fmt: skip
+    r.add_argument("--float", dest="float_path", help="linear float image, .pfm or .exr "
+                   "(default: a .pfm beside a .png output)")  # fmt: skip
     r.add_argument("--stats", help="write statistics as JSON to this file")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     r.add_argument("--serve", metavar="[HOST:]PORT", help="watch the render in a browser at "
@@ -96,6 +106,10 @@ def _parser() -> argparse.ArgumentParser:
                         "auto (default): on this one machine, 1x1 on every core")  # fmt: skip
     r.add_argument("--cluster", help="render on running nodes listed in FILE "
                    "(lines: ROW COL HOST:PORT)")  # fmt: skip
+    r.add_argument("--wait", type=float, default=60.0, metavar="SECONDS",
+                   help="with --cluster: how long to wait for every node to accept a "
+                        "connection (nodes still starting) before naming the first that does "
+                        "not (default 60)")  # fmt: skip
     r.add_argument("--secret-file", help="the cluster's secret (default: $MESHTRACE_SECRET); "
                    "a local mesh makes its own")  # fmt: skip
     add_tls_options(r.add_argument_group("TLS to the nodes (with --cluster)"), "the host's client")
@@ -122,6 +136,15 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))
+    k = sub.add_parser("cluster-file", help="the cluster file of a Kubernetes StatefulSet of "
+                       "nodes (pod i is node i // COLS, i % COLS)")  # fmt: skip
+    k.add_argument("--statefulset", required=True, help="the nodes' StatefulSet name")
+    k.add_argument("--service", required=True, help="its headless Service (pod DNS names)")
+    k.add_argument("--rows", type=int, required=True, help="mesh rows")
+    k.add_argument("--cols", type=int, required=True, help="mesh columns")
+    k.add_argument("--port", type=int, default=7700, help="the nodes' port (default 7700)")
+    k.add_argument("--namespace", help="write full names (POD.SERVICE.NS.svc.cluster.local)")
+    k.add_argument("-o", "--output", help="write to FILE (default: standard output)")
     c = sub.add_parser("camera", help="what a photographer asks of a camera or lens table")
     c.add_argument("camera", help="camera file (.toml, SI units) or lens table (mm)")
     c.add_argument("--focus", type=float, help="focus distance in metres (default: the file's)")
@@ -207,12 +230,16 @@ def _focus(text: str):
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        code = _camera(args) if args.command == "camera" else _render(args)
+        run = {"camera": _camera, "cluster-file": _cluster_file, "render": _render}
+        code = run[args.command](args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
         return code
     except BrokenPipeError:  # `host camera ... | head`: the reader left; not an error here
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except KeyboardInterrupt:  # Ctrl-C: every node is already stopped (LocalMesh's exit)
+        print(f"\n{_prog()}: interrupted", file=sys.stderr)
+        return 130
 
 
 def _camera(args) -> int:
@@ -247,6 +274,20 @@ def _camera(args) -> int:
     return 0
 
 
+def _cluster_file(args) -> int:
+    try:
+        text = statefulset_cluster(args.statefulset, args.service, args.rows, args.cols,
+                                   args.port, args.namespace)  # fmt: skip
+        if args.output:
+            Path(args.output).write_text(text)
+        else:
+            sys.stdout.write(text)
+    except (ValueError, OSError) as e:
+        print(f"{_prog()}: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _finite(value):
     """JSON has no Infinity: infinite figures (focus at infinity) are written "infinity"."""
     if isinstance(value, dict):
@@ -259,8 +300,6 @@ def _finite(value):
 
 
 def _render(args) -> int:
-    from host.framebuffer import write_pfm, write_png
-
     def note(line: str) -> None:
         if not args.quiet:
             print(f"host: {line}", file=sys.stderr)
@@ -289,8 +328,9 @@ def _render(args) -> int:
             live.stop()
         raise
     out, float_path, stats_path = outputs
-    write_png(out, img)
-    write_pfm(float_path, img)
+    for path in (out, float_path):
+        if path is not None:
+            WRITERS[path.suffix.lower()](path, img)
     if stats_path:
         stats_path.write_text(json.dumps(stats, indent=2) + "\n")
     if live is not None:
@@ -367,15 +407,23 @@ def _linger(live, args) -> None:
         live.stop()
 
 
-def _outputs(args) -> tuple[Path, Path, Path | None]:
-    """The PNG, PFM and statistics paths, checked before any work: the right suffix, and a
-    folder that exists and can be written (a render is never lost to a bad path)."""
+def _outputs(args) -> tuple[Path, Path | None, Path | None]:
+    """The image, float image and statistics paths, checked before any work: a format this
+    run can write, and a folder that exists and can be written (a render is never lost to a
+    bad path or a missing library). A .png output gets a .pfm beside it unless --float says
+    where; an .exr output is the float image itself."""
     out = Path(args.output or Path(args.scene).with_suffix(".png").name)
-    float_path = Path(args.float_path or out.with_suffix(".pfm"))
+    float_path = Path(args.float_path) if args.float_path else None
+    if float_path is None and out.suffix.lower() == ".png":
+        float_path = out.with_suffix(".pfm")
     stats = Path(args.stats) if args.stats else None
-    for path, suffix, flag in ((out, ".png", "-o"), (float_path, ".pfm", "--float")):
-        if path.suffix.lower() != suffix:
-            raise ValueError(f"{flag} {path}: writes {suffix} images, not {path.suffix!r}")
+    for path, suffixes, flag in ((out, (".png", ".exr"), "-o"),
+                                 (float_path, (".pfm", ".exr"), "--float")):  # fmt: skip
+        if path is not None and path.suffix.lower() not in suffixes:
+            raise ValueError(f"{flag} {path}: writes {' or '.join(suffixes)} images, not "
+                             f"{path.suffix or 'a name without a suffix'!r}")  # fmt: skip
+        if path is not None and path.suffix.lower() == ".exr" and exr_missing():
+            raise ValueError(f"{flag} {path}: {exr_missing()}")
     for path in (out, float_path, stats):
         if path is None:
             continue
@@ -484,7 +532,7 @@ def _run(scene, image, engine, camera, args, watch=None):
         secret = read_secret(args.secret_file)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
         img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls,
-                           watch)  # fmt: skip
+                           watch, args.wait)  # fmt: skip
         stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
         return img, stats
     if args.tls_cert or args.tls_key or args.tls_ca:
@@ -517,7 +565,7 @@ def _plan(rows: int, cols: int, args) -> MeshPlan:
 
 
 def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
-          watch=None):  # fmt: skip
+          watch=None, wait=5.0):  # fmt: skip
     from tqdm import tqdm
 
     sized = image.sized(scene.view)
@@ -525,8 +573,17 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
     if camera is None:
         gw, gh = sized.sample_grid()
         total = gw * gh * (1 if sized.corners() else sized.spp)
-    bar = tqdm(total=total, unit=" rays", desc=f"mesh {plan.rows}x{plan.cols} primary",
-               file=sys.stderr, disable=args.quiet, leave=False)  # fmt: skip
+    shape = f"mesh {plan.rows}x{plan.cols}"
+    bar = tqdm(total=total, unit=" rays", desc=f"{shape}: waiting for the nodes (connecting, "
+               "building engines; a first run compiles kernels)", file=sys.stderr,
+               disable=args.quiet, leave=False)  # fmt: skip
+
+    def ready():
+        """Every node traces from now on: the rate and ETA count from here, without the
+        nodes' build and kernel compile time."""
+        bar.set_description(f"{shape} primary", refresh=False)
+        bar.reset(total=total)
+
     try:
         return asyncio.run(render_on_mesh(scene, image, addresses, plan, engine, camera,
                                           secret=secret, progress=bar.update,
@@ -534,7 +591,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
                                           mode=args.mode, node_memory=args.node_memory,
                                           notice=lambda text: bar.write(f"host: {text}",
                                                                         file=sys.stderr),
-                                          watch=watch))  # fmt: skip
+                                          watch=watch, ready=ready, wait=wait))  # fmt: skip
     finally:
         bar.close()
 

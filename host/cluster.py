@@ -1,9 +1,12 @@
 """Where a mesh's nodes are: `--mesh ROWSxCOLS` for a local mesh, or a cluster file listing
-running nodes one per line as `ROW COL HOST:PORT` (errors name the file and line)."""
+running nodes one per line as `ROW COL HOST:PORT` (errors name the file and line), which
+`statefulset_cluster` writes for a Kubernetes StatefulSet of nodes."""
 
+import re
 from pathlib import Path
 
 MAX_LOCAL_NODES = 64  # node processes `--mesh` starts on this one machine
+DNS_LABEL = re.compile(r"[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?")
 
 
 def parse_mesh(text: str) -> tuple[int, int]:
@@ -45,3 +48,25 @@ def read_cluster(path) -> tuple[int, int, list[str]]:
     if missing:
         raise ValueError(f"{path}: no address for node(s) {missing}")
     return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]
+
+
+def statefulset_cluster(statefulset: str, service: str, rows: int, cols: int,
+                        port: int = 7700, namespace: str | None = None) -> str:  # fmt: skip
+    """The cluster file of a StatefulSet's pods behind a headless Service: pod i (stable DNS
+    name STATEFULSET-i.SERVICE, or its full name in `namespace`) is node (i // cols, i % cols),
+    so the StatefulSet needs rows * cols replicas."""
+    for flag, name in (("--statefulset", statefulset), ("--service", service),
+                       ("--namespace", namespace)):  # fmt: skip
+        if name is not None and not DNS_LABEL.fullmatch(name):
+            raise ValueError(f"{flag} {name!r}: not a Kubernetes name (lower-case letters, "
+                             "digits and '-', at most 63)")  # fmt: skip
+    if rows < 1 or cols < 1:
+        raise ValueError(f"--rows {rows} --cols {cols}: both must be at least 1")
+    if not 0 < port < 65536:
+        raise ValueError(f"--port {port}: not a TCP port")
+    domain = f"{service}.{namespace}.svc.cluster.local" if namespace else service
+    lines = [f"# {rows}x{cols} mesh: StatefulSet {statefulset} ({rows * cols} replicas) behind "
+             f"headless Service {service}"]  # fmt: skip
+    for i in range(rows * cols):
+        lines.append(f"{i // cols} {i % cols} {statefulset}-{i}.{domain}:{port}")
+    return "\n".join(lines) + "\n"

@@ -62,6 +62,26 @@ def write_pfm(path, img: np.ndarray) -> None:
         f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())
 
 
+def exr_missing() -> str | None:
+    """Why .exr cannot be written here (None: it can), asked before a render starts."""
+    try:
+        import OpenEXR  # noqa: F401
+    except ImportError:
+        return "writing .exr needs the OpenEXR package (pip install OpenEXR)"
+    return None
+
+
+def write_exr(path, img: np.ndarray) -> None:
+    """OpenEXR, linear RGB as 32-bit floats, ZIP-compressed: the float format compositing and
+    grading tools read (written by the Academy's OpenEXR bindings, wheels for every platform)."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    rgb = np.ascontiguousarray(img, dtype=np.float32)
+    with OpenEXR.File(header, {"RGB": rgb}) as f:
+        f.write(str(path))
+
+
 def read_pfm(path) -> np.ndarray:
     """Read back a PFM written by `write_pfm` (colour, either byte order)."""
     data = Path(path).read_bytes()

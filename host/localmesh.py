@@ -2,13 +2,20 @@
 
 Each node prints `listening HOST:PORT` once bound; the host reads that line, so ports are
 chosen by the OS. Processes are killed on any exit path (errors, Ctrl-C) by the context
-manager, so no orphan is left behind.
+manager, so no orphan is left behind. Nodes start with SIGINT ignored: a Ctrl-C at the
+terminal (sent to the whole process group) reaches the host alone, which stops them all at
+once (SIGTERM: they die without a word) before it winds down, instead of every node printing
+its own traceback or reporting its neighbours gone; they stay in the terminal's group, so a
+hang-up or Ctrl-Z still reaches them.
 """
 
 import os
 import select
+import signal
 import subprocess
 import sys
+import threading
+from contextlib import contextmanager
 
 
 class LocalMesh:
@@ -32,16 +39,21 @@ class LocalMesh:
         self.listen = listen or ["127.0.0.1:0"] * n
         self.wrap = wrap or (lambda i: [])
         self.procs: list[subprocess.Popen] = []
+        self._sigint = None  # the SIGINT handler to restore on exit
 
     def __enter__(self) -> list[str]:
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # fmt: skip
+            self._sigint = signal.signal(signal.SIGINT, self._interrupted)
         try:
-            for i in range(self.n):
-                self.procs.append(subprocess.Popen(
-                    [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
-                     self.listen[i], "--cluster", self.cluster, *(["--once"] * self.once),
-                     "--threads", str(self.threads), *self.options],
-                    stdout=subprocess.PIPE, text=True, env=self._environment(),
-                ))  # fmt: skip
+            with _sigint_ignored():
+                for i in range(self.n):
+                    self.procs.append(subprocess.Popen(
+                        [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
+                         self.listen[i], "--cluster", self.cluster, *(["--once"] * self.once),
+                         "--threads", str(self.threads), *self.options],
+                        stdout=subprocess.PIPE, text=True, env=self._environment(),
+                    ))  # fmt: skip
             return [self._address(p) for p in self.procs]
         except BaseException:
             self.__exit__(None, None, None)
@@ -62,10 +74,23 @@ class LocalMesh:
             raise RuntimeError(f"meshnode did not start (pid {proc.pid}): {line!r}")
         return line.split()[1]
 
-    def __exit__(self, *exc) -> None:
+    def _stop(self) -> None:
+        """SIGTERM to every node still running."""
         for p in self.procs:
             if p.poll() is None:
                 p.terminate()
+
+    def _interrupted(self, signum, frame):
+        """Ctrl-C: stop every node first, so none sees its neighbours vanish (and logs it)
+        while the host winds down, then interrupt the host as Python does."""
+        self._stop()
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc) -> None:
+        if self._sigint is not None:
+            signal.signal(signal.SIGINT, self._sigint)
+            self._sigint = None
+        self._stop()
         for p in self.procs:
             try:
                 p.wait(timeout=5)
@@ -74,3 +99,17 @@ class LocalMesh:
                 p.wait()
             if p.stdout:
                 p.stdout.close()
+
+
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while children start, so they inherit it ignored (Python and asyncio
+    then leave it so); only the main thread may change signal handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -67,7 +67,8 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          stall: float = 180.0, on_node_loss: str = "replan",
                          notice=None, tls: ssl.SSLContext | None = None,
                          mode: str | None = None, node_memory: int | None = None,
-                         watch=None) -> tuple[np.ndarray, dict]:  # fmt: skip
+                         watch=None, ready=None,
+                         wait: float = 5.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced (negative when a
@@ -79,7 +80,10 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     (meshnode.tls) when the nodes listen with TLS; `mode`: "auto", "object" or "image" to
     choose the plan's mode here (host.plan.choose_mode: auto weighs the scene against the
     memory the nodes report, or `node_memory`), None to keep `plan.mode`; `watch`: a
-    `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS."""
+    `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS; `ready()` once
+    every node has built its engine (compiled its kernels on a first run) and linked;
+    `wait`: seconds for every node to accept a connection (nodes still starting), then the
+    first one that does not is named."""
     if len(addresses) != plan.nodes:
         raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
                          f"got {len(addresses)}")  # fmt: skip
@@ -87,7 +91,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
         raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
     start = time.perf_counter()
     alive = list(range(len(addresses)))  # the original index of each node still rendering
-    links, memories = await _connect(addresses, cluster, secret, tls)
+    links, memories = await _connect(addresses, cluster, secret, tls, wait)
     connect = time.perf_counter() - start
     why = f"MeshPlan.mode = {plan.mode}"
     if mode is not None:
@@ -103,7 +107,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                 fb, summary = await _attempt(scene, image, engine, plan, camera,
                                              [links[n] for n in alive],
                                              [addresses[n] for n in alive], names, progress,
-                                             silence, stall, watch)  # fmt: skip
+                                             silence, stall, watch, ready)  # fmt: skip
                 break
             except MeshError as e:
                 if on_node_loss == "fail":
@@ -143,7 +147,7 @@ def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
 
 
 async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,
-                   progress, silence, stall, watch):  # fmt: skip
+                   progress, silence, stall, watch, ready):  # fmt: skip
     """One try at the frame on `links` (node i is links[i] at addresses[i], called
     names[i] in messages): (framebuffer, summary)."""
     start, ticks = time.perf_counter(), time.monotonic()
@@ -155,7 +159,7 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
         if plan.dynamic else None  # fmt: skip
-    collector = _Collector(fb, names, progress, silence, stall, dealer, watch)
+    collector = _Collector(fb, names, progress, silence, stall, dealer, watch, ready)
     if watch is not None:
         watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),
                     primary_rays(spec.image, camera))  # fmt: skip
@@ -188,14 +192,18 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     return fb, summary
 
 
-async def _connect(addresses, cluster, secret, tls) -> tuple[list[Link], list[int]]:
-    """One link to every node, both sides proving the secret; and the memory each has."""
+async def _connect(addresses, cluster, secret, tls,
+                   wait: float) -> tuple[list[Link], list[int]]:  # fmt: skip
+    """One link to every node within `wait` seconds in all, both sides proving the secret;
+    and the memory each has."""
     links: list[Link] = []
     memories: list[int] = []
+    deadline = time.monotonic() + wait
     try:
         for n, address in enumerate(addresses):
+            left = max(deadline - time.monotonic(), 0.1)
             link, theirs = await dial(address, f"node {n} ({address})", cluster, secret,
-                                      "host", tls=tls)  # fmt: skip
+                                      "host", tls=tls, wait=left)  # fmt: skip
             links.append(link)
             memories.append(theirs["memory"])
     except (LinkClosed, ProtocolError) as e:
@@ -265,9 +273,11 @@ class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
     def __init__(self, fb: Framebuffer, names: list[str], progress, silence: float,
-                 stall: float, dealer: TileDealer | None = None, watch=None):  # fmt: skip
+                 stall: float, dealer: TileDealer | None = None, watch=None,
+                 on_ready=None):  # fmt: skip
         self.fb, self.names, self.progress, self.dealer = fb, names, progress, dealer
         self.watch = watch
+        self.on_ready = on_ready  # called once, when every node is first ready
         self.silence, self.stall = silence, stall
         self.traced = 0  # primary rays reported so far
         self.ready_at: float | None = None  # time.monotonic() when every node was ready
@@ -321,6 +331,8 @@ class _Collector:
                 self.work[n], self.ready[n] = f["work"], f["ready"]
                 if self.ready_at is None and all(self.ready.values()):
                     self.ready_at = now
+                    if self.on_ready is not None:
+                        self.on_ready()
                 self.traced += f["rays"]
                 if self.progress and f["rays"]:
                     self.progress(f["rays"])

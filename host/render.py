@@ -16,7 +16,7 @@ from host.framebuffer import Framebuffer
 from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lenscamera import camera_batches, rect_pixels
+from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
 
@@ -31,8 +31,10 @@ def render(scene: SceneData, image: ImageSpec = ImageSpec(),
     `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
     tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
-                             max_depth=image.depth, brute=engine.brute)  # fmt: skip
+                             max_depth=image.depth, brute=engine.brute,
+                             announce=_compiling if progress else None)  # fmt: skip
     tracer.warmup()
+    eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed
     job = _Job(scene, image, engine, tracer, progress, watch)
     if camera is not None:
         return _render_camera(job, camera)
@@ -46,6 +48,11 @@ def render(scene: SceneData, image: ImageSpec = ImageSpec(),
         return _traced(tracer, eye_rays(scene.view, image, rows=rows))
 
     return _run_batches(job, fb, [(bands, fb)], trace_band, len(bands))
+
+
+def _compiling(variant: str) -> None:
+    """A first run compiles for tens of seconds before any progress: say why."""
+    print(f"host: compiling kernels for {variant}, first run only", file=sys.stderr, flush=True)
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,7 @@ def _render_camera(job: _Job, camera: CameraSetup):
     spec, info = camera.spec(job.scene, job.image, lambda: job.tracer)
     fb = Framebuffer(width, height, corners=False, spp=1)
     pixels = rect_pixels((0, width, 0, height), width)
+    camera_rays(spec, view, width, height, pixels[:1])  # compiled here, not while timed
 
     def trace_batch(rays):
         return _traced(job.tracer, rays)

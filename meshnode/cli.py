@@ -1,60 +1,21 @@
-"""`meshnode` command line. `warmup` compiles the engine's and the camera's kernels into the
-disk cache, so a node (or a container image) starts tracing without paying numba's compile
+"""`meshnode` command line. `warmup` compiles every kernel variant the engine can choose into
+the disk cache, so a node (or a container image) starts tracing without paying numba's compile
 time."""
 
 import argparse
 import sys
-import time
-
-import numpy as np
 
 from meshnode.scheduler import INCOMING_HIGH
 from meshnode.tls import NO_TLS, TlsFiles, add_tls_options
-from protocols import dtypes
-from protocols.scene import SceneData, View
-
-
-def _all_kinds_scene() -> SceneData:
-    """A tiny scene with every primitive kind, a light and a transmitter."""
-    scene = SceneData(view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0))
-    scene.materials = np.array(
-        [((1, 1, 1), 0.8, 0.2, 10, 0, 1), ((1, 1, 1), 0.1, 0.1, 10, 0.9, 1.5)], dtypes.MATERIAL
-    )
-    scene.lights = np.array([((0, 5, -5), (1, 1, 1))], dtypes.LIGHT)
-    scene.spheres = np.array([(0, 1, (0, 0, 0), 1.0)], dtypes.SPHERE)
-    v = np.array([(2, 0, 0), (3, 0, 0), (2, 1, 0)], float)
-    scene.triangles = np.array([(1, 0, v, np.tile((0, 0, -1.0), (3, 1)), 1)], dtypes.TRIANGLE)
-    scene.polygons = np.array([(2, 0, 0, 4)], dtypes.POLYGON)
-    scene.vertices = np.array([(-3, -1, 1), (3, -1, 1), (3, 1, 1), (-3, 1, 1)], float)
-    scene.cones = np.array([(3, 0, (-2, 0, 0), 0.5, (-2, 1, 0), 0.2)], dtypes.CONE)
-    return scene
-
-
-def warmup() -> float:
-    """Compile (or load) the all-kinds variant; returns the seconds it took."""
-    from meshnode.engine import Engine
-
-    start = time.perf_counter()
-    Engine(_all_kinds_scene()).warmup()
-    _camera_warmup()
-    return time.perf_counter() - start
-
-
-def _camera_warmup() -> None:
-    """Compile the camera-ray kernels (elements, sampling, records) on a one-pixel batch."""
-    from meshnode.engine.lenscamera import camera_rays
-    from protocols.camera import CameraSpec
-
-    lens = np.zeros(1, dtypes.ELEMENT)
-    lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
-    spec = CameraSpec(lens, 0.036, 0.024, -0.051)
-    camera_rays(spec, View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0), 1, 1, np.zeros(1, int))
 
 
 def parse(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
     sub = p.add_subparsers(dest="command", required=True)
-    sub.add_parser("warmup", help="compile the tracing kernels into the disk cache")
+    w = sub.add_parser("warmup", help="compile every tracing kernel variant into the disk "
+                       "cache (a first run: many minutes; later: seconds)")  # fmt: skip
+    w.add_argument("--common", action="store_true",
+                   help="only the variant with every primitive kind, lights and refraction")
     s = sub.add_parser("serve", help="serve as a mesh node")
     s.add_argument("--listen", default="127.0.0.1:7700",
                    help="HOST:PORT (default 127.0.0.1:7700; port 0: any free); another "
@@ -78,8 +39,7 @@ def parse(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse(argv)
     if args.command == "warmup":
-        print(f"kernels ready in {warmup():.2f} s", file=sys.stderr)
-        return 0
+        return _warmup(args.common)
     try:
         secret = serving_secret(args)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca)
@@ -92,6 +52,18 @@ def main(argv=None) -> int:
         return 2
     return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
                  secret=secret, tls=tls)  # fmt: skip
+
+
+def _warmup(common: bool) -> int:
+    from meshnode.engine.engine import all_variants
+    from meshnode.warmup import ALL_KINDS, warmup
+
+    def report(i, n, name):
+        print(f"meshnode: kernels {i + 1}/{n}: {name}", file=sys.stderr, flush=True)
+
+    seconds = warmup([ALL_KINDS] if common else all_variants(), report)
+    print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
+    return 0
 
 
 def serving_secret(args) -> bytes | None:

@@ -8,6 +8,7 @@ names the peer and chains the cause.
 
 import asyncio
 import ssl
+import time
 from collections import deque
 
 from protocols.errors import AuthFailed, ProtocolError, describe
@@ -49,26 +50,30 @@ class Link:
         return ssl_object.version() if ssl_object is not None else None
 
     @classmethod
-    async def connect(cls, address: str, peer: str, retries: int = 50,
+    async def connect(cls, address: str, peer: str, wait: float = 5.0,
                       max_frame: int = MAX_FRAME,
                       tls: ssl.SSLContext | None = None) -> "Link":  # fmt: skip
         """Connect to HOST:PORT (over TLS with a context: the peer's certificate must name
-        HOST), retrying briefly while the peer starts listening; a TLS failure is final."""
+        HOST), retrying for `wait` seconds while the peer starts (its name may not resolve
+        yet, or nothing listens yet), then giving up naming it; a TLS failure is final."""
         host, port = address.rsplit(":", 1)
         host = host.strip("[]")
         tls_options = {"ssl": tls, "server_hostname": host,
                        "ssl_handshake_timeout": HANDSHAKE_SECONDS} if tls else {}  # fmt: skip
-        for attempt in range(retries):
+        deadline = time.monotonic() + wait
+        pause = 0.1
+        while True:
             try:
                 reader, writer = await asyncio.open_connection(host, int(port), **tls_options)
                 return cls(reader, writer, peer, max_frame)
             except ssl.SSLError as e:
                 raise LinkClosed(peer, f"TLS with {address} failed: {e.reason or e}") from e
             except OSError as e:
-                if attempt == retries - 1:
-                    raise LinkClosed(peer, f"cannot connect to {address}: {e}") from e
-                await asyncio.sleep(0.1)
-        raise AssertionError("unreachable")
+                if time.monotonic() + pause > deadline:
+                    raise LinkClosed(peer, f"cannot connect to {address} within {wait:.3g} s: "
+                                     f"{e.strerror or e}") from e  # fmt: skip
+                await asyncio.sleep(pause)
+                pause = min(2 * pause, 1.0)
 
     async def send(self, message: dict) -> None:
         try:
@@ -158,13 +163,13 @@ class Outbox:
 
 
 async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
-               node: int = -1, tls: ssl.SSLContext | None = None,
-               render: bytes = b"") -> tuple[Link, dict]:  # fmt: skip
-    """Connect to a node (over TLS with a context) and prove the cluster secret both ways
-    (protocols.handshake), a node naming the `render` the link is for; returns the link,
-    open for whole frames, and the node's HELLO fields. LinkClosed names the peer and why it
-    refused or could not be reached."""
-    link = await Link.connect(address, peer, max_frame=HANDSHAKE_FRAME, tls=tls)
+               node: int = -1, tls: ssl.SSLContext | None = None, render: bytes = b"",
+               wait: float = 5.0) -> tuple[Link, dict]:  # fmt: skip
+    """Connect to a node (over TLS with a context; retrying for `wait` seconds) and prove
+    the cluster secret both ways (protocols.handshake), a node naming the `render` the link
+    is for; returns the link, open for whole frames, and the node's HELLO fields. LinkClosed
+    names the peer and why it refused or could not be reached."""
+    link = await Link.connect(address, peer, wait, max_frame=HANDSHAKE_FRAME, tls=tls)
     try:
         theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node,
                                                  render), HANDSHAKE_SECONDS)  # fmt: skip

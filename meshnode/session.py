@@ -91,6 +91,9 @@ class Session:
             self.core = await loop.run_in_executor(
                 self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition,
                                                     engines=self.service.engines))  # fmt: skip
+            if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
+                log.info("node %d: compiling kernels for %s, first run only", self.node,
+                         self.core.engine.variant())  # fmt: skip
             await loop.run_in_executor(self.service.pool, self.core.warmup)
             for f in self.early_tiles:
                 self.core.add_tiles(f["tiles"], f["last"])

@@ -5,7 +5,7 @@ kernel sources, under NUMBA_CACHE_DIR or ~/.cache/meshtrace, which the node proc
 tests start share), so each kernel variant compiles once per session, or never when the cache
 is warm; the session's first fixture compiles the common variants up front and the summary
 says how long that took and whether the cache was cold. With MESHTRACE_REQUIRE_SCENES=1 (CI
-sets it) a missing ../shared/scenes fails every test that needs it instead of skipping it.
+sets it) a missing scene folder fails every test that needs it instead of skipping it.
 """
 
 import os
@@ -24,13 +24,14 @@ from protocols.scene import SceneData, View
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SCENES = ROOT.parent / "shared" / "scenes"
+# The SPD scenes (README: where they come from): $MESHTRACE_SCENES, else beside the checkout.
+SCENES = Path(os.environ.get("MESHTRACE_SCENES") or ROOT.parent / "shared" / "scenes")
 KERNEL_LOAD: dict[str, float] = {}
 
 
 def spd_scene(name: str) -> Path:
-    """Path of an SPD scene; without ../shared/scenes beside the repo the test is skipped, or
-    fails when MESHTRACE_REQUIRE_SCENES=1."""
+    """Path of an SPD scene; without the scene folder the test is skipped, or fails when
+    MESHTRACE_REQUIRE_SCENES=1."""
     path = SCENES / name
     if not path.exists():
         if os.environ.get("MESHTRACE_REQUIRE_SCENES") == "1":
@@ -45,7 +46,7 @@ def kernels(request):
     before any test, so node processes started later load them from disk."""
     import numba
 
-    from meshnode.cli import warmup
+    from meshnode.warmup import warmup
 
     cache = Path(numba.config.CACHE_DIR)
     KERNEL_LOAD["cache"] = str(cache)
@@ -70,6 +71,12 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter):
+    missing = [r for r in terminalreporter.stats.get("skipped", [])
+               if str(SCENES) in str(getattr(r, "longrepr", ""))]  # fmt: skip
+    if missing:
+        terminalreporter.write_line(
+            f"{len(missing)} tests skipped: no SPD scenes in {SCENES} (set MESHTRACE_SCENES; "
+            "the README says where the scenes come from)")  # fmt: skip
     for load in ([KERNEL_LOAD] if KERNEL_LOAD else []) + WORKER_LOADS:
         kind = "compiled (cold cache)" if load["cold"] else "loaded (warm cache)"
         terminalreporter.write_line(f"kernels {kind} in {load['seconds']:.1f} s, "

@@ -106,11 +106,42 @@ def test_the_default_plan_on_one_machine_is_one_process_and_says_why(tmp_path, c
     assert first.startswith("host: plan: one process")
 
 
+@pytest.mark.parametrize("cached", [False, True])
+def test_a_first_run_says_kernels_compile_before_the_progress_starts(tmp_path, capsys,
+                                                                      monkeypatch, cached):
+    from meshnode.engine import kernelcache
+
+    monkeypatch.setattr(kernelcache, "is_warm", lambda name: cached)
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.png"), "--width", "8",
+                 "--height", "8"]) == 0  # fmt: skip
+    lines = capsys.readouterr().err.splitlines()
+    said = [line for line in lines if "compiling kernels" in line]
+    if cached:
+        assert not said
+    else:
+        assert len(said) == 1 and said[0].startswith("host: compiling kernels for spheres+")
+        assert said[0].endswith("/shadows/refraction, first run only")
+        assert lines.index(said[0]) < min(i for i, x in enumerate(lines) if "tracing:" in x)
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "b.png"), "--width", "8",
+                 "--height", "8", "--quiet"]) == 0  # fmt: skip
+    assert capsys.readouterr().err == ""
+
+
+def test_a_mesh_render_waits_for_its_nodes_before_counting_progress(tmp_path, capsys):
+    assert main(["render", str(EXAMPLE), "--mesh", "1x2", "-o", str(tmp_path / "a.png"),
+                 "--width", "16", "--height", "16"]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    waiting = err.index("mesh 1x2: waiting for the nodes")
+    assert waiting < err.index("mesh 1x2 primary:")  # the bar restarts once all are ready
+    assert "Traceback" not in err
+
+
 @pytest.mark.parametrize("flags,what", [
     (["-o", "{tmp}/missing/a.png"], "no folder"),
-    (["-o", "{tmp}/a.exr"], "writes .png images"),
-    (["-o", "{tmp}/a.jpgg"], "writes .png images"),
-    (["-o", "{tmp}/a.png", "--float", "{tmp}/a.tiff"], "writes .pfm images"),
+    (["-o", "{tmp}/a.jpgg"], "writes .png or .exr images, not '.jpgg'"),
+    (["-o", "{tmp}/a"], "not 'a name without a suffix'"),
+    (["-o", "{tmp}/a.png", "--float", "{tmp}/a.tiff"], "writes .pfm or .exr images"),
+    (["-o", "{tmp}/missing/a.exr"], "no folder"),
     (["-o", "{tmp}/a.png", "--stats", "{tmp}/nowhere/s.json"], "no folder"),
 ])  # fmt: skip
 def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
@@ -121,11 +152,64 @@ def test_bad_output_paths_fail_before_any_work(tmp_path, capsys, flags, what):
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written
 
 
+def test_exr_output_holds_the_linear_image_of_the_pfm(tmp_path):
+    import OpenEXR
+
+    small = ["--width", "12", "--height", "8", "--quiet"]
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.exr"), *small]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr"]  # the float image itself
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "b.png"), "--float",
+                 str(tmp_path / "b.exr"), *small]) == 0  # fmt: skip
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "c.png"), *small]) == 0
+    reference = read_pfm(tmp_path / "c.pfm")
+    assert reference.shape == (8, 12, 3) and reference.max() > 0
+    for name in ("a.exr", "b.exr"):
+        with OpenEXR.File(str(tmp_path / name)) as f:
+            rgb = f.channels()["RGB"].pixels
+        np.testing.assert_array_equal(rgb, reference.astype(np.float32))
+
+
+def test_exr_without_its_library_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # import OpenEXR now fails
+    assert main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"host: -o {tmp_path / 'a.exr'}: writing .exr needs the OpenEXR package " \
+                  "(pip install OpenEXR)\n"  # fmt: skip
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_cluster_node_that_never_comes_up_is_named_after_the_wait(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cluster = tmp_path / "cluster.txt"
+    cluster.write_text(f"0 0 127.0.0.1:{port}\n")
+    assert main(["render", str(EXAMPLE), "--cluster", str(cluster), "--wait", "1.5",
+                 "-o", str(tmp_path / "a.png"), "--quiet"]) == 1  # fmt: skip
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and f"node 0 (127.0.0.1:{port})" in err[0]
+    assert f"cannot connect to 127.0.0.1:{port} within 1.5 s" in err[0]
+
+
 def test_camera_json_is_strict_json_even_focused_at_infinity(capsys):
     cameras = Path(__file__).resolve().parents[1] / "host" / "cameras"
     assert main(["camera", str(cameras / "thin_f2.8.toml"), "--json", "--focus", "inf"]) == 0
     d = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(c))
     assert d["focus_distance_m"] == "infinity" and d["effective_focal_length_m"] > 0
+
+
+def test_meshtrace_is_a_second_name_for_the_host_commands():
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["meshtrace"] == scripts["host"] == "host.cli:main"
+    r = subprocess.run([sys.executable, "-c", "import sys; from host.cli import main; "
+                        "sys.argv[0] = '/usr/local/bin/meshtrace'; main(['--version'])"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.stdout.startswith("meshtrace "), r.stderr
 
 
 def test_version_and_a_closed_pipe_are_quiet(monkeypatch):

@@ -101,10 +101,10 @@ async def _heartbeat(link: Link) -> None:
 async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, change, what):
     # Found by bench/fuzz_node.py: a bad material index read outside an array in a kernel
     # (a segfault), a NaN kept a ray walking forever, a huge polygon count asked for 16 GiB.
-    from meshnode.cli import _all_kinds_scene
+    from meshnode.warmup import ALL_KINDS, variant_scene
     from protocols.messages import OBJECT_TABLES
 
-    scene = _all_kinds_scene()
+    scene = variant_scene(ALL_KINDS)
     records = getattr(scene, table).copy()
     for field, value in change.items():
         records[field] = value

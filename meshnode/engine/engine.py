@@ -7,19 +7,63 @@
     rgb, counts = engine.trace(rays)                     # Whitted colour per RAY record
 """
 
+import itertools
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 
+from meshnode.engine import kernelcache
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import build_grid
-from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
+from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, trace_batch
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
 from protocols.scene import SceneData
 from protocols.spec import default
+
+# Primitive kinds in local-id order, as `build_tables` names them in `Tables.kinds` (kept here:
+# a change in tables.py, which kernels import, empties everyone's kernel cache).
+KINDS = ("spheres", "triangles", "polygons", "cones")
+
+
+class Variant(NamedTuple):
+    """What one compiled variant of the kernels holds code for: numba compiles a kernel once
+    per combination of argument types, and an absent kind, lights or transmitters is None.
+    (Grid storage and brute force are values, not types: they share a variant.)"""
+
+    kinds: tuple[str, ...]  # primitive kinds present, in KINDS order
+    smooth: bool  # some triangle has vertex normals
+    shadows: bool  # there are lights
+    refraction: bool  # some object transmits
+
+    @property
+    def name(self) -> str:
+        return "/".join(["+".join(self.kinds) or "empty",
+                         "smooth" if self.smooth else "flat",
+                         "shadows" if self.shadows else "no-shadows",
+                         "refraction" if self.refraction else "no-refraction"])  # fmt: skip
+
+
+def variant_of(tables: Tables) -> Variant:
+    """The variant the engine compiles for these tables: the engine's one choice function."""
+    return Variant(tuple(tables.kinds), tables.tri_normals is not None,
+                   tables.lights is not None, bool(tables.transmitters))  # fmt: skip
+
+
+def all_variants() -> list[Variant]:
+    """Every variant `variant_of` can choose: any set of kinds, smooth only with triangles,
+    refraction only with some object; lights or not (what `meshnode warmup` compiles)."""
+    out = []
+    for n in range(len(KINDS) + 1):
+        for kinds in itertools.combinations(KINDS, n):
+            for smooth, shadows, refraction in itertools.product((False, True), repeat=3):
+                if (smooth and "triangles" not in kinds) or (refraction and not kinds):
+                    continue
+                out.append(Variant(kinds, smooth, shadows, refraction))
+    return out
 
 
 class Engine:
@@ -40,11 +84,16 @@ class Engine:
         brute: bool = False,
         box: tuple | None = None,
         scene_box: tuple | None = None,
+        announce=None,
     ):
+        """`announce(variant name)` is called, before anything compiles, when this variant's
+        kernels are not in the disk cache yet (building the grid compiles some of them)."""
         start = time.perf_counter()
         self.scene = scene
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)
+        if announce is not None and not kernelcache.is_warm(variant_of(tb).name):
+            announce(variant_of(tb).name)
         if box is not None:
             lo, hi = (np.asarray(b, float) for b in box)
         elif tb.n:
@@ -87,13 +136,14 @@ class Engine:
 
     def variant(self) -> str:
         """Name of the compiled variant, e.g. 'spheres+polygons/flat/shadows/no-refraction/csr'."""
-        tb = self.tables
-        parts = ["+".join(tb.kinds) or "empty"]
-        parts.append("smooth" if tb.tri_normals is not None else "flat")
-        parts.append("shadows" if tb.lights is not None else "no-shadows")
-        parts.append("refraction" if tb.transmitters else "no-refraction")
-        parts.append("brute-force" if self.brute else self.grid.storage)
-        return "/".join(parts)
+        storage = "brute-force" if self.brute else self.grid.storage
+        return f"{variant_of(self.tables).name}/{storage}"
+
+    @property
+    def compiled(self) -> bool:
+        """Whether this variant's kernels are in the disk cache already (a warmup marked
+        them), so `warmup` loads instead of compiling: callers say so on a first run."""
+        return kernelcache.is_warm(variant_of(self.tables).name)
 
     def warmup(self) -> float:
         """Compile (or load from the disk cache) this variant's kernels, single-node and mesh
@@ -107,6 +157,7 @@ class Engine:
         self.trace(ray)
         self.trace_node(ray)
         self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+        kernelcache.mark_warm(variant_of(self.tables).name)
         self.stats["kernel_load_seconds"] = seconds = time.perf_counter() - start
         return seconds
 

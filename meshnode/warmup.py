@@ -1,0 +1,82 @@
+"""`meshnode warmup`: compile every kernel variant the engine can choose into the disk cache,
+so a node (or a container image built with it) never compiles while a render waits.
+
+The engine compiles one variant per set of primitive kinds, smooth triangles, lights and
+transmitters (`meshnode.engine.engine.Variant`); which one a node needs depends on the objects
+its box holds, so a node of a mesh can need any of them. Each variant is compiled on a tiny
+scene that makes the engine choose exactly it.
+"""
+
+import time
+
+import numpy as np
+
+from meshnode.engine.engine import Variant
+from protocols import dtypes
+from protocols.scene import SceneData, View
+
+ALL_KINDS = Variant(("spheres", "triangles", "polygons", "cones"), True, True, True)
+
+
+def variant_scene(variant: Variant) -> SceneData:
+    """A scene of one object per kind of `variant`, smooth triangles, a light and a
+    transmitter as it says, for which the engine chooses `variant` itself."""
+    scene = SceneData(view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0))
+    scene.materials = np.array(
+        [((1, 1, 1), 0.8, 0.2, 10, 0, 1), ((1, 1, 1), 0.1, 0.1, 10, 0.9, 1.5)], dtypes.MATERIAL
+    )
+    if variant.shadows:
+        scene.lights = np.array([((0, 5, -5), (1, 1, 1))], dtypes.LIGHT)
+    mat = 1 if variant.refraction else 0  # the first object transmits, the others do not
+    gid = 0
+    if "spheres" in variant.kinds:
+        scene.spheres = np.array([(gid, mat, (0, 0, 0), 1.0)], dtypes.SPHERE)
+        gid, mat = gid + 1, 0
+    if "triangles" in variant.kinds:
+        v = np.array([(2, 0, 0), (3, 0, 0), (2, 1, 0)], float)
+        normals = np.tile((0, 0, -1.0), (3, 1))
+        scene.triangles = np.array([(gid, mat, v, normals, int(variant.smooth))],
+                                   dtypes.TRIANGLE)  # fmt: skip
+        gid, mat = gid + 1, 0
+    if "polygons" in variant.kinds:
+        scene.polygons = np.array([(gid, mat, 0, 4)], dtypes.POLYGON)
+        scene.vertices = np.array([(-3, -1, 1), (3, -1, 1), (3, 1, 1), (-3, 1, 1)], float)
+        gid, mat = gid + 1, 0
+    if "cones" in variant.kinds:
+        scene.cones = np.array([(gid, mat, (-2, 0, 0), 0.5, (-2, 1, 0), 0.2)], dtypes.CONE)
+    return scene
+
+
+def warmup(variants=(ALL_KINDS,), report=None) -> float:
+    """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
+    `all_variants()`), the pinhole eye rays, ray routing and the camera; returns the seconds.
+    `report(i, n, name)` is called before each variant."""
+    from meshnode.engine import Engine
+
+    start = time.perf_counter()
+    variants = list(variants)
+    for i, variant in enumerate(variants):
+        if report is not None:
+            report(i, len(variants), variant.name)
+        Engine(variant_scene(variant)).warmup()
+    _common_warmup()
+    return time.perf_counter() - start
+
+
+def _common_warmup() -> None:
+    """The kernels every variant shares: pinhole eye rays, ray routing between boxes, and
+    the camera rays (elements, sampling, records) on a one-pixel batch."""
+    from meshnode.engine.camera import eye_rays
+    from meshnode.engine.lenscamera import camera_rays
+    from meshnode.engine.trace import owners
+    from protocols.camera import CameraSpec
+    from protocols.render import ImageSpec
+
+    view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
+    rays = eye_rays(view, ImageSpec(width=1, height=1))
+    owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
+    lens = np.zeros(1, dtypes.ELEMENT)
+    lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
+    spec = CameraSpec(lens, 0.036, 0.024, -0.051)
+    camera_rays(spec, view, 1, 1, np.zeros(1, int))
+

@@ -1,0 +1,68 @@
+"""`meshnode warmup` compiles what a render needs: every kernel variant the engine's own choice
+function (`variant_of`) can pick, and a render in a fresh process after a warmup compiles
+nothing (numba's cache misses say so)."""
+
+import subprocess
+import sys
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from meshnode.engine.engine import all_variants, variant_of
+from meshnode.engine.tables import build_tables
+from meshnode.warmup import variant_scene
+from tests.conftest import make_scene
+
+
+def test_each_warmup_scene_makes_the_engine_choose_its_variant():
+    variants = all_variants()
+    assert len(set(variants)) == len(variants) == 94
+    for v in variants:
+        assert variant_of(build_tables(variant_scene(v))) == v
+
+
+@settings(max_examples=60, deadline=None)
+@given(counts=st.lists(st.integers(0, 2), min_size=4, max_size=4), lights=st.integers(0, 2),
+       smooth=st.booleans(), transmit=st.lists(st.booleans(), min_size=8, max_size=8))
+def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights, smooth,
+                                                                   transmit):  # fmt: skip
+    ns, nt, npoly, nc = counts
+    mats = [((1, 1, 1), 0.5, 0.2, 10, 0.9 if t else 0.0, 1.5) for t in transmit]
+    scene = make_scene(
+        spheres=[((3 * i, 0, 0), 1.0, i) for i in range(ns)],
+        triangles=[((i, 0, 0), (i + 1, 0, 0), (i, 1, 0), 2 + i) for i in range(nt)],
+        polygons=[([(i, 0, 1), (i + 1, 0, 1), (i + 1, 1, 1), (i, 1, 1)], 4 + i)
+                  for i in range(npoly)],
+        cones=[((i, 0, 2), 0.5, (i, 1, 2), 0.2, 6 + i) for i in range(nc)],
+        lights=[(0, 5, -5)] * lights, materials=mats)  # fmt: skip
+    scene.triangles["smooth"] = smooth
+    assert variant_of(build_tables(scene)) in all_variants()
+
+
+FRESH_RENDER = """
+import numpy as np
+from host.render import render
+from meshnode.engine import Engine
+from meshnode.engine.camera import eye_rays
+from meshnode.engine.kernelcache import kernels_compiled
+from meshnode.engine.trace import owners
+from meshnode.warmup import ALL_KINDS, variant_scene
+from protocols.render import ImageSpec
+
+scene = variant_scene(ALL_KINDS)
+render(scene, ImageSpec(width=8, height=8))
+render(scene, ImageSpec(spd=True, width=8, height=8))
+engine = Engine(scene, storage="hash")
+rays = eye_rays(scene.view, ImageSpec(width=4, height=4))
+engine.trace_node(rays)
+owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
+print(kernels_compiled())
+"""
+
+
+def test_a_render_in_a_fresh_process_after_warmup_compiles_nothing():
+    # The session's first fixture ran warmup() for the all-kinds variant in this cache.
+    r = subprocess.run([sys.executable, "-c", FRESH_RENDER], capture_output=True, text=True,
+                       timeout=600)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-1] == "0", r.stdout

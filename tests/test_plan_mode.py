@@ -59,9 +59,9 @@ def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
     out = str(tmp_path / "t.png")
     assert main(["render", scene, "-o", out, "--mesh", "1x2", "--width", "16",
                  "--height", "16", "--node-memory", "1K"]) == 0  # fmt: skip
-    # The first line of text, among the progress bar's redraws:
+    # The first line the host writes, among the progress bar's redraws:
     lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
-    first = next(line for line in lines if line.strip() and "primary:" not in line)
+    first = next(line for line in lines if line.startswith("host:"))
     assert first.startswith("host: plan: object space on 1x2 (the whole scene's engine")
     assert "--node-memory" in first
     with pytest.raises(SystemExit) as e:

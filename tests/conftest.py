@@ -32,7 +32,12 @@ KERNEL_LOAD: dict[str, float] = {}
 def spd_scene(name: str) -> Path:
     """Path of an SPD scene; without the scene folder the test is skipped, or fails when
     MESHTRACE_REQUIRE_SCENES=1."""
-    path = SCENES / name
+    return shared_file(SCENES / name)
+
+
+def shared_file(path: Path) -> Path:
+    """`path` of the data shared beside the checkout (scenes, lens files): a test without
+    it is skipped, or fails when MESHTRACE_REQUIRE_SCENES=1 (CI has them)."""
     if not path.exists():
         if os.environ.get("MESHTRACE_REQUIRE_SCENES") == "1":
             pytest.fail(f"{path} is missing and MESHTRACE_REQUIRE_SCENES=1")

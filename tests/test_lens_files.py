@@ -5,7 +5,6 @@ the Cartesian oval, the scene's own pinhole rays and a many-ray image."""
 
 import json
 import math
-import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from protocols import dtypes
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData, View
+from tests.conftest import shared_file
 from tests.test_optics import stack
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,14 +29,8 @@ SHIPPED = ("dgauss.50mm.dat", "wide.22mm.dat")
 
 
 def shared_lens(name: str) -> Path:
-    """A lens file as shipped; skipped without ../shared/lenses beside the repo, failed when
-    MESHTRACE_REQUIRE_SCENES=1."""
-    path = LENSES / name
-    if not path.exists():
-        if os.environ.get("MESHTRACE_REQUIRE_SCENES") == "1":
-            pytest.fail(f"{path} is missing and MESHTRACE_REQUIRE_SCENES=1")
-        pytest.skip(f"{path} not available")
-    return path
+    """A lens file as shipped (tests.conftest.shared_file: skipped or failed without it)."""
+    return shared_file(LENSES / name)
 
 
 def paraxial_efl(path: Path) -> float:

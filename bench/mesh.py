@@ -1,18 +1,22 @@
-"""Mesh benchmark: SPD balls and tetra at 512x512 (SPD mode) on local meshes of meshnode
-processes, against one node in this process.
+"""Mesh benchmark: SPD scenes on local meshes of meshnode processes, against one node in this
+process.
 
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
-                         [--modes object,image] [--json FILE]
+                         [--modes object,image] [--tiles static] [--size 512 --spp 1]
+                         [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
-node's CPU seconds / busiest node's, imbalance (Tmax - Tmin) / Tmax over node CPU seconds,
-rays passed between nodes, and bytes per link (mean and max over directed links). Counts are
-checked against the single node's. `--node-threads 1,2` runs every row with nodes tracing on
-that many threads, side by side (e.g. `--meshes 1x1 --node-threads 1,2`: one node process
-using one core or both); `--balance even,cost` compares the image cuts likewise. The machine
-has 2 cores, so meshes of 4 and 9 processes share them: wall time shows that; CPU seconds
-show the division of work.
+node's CPU seconds / busiest node's (and the same for wall time), parallel efficiency (sum of
+node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
+seconds (until every node is built and linked), rays passed between nodes, and bytes per link
+(mean and max over directed links). Counts are checked against the single node's. Without
+--size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples.
+`--node-threads 1,2` runs every row with nodes tracing on that many threads, side by side;
+`--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
+space tilings. `--plots DIR` writes a per-node load plot (PNG) for every row: each node's
+tracing CPU against the busiest's. The machine has 2 cores, so meshes of 4 and more
+processes share them: wall time shows that; CPU seconds show the division of work.
 """
 
 import argparse
@@ -30,27 +34,47 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
           "shadow_rays_blocked")  # fmt: skip
 
 
-def single(scene):
+def single(scene, image):
     """One node in this process, one thread: the CPU-seconds reference."""
     from host.render import render
-    from protocols.render import EngineSpec, ImageSpec
+    from protocols.render import EngineSpec
 
-    render(scene, ImageSpec(spd=True), EngineSpec(threads=1))  # warm
+    render(scene, image, EngineSpec(threads=1))  # warm
     start = time.perf_counter()
-    _, stats = render(scene, ImageSpec(spd=True), EngineSpec(threads=1))
+    _, stats = render(scene, image, EngineSpec(threads=1))
     return time.perf_counter() - start, stats
 
 
-def on_mesh(scene, rows, cols, overlap, threads=1, balance="even", mode="object"):
+def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
+            tiles="static"):  # fmt: skip
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
-    from protocols.render import ImageSpec, MeshPlan
+    from protocols.render import MeshPlan
 
-    plan = MeshPlan(rows, cols, overlap, balance, mode)
+    plan = MeshPlan(rows, cols, overlap, balance, mode, tiles)
     with LocalMesh(rows * cols, threads=threads) as addresses:
         start = time.perf_counter()
-        _, stats = asyncio.run(render_on_mesh(scene, ImageSpec(spd=True), addresses, plan))
+        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
         return time.perf_counter() - start, stats
+
+
+def load_plot(path: Path, title: str, stats: dict) -> None:
+    """Each node's tracing CPU seconds as a bar against the busiest node's (PNG, Pillow)."""
+    from PIL import Image, ImageDraw
+
+    busy = [n["busy_cpu_seconds"] for n in stats["nodes"]]
+    top = max(max(busy), 1e-9)
+    w, row = 480, 18
+    img = Image.new("RGB", (w, 30 + row * len(busy)), "white")
+    d = ImageDraw.Draw(img)
+    d.text((6, 6), title, fill="black")
+    for i, b in enumerate(busy):
+        y = 26 + i * row
+        d.rectangle([70, y, 70 + (w - 150) * b / top, y + row - 5], fill=(70, 120, 200))
+        d.rectangle([70, y, w - 80, y + row - 5], outline=(160, 160, 160))
+        d.text((6, y), f"node {i}", fill="black")
+        d.text((w - 74, y), f"{b:.2f} s", fill="black")
+    img.save(path)
 
 
 def link_bytes(stats):
@@ -69,9 +93,20 @@ def main(argv=None) -> int:
     p.add_argument("--modes", default="object",
                    help="object,image: object space (every overlap and cut) and image space "
                         "(static tiles; overlap and cuts do not apply)")  # fmt: skip
+    p.add_argument("--tiles", default="static", help="image space tilings to compare: "
+                   "static,dynamic")  # fmt: skip
+    p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
+    p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
     p.add_argument("--json", type=Path)
+    p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
     args = p.parse_args(argv)
     from host.nff import read_nff
+    from protocols.render import ImageSpec
+
+    image = (ImageSpec(width=args.size, height=args.size, spp=args.spp) if args.size
+             else ImageSpec(spd=True))  # fmt: skip
+    if args.plots:
+        args.plots.mkdir(parents=True, exist_ok=True)
 
     meshes = [tuple(int(v) for v in m.split("x")) for m in args.meshes.split(",")]
     overlaps = [float(o) for o in args.overlaps.split(",")]
@@ -79,23 +114,25 @@ def main(argv=None) -> int:
     bad = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        wall1, s1 = single(scene)
+        wall1, s1 = single(scene, image)
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
         print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
-        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>5} {'wall s':>7} "
-              f"{'busiest CPU s':>13} "
-              f"{'speedup':>7} "
-              f"{'imbalance':>9} {'rays passed':>11} {'bytes/link mean':>15} "
+        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>7} {'wall s':>7} "
+              f"{'busiest CPU s':>13} {'speedup':>7} {'wall':>5} {'effic':>5} "
+              f"{'imbalance':>9} {'setup s':>7} {'rays passed':>11} {'bytes/link mean':>15} "
               f"{'max':>11}")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         runs = [(m, o, t, c) for m in args.modes.split(",") for t in threads
                 for o, c in ([(o, c) for o in overlaps for c in cuts] if m == "object"
-                             else [(0.0, "even")])]  # fmt: skip
+                             else [(0.0, t) for t in args.tiles.split(",")])]  # fmt: skip
         for rows, cols in meshes:
             for mode, overlap, thr, cut in runs:
-                wall, st = on_mesh(scene, rows, cols, overlap, thr, cut, mode)
+                if mode == "image":  # `cut` names the tiling here
+                    wall, st = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut)
+                else:
+                    wall, st = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode)
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {overlap}%: {counts} != {ref}")
@@ -104,14 +141,22 @@ def main(argv=None) -> int:
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
                        "node_threads": thr, "cuts": cut,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
-                       "speedup": cpu1 / busiest, "imbalance": st["imbalance"],
+                       "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
+                       "parallel_efficiency": st["parallel_efficiency"],
+                       "setup_seconds": st["setup_seconds"], "imbalance": st["imbalance"],
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
                        "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>5} {wall:>7.2f} "
-                      f"{busiest:>13.3f} "
-                      f"{row['speedup']:>7.2f} {st['imbalance']:>9.2f} {st['rays_passed']:>11} "
+                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>7} {wall:>7.2f} "
+                      f"{busiest:>13.3f} {row['speedup']:>7.2f} {row['wall_speedup']:>5.2f} "
+                      f"{st['parallel_efficiency']:>5.2f} {st['imbalance']:>9.2f} "
+                      f"{st['setup_seconds']:>7.2f} {st['rays_passed']:>11} "
                       f"{mean:>15,.0f} {top:>11,}")  # fmt: skip
+                if args.plots:
+                    tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{overlap:g}-t{thr}"
+                    load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "
+                              f"{row['speedup']:.2f}, efficiency "
+                              f"{st['parallel_efficiency']:.2f}", st)  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(results, indent=2) + "\n")
     if bad:

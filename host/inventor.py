@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from host.scenebuilder import SceneBuilder
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 from host.settings import Settings, beside, default_light, framing, read_settings
 from protocols.scene import SceneData, View
 

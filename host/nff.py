@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from host import polygons
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 from protocols import dtypes
 from protocols.scene import MAX_COORDINATE, SceneData, View
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from host.meshfaces import MeshFaces
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 
 # Statements that describe nothing the tracer draws: texture, grouping, materials by name,
 # smoothing groups, lines and points.

@@ -16,7 +16,7 @@ import numpy as np
 import plyfile
 
 from host.meshfaces import MeshFaces
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 
 _FACE_LISTS = ("vertex_indices", "vertex_index")
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from host.meshfaces import MeshFaces
 from host.scenebuilder import SceneBuilder
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 from host.settings import Settings, beside, default_light, framing, material_row, read_settings
 from protocols.scene import SceneData
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from host import polygons
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 from protocols import dtypes
 from protocols.scene import SceneData, View
 

@@ -1,5 +1,5 @@
-"""A scene file of any format the host reads, chosen by its extension, and the error every
-reader raises.
+"""A scene file of any format the host reads, chosen by its extension (the error every
+reader raises is host.sceneerror.SceneError, re-exported here).
 
 Every reader fills the same `SceneData`; what a format lacks (a bare mesh has no camera, light
 or material) comes from a TOML file beside it, or from defaults that a note names.
@@ -10,7 +10,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from host.sceneerror import SceneError
 from protocols.scene import SceneData
+
+__all__ = ["FORMATS", "SceneError", "read_scene"]
 
 # Extension -> what the file is, for --help and the unknown-extension error.
 FORMATS = {
@@ -19,19 +22,6 @@ FORMATS = {
     ".ply": "PLY mesh (ASCII or binary)",
     ".iv": "Open Inventor 2.1 ASCII",
 }
-
-
-class SceneError(ValueError):
-    """Bad scene input, worded `file:line: what is wrong` so editors and people can jump to it."""
-
-    def __init__(self, source: str, line: int, what: str):
-        super().__init__(f"{source}:{line}: {what}")
-        self.source, self.line, self.what = source, line, what
-
-    def __reduce__(self):
-        # Default exception pickling calls cls(*args) with the one formatted message; keep the
-        # parts so the error survives crossing a process boundary.
-        return type(self), (self.source, self.line, self.what)
 
 
 def read_scene(path, settings=None, note: Callable[[str], None] | None = None) -> SceneData:

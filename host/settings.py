@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from host.scenefile import SceneError
+from host.sceneerror import SceneError
 from protocols.scene import View
 
 DEFAULT_ANGLE = 45.0

@@ -131,8 +131,12 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--tiles", MeshPlan, "tiles", "image space: none (a band of rows a node), "
            "static (tiles dealt round-robin) or dynamic (dealt by the host as nodes finish)",
            choices=TILINGS)  # fmt: skip
-    _field(r, "--tile", MeshPlan, "tile", "image-space tile side, pixels", type=int)
+    _field(r, "--tile", MeshPlan, "tile", "image-space tile side, or object-space chunk side "
+           "with --steal, pixels", type=int)  # fmt: skip
     _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
+    _field(r, "--steal", MeshPlan, "steal", "object space: nodes trace their rectangles in "
+           "--tile chunks spiralling out from the centre, and one that runs out takes "
+           "unstarted chunks from a busy neighbour's outer end", action="store_true")
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))

@@ -19,7 +19,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.trace import owners
-from meshnode.scheduler import Primaries, TileFeed
+from meshnode.scheduler import ChunkFeed, Primaries, TileFeed
 from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
@@ -67,6 +67,22 @@ def _engine_key(scene: SceneData, options: dict) -> bytes:
     h.update(repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))
                   ).encode())  # fmt: skip
     return h.digest()
+
+
+def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
+    """`rect` (x0, x1, y0, y1) cut into chunks of `side` pixels, ordered from the centre
+    outward: ring by ring (Chebyshev distance of the chunk from the middle one), each ring
+    walked round by angle. Traced from the front, stolen from the back (DESIGN.md 6)."""
+    x0, x1, y0, y1 = rect
+    xs, ys = list(range(x0, x1, side)), list(range(y0, y1, side))
+    cx, cy = (len(xs) - 1) / 2, (len(ys) - 1) / 2
+
+    def order(ij):
+        i, j = ij
+        return (max(abs(i - cx), abs(j - cy)), np.arctan2(j - cy, i - cx))
+
+    cells = sorted(((i, j) for j in range(len(ys)) for i in range(len(xs))), key=order)
+    return [(xs[i], min(xs[i] + side, x1), ys[j], min(ys[j] + side, y1)) for i, j in cells]
 
 
 class NodeCore:
@@ -128,6 +144,10 @@ class NodeCore:
             return Primaries()
         if self.feed is not None:
             return self.feed
+        if self.spec.plan.steal:
+            side = self.spec.plan.tile
+            return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
+                             self.rect_batches)  # fmt: skip
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
 
     def rect_batches(self, rect):

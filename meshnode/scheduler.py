@@ -41,6 +41,21 @@ class Flush:
 
 
 @dataclass(frozen=True)
+class Steal:
+    """Ask neighbour `to` for unstarted chunks (this node has run out of primary rays)."""
+
+    to: int
+
+
+@dataclass(frozen=True)
+class Give:
+    """Answer neighbour `to`'s STEAL with these chunks (maybe none)."""
+
+    to: int
+    chunks: list
+
+
+@dataclass(frozen=True)
 class SendPacket:
     """Send the state packet to node `to` (the next on the ring)."""
 
@@ -73,6 +88,39 @@ class Primaries:
     def waiting(self) -> bool:
         """More batches may still come (a tile feed the host has not closed)."""
         return False
+
+
+class ChunkFeed(Primaries):
+    """Object space with stealing: chunks (x0, x1, y0, y1) of this node's rectangle in spiral
+    order, centre first, traced from the front; `take` hands unstarted chunks from the back
+    (the outer end of the spiral) to a neighbour that has run out, and `add` takes chunks a
+    neighbour gave. `batches(chunk)` makes a chunk's primary rays, one batch at a time. A
+    chunk is started (and can no longer be given) once its first batch is looked ahead."""
+
+    def __init__(self, chunks, batches):
+        self.chunks, self.make = deque(chunks), batches
+        self.current = iter(())
+        super().__init__()
+
+    def _advance(self) -> None:
+        while True:
+            self.next = next(self.current, None)
+            if self.next is not None and len(self.next):
+                return
+            if self.next is None:
+                if not self.chunks:
+                    return
+                self.current = iter(self.make(self.chunks.popleft()))
+
+    def take(self) -> list:
+        """Half of the unstarted chunks, from the outer end (none when one or none is left:
+        this node will start it sooner than a message could carry it)."""
+        return [self.chunks.pop() for _ in range(len(self.chunks) // 2)]
+
+    def add(self, chunks) -> None:
+        self.chunks.extend(tuple(c) for c in chunks)
+        if self.next is None:
+            self._advance()
 
 
 class TileFeed(Primaries):
@@ -149,8 +197,16 @@ class Scheduler:
     driver stops reading (it resumes once `may_read`, at a quarter of that)."""
 
     def __init__(self, node: int, ring_next: int, nodes: int, threads: int = 1,
-                 incoming_high: int = INCOMING_HIGH):  # fmt: skip
+                 incoming_high: int = INCOMING_HIGH, neighbours=(),
+                 steal: bool = False):  # fmt: skip
         self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
+        # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
+        # one that had nothing is not asked again in this state.
+        self.steal, self.neighbours = steal, list(neighbours)
+        self.asked: set[int] = set()
+        self.steal_from: int | None = None  # the neighbour whose answer is awaited
+        self.thieves: deque = deque()  # neighbours waiting for an answer from this node
+        self.chunks_given = self.chunks_taken = 0
         self.incoming_high = max(1, incoming_high)
         self.term = Termination(node)
         self.state = State.DOWNLOAD
@@ -185,6 +241,21 @@ class Scheduler:
     def packet_in(self, packet: Packet) -> None:
         self.packet = packet
 
+    def steal_request(self, thief: int) -> None:
+        """A neighbour asked for chunks (a counted message): answered by the next `next()`."""
+        self.term.on_received()
+        self.thieves.append(thief)
+
+    def given(self, giver: int, chunks: list) -> None:
+        """A neighbour's answer (a counted message): chunks to trace here, or none."""
+        self.term.on_received()
+        self.steal_from = None
+        if chunks and isinstance(self.primaries, ChunkFeed):
+            self.primaries.add(chunks)
+            self.chunks_taken += len(chunks)
+        else:
+            self.asked.add(giver)
+
     def batch_done(self) -> None:
         self.in_flight -= 1
         self.term.on_work()
@@ -208,6 +279,11 @@ class Scheduler:
             if self.packet is not None and self.packet.state > self.state:
                 self.forward = self.packet.state in (State.TRACE, State.REFINE)
                 return self._enter(State(self.packet.state))
+            if self.thieves:
+                feed = self.primaries
+                chunks = feed.take() if isinstance(feed, ChunkFeed) else []
+                self.chunks_given += len(chunks)
+                return Give(self.thieves.popleft(), chunks)
             if self.forward and self.packet is not None:
                 # The packet brought a state with primary rays: hand it on at once, so the
                 # nodes after this one start theirs now, not when this one has finished
@@ -225,18 +301,29 @@ class Scheduler:
                 bool(self.primaries) or self.primaries.waiting)
             if tracing and free and room and self.primaries:
                 return self._trace(self.primaries.pop(), primary=True)
+            if self._may_steal():
+                ask = [m for m in self.neighbours if m not in self.asked]
+                self.steal_from = ask[0]
+                return Steal(self.steal_from)
             if self.in_flight:
                 return None
             if self.unflushed:
                 self.unflushed = False
                 return Flush()
-            if self.packet is None or tracing or self.incoming:
+            if self.packet is None or tracing or self.incoming or self.steal_from is not None:
                 return None
             if not self._pass_packet():
                 return None
 
+    def _may_steal(self) -> bool:
+        """Out of primaries in TRACE, no answer awaited, a neighbour not yet found empty."""
+        return (self.steal and self.state == State.TRACE and not self.primaries
+                and self.steal_from is None
+                and any(m not in self.asked for m in self.neighbours))  # fmt: skip
+
     def _enter(self, state: State) -> Enter:
         self.state = state
+        self.asked = set()
         self.primaries = Primaries()
         return Enter(state)
 

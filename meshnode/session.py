@@ -17,7 +17,7 @@ import numpy as np
 from meshnode.config import Config, Objects
 from meshnode.link import Link, LinkClosed, Outbox
 from meshnode.node import HOST, NodeCore
-from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, Trace
+from meshnode.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, Trace
 from meshnode.stats import NodeStats
 from meshnode.termination import Packet, State
 from protocols.errors import BadFrame, ProtocolError, describe
@@ -40,7 +40,9 @@ class Session:
         self.router = Router(config.torus, self.node)
         threads = min(service.threads, config.render.engine.threads or service.threads)
         self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
-                               threads, service.incoming_high)  # fmt: skip
+                               threads, service.incoming_high,
+                               neighbours=config.torus.links(self.node),
+                               steal=config.render.plan.steal)  # fmt: skip
         self.stats = NodeStats(self.node)
         self.objects = Objects()
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
@@ -156,6 +158,10 @@ class Session:
                     self.on_pixels(f)
                 elif kind is Kind.STATE:
                     self.on_state(f)
+                elif kind is Kind.STEAL:
+                    self.sched.steal_request(m)
+                elif kind is Kind.GIVE:
+                    self.sched.given(m, self._chunks(f["chunks"]))
                 else:
                     raise BadFrame(f"unexpected {kind.name} from a neighbour")
                 self.wake.set()
@@ -201,6 +207,16 @@ class Session:
             self.core.keep(deposits)
         else:
             self.to_host(deposits)
+
+    def _chunks(self, chunks: list) -> list:
+        """A neighbour's GIVE checked: chunks inside the image (the message kind checked
+        their shape), and only when stealing was asked for."""
+        if not self.config.render.plan.steal:
+            raise BadFrame("GIVE in a render without stealing")
+        w, h = self.config.render.sample_grid
+        if any(c[1] > w or c[3] > h for c in chunks):
+            raise BadFrame(f"GIVE: a chunk reaches beyond the {w}x{h} sample grid")
+        return chunks
 
     def on_tiles(self, f: dict) -> None:
         """Tiles the host dealt (dynamic image space); kept until the engine is built."""
@@ -253,6 +269,13 @@ class Session:
             self.enter(step.state)
         elif isinstance(step, Flush):
             self.flush()
+        elif isinstance(step, Steal):
+            self.outboxes[step.to].post(make(Kind.STEAL, node=self.node))
+            self.sched.message_out()
+        elif isinstance(step, Give):
+            chunks = [list(map(int, c)) for c in step.chunks]
+            self.outboxes[step.to].post(make(Kind.GIVE, chunks=chunks))
+            self.sched.message_out()
         elif isinstance(step, SendPacket):
             p = step.packet
             message = make(Kind.STATE, state=p.state, last_busy=p.last_busy, round=p.round,
@@ -274,6 +297,8 @@ class Session:
             report = self.stats.report(self.core.engine.stats, links)
             report["packet_visits"] = self.sched.term.visits
             report["engine_reused"] = self.core.engine_reused
+            report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
+            report["chunks_taken"] = self.sched.chunks_taken
             report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
             self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 

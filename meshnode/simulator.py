@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshnode.node import EYE_BATCH, HOST, NodeCore
-from meshnode.scheduler import Enter, Flush, Scheduler, SendPacket, TileDealer, Trace
+from meshnode.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, TileDealer, Trace
 from meshnode.stats import add_counts
 from meshnode.termination import State
 from protocols.render import Partition, RenderSpec
@@ -33,6 +33,8 @@ class NodeRecord:
     rays_sent: int = 0
     rays_received: int = 0
     packet_visits: int = 0
+    chunks_given: int = 0  # chunks of its rectangle neighbours took (MeshPlan.steal)
+    chunks_taken: int = 0  # chunks it took from neighbours
     counts: dict = field(default_factory=lambda: defaultdict(int))
 
     @property
@@ -71,7 +73,8 @@ class _Mesh:
     def __init__(self, cores, spec: RenderSpec, seed, delay):
         torus = Torus(spec.plan.rows, spec.plan.cols)
         self.cores = cores
-        self.scheds = [Scheduler(n, torus.ring_next(n), torus.size) for n in range(torus.size)]
+        self.scheds = [Scheduler(n, torus.ring_next(n), torus.size, neighbours=torus.links(n),
+                                 steal=spec.plan.steal) for n in range(torus.size)]  # fmt: skip
         self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
         self.rng = np.random.default_rng(seed)
         self.delay = delay
@@ -94,6 +97,8 @@ class _Mesh:
             self._deliver()
             for n in self.rng.permutation(len(self.cores)):
                 self._act(int(n))
+        for rec, sched in zip(self.records, self.scheds, strict=True):
+            rec.chunks_given, rec.chunks_taken = sched.chunks_given, sched.chunks_taken
         return Outcome(self.deposits, self.records, self.round)
 
     def _send(self, src: int, dst: int, kind: str, payload) -> None:
@@ -115,6 +120,10 @@ class _Mesh:
                 self.cores[dst].keep(payload)
             elif kind == "tiles":
                 self.cores[dst].add_tiles(*payload)
+            elif kind == "steal":
+                sched.steal_request(payload)
+            elif kind == "give":
+                sched.given(*payload)
             elif kind == "done":  # at the host: one more tile for each finished
                 for _ in payload[1]:
                     tiles, last = self.dealer.finished(payload[0])
@@ -132,6 +141,10 @@ class _Mesh:
             elif isinstance(step, SendPacket):
                 self.records[n].packet_visits += 1
                 self._send(n, step.to, "state", step.packet)
+            elif isinstance(step, Steal):
+                self._send(n, step.to, "steal", n)
+            elif isinstance(step, Give):
+                self._send(n, step.to, "give", (n, step.chunks))
             elif isinstance(step, Trace):
                 feed = self.cores[n].feed
                 if step.primary and feed is not None and feed.finished:

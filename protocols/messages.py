@@ -39,6 +39,8 @@ class Kind(IntEnum):
     ABORT = 15  # host to node: give up this render (a node was lost); a new CONFIG may follow
     ABORTED = 16  # node to host: the render is given up, its links closed; after everything
     # the node sent for it, so the host knows what follows belongs to the next render
+    STEAL = 17  # node to neighbour (MeshPlan.steal): I have run out, give me unstarted chunks
+    GIVE = 18  # neighbour's answer: chunks [x0, x1, y0, y1] of its rectangle, maybe none
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -69,6 +71,8 @@ FIELDS = {
     Kind.TILE_DONE: {"node": int, "tiles": list},
     Kind.ABORT: {"reason": str},
     Kind.ABORTED: {},
+    Kind.STEAL: {"node": int},
+    Kind.GIVE: {"chunks": list},
 }
 OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
                  "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),
@@ -118,6 +122,14 @@ def parse(message: dict) -> tuple[Kind, dict]:
                        f"{sorted(map(repr, extra))}")  # keys of any type: sort their reprs
     for name, value in fields.items():
         _check(kind, name, value, spec[name])
+    if kind is Kind.GIVE:
+        chunks = fields["chunks"]
+        if len(chunks) > MAX_TILES_PER_MESSAGE or not all(
+                isinstance(c, list) and len(c) == 4 and all(
+                    isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
+                and c[0] < c[1] and c[2] < c[3] for c in chunks):  # fmt: skip
+            raise BadFrame(f"GIVE.chunks must be at most {MAX_TILES_PER_MESSAGE} rectangles "
+                           "[x0, x1, y0, y1] of non-negative integers, x0 < x1, y0 < y1")
     if kind in (Kind.TILES, Kind.TILE_DONE):
         tiles = fields["tiles"]
         if len(tiles) > MAX_TILES_PER_MESSAGE or not all(

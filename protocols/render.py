@@ -110,7 +110,10 @@ class MeshPlan(Spec):
     mode "image" (DESIGN.md 6): every node holds the whole scene and traces whole pixel tiles,
     no rays passed; `tiles` "none" gives each node one band of rows, "static" deals near-square
     tiles of `tile` pixels round-robin, "dynamic" deals `buffer` tiles to each node at first
-    and one more whenever a node reports one finished (a node never waits on the network)."""
+    and one more whenever a node reports one finished (a node never waits on the network).
+    `steal` (object space): a node traces its rectangle in chunks spiralling out from the
+    centre, and one that has run out takes unstarted chunks from the outer end of a busy
+    neighbour's spiral and makes their eye rays itself."""
 
     rows: int = 1
     cols: int = 1
@@ -120,6 +123,7 @@ class MeshPlan(Spec):
     tiles: str = "static"
     tile: int = 32
     buffer: int = 2
+    steal: bool = False
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -132,6 +136,10 @@ class MeshPlan(Spec):
         self.want_choice("tiles", TILINGS)
         self.want_int("tile", 1, MAX_SIDE)
         self.want_int("buffer", 1, 1024)
+        if not isinstance(self.steal, bool):
+            self.fail("steal", "must be true or false")
+        if self.steal and self.mode != "object":
+            self.fail("steal", "stealing is object space's lever (image space deals tiles)")
         if self.mode == "image" and self.balance != "even":
             self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 
@@ -244,6 +252,9 @@ class RenderSpec(Spec):
                 self.fail(name, f"must be a {record.__name__}")
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
+        if self.plan.steal and self.camera is not None and self.camera.adaptive:
+            self.fail("plan", "adaptive sampling keeps each pixel's books on its owner: it "
+                      "cannot be stolen (MeshPlan.steal)")  # fmt: skip
         if self.plan.dynamic and self.camera is not None and self.camera.adaptive:
             self.fail("plan", "adaptive sampling with dynamic tiles is not supported yet (its "
                               "seams need every tile's owner up front): use static tiles")

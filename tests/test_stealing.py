@@ -1,0 +1,137 @@
+"""Object-space stealing (MeshPlan.steal): each node traces its rectangle in chunks spiralling
+out from the centre; a node that has run out takes unstarted chunks from the outer end of a
+busy neighbour's spiral and makes their primary rays itself. Every mesh shape gives the
+single node's image and counts (every pixel traced exactly once), chunks really move, and
+the state packet cannot end TRACE while a STEAL or GIVE is on its way."""
+
+import asyncio
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from host.camera import read_camera
+from host.camerasetup import CameraSetup
+from host.localmesh import LocalMesh
+from host.meshclient import render_on_mesh
+from host.nff import read_nff
+from host.plan import plan_render
+from host.render import render
+from meshnode.node import spiral_chunks
+from meshnode.scheduler import ChunkFeed, Give, Scheduler, Steal, Trace
+from meshnode.termination import Packet, State
+from protocols.dtypes import RAY
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from protocols.spec import SpecError
+from tests.conftest import records, spd_scene
+from tests.meshsim import render_mesh
+from tests.test_mesh_algorithm import SPD_COUNTS
+
+
+def test_spiral_chunks_tile_the_rectangle_once_from_the_centre_out():
+    rect = (3, 40, 5, 30)
+    chunks = spiral_chunks(rect, 6)
+    cover = np.zeros((30, 40), int)
+    for x0, x1, y0, y1 in chunks:
+        cover[y0:y1, x0:x1] += 1
+    assert (cover[5:30, 3:40] == 1).all() and cover.sum() == 37 * 25  # once, nothing outside
+    ring = [max(abs(i - 3), abs(j - 2)) for i, j in  # chunk grid 7 x 5, centre (3, 2)
+            (((x0 - 3) // 6, (y0 - 5) // 6) for x0, _, y0, _ in chunks)]  # fmt: skip
+    assert ring == sorted(ring) and ring[0] == 0  # the centre first, then ring by ring
+
+
+def test_a_chunk_feed_gives_half_its_unstarted_chunks_from_the_outer_end():
+    made = []
+
+    def batches(chunk):
+        made.append(chunk)
+        yield np.zeros(1, RAY)
+
+    feed = ChunkFeed([(i, i + 1, 0, 1) for i in range(6)], batches)
+    assert made == [(0, 1, 0, 1)]  # the first chunk is started by the look-ahead
+    assert feed.take() == [(5, 6, 0, 1), (4, 5, 0, 1)]  # 2 of the 5 unstarted, outer first
+    feed.pop()
+    feed.add([(9, 10, 0, 1)])
+    while feed:
+        feed.pop()
+    assert made == [(i, i + 1, 0, 1) for i in range(4)] + [(9, 10, 0, 1)]  # none twice
+    assert feed.take() == []
+
+
+def test_a_node_out_of_work_steals_and_holds_the_packet_until_answered():
+    s = Scheduler(1, 0, 2, neighbours=[0], steal=True)
+    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(2, np.int64), np.zeros(2, np.int64)))
+    assert s.next().state == State.TRACE
+    s.primaries = ChunkFeed([], lambda c: iter([np.zeros(16, RAY)]))
+    s.next()  # the packet goes on at once (it brought TRACE)
+    s.packet_in(Packet(int(State.TRACE), 0, 2, np.zeros(2, np.int64), np.zeros(2, np.int64)))
+    assert s.next() == Steal(0)
+    s.message_out()  # the driver counts the STEAL as sent
+    assert s.next() is None  # no second ask, and the packet waits for the answer
+    s.given(0, [(0, 4, 0, 4)])
+    step = s.next()
+    assert isinstance(step, Trace) and step.primary  # the given chunk's rays, made here
+    s.batch_done()
+    assert s.next() == Steal(0)  # out again: ask again (it had work last time)
+    s.message_out()
+    s.given(0, [])
+    assert s.term.sent == s.term.received == 2  # STEAL and GIVE are counted messages
+    assert not isinstance(s.next(), Steal)  # it had none: not asked again in this state
+
+
+def test_a_busy_node_answers_a_steal_before_tracing_on():
+    s = Scheduler(0, 1, 2, neighbours=[1], steal=True)
+    s.state = State.TRACE
+    s.primaries = ChunkFeed([(i, i + 1, 0, 1) for i in range(5)],
+                            lambda c: iter([np.zeros(1, RAY)]))  # fmt: skip
+    s.steal_request(1)
+    assert s.next() == Give(1, [(4, 5, 0, 1), (3, 4, 0, 1)]) and s.chunks_given == 2
+
+
+@pytest.mark.parametrize("name,spp,corners", [("balls_s2.nff", 1, False),
+                                              ("gears_s1.nff", 4, False),
+                                              ("rings_s1.nff", 1, True)])  # fmt: skip
+def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
+    scene = read_nff(spd_scene(name))
+    size = 24 if corners else 36
+    image = ImageSpec(width=size, height=size, spp=spp, spd=corners)
+    ref, st = render(scene, image, EngineSpec(threads=1))
+    moved = 0
+    for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
+        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, size, size, corners=corners,
+                                            spp=spp, steal=True, tile=4)  # fmt: skip
+        assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+        assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)
+        moved += sum(n.chunks_given for n in nodes)
+    assert moved > 0  # chunks did change hands, and every pixel was still traced once
+
+
+def test_stealing_through_a_camera_and_where_it_is_refused():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=24, height=24, threads=1)
+    lens = Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml"
+    camera = CameraSetup(read_camera(lens))
+    ref, st = render(scene, rs.image, rs.engine, camera)
+    spec = plan_render(scene, rs.image, rs.engine, MeshPlan(2, 2, steal=True, tile=4),
+                       camera).spec  # fmt: skip
+    img, totals, nodes, _ = render_mesh(scene, 2, 2, 1, 24, 24, camera=spec.camera,
+                                        steal=True, tile=4)  # fmt: skip
+    assert totals["eye_rays"] == st["rays"]["eye_rays"]
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    with pytest.raises(SpecError, match="MeshPlan.steal"):
+        MeshPlan(2, 2, mode="image", steal=True)
+
+
+def test_stealing_over_tcp_gives_the_single_node_image():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=48, height=48, spp=4, threads=1)
+    ref, st = render(scene, *rs)
+    with LocalMesh(4) as addresses:
+        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 1, steal=True, tile=8),
+                              rs.engine)  # fmt: skip
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
+        n["chunks_taken"] for n in stats["nodes"])  # fmt: skip

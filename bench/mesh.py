@@ -46,12 +46,12 @@ def single(scene, image):
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static"):  # fmt: skip
+            tiles="static", steal=False):  # fmt: skip
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
-    plan = MeshPlan(rows, cols, overlap, balance, mode, tiles)
+    plan = MeshPlan(rows, cols, overlap, balance, mode, tiles, steal=steal)
     with LocalMesh(rows * cols, threads=threads) as addresses:
         start = time.perf_counter()
         _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
@@ -95,6 +95,8 @@ def main(argv=None) -> int:
                         "(static tiles; overlap and cuts do not apply)")  # fmt: skip
     p.add_argument("--tiles", default="static", help="image space tilings to compare: "
                    "static,dynamic")  # fmt: skip
+    p.add_argument("--steal", default="off", help="object space without and with stealing "
+                   "to compare: off,on")  # fmt: skip
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
     p.add_argument("--json", type=Path)
@@ -118,28 +120,32 @@ def main(argv=None) -> int:
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
         print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
-        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>7} {'wall s':>7} "
+        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>10} {'wall s':>7} "
               f"{'busiest CPU s':>13} {'speedup':>7} {'wall':>5} {'effic':>5} "
               f"{'imbalance':>9} {'setup s':>7} {'rays passed':>11} {'bytes/link mean':>15} "
               f"{'max':>11}")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
-        runs = [(m, o, t, c) for m in args.modes.split(",") for t in threads
-                for o, c in ([(o, c) for o in overlaps for c in cuts] if m == "object"
-                             else [(0.0, t) for t in args.tiles.split(",")])]  # fmt: skip
+        steals = [s == "on" for s in args.steal.split(",")]
+        runs = [(m, o, t, c, st) for m in args.modes.split(",") for t in threads
+                for o, c, st in ([(o, c, st) for o in overlaps for c in cuts for st in steals]
+                                 if m == "object" else
+                                 [(0.0, t, False) for t in args.tiles.split(",")])]  # fmt: skip
         for rows, cols in meshes:
-            for mode, overlap, thr, cut in runs:
+            for mode, overlap, thr, cut, steal in runs:
                 if mode == "image":  # `cut` names the tiling here
                     wall, st = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut)
                 else:
-                    wall, st = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode)
+                    wall, st = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
+                                       steal=steal)  # fmt: skip
+                    cut += "+steal" if steal else ""
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
                 mean, top = link_bytes(st)
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
-                       "node_threads": thr, "cuts": cut,
+                       "node_threads": thr, "cuts": cut, "steal": steal,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
                        "parallel_efficiency": st["parallel_efficiency"],
@@ -147,7 +153,7 @@ def main(argv=None) -> int:
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
                        "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>7} {wall:>7.2f} "
+                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>10} {wall:>7.2f} "
                       f"{busiest:>13.3f} {row['speedup']:>7.2f} {row['wall_speedup']:>5.2f} "
                       f"{st['parallel_efficiency']:>5.2f} {st['imbalance']:>9.2f} "
                       f"{st['setup_seconds']:>7.2f} {st['rays_passed']:>11} "

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.node import EYE_BATCH, HOST, NodeCore
+from meshnode.node import EYE_BATCH, HOST, EngineCache, NodeCore
 from meshnode.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, TileDealer, Trace
 from meshnode.stats import add_counts
 from meshnode.termination import State
@@ -62,9 +62,11 @@ def simulate(scenes, spec: RenderSpec, part: Partition, seed: int = 0, delay=Non
              eye_batch: int = EYE_BATCH) -> Outcome:  # fmt: skip
     """Render on a simulated mesh; `scenes[n]` holds node n's objects. `delay` = (src, dst,
     rounds): messages on that link arrive that many rounds late; `eye_batch`: eye rays per
-    primary batch (small ones interleave more)."""
+    primary batch (small ones interleave more). Nodes with the same objects in the same box
+    (image space) share one engine, so a simulated 16x16 builds it once."""
     plan = spec.plan
-    cores = [NodeCore(n, scenes[n], spec, part, eye_batch) for n in range(plan.nodes)]
+    engines = EngineCache()
+    cores = [NodeCore(n, scenes[n], spec, part, eye_batch, engines) for n in range(plan.nodes)]
     mesh = _Mesh(cores, spec, seed, delay)
     return mesh.run()
 

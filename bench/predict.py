@@ -1,0 +1,90 @@
+"""Predicted mesh speedups from the simulated mesh (meshnode.simulator: every node's NodeCore
+and Scheduler in one process, work counted in the engine's own units: intersection tests +
+voxel steps + rays traced), for meshes larger than this machine can run, next to measured
+ones.
+
+    python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
+                            [--size 128] [--measured mesh.json]
+
+Per scene, mesh and mode (object space, overlap 2, with stealing; image space, dynamic
+tiles): the predicted speedup = the one-node cost / the busiest node's cost, and rays
+passed. `--measured FILE` (the JSON `bench.mesh --json` writes) puts the measured busiest-CPU
+speedups of the same scene, mesh and mode beside the predictions, with their ratio: the model
+has no per-batch or per-process overhead, so it predicts an upper bound.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+MODES = {"object+steal": {"mode": "object", "steal": True},
+         "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
+
+
+def simulated(scene, rows: int, cols: int, size: int, plan: dict):
+    """(busiest node's cost, total cost, rays passed) of a simulated render."""
+    from host.partition import partition, subset
+    from meshnode.simulator import simulate
+    from protocols.render import ImageSpec, MeshPlan, RenderSpec
+
+    image = ImageSpec(width=size, height=size).sized(scene.view)
+    tile = max(4, size // 32)
+    spec = RenderSpec(image, plan=MeshPlan(rows, cols, 2, tile=tile, **plan))
+    part, keep = partition(scene, spec)
+    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
+    costs = [n.cost for n in out.nodes]
+    return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)
+
+
+def measured_table(path: Path | None) -> dict:
+    if path is None:
+        return {}
+    rows = json.loads(path.read_text())
+    key = {(False, "object"): None, (True, "object"): "object+steal"}
+    out = {}
+    for r in rows:
+        mode = "image dynamic" if r["mode"] == "image" else key[(r.get("steal", False),
+                                                                  "object")]  # fmt: skip
+        if mode:
+            out[(r["scene"], r["mesh"], mode)] = r["speedup"]
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.predict", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    p.add_argument("--only", default="balls,gears")
+    p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
+    p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
+    p.add_argument("--measured", type=Path, help="bench.mesh --json output to compare with")
+    args = p.parse_args(argv)
+    from host.nff import read_nff
+
+    measured = measured_table(args.measured)
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        one, _, _ = simulated(scene, 1, 1, args.size, {})
+        print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
+        print(f"{'mesh':>6} {'mode':>14} {'predicted':>9} {'measured':>8} {'ratio':>5} "
+              f"{'rays passed':>11} {'seconds':>7}")  # fmt: skip
+        for mesh in args.meshes.split(","):
+            rows, cols = (int(v) for v in mesh.split("x"))
+            for mode, plan in MODES.items():
+                start = time.perf_counter()
+                busiest, _, passed = simulated(scene, rows, cols, args.size, plan)
+                predicted = one / busiest
+                got = measured.get((name, mesh, mode))
+                seen = f"{got:8.2f} {got / predicted:5.2f}" if got else f"{'-':>8} {'-':>5}"
+                print(f"{mesh:>6} {mode:>14} {predicted:>9.2f} {seen} {passed:>11,} "
+                      f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""Primary rays through this project's engine and through Embree, side by side, one thread.
+
+    python -m bench.embree [--scenes DIR] [--only tetra,teapot,gears] [--size 512]
+                           [--levels 9] [--repeat 3]
+
+Embree comes from the `embreex` package (`pip install embreex`; a benchmark dependency, not
+a runtime one). For each scene its triangles and polygons (fanned into triangles for Embree;
+spheres and cones left out of both) are traced with the same eye rays (the scene's view,
+SIZE x SIZE pixel centres) by `Engine.first_hits` (float64, one thread) and by Embree
+(float32 `rtcIntersect1` per ray in embreex's loop, one thread); plus a generated recursive
+tetrahedron of 4 x 4^LEVELS triangles (9: 1,048,576). Printed per scene: triangles, build
+seconds both ways, rays per second both ways (best of --repeat), ours / Embree, and the
+first-hit agreement: hit/miss disagreements and percentiles of the relative difference of t
+where both hit.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+
+
+def triangles_of(scene) -> np.ndarray:
+    """(N, 3, 3) triangles: the scene's triangles and its polygons fanned from vertex 0."""
+    tris = [scene.triangles["v"].reshape(-1, 3, 3)]
+    verts = scene.vertices
+    for start, count in zip(scene.polygons["start"], scene.polygons["count"], strict=True):
+        p = verts[start : start + count]
+        tris.append(np.stack([np.repeat(p[:1], count - 2, axis=0), p[1:-1], p[2:]], axis=1))
+    return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+
+
+def flat_scene(view, tris: np.ndarray):
+    """A scene of flat triangles only (one grey material, one light)."""
+    from protocols import dtypes
+    from protocols.scene import SceneData
+
+    scene = SceneData(view=view)
+    scene.materials = np.array([((0.8, 0.8, 0.8), 0.8, 0.0, 1.0, 0.0, 1.0)], dtypes.MATERIAL)
+    scene.lights = np.array([((1e3, 1e3, 1e3), (1, 1, 1))], dtypes.LIGHT)
+    t = np.zeros(len(tris), dtypes.TRIANGLE)
+    t["gid"] = np.arange(len(tris))
+    t["v"] = tris
+    scene.triangles = t
+    return scene
+
+
+def tetrahedron(levels: int) -> np.ndarray:
+    """The SPD's recursive tetrahedron: 4^levels small tetrahedra, four faces each."""
+    corner = np.array([[1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]], float)
+    origins, scale = np.zeros((1, 3)), 1.0
+    for _ in range(levels):
+        origins = (origins[:, None, :] + scale * corner[None, :, :] / 2).reshape(-1, 3)
+        scale /= 2
+    faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    v = origins[:, None, :] + scale * corner[None, :, :]  # (T, 4, 3)
+    return v[:, faces, :].reshape(-1, 3, 3)
+
+
+def best(fn, repeat: int) -> tuple[float, object]:
+    times, out = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return min(times), out
+
+
+def compare(name: str, view, tris: np.ndarray, size: int, repeat: int) -> dict:
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    from meshnode.engine import Engine
+    from meshnode.engine.camera import eye_rays
+    from protocols.render import ImageSpec
+
+    rays = eye_rays(view, ImageSpec(width=size, height=size))
+    o, d = rays["o"], rays["d"] / np.linalg.norm(rays["d"], axis=1)[:, None]
+    start = time.perf_counter()
+    engine = Engine(flat_scene(view, tris))
+    ours_build = time.perf_counter() - start
+    engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
+    ours_s, (t_ours, _) = best(lambda: engine.first_hits(o, d), repeat)
+    start = time.perf_counter()
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene, tris.astype(np.float32))
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    scene.run(o32[:1], d32[:1], output=1)  # commits (builds) the scene
+    embree_build = time.perf_counter() - start
+    embree_s, hits = best(lambda: scene.run(o32, d32, output=1), repeat)
+    t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
+    ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
+    both = ours_hit & emb_hit
+    rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
+    pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
+    row = {"scene": name, "triangles": len(tris), "rays": len(o),
+           "ours_build_s": ours_build, "embree_build_s": embree_build,
+           "ours_rays_per_s": len(o) / ours_s, "embree_rays_per_s": len(o) / embree_s,
+           "mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
+    row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
+    print(f"{name:>16} {len(tris):>10,} {ours_build:>8.2f} {embree_build:>8.2f} "
+          f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
+          f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
+          f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}", flush=True)  # fmt: skip
+    return row
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.embree", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    p.add_argument("--only", default="tetra,teapot,gears")
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--levels", type=int, default=9, help="generated tetrahedron's recursion")
+    p.add_argument("--repeat", type=int, default=3)
+    args = p.parse_args(argv)
+    try:
+        import embreex  # noqa: F401
+    except ImportError:
+        print("bench.embree: needs embreex (pip install embreex)", file=sys.stderr)
+        return 2
+    import numba
+
+    from host.nff import read_nff
+    from protocols.scene import View
+
+    numba.set_num_threads(1)
+    print(f"{'scene':>16} {'triangles':>10} {'build s':>8} {'embree':>8} {'ours rays/s':>11} "
+          f"{'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} {'p99':>9} "
+          f"{'max':>9}")  # fmt: skip
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        compare(name, scene.view, triangles_of(scene), args.size, args.repeat)
+    view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
+    compare(f"tetra L{args.levels}", view, tetrahedron(args.levels), args.size, args.repeat)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

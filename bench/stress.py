@@ -46,7 +46,7 @@ def vm_hwm(pid: int) -> int:
     return 0
 
 
-async def faulted_render(scene, image, engine, net, mesh, addresses, silence: float) -> tuple:
+async def faulted_render(scene, image, engine, mesh, addresses, silence: float) -> tuple:
     """The mesh render with the two faults; returns (image, stats, peaks by node)."""
     from host.meshclient import render_on_mesh
     from protocols.render import MeshPlan
@@ -126,9 +126,9 @@ def main(argv=None) -> int:
             "env": {"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}}
     start = time.perf_counter()
     with netns.namespaced_mesh(9, lambda net: net.shape(2, rate=args.rate),
-                               **slow) as (net, mesh, addresses):  # fmt: skip
-        img, stats, peaks = asyncio.run(faulted_render(scene, image, EngineSpec(threads=1), net,
-                                                       mesh, addresses, args.silence))
+                               **slow) as (_, mesh, addresses):  # fmt: skip
+        img, stats, peaks = asyncio.run(faulted_render(scene, image, EngineSpec(threads=1), mesh,
+                                                       addresses, args.silence))
     wall = time.perf_counter() - start
     r = stats["rays"]
     created = r["eye_rays"] + r["reflected_rays"] + r["refracted_rays"] + r["shadow_rays"]

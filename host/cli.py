@@ -18,7 +18,7 @@ from host.camerasetup import CameraSetup, Focus, PinholeSetup
 from host.cluster import parse_mesh, read_cluster, statefulset_cluster
 from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
 from host.localmesh import LocalMesh
-from host.meshclient import NODE_LOSS, MeshError, render_on_mesh
+from host.meshclient import NODE_LOSS, MeshError, primary_rays, render_on_mesh
 from host.plan import PLAN_MODES
 from host.render import render
 from host.scenefile import FORMATS, SceneError, read_scene
@@ -572,11 +572,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
           watch=None, wait=5.0):  # fmt: skip
     from tqdm import tqdm
 
-    sized = image.sized(scene.view)
-    total = None  # camera rays lost inside the camera are never traced: no known total
-    if camera is None:
-        gw, gh = sized.sample_grid()
-        total = gw * gh * (1 if sized.corners() else sized.spp)
+    total = primary_rays(image.sized(scene.view), camera)
     shape = f"mesh {plan.rows}x{plan.cols}"
     bar = tqdm(total=total, unit=" rays", desc=f"{shape}: waiting for the nodes (connecting, "
                "building engines; a first run compiles kernels)", file=sys.stderr,

@@ -301,10 +301,9 @@ class Scheduler:
                 bool(self.primaries) or self.primaries.waiting)
             if tracing and free and room and self.primaries:
                 return self._trace(self.primaries.pop(), primary=True)
-            if self._may_steal():
-                ask = [m for m in self.neighbours if m not in self.asked]
-                self.steal_from = ask[0]
-                return Steal(self.steal_from)
+            if (target := self._steal_target()) is not None:
+                self.steal_from = target
+                return Steal(target)
             if self.in_flight:
                 return None
             if self.unflushed:
@@ -315,11 +314,13 @@ class Scheduler:
             if not self._pass_packet():
                 return None
 
-    def _may_steal(self) -> bool:
-        """Out of primaries in TRACE, no answer awaited, a neighbour not yet found empty."""
-        return (self.steal and self.state == State.TRACE and not self.primaries
-                and self.steal_from is None
-                and any(m not in self.asked for m in self.neighbours))  # fmt: skip
+    def _steal_target(self) -> int | None:
+        """The neighbour to ask for chunks when out of primaries in TRACE with no answer
+        awaited: the first not yet found empty in this state (None: nobody to ask)."""
+        if not self.steal or self.state != State.TRACE or self.primaries or \
+                self.steal_from is not None:  # fmt: skip
+            return None
+        return next((m for m in self.neighbours if m not in self.asked), None)
 
     def _enter(self, state: State) -> Enter:
         self.state = state

@@ -15,7 +15,7 @@ from meshnode.service import NodeService
 from protocols.errors import AuthFailed
 from protocols.framing import FrameDecoder
 from protocols.handshake import auth, check_auth, hello, nonce, read_secret
-from protocols.messages import Kind, parse
+from protocols.messages import Kind, make, parse
 from tests.test_node_service import config, host_link
 
 SECRET = b"correct horse battery staple"
@@ -127,6 +127,48 @@ async def test_a_link_for_another_render_is_refused_as_a_neighbour():
         await host.close()
     finally:
         await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node_serves_on():
+    # An authenticated host names a neighbour address where a stranger listens: the node
+    # dials it, the stranger cannot prove the secret, the render fails naming that address,
+    # and the node takes the next render (ABORT, then a new CONFIG on the same link).
+    from meshnode.warmup import ALL_KINDS, variant_scene
+    from protocols.messages import OBJECT_TABLES
+    from protocols.render import MeshPlan
+
+    async def stranger(reader, writer):
+        writer.write(b"\0\0\0\5hello")
+        await writer.drain()
+        writer.close()
+
+    foreign = await asyncio.start_server(stranger, "127.0.0.1", 0)
+    address = f"127.0.0.1:{foreign.sockets[0].getsockname()[1]}"
+    service = await serving()
+    try:
+        host = await host_link(service.port, SECRET)
+        message = config(node=0, plan=MeshPlan(1, 2))
+        message["neighbours"]["1"] = address
+        await host.send(message)
+        scene = variant_scene(ALL_KINDS)
+        for name in OBJECT_TABLES:
+            data = getattr(scene, name)
+            data = data.reshape(-1) if name == "vertices" else data
+            await host.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(data),
+                                 last=name == "lights"))  # fmt: skip
+        while (answer := await asyncio.wait_for(host.recv(), 30))[0] is not Kind.ERROR:
+            pass  # heartbeats while it builds and dials
+        assert address in answer[1]["reason"] and "handshake failed" in answer[1]["reason"]
+        await host.send(make(Kind.ABORT, reason="its neighbour is no node"))
+        while (await asyncio.wait_for(host.recv(), 10))[0] is not Kind.ABORTED:
+            pass
+        await host.send(config())  # the next render
+        kind, f = await asyncio.wait_for(host.recv(), 10)
+        assert kind is Kind.PROGRESS and f["node"] == 0
+        await host.close()
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+        foreign.close()
 
 
 def test_only_loopback_may_listen_without_a_secret(tmp_path, monkeypatch):

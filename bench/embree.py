@@ -52,18 +52,6 @@ def flat_scene(view, tris: np.ndarray):
     return scene
 
 
-def tetrahedron(levels: int) -> np.ndarray:
-    """The SPD's recursive tetrahedron: 4^levels small tetrahedra, four faces each."""
-    corner = np.array([[1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]], float)
-    origins, scale = np.zeros((1, 3)), 1.0
-    for _ in range(levels):
-        origins = (origins[:, None, :] + scale * corner[None, :, :] / 2).reshape(-1, 3)
-        scale /= 2
-    faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
-    v = origins[:, None, :] + scale * corner[None, :, :]  # (T, 4, 3)
-    return v[:, faces, :].reshape(-1, 3, 3)
-
-
 def best(fn, repeat: int) -> tuple[float, object]:
     times, out = [], None
     for _ in range(repeat):
@@ -127,6 +115,7 @@ def main(argv=None) -> int:
         return 2
     import numba
 
+    from bench.generate import tetra_triangles
     from host.nff import read_nff
     from protocols.scene import View
 
@@ -138,7 +127,8 @@ def main(argv=None) -> int:
         scene = read_nff(args.scenes / f"{name}.nff")
         compare(name, scene.view, triangles_of(scene), args.size, args.repeat)
     view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
-    compare(f"tetra L{args.levels}", view, tetrahedron(args.levels), args.size, args.repeat)
+    tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels
+    compare(f"tetra L{args.levels}", view, tris, args.size, args.repeat)
     return 0
 
 

@@ -3,13 +3,20 @@ POV-Ray 3.7 side by side and whole-process wall times (warm and cold numba cache
 
     python -m bench.spd [--scenes DIR] [--only balls,tetra] [--densities 1,2,4] [--repeat 3]
                         [--json FILE] [--no-pov] [--no-wall]
+    python -m bench.spd --scaling [tetra:1-10,balls:1-6] [--size 512] [--repeat 3] [--json FILE]
 
 Tracing times exclude kernel loading (`render` warms up first) and preprocessing; rays/s is
 all rays (eye, reflected, refracted, shadow) over the best tracing time.
+
+--scaling needs no scene folder: it generates SPD tetra and balls at growing size factors
+(`bench.generate`: 4^n triangles, 1 + 9 + ... + 9^n spheres) and prints tracing time against
+scene size with the default grid (storage auto, default density), one thread; the growth
+column is time per ray over the smallest size factor's.
 """
 
 import argparse
 import json
+import math
 import os
 import re
 import shutil
@@ -26,6 +33,11 @@ STORAGES = ("csr", "hash")
 COUNT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
               "shadow_rays_blocked")  # fmt: skip
 COUNT_LABELS = ("eye", "hits", "reflected", "refracted", "shadow", "blocked")
+DEFAULT_SCALING = "tetra:1-10,balls:1-6"  # 4 .. 1,048,576 triangles, 10 .. 597,871 spheres
+# The figures of run_config that a scaling row keeps.
+SCALING_KEYS = ("used_storage", "resolution", "trace_seconds", "trace_seconds_all",
+                "total_rays", "rays_per_second", "tests_per_ray", "steps_per_ray",
+                "structure_bytes", "variant")  # fmt: skip
 
 if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(ROOT))
@@ -57,11 +69,43 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--json", type=Path, help="write all figures to this JSON file")
     p.add_argument("--no-pov", action="store_true", help="skip the POV-Ray comparison")
     p.add_argument("--no-wall", action="store_true", help="skip whole-process wall times")
+    p.add_argument("--scaling", nargs="?", const=DEFAULT_SCALING, metavar="SCENE:N-M,...",
+                   help="only the scaling table: generated tetra/balls at size factors N..M "
+                   f"(default {DEFAULT_SCALING})")  # fmt: skip
+    p.add_argument("--size", type=int, default=512,
+                   help="image side for --scaling (SPD corner rays; default 512)")  # fmt: skip
     args = p.parse_args(argv)
     args.densities = [float(d) for d in args.densities.split(",") if d.strip()]
-    if args.repeat < 1 or not args.densities:
-        p.error("--repeat must be >= 1 and --densities non-empty")
+    if args.repeat < 1 or not args.densities or args.size < 1:
+        p.error("--repeat and --size must be >= 1 and --densities non-empty")
+    if args.scaling is not None:
+        try:
+            args.scaling = parse_scaling(args.scaling)
+        except ValueError as e:
+            p.error(f"--scaling: {e}")
     return args
+
+
+def parse_scaling(spec: str) -> list[tuple[str, list[int]]]:
+    """'tetra:1-8,balls:3' -> [('tetra', [1, ..., 8]), ('balls', [3])]."""
+    from bench.generate import GENERATORS
+
+    plan = []
+    for item in filter(None, (x.strip() for x in spec.split(","))):
+        name, _, sizes = item.partition(":")
+        if name not in GENERATORS:
+            raise ValueError(f"no generator for {name!r} (have {', '.join(GENERATORS)})")
+        lo, _, hi = sizes.partition("-")
+        try:
+            lo, hi = int(lo), int(hi or lo)
+        except ValueError:
+            raise ValueError(f"{item!r}: expected SCENE:N or SCENE:N-M") from None
+        if not 1 <= lo <= hi:
+            raise ValueError(f"{item!r}: size factors must be 1 <= N <= M")
+        plan.append((name, list(range(lo, hi + 1))))
+    if not plan:
+        raise ValueError("no scenes")
+    return plan
 
 
 def scene_files(folder: Path, only: str | None) -> list[Path]:
@@ -97,13 +141,17 @@ def warm_kernels(scene) -> dict:
     return loads
 
 
-def run_config(scene, storage: str, density: float, repeats: int) -> dict:
-    """Render `repeats` times with one grid configuration; keep the best tracing time."""
+def run_config(scene, storage: str, density: float, repeats: int, built=None,
+               size: int | None = None) -> dict:  # fmt: skip
+    """Render `repeats` times with one grid configuration; keep the best tracing time.
+    `built`: that configuration's engine, reused (a big scene's grid is built once);
+    `size`: image side under the SPD rules (default 512)."""
     from host.render import render
     from protocols.render import EngineSpec, ImageSpec
 
-    image, engine = ImageSpec(spd=True), EngineSpec(threads=1, storage=storage, density=density)
-    runs = [render(scene, image, engine)[1] for _ in range(repeats)]
+    image = ImageSpec(spd=True, width=size, height=size)
+    engine = EngineSpec(threads=1, storage=storage, density=density)
+    runs = [render(scene, image, engine, built=built)[1] for _ in range(repeats)]
     best = min(runs, key=lambda s: s["trace_seconds"])
     grid = best["engine"]["grid"]
     return {
@@ -172,6 +220,91 @@ def _label(c: dict) -> str:
     """Short configuration name, e.g. 'hash d2' or 'auto(csr) d2'."""
     storage = c["storage"] if c["storage"] != "auto" else f"auto({c['used_storage']})"
     return f"{storage} d{c['density']:g}"
+
+
+# ---------------------------------------------------------------------------- scaling
+
+
+def scaling_row(name: str, n: int, size: int, repeat: int) -> dict:
+    """One generated scene: its engine built once with the default grid and its kernels
+    loaded before anything is timed, then the best of `repeat` SPD renders."""
+    from bench.generate import GENERATORS
+    from meshnode.engine import Engine
+    from protocols.render import EngineSpec
+    from protocols.spec import default
+
+    start = time.perf_counter()
+    scene = GENERATORS[name](n)
+    generate_seconds = time.perf_counter() - start
+    storage, density = default(EngineSpec, "storage"), default_density()
+    engine = Engine(scene, density=density, storage=storage)
+    load = engine.warmup()
+    c = run_config(scene, storage, density, repeat, built=engine, size=size)
+    return {"scene": name, "size_factor": n, "objects": scene.n_objects,
+            "generate_seconds": generate_seconds, "build_seconds": engine.preprocess_seconds,
+            "kernel_load_seconds": load, **{k: c[k] for k in SCALING_KEYS},
+            "seconds_per_ray": c["trace_seconds"] / c["total_rays"]}  # fmt: skip
+
+
+def bench_scaling(plan: list[tuple[str, list[int]]], size: int, repeat: int) -> list[dict]:
+    """Rows of every scene and size factor; `growth` is time per ray over the scene's first
+    (smallest) size factor's, the figure that shows how cost follows scene size."""
+    from bench.generate import GENERATORS
+
+    rows = []
+    for name, sizes in plan:
+        warm_kernels(GENERATORS[name](sizes[0]))  # build seconds then exclude grid kernels
+        first = None
+        for n in sizes:
+            print(f"  {name} size factor {n} ...", file=sys.stderr, flush=True)
+            row = scaling_row(name, n, size, repeat)
+            first = first or row
+            row["growth"] = row["seconds_per_ray"] / first["seconds_per_ray"]
+            rows.append(row)
+        print_scaling([r for r in rows if r["scene"] == name])
+    return rows
+
+
+def growth_exponent(rows: list[dict]) -> float | None:
+    """a in time per ray ~ objects^a between the first and last rows of one scene."""
+    objects = rows[-1]["objects"] / rows[0]["objects"]
+    return math.log(rows[-1]["growth"]) / math.log(objects) if objects > 1 else None
+
+
+def print_scaling(rows: list[dict]) -> None:
+    """The scaling table of one scene and its growth in one line."""
+    name = rows[0]["scene"]
+    print(f"\n== {name}  (generated SPD {name}; default grid; best of "
+          f"{len(rows[0]['trace_seconds_all'])})")  # fmt: skip
+    headers = ["n", "objects", "gen s", "build s", "grid", "storage", "trace s", "rays",
+               "Mrays/s", "us/ray", "tests/ray", "steps/ray", "growth"]  # fmt: skip
+    body = [[r["size_factor"], f"{r['objects']:,}", f"{r['generate_seconds']:.2f}",
+             f"{r['build_seconds']:.2f}", "x".join(map(str, r["resolution"])), r["used_storage"],
+             f"{r['trace_seconds']:.3f}", f"{r['total_rays']:,}",
+             f"{r['rays_per_second'] / 1e6:.3f}", f"{r['seconds_per_ray'] * 1e6:.3f}",
+             f"{r['tests_per_ray']:.2f}", f"{r['steps_per_ray']:.2f}", f"{r['growth']:.2f}"]
+            for r in rows]  # fmt: skip
+    print(table(headers, body))
+    a = growth_exponent(rows)
+    if a is not None:
+        print(f"{name}: {rows[-1]['objects'] / rows[0]['objects']:,.0f}x the objects, "
+              f"{rows[-1]['growth']:.2f}x the time per ray (objects^{a:.3f})")  # fmt: skip
+    sys.stdout.flush()
+
+
+def main_scaling(args: argparse.Namespace) -> int:
+    """--scaling: the table for generated scenes only (no scene folder, no POV-Ray)."""
+    plan = ", ".join(f"{name} {sizes[0]}-{sizes[-1]}" for name, sizes in args.scaling)
+    print(f"SPD scaling: generated {plan}; {args.size}x{args.size} SPD image "
+          f"({args.size + 1}x{args.size + 1} corner rays), depth 5, 1 thread, storage auto, "
+          f"density {default_density():g}; best of {args.repeat}")  # fmt: skip
+    rows = bench_scaling(args.scaling, args.size, args.repeat)
+    if args.json:
+        data = {"size": args.size, "repeat": args.repeat, "threads": 1,
+                "density": default_density(), "rows": rows}  # fmt: skip
+        args.json.write_text(json.dumps({"scaling": data}, indent=2) + "\n")
+        print(f"figures written to {args.json}")
+    return 0
 
 
 # ---------------------------------------------------------------------------- POV-Ray
@@ -375,6 +508,8 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
 def main(argv=None) -> int:
     """Run the benchmark, print it, optionally write JSON."""
     args = parse_args(argv)
+    if args.scaling is not None:
+        return main_scaling(args)
     files = scene_files(args.scenes, args.only)
     print(f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
           f"1 thread; densities {args.densities}; best of {args.repeat} for "

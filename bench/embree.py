@@ -15,6 +15,7 @@ where both hit.
 """
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -61,21 +62,29 @@ def best(fn, repeat: int) -> tuple[float, object]:
     return min(times), out
 
 
-def compare(name: str, view, tris: np.ndarray, size: int, repeat: int) -> dict:
+def ours(view, tris, o, d, structure: str, repeat: int) -> dict:
+    """Build our engine with `structure` and time its first hits on the rays."""
+    from meshnode.engine import Engine
+
+    start = time.perf_counter()
+    engine = Engine(flat_scene(view, tris), structure=structure)
+    build = time.perf_counter() - start
+    engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
+    seconds, (t, _) = best(lambda: engine.first_hits(o, d), repeat)
+    return {"build_s": build, "seconds": seconds, "t": t, "chosen": engine.structure}
+
+
+def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
+            structures: list[str]) -> list[dict]:  # fmt: skip
+    """One row per structure of ours against Embree on identical rays and triangles."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
-    from meshnode.engine import Engine
     from meshnode.engine.camera import eye_rays
     from protocols.render import ImageSpec
 
     rays = eye_rays(view, ImageSpec(width=size, height=size))
     o, d = rays["o"], rays["d"] / np.linalg.norm(rays["d"], axis=1)[:, None]
-    start = time.perf_counter()
-    engine = Engine(flat_scene(view, tris))
-    ours_build = time.perf_counter() - start
-    engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
-    ours_s, (t_ours, _) = best(lambda: engine.first_hits(o, d), repeat)
     start = time.perf_counter()
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene, tris.astype(np.float32))
@@ -84,20 +93,27 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int) -> dict:
     embree_build = time.perf_counter() - start
     embree_s, hits = best(lambda: scene.run(o32, d32, output=1), repeat)
     t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
-    ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
-    both = ours_hit & emb_hit
-    rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
-    pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
-    row = {"scene": name, "triangles": len(tris), "rays": len(o),
-           "ours_build_s": ours_build, "embree_build_s": embree_build,
-           "ours_rays_per_s": len(o) / ours_s, "embree_rays_per_s": len(o) / embree_s,
-           "mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
-    row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
-    print(f"{name:>16} {len(tris):>10,} {ours_build:>8.2f} {embree_build:>8.2f} "
-          f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
-          f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
-          f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}", flush=True)  # fmt: skip
-    return row
+    rows = []
+    for structure in structures:
+        run = ours(view, tris, o, d, structure, repeat)
+        t_ours = run["t"]
+        ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
+        both = ours_hit & emb_hit
+        rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
+        pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
+        row = {"scene": name, "structure": structure, "chosen": run["chosen"],
+               "triangles": len(tris), "rays": len(o),
+               "ours_build_s": run["build_s"], "embree_build_s": embree_build,
+               "ours_rays_per_s": len(o) / run["seconds"], "embree_rays_per_s": len(o) / embree_s,
+               "mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
+        row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
+        label = f"auto={run['chosen']}" if structure == "auto" else structure
+        print(f"{name:>16} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} {embree_build:>8.2f} "
+              f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
+              f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
+              f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}", flush=True)  # fmt: skip
+        rows.append(row)
+    return rows
 
 
 def main(argv=None) -> int:
@@ -107,6 +123,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--levels", type=int, default=9, help="generated tetrahedron's recursion")
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--structures", default="grid,bvh,auto",
+                   help="our engine's structures to time, side by side (default grid,bvh,auto)")
+    p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
     try:
         import embreex  # noqa: F401
@@ -120,15 +139,20 @@ def main(argv=None) -> int:
     from protocols.scene import View
 
     numba.set_num_threads(1)
-    print(f"{'scene':>16} {'triangles':>10} {'build s':>8} {'embree':>8} {'ours rays/s':>11} "
-          f"{'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} {'p99':>9} "
-          f"{'max':>9}")  # fmt: skip
-    for name in args.only.split(","):
+    print(f"{'scene':>16} {'structure':>9} {'triangles':>10} {'build s':>8} {'embree':>8} "
+          f"{'ours rays/s':>11} {'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} "
+          f"{'p99':>9} {'max':>9}")  # fmt: skip
+    structures = args.structures.split(",")
+    rows = []
+    for name in args.only.split(",") if args.only else []:
         scene = read_nff(args.scenes / f"{name}.nff")
-        compare(name, scene.view, triangles_of(scene), args.size, args.repeat)
-    view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
-    tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels
-    compare(f"tetra L{args.levels}", view, tris, args.size, args.repeat)
+        rows += compare(name, scene.view, triangles_of(scene), args.size, args.repeat, structures)
+    if args.levels > 0:
+        view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
+        tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels
+        rows += compare(f"tetra L{args.levels}", view, tris, args.size, args.repeat, structures)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
     return 0
 
 

@@ -24,7 +24,15 @@ from host.render import render
 from host.scenefile import FORMATS, SceneError, read_scene
 from meshnode.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
-from protocols.render import BALANCES, STORAGES, TILINGS, EngineSpec, ImageSpec, MeshPlan
+from protocols.render import (
+    BALANCES,
+    STORAGES,
+    STRUCTURES,
+    TILINGS,
+    EngineSpec,
+    ImageSpec,
+    MeshPlan,
+)
 from protocols.spec import default
 
 CAMERA_ONLY = (CameraSampling, Focus)
@@ -97,6 +105,9 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--seed", ImageSpec, "seed", "seed of jitter, lens and film samples", type=int)
     _field(r, "--storage", EngineSpec, "storage", "grid storage (auto: the smaller in memory)",
            choices=STORAGES)  # fmt: skip
+    _field(r, "--structure", EngineSpec, "structure", "the engine's structure: uniform grid or "
+           "bounding volume hierarchy (auto: chosen per node by its objects)",
+           choices=STRUCTURES)  # fmt: skip
     _field(r, "--density", EngineSpec, "density", "grid density: voxels per object to start "
            "from, refined until a voxel holds about 4/DENSITY objects", type=float)  # fmt: skip
     _field(r, "--threads", EngineSpec, "threads", "tracing threads (0: one per core; on a "

@@ -51,7 +51,7 @@ def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
 
     width, height = image.size
     return probe_engine(scene, width, height, density=engine.density, storage=engine.storage,
-                        max_depth=1)  # fmt: skip
+                        structure=engine.structure, max_depth=1)  # fmt: skip
 
 
 PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES

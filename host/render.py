@@ -31,7 +31,7 @@ def render(scene: SceneData, image: ImageSpec = ImageSpec(),
     `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
     tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
-                             max_depth=image.depth, brute=engine.brute,
+                             structure=engine.structure, max_depth=image.depth, brute=engine.brute,
                              announce=_compiling if progress else None)  # fmt: skip
     tracer.warmup()
     eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed

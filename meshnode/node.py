@@ -99,7 +99,7 @@ class NodeCore:
         self.los, self.his = part.boxes
         options = dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
                        density=spec.engine.density, storage=spec.engine.storage,
-                       max_depth=spec.image.depth)  # fmt: skip
+                       structure=spec.engine.structure, max_depth=spec.image.depth)  # fmt: skip
         if engines is None:
             self.engine, self.engine_reused = Engine(scene, **options), False
         else:

@@ -26,6 +26,7 @@ MAX_DEPTH = 64
 MAX_NODES = 1024  # nodes in one mesh
 MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
 STORAGES = ("auto", "csr", "hash")
+STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per node by content)
 BALANCES = ("even", "cost")
 MODES = ("object", "image")
 TILINGS = ("none", "static", "dynamic")
@@ -83,18 +84,21 @@ class ImageSpec(Spec):
 
 @dataclass(frozen=True)
 class EngineSpec(Spec):
-    """How every engine is built: grid storage (auto: the smaller in memory), density (voxels
+    """How every engine is built: structure (grid or bvh; auto: chosen per node by its
+    objects), grid storage (auto: the smaller in memory), density (voxels
     per object to start from, refined until a voxel holds about 4/density objects), tracing
     threads (0: one per core; on a mesh, at most this many per node), brute (test every
     object against every ray: the reference the grid must agree with)."""
 
     storage: str = "auto"
+    structure: str = "auto"
     density: float = 1.0
     threads: int = 0
     brute: bool = False
 
     def check(self) -> None:
         self.want_choice("storage", STORAGES)
+        self.want_choice("structure", STRUCTURES)
         self.want_number("density", 0.0, 1e6, open_lo=True)
         self.want_int("threads", 0, 4096)
         self.want_bool("brute")

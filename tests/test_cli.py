@@ -36,11 +36,18 @@ def test_render_writes_png_pfm_and_stats(tmp_path):
     total = sum(s["rays"][k] for k in ("eye_rays", "reflected_rays", "refracted_rays",
                                        "shadow_rays"))  # fmt: skip
     assert s["total_rays"] == total
-    grid = s["engine"]["grid"]
-    for key in ("resolution", "empty_voxels", "object_references", "structure_bytes", "storage"):
-        assert key in grid
-    assert s["engine"]["kinds_present"] == ["spheres", "triangles", "polygons", "cones"]
-    assert s["engine"]["kernel_variant"].endswith("/refraction/" + grid["storage"])
+    engine = s["engine"]
+    assert engine["structure"] in ("grid", "bvh") and engine["structure_reason"]
+    if engine["structure"] == "grid":
+        for key in ("resolution", "empty_voxels", "object_references", "storage"):
+            assert key in engine["grid"]
+    else:
+        for key in ("inner_nodes", "leaves", "expected_tests", "expected_visits"):
+            assert key in engine["bvh"]
+    assert engine["structure_bytes"] > 0
+    assert engine["kinds_present"] == ["spheres", "triangles", "polygons", "cones"]
+    storage = "bvh" if engine["structure"] == "bvh" else engine["grid"]["storage"]
+    assert engine["kernel_variant"].endswith("/refraction/" + storage)
     assert s["tests_per_ray"] > 0 and s["steps_per_ray"] >= 0
     assert s["trace_seconds"] > 0 and s["rays_per_second"] > 0
 

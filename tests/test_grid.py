@@ -79,10 +79,12 @@ def test_random_scene_grid_equals_reference(seed):
     assert (g_ref >= 0).sum() > 100  # the rays really hit things
     for storage in STORAGES:
         for density in (0.5, 4.0):
-            t, g = Engine(scene, storage=storage, density=density).first_hits(o, d)
+            t, g = Engine(scene, storage=storage, density=density,
+                          structure="grid").first_hits(o, d)  # fmt: skip
             assert_same_hits(t_ref, g_ref, t, g)
-    t, g = Engine(scene, brute=True).first_hits(o, d)
-    assert_same_hits(t_ref, g_ref, t, g)
+    for kw in ({"brute": True}, {"structure": "bvh"}):
+        t, g = Engine(scene, **kw).first_hits(o, d)
+        assert_same_hits(t_ref, g_ref, t, g)
 
 
 @pytest.mark.parametrize(
@@ -93,8 +95,9 @@ def test_spd_scene_eye_hits_equal_reference(name):
     scene = read_nff(spd_scene(name))
     rays = eye_rays(scene.view, ImageSpec(width=24, height=24))
     t_ref, g_ref = reference.first_hits(scene, rays["o"], rays["d"], t_min=0.0)
-    for storage in STORAGES:
-        t, g = Engine(scene, storage=storage).first_hits(rays["o"], rays["d"])
+    for kw in ({"storage": "csr", "structure": "grid"}, {"storage": "hash", "structure": "grid"},
+               {"structure": "bvh"}):  # fmt: skip
+        t, g = Engine(scene, **kw).first_hits(rays["o"], rays["d"])
         assert_same_hits(t_ref, g_ref, t, g)
 
 
@@ -148,8 +151,9 @@ def test_grazing_rays_agree_with_brute_force():
     o = np.array([[-5, 1.0, 0.0], [-5, 1.0 - 1e-12, 0.0], [-5, 1.5, -1.0], [-5, -2.0, -1.0]])
     d = np.tile([1.0, 0, 0], (4, 1))
     tb, gb = Engine(scene, brute=True).first_hits(o, d)
-    for storage in STORAGES:
-        t, g = Engine(scene, storage=storage, resolution=(7, 7, 7)).first_hits(o, d)
+    engines = [Engine(scene, storage=s, resolution=(7, 7, 7)) for s in STORAGES]
+    for engine in [*engines, Engine(scene, structure="bvh")]:
+        t, g = engine.first_hits(o, d)
         np.testing.assert_array_equal(g, gb)
         np.testing.assert_array_equal(t, tb)
     assert gb[1] == 0  # just inside the tangent line: hit
@@ -197,11 +201,12 @@ def test_equal_distances_go_to_the_lower_gid_whatever_the_grid():
         tie = t_ref == 3.0
         assert tie.sum() > 50
         np.testing.assert_array_equal(g_ref[tie], np.zeros(tie.sum()))
-        for storage in STORAGES:
-            for density in (0.3, 1.0, 8.0):
-                t, g = Engine(scene, storage=storage, density=density).first_hits(o, d)
-                np.testing.assert_array_equal(g, g_ref)
-                np.testing.assert_array_equal(t, t_ref)
+        engines = [Engine(scene, storage=storage, density=density, structure="grid")
+                   for storage in STORAGES for density in (0.3, 1.0, 8.0)]  # fmt: skip
+        for engine in [*engines, Engine(scene, structure="bvh")]:
+            t, g = engine.first_hits(o, d)
+            np.testing.assert_array_equal(g, g_ref)
+            np.testing.assert_array_equal(t, t_ref)
 
 
 def test_voxels_wholly_inside_a_sphere_hold_no_reference():

@@ -17,13 +17,14 @@ SPD_COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shado
 SIZE = 36
 
 
-def single(scene):
-    img, stats = render(scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1))
+def single(scene, structure="auto"):
+    img, stats = render(scene, ImageSpec(width=SIZE, height=SIZE),
+                        EngineSpec(threads=1, structure=structure))  # fmt: skip
     return img, {k: stats["rays"][k] for k in SPD_COUNTS}
 
 
-def check_mesh(scene, shapes, overlaps):
-    ref_img, ref_counts = single(scene)
+def check_mesh(scene, shapes, overlaps, reference=None):
+    ref_img, ref_counts = reference or single(scene)
     for rows, cols in shapes:
         for overlap in overlaps:
             img, totals, per_node, _ = render_mesh(scene, rows, cols, overlap, SIZE, SIZE)
@@ -48,6 +49,14 @@ SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
 )  # fmt: skip
 def test_spd_scene_on_every_mesh_equals_single_node(name):
     check_mesh(read_nff(spd_scene(name)), SHAPES, (1, 24, 100))
+
+
+@pytest.mark.parametrize("name", ["teapot_s1.nff", "rings_s1.nff", "balls_s2.nff"])
+def test_a_mesh_of_hierarchies_equals_one_grid(name):
+    # The nodes choose their structure (here the hierarchy) and the reference the grid: the
+    # first hits, so the image and counts, must not depend on the structure.
+    scene = read_nff(spd_scene(name))
+    check_mesh(scene, [(2, 2)], (24,), reference=single(scene, structure="grid"))
 
 
 @pytest.mark.parametrize("seed", [5, 6])

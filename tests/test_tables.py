@@ -39,7 +39,7 @@ def test_material_and_light_columns_follow_their_constants():
 
 def test_named_tables_hold_the_node_arrays():
     scene = make_scene(triangles=[((0, 0, 0), (1, 0, 0), (0, 1, 0), 1)], materials=MATERIALS)
-    engine = Engine(scene, storage="hash")
+    engine = Engine(scene, storage="hash", structure="grid")
     geo, grid, shading = engine.geometry, engine.grid_arrays, engine.shading
     assert geo.sph is None and geo.poly is None and geo.cone is None
     assert geo.tri is engine.tables.triangles
@@ -47,3 +47,4 @@ def test_named_tables_hold_the_node_arrays():
     assert engine.transmit is None  # the triangle's material does not transmit
     assert grid.refs is engine.grid.refs and grid.bits is engine.grid.bits
     assert len(grid.offsets) == 0  # hash storage: the CSR offsets are passed empty
+    assert len(engine.bvh_arrays.box) == 0  # the grid answers: the hierarchy is passed empty

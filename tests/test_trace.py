@@ -30,24 +30,26 @@ def small(scene, **kw):
     "name", ["balls_s1.nff", "tetra_s2.nff", "mount_s1.nff", "gears_s1.nff", "teapot_s1.nff",
              "rings_s1.nff"],
 )  # fmt: skip
-def test_grid_image_and_counts_equal_brute_force(name):
+def test_grid_and_bvh_image_and_counts_equal_brute_force(name):
     scene = read_nff(spd_scene(name))
     ref_img, ref_counts = small(scene, brute=True)
     assert ref_counts["eye_hits"] > 0
-    for storage in ("csr", "hash"):
-        for density in (0.5, 4.0):
-            img, counts = small(scene, storage=storage, density=density)
-            assert counts == ref_counts
-            np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+    configs = [{"storage": s, "density": d, "structure": "grid"} for s in ("csr", "hash")
+               for d in (0.5, 4.0)] + [{"structure": "bvh"}]  # fmt: skip
+    for config in configs:
+        img, counts = small(scene, **config)
+        assert counts == ref_counts
+        np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
 
 
 def test_random_scene_with_glass_and_lights_equals_brute_force():
     scene = lit_glass_scene(np.random.default_rng(7), n=30)
     ref_img, ref_counts = small(scene, brute=True)
     assert ref_counts["refracted_rays"] > 0 and ref_counts["shadow_rays_blocked"] > 0
-    img, counts = small(scene)
-    assert counts == ref_counts
-    np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+    for structure in ("grid", "bvh"):
+        img, counts = small(scene, structure=structure)
+        assert counts == ref_counts
+        np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
 
 
 def one_ray(o, d, depth=1):

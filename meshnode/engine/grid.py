@@ -323,3 +323,14 @@ def build_grid(
         offsets[entry_voxel].astype(np.int32), counts[entry_voxel].astype(np.int32),
         bits, chosen, stats, macro, mres,
     )  # fmt: skip
+
+
+def box_only(lo: np.ndarray, hi: np.ndarray) -> Grid:
+    """A one-voxel grid of no references over [lo, hi] (padded as `build_grid` pads): the
+    node's box for a node that answers rays from its hierarchy instead."""
+    glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))
+    res = np.ones(3, np.int64)
+    stats = {"resolution": [1, 1, 1], "storage": "csr", "structure_bytes": 0,
+             "storage_reason": "box only: the node's hierarchy holds the objects"}  # fmt: skip
+    return Grid(glo, ghi - glo, res, np.zeros(0, np.int32), np.zeros(2, np.int32), None, None,
+                None, None, None, "csr", stats, np.zeros(1, np.uint8), res.copy())  # fmt: skip

@@ -6,7 +6,7 @@ Objects get a local id in the order spheres, triangles, polygons, cones; `gid` a
 local id back to the scene.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -76,6 +76,26 @@ class Tables:
     @property
     def n(self) -> int:
         return len(self.gid)
+
+    def permuted(self, order: np.ndarray) -> "Tables":
+        """These tables with local id j holding the object of old id order[j]; `order` must
+        keep every kind in its own range. A hierarchy orders its leaves so: each leaf is then
+        a run of consecutive ids, its rows side by side in memory."""
+        order = np.asarray(order, np.int64)
+        off = self.offsets
+        for k in range(4):
+            run = order[off[k] : off[k + 1]]
+            if len(run) and (run.min() < off[k] or run.max() >= off[k + 1]):
+                raise ValueError("a permutation of local ids must keep each kind in its range")
+
+        def rows(table, k):
+            return None if table is None else table[order[off[k] : off[k + 1]] - off[k]]
+
+        return replace(self, spheres=rows(self.spheres, 0), triangles=rows(self.triangles, 1),
+                       tri_normals=rows(self.tri_normals, 1), polygons=rows(self.polygons, 2),
+                       poly_info=rows(self.poly_info, 2), cones=rows(self.cones, 3),
+                       gid=self.gid[order], mat=self.mat[order], lo=self.lo[order],
+                       hi=self.hi[order])  # fmt: skip
 
     def geometry(self) -> Geometry:
         """The object tables as the intersection kernels take them."""

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from meshnode.engine.bvh import STACK as BVH_STACK
+from meshnode.engine.bvh import bvh_walk
 from meshnode.engine.counters import (
     ESCAPED,
     EYE_HITS,
@@ -43,27 +45,49 @@ def _push(so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi
 
 
 @kernel
-def first_hits(orig, dirs, t_lo, brute, counters, geo, grid):
-    """Nearest hit distance and local object id of each (origin, unit direction) pair, among
-    the objects of the `Geometry` geo through the `GridArrays` grid (or all, with brute)."""
+def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
+    """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
+    among the objects of the `Geometry` geo through the `BvhArrays` bvh if it is not empty,
+    else the `GridArrays` grid (or all, with brute). Directions are made unit length here, in
+    the same pass: distances are in scene units. Returns (t, gid, index of the first ray with
+    a zero or non-finite direction or a non-finite origin, or -1); the caller refuses those."""
     gid, off, sph, tri, poly, pinfo, puv, cone = geo
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
-    u_out = np.full(n, -1, np.int64)
+    g_out = np.full(n, -1, np.int64)
     mail = np.full(gid.shape[0], -1, np.int64)
+    stack = np.empty(2 * BVH_STACK)
+    # Decided once, outside the loop: reading a tuple's field in the loop costs reference
+    # counting on every array of the tuple (5x the whole walk of a ray that misses).
+    use_bvh = bvh.box.shape[0] > 0
     for i in range(n):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        big = max(abs(dx), max(abs(dy), abs(dz)))  # scaled first: no overflow in the norm
+        if not (0.0 < big < math.inf) or not (abs(ox) < math.inf and abs(oy) < math.inf
+                                               and abs(oz) < math.inf):  # fmt: skip
+            return t_out, g_out, i
+        dx /= big
+        dy /= big
+        dz /= big
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx /= norm
+        dy /= norm
+        dz /= norm
         if brute:
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+        elif use_bvh:
+            t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, stack,
+                            counters, gid, off, sph, tri, poly, pinfo, puv, cone, bvh)  # fmt: skip
         else:
             t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
                         gid, off, sph, tri, poly, pinfo, puv, cone, grid)  # fmt: skip
         counters[SEGMENTS] += 1
         t_out[i] = t
-        u_out[i] = u
-    return t_out, u_out
+        if u >= 0:
+            g_out[i] = gid[u]
+    return t_out, g_out, -1
 
 
 @kernel
@@ -85,10 +109,11 @@ def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, o
 
 @kernel
 def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, lights,
-                scene_lo, scene_hi, out):  # fmt: skip
+                scene_lo, scene_hi, out, bvh):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
-    The objects are the `Geometry` geo in the `GridArrays` grid (or all tested, with brute),
+    The objects are the `Geometry` geo in the `BvhArrays` bvh, or when that is empty the
+    `GridArrays` grid (or all tested, with brute); the grid's box is the node's box always,
     shaded by the `Shading` shading. `lights` (rows by LIGHT_* columns) None compiles out
     shadow rays, `transmit` (each material's transmittance) None compiles out refraction.
 
@@ -111,6 +136,8 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     st = np.empty((cap, 2))
     sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
     mail = np.full(gid.shape[0], -1, np.int64)
+    stack = np.empty(2 * BVH_STACK)
+    use_bvh = bvh.box.shape[0] > 0  # once: see first_hits
     # Shadow cache: the object that last blocked each light is tried first (walk's hint).
     blocker = np.full(max(n_lights, 1), -1, np.int64)
     fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
@@ -164,6 +191,11 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             if brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+            elif use_bvh:
+                hint = blocker[light] if shadow else -1
+                t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, stack,
+                                counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                                bvh)  # fmt: skip
             else:
                 hint = blocker[light] if shadow else -1
                 t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, ray_id,

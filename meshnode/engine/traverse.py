@@ -35,7 +35,7 @@ def better(t, u, best_t, best_u, gid):
 def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
                 sph, tri, poly, pinfo, puv, cone):  # fmt: skip
     """Dispatch on the local id's kind; kinds passed as None are compiled out."""
-    self_hit = gid[u] == origin
+    self_hit = origin >= 0 and gid[u] == origin  # eye rays (origin -1) skip the load
     if sph is not None and u < off[1]:
         return hit_sphere(sph, u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit)
     if tri is not None and u < off[2]:

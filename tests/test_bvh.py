@@ -1,0 +1,92 @@
+"""The bounding volume hierarchy: first hits equal brute force on hard layouts, every leaf a run
+of one kind's ids within the leaf cap, and the engine's choice between it and the grid."""
+
+import numpy as np
+
+from host.nff import read_nff
+from meshnode.engine import Engine
+from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP
+from tests.conftest import make_scene, spd_scene
+from tests.test_grid import assert_same_hits, random_scene
+
+
+def leaves(engine: Engine) -> list[tuple[int, int]]:
+    """(first local id, count) of every leaf the hierarchy's inner nodes refer to."""
+    refs = engine.bvh_arrays.ref[:, 12:14].ravel()
+    packed = ~refs[refs < 0]
+    return [(int(p >> LEAF_BITS), int(p & LEAF_CAP)) for p in packed]
+
+
+def test_every_leaf_is_a_run_of_one_kind_and_every_object_is_in_one_leaf():
+    engine = Engine(random_scene(np.random.default_rng(4), n=80), structure="bvh")
+    off = engine.tables.offsets
+    seen = np.zeros(engine.tables.n, int)
+    for first, count in leaves(engine):
+        if count:
+            kind = np.searchsorted(off, first, side="right") - 1
+            assert first + count <= off[kind + 1]  # one kind: a run inside its id range
+            seen[first : first + count] += 1
+    np.testing.assert_array_equal(seen, 1)
+
+
+def test_objects_sharing_one_centre_split_into_capped_leaves_and_hit_as_brute_force():
+    # 40 concentric spheres and 40 copies of one triangle: no centroid split exists.
+    spheres = [((0, 0, 0), 0.1 + 0.05 * i, 0) for i in range(40)]
+    tris = [((-1, -1, 0), (1, -1, 0), (0, 1, 0), 0)] * 40
+    scene = make_scene(spheres=spheres, triangles=tris)
+    engine = Engine(scene, structure="bvh")
+    assert max(c for _, c in leaves(engine)) <= LEAF_CAP
+    rng = np.random.default_rng(2)
+    o = rng.uniform(-4, 4, (300, 3))
+    d = rng.uniform(-0.5, 0.5, (300, 3)) - o
+    t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
+    assert (g_ref >= 0).sum() > 100
+    t, g = engine.first_hits(o, d)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(t, t_ref)
+
+
+def test_empty_and_single_object_nodes():
+    o, d = np.array([[0.0, 0, -5]]), np.array([[0.0, 0, 1]])
+    t, g = Engine(make_scene(), structure="bvh").first_hits(o, d)
+    assert g[0] == -1 and t[0] == np.inf
+    t, g = Engine(make_scene(spheres=[((0, 0, 0), 1.0, 0)]), structure="bvh").first_hits(o, d)
+    assert g[0] == 0 and t[0] == 4.0
+
+
+def test_auto_takes_the_grid_for_nested_boxes_and_the_hierarchy_elsewhere():
+    # 200 nested spheres: every box holds the next, a hierarchy cannot separate them.
+    nested = make_scene(spheres=[((0, 0, 0), 1.0 + 0.01 * i, 0) for i in range(200)])
+    engine = Engine(nested)
+    assert engine.structure == "grid"
+    assert "nest" in engine.stats["structure_reason"]
+    tetra = Engine(read_nff(spd_scene("tetra_s3.nff")))
+    assert tetra.structure == "bvh" and tetra.stats["bvh"]["expected_tests"] <= 16
+    assert "tests" in tetra.stats["structure_reason"]
+    assert Engine(read_nff(spd_scene("tetra_s3.nff")), structure="grid").structure == "grid"
+
+
+def test_directions_that_are_zero_or_not_finite_are_refused_by_index():
+    engine = Engine(make_scene(spheres=[((0, 0, 0), 1.0, 0)]))
+    o = np.zeros((3, 3))
+    d = np.array([[0.0, 0, 1], [0.0, 0, 0], [1.0, 0, 0]])
+    try:
+        engine.first_hits(o, d)
+    except ValueError as e:
+        assert str(e).startswith("ray 1:")
+    else:
+        raise AssertionError("a zero direction was traced")
+    # Huge but finite directions are scaled, not overflowed.
+    t, g = engine.first_hits(np.array([[0.0, 0, -5]]), np.array([[0.0, 0, 1e300]]))
+    assert g[0] == 0 and t[0] == 4.0
+
+
+def test_random_layouts_equal_brute_force():
+    for seed in (11, 12, 13):
+        rng = np.random.default_rng(seed)
+        scene = random_scene(rng, n=50)
+        o = rng.uniform(-8, 8, (300, 3))
+        d = rng.uniform(-5, 5, (300, 3)) - o
+        t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
+        t, g = Engine(scene, structure="bvh").first_hits(o, d)
+        assert_same_hits(t_ref, g_ref, t, g)

@@ -1,17 +1,20 @@
-"""SPD benchmark: every NFF scene at 512x512 on one thread, per grid storage and density, with
-POV-Ray 3.7 side by side and whole-process wall times (warm and cold numba cache).
+"""SPD benchmark: every NFF scene at 512x512 on one thread, per acceleration structure (the
+grid per storage and density, the hierarchy, and the default: structure auto), with POV-Ray 3.7
+side by side on every scene that has a pov/NAME.pov, the default's ray counts against the SPD
+author's published table, and whole-process wall times (warm and cold numba cache).
 
-    python -m bench.spd [--scenes DIR] [--only balls,tetra] [--densities 1,2,4] [--repeat 3]
-                        [--json FILE] [--no-pov] [--no-wall]
+    python -m bench.spd [--scenes DIR] [--only balls,tetra] [--structures grid,bvh]
+                        [--densities 1,2,4] [--repeat 3] [--json FILE] [--no-pov] [--no-wall]
     python -m bench.spd --scaling [tetra:1-10,balls:1-6] [--size 512] [--repeat 3] [--json FILE]
 
 Tracing times exclude kernel loading (`render` warms up first) and preprocessing; rays/s is
-all rays (eye, reflected, refracted, shadow) over the best tracing time.
+all rays (eye, reflected, refracted, shadow) over the best tracing time. Ray counts must be
+identical in every configuration of a scene: grid and hierarchy are both exact.
 
 --scaling needs no scene folder: it generates SPD tetra and balls at growing size factors
 (`bench.generate`: 4^n triangles, 1 + 9 + ... + 9^n spheres) and prints tracing time against
-scene size with the default grid (storage auto, default density), one thread; the growth
-column is time per ray over the smallest size factor's.
+scene size for the grid (storage auto, default density) and the default (structure auto) side
+by side, one thread; the growth columns are time per ray over the smallest size factor's.
 """
 
 import argparse
@@ -28,16 +31,27 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
-POV_SCENES = ("balls", "tetra")  # also the scenes timed best-of-N and as whole processes
+WALL_SCENES = ("balls", "tetra")  # timed as whole processes too
+GOAL_SCENES = ("balls", "tetra", "gears", "rings", "teapot", "tree")
+GOAL_RATIO = 2.0  # the project's goal: POV-Ray's trace time over our default's
 STORAGES = ("csr", "hash")
+STRUCTURES = ("grid", "bvh", "auto")  # --structures; the default (auto) always runs
+# The SPD author's published counts (scenes README) are checked to this relative difference;
+# teapot's generator has changed since the table was made.
+PUBLISHED_TOLERANCE = {"teapot": 0.005}
+TOLERANCE = 0.001
+PUBLISHED_COLUMNS = {"eye rays that hit": "eye_hits", "reflected rays": "reflected_rays",
+                     "refracted rays": "refracted_rays", "shadow rays": "shadow_rays"}  # fmt: skip
 COUNT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
               "shadow_rays_blocked")  # fmt: skip
 COUNT_LABELS = ("eye", "hits", "reflected", "refracted", "shadow", "blocked")
 DEFAULT_SCALING = "tetra:1-10,balls:1-6"  # 4 .. 1,048,576 triangles, 10 .. 597,871 spheres
-# The figures of run_config that a scaling row keeps.
-SCALING_KEYS = ("used_storage", "resolution", "trace_seconds", "trace_seconds_all",
-                "total_rays", "rays_per_second", "tests_per_ray", "steps_per_ray",
-                "structure_bytes", "variant")  # fmt: skip
+# The structures --scaling compares, and the figures of run_config that a scaling run keeps.
+SCALING_STRUCTURES = ("grid", "auto")
+SCALING_KEYS = ("label", "structure", "used_structure", "structure_reason", "used_storage",
+                "resolution", "bvh", "trace_seconds", "trace_seconds_all", "total_rays",
+                "rays_per_second", "tests_per_ray", "steps_per_ray", "structure_bytes",
+                "variant", "rays")  # fmt: skip
 
 if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(ROOT))
@@ -51,8 +65,17 @@ def default_density() -> float:
     return default(EngineSpec, "density")
 
 
+def default_storage() -> str:
+    """The grid storage `host render` uses when not told."""
+    from protocols.render import EngineSpec
+    from protocols.spec import default
+
+    return default(EngineSpec, "storage")
+
+
 class CountMismatchError(AssertionError):
-    """Ray counts differ between grid configurations of one scene (an engine bug)."""
+    """Ray counts differ between configurations of one scene (an engine bug: grid and
+    hierarchy are both exact)."""
 
 
 # ---------------------------------------------------------------------------- arguments
@@ -63,9 +86,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES, help="folder of *.nff")
     p.add_argument("--only", help="comma-separated scene names (default: all)")
+    p.add_argument("--structures", default=",".join(STRUCTURES),
+                   help="which of grid (every storage x density), bvh, auto to run (default "
+                   "all; auto, the default the POV-Ray ratios are about, always runs)")  # fmt: skip
     p.add_argument("--densities", default="0.5,1,2", help="grid densities (default 0.5,1,2)")
     p.add_argument("--repeat", type=int, default=3,
-                   help="best of N tracing runs for balls and tetra (default 3)")  # fmt: skip
+                   help="best of N for scenes with a pov/NAME.pov, POV-Ray's and ours, "
+                   "and for --scaling (default 3)")  # fmt: skip
     p.add_argument("--json", type=Path, help="write all figures to this JSON file")
     p.add_argument("--no-pov", action="store_true", help="skip the POV-Ray comparison")
     p.add_argument("--no-wall", action="store_true", help="skip whole-process wall times")
@@ -76,6 +103,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="image side for --scaling (SPD corner rays; default 512)")  # fmt: skip
     args = p.parse_args(argv)
     args.densities = [float(d) for d in args.densities.split(",") if d.strip()]
+    args.structures = [s.strip() for s in args.structures.split(",") if s.strip()]
+    if not set(args.structures) <= set(STRUCTURES):
+        p.error(f"--structures: choose among {', '.join(STRUCTURES)}")
     if args.repeat < 1 or not args.densities or args.size < 1:
         p.error("--repeat and --size must be >= 1 and --densities non-empty")
     if args.scaling is not None:
@@ -126,51 +156,76 @@ def scene_files(folder: Path, only: str | None) -> list[Path]:
 
 
 def warm_kernels(scene) -> dict:
-    """Load grid-build, eye-ray and tracing kernels for both storages on a coarse grid, so the
-    first measured configuration pays no kernel loading; returns the load seconds per storage."""
+    """Load grid-build, eye-ray and tracing kernels for both storages on a coarse grid and for
+    the hierarchy, so the first measured configuration pays no kernel loading; returns the load
+    seconds per storage and 'bvh' (the grid is asked for: auto might build a hierarchy)."""
     from meshnode.engine import Engine
     from meshnode.engine.camera import eye_rays
     from protocols.render import ImageSpec
 
     eye_rays(scene.view, ImageSpec(spd=True).sized(scene.view), rows=(0, 1))
     loads = {}
-    for storage in STORAGES:
+    for name, kw in [*((s, {"structure": "grid", "storage": s, "density": 0.05})
+                       for s in STORAGES), ("bvh", {"structure": "bvh"})]:  # fmt: skip
         start = time.perf_counter()
-        Engine(scene, density=0.05, storage=storage).warmup()
-        loads[storage] = time.perf_counter() - start
+        Engine(scene, **kw).warmup()
+        loads[name] = time.perf_counter() - start
     return loads
 
 
-def run_config(scene, storage: str, density: float, repeats: int, built=None,
+def config_plan(structures: list[str], densities: list[float]) -> list[tuple[str, str, float]]:
+    """(structure, storage, density) of each configuration of one scene: the grid's storages x
+    densities, the hierarchy (storage and density unused), and last always the default."""
+    plan = [("grid", s, d) for s in STORAGES for d in densities] if "grid" in structures else []
+    if "bvh" in structures:
+        plan.append(("bvh", default_storage(), default_density()))
+    return plan + [("auto", default_storage(), default_density())]
+
+
+def build(scene, structure: str, storage: str, density: float):
+    """The engine of one configuration, built once for all its repeats (SPD shells' grid
+    takes tens of seconds to build)."""
+    from meshnode.engine import Engine
+
+    return Engine(scene, structure=structure, storage=storage, density=density)
+
+
+def run_config(scene, structure: str, storage: str, density: float, repeats: int, built=None,
                size: int | None = None) -> dict:  # fmt: skip
-    """Render `repeats` times with one grid configuration; keep the best tracing time.
-    `built`: that configuration's engine, reused (a big scene's grid is built once);
+    """Render `repeats` times with one configuration; keep the best tracing time.
+    `built`: that configuration's engine, reused (a big scene's structure is built once);
     `size`: image side under the SPD rules (default 512)."""
     from host.render import render
     from protocols.render import EngineSpec, ImageSpec
 
     image = ImageSpec(spd=True, width=size, height=size)
-    engine = EngineSpec(threads=1, storage=storage, density=density)
+    engine = EngineSpec(threads=1, structure=structure, storage=storage, density=density)
     runs = [render(scene, image, engine, built=built)[1] for _ in range(repeats)]
     best = min(runs, key=lambda s: s["trace_seconds"])
-    grid = best["engine"]["grid"]
-    return {
+    stats = best["engine"]
+    is_grid = stats["structure"] == "grid"  # a hierarchy's grid is only a one-voxel box
+    c = {
+        "structure": structure,
+        "used_structure": stats["structure"],
+        "structure_reason": stats["structure_reason"],
         "storage": storage,
-        "used_storage": grid["storage"],
+        "used_storage": stats["grid"]["storage"] if is_grid else None,
         "density": density,
-        "resolution": grid["resolution"],
-        "preprocess_seconds": min(s["preprocess_seconds"] for s in runs),
+        "resolution": stats["grid"]["resolution"] if is_grid else None,
+        "bvh": stats["bvh"],
+        "preprocess_seconds": min(s["preprocess_seconds"] for s in runs),  # one if built
         "trace_seconds": best["trace_seconds"],
         "trace_seconds_all": [s["trace_seconds"] for s in runs],
         "total_rays": best["total_rays"],
         "rays_per_second": best["total_rays"] / best["trace_seconds"],
         "tests_per_ray": best["tests_per_ray"],
         "steps_per_ray": best["steps_per_ray"],
-        "structure_bytes": grid["structure_bytes"],
-        "kernel_load_seconds": best["engine"].get("kernel_load_seconds"),
+        "structure_bytes": stats["structure_bytes"],
+        "kernel_load_seconds": stats.get("kernel_load_seconds"),
         "rays": best["rays"],
-        "variant": best["engine"]["kernel_variant"],
+        "variant": stats["kernel_variant"],
     }
+    return {"label": _label(c), **c}
 
 
 def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]:
@@ -179,131 +234,214 @@ def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]
     counts = [{k: c["rays"][k] for k in COUNT_KEYS} for c in configs]
     error = None
     if any(c != counts[0] for c in counts):
-        lines = [f"  {_label(c)}: {n}" for c, n in zip(configs, counts, strict=True)]
-        error = f"{name}: ray counts differ between grids:\n" + "\n".join(lines)
+        lines = [f"  {c['label']}: {n}" for c, n in zip(configs, counts, strict=True)]
+        error = f"{name}: ray counts differ between configurations:\n" + "\n".join(lines)
     warnings = []
     for key in sorted(set(configs[0]["rays"]) - set(COUNT_KEYS)):
-        values = {_label(c): c["rays"].get(key) for c in configs}
+        values = {c["label"]: c["rays"].get(key) for c in configs}
         if len(set(values.values())) > 1:
-            warnings.append(f"{name}: counter {key} differs between grids: {values}")
+            warnings.append(f"{name}: counter {key} differs between configurations: {values}")
     return error, warnings
 
 
-def bench_scene(path: Path, densities: list[float], repeat: int) -> dict:
-    """All grid configurations of one scene plus the default (storage auto, default density)."""
+def bench_scene(path: Path, plan: list[tuple[str, str, float]], repeats: int) -> dict:
+    """Every configuration of `plan` on one scene, best of `repeats` each; the last is the
+    default (structure auto, storage auto, default density)."""
     from host.nff import read_nff
 
     scene = read_nff(path)
-    repeats = repeat if path.stem in POV_SCENES else 1
     loads = warm_kernels(scene)
-    plan = [(s, d) for s in STORAGES for d in densities] + [("auto", default_density())]
-    configs = [run_config(scene, s, d, repeats) for s, d in plan]
+    configs = [run_config(scene, *c, repeats, built=build(scene, *c)) for c in plan]
     error, warnings = check_counts(path.stem, configs)
-    best = min(configs, key=lambda c: c["trace_seconds"])
+    best, dflt = min(configs, key=lambda c: c["trace_seconds"]), configs[-1]
     return {
         "scene": path.stem,
         "file": str(path),
         "objects": scene.n_objects,
         "repeats": repeats,
         "kernel_load_seconds": loads,
-        "counts": {k: configs[-1]["rays"][k] for k in COUNT_KEYS},  # the default's
+        "counts": {k: dflt["rays"][k] for k in COUNT_KEYS},  # the default's
         "count_error": error,
         "configs": configs,
-        "best": _label(best),
+        "best": best["label"],
         "best_trace_seconds": best["trace_seconds"],
-        "default_trace_seconds": configs[-1]["trace_seconds"],
+        "default": dflt["label"],
+        "default_structure": dflt["used_structure"],
+        "default_reason": dflt["structure_reason"],
+        "default_trace_seconds": dflt["trace_seconds"],
         "warnings": warnings,
     }
 
 
 def _label(c: dict) -> str:
-    """Short configuration name, e.g. 'hash d2' or 'auto(csr) d2'."""
+    """Short configuration name, e.g. 'grid hash d2', 'grid auto(csr) d1', 'bvh', 'auto(bvh)'
+    or 'auto(grid csr d1)': what was asked for, and what auto chose."""
+    if c["used_structure"] == "bvh":
+        return "bvh" if c["structure"] == "bvh" else "auto(bvh)"
     storage = c["storage"] if c["storage"] != "auto" else f"auto({c['used_storage']})"
-    return f"{storage} d{c['density']:g}"
+    grid = f"grid {storage} d{c['density']:g}"
+    return grid if c["structure"] == "grid" else f"auto(grid {c['used_storage']} d{c['density']:g})"
+
+
+# ---------------------------------------------------------------------------- published counts
+
+
+def parse_published(text: str) -> dict[str, dict[str, int]]:
+    """The 'Published ray counts' table of the scenes folder's README (the SPD author's counts,
+    513x513 corner rays, depth 5): {scene: {count key: n}}; {} if the README has none."""
+    _, found, rest = text.partition("Published ray counts")
+    lines = [ln.strip() for ln in rest.split("\n## ")[0].splitlines()]
+    rows = [[x.strip() for x in ln.strip("|").split("|")] for ln in lines if ln.startswith("|")]
+    rows = [r for r in rows if not all(set(x) <= set("-: ") for x in r)]  # the rule under header
+    if not found or not rows:
+        return {}
+    keys = [PUBLISHED_COLUMNS.get(h.lower()) for h in rows[0][1:]]
+    return {r[0]: {k: int(v.replace(",", "")) for k, v in zip(keys, r[1:], strict=True) if k}
+            for r in rows[1:]}  # fmt: skip
+
+
+def read_published(scenes: Path) -> dict[str, dict[str, int]]:
+    """The published counts of the scenes folder's README.md ({} without one)."""
+    readme = scenes / "README.md"
+    return parse_published(readme.read_text()) if readme.exists() else {}
+
+
+def compare_published(name: str, counts: dict, published: dict | None) -> dict | None:
+    """Relative difference of each of our counts from the published one (over max(published, 1):
+    a published 0 stays finite) and whether all are within the scene's tolerance."""
+    if not published:
+        return None
+    tolerance = PUBLISHED_TOLERANCE.get(name, TOLERANCE)
+    relative = {k: (counts[k] - n) / max(n, 1) for k, n in published.items()}
+    return {"published": published, "relative": relative, "tolerance": tolerance,
+            "within": all(abs(d) <= tolerance for d in relative.values())}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- scaling
 
 
+def scaling_run(scene, structure: str, size: int, repeat: int) -> dict:
+    """One structure on one generated scene: its engine built once (storage auto, default
+    density) and its kernels loaded before anything is timed, then the best of `repeat`."""
+    storage, density = default_storage(), default_density()
+    engine = build(scene, structure, storage, density)
+    load = engine.warmup()
+    c = run_config(scene, structure, storage, density, repeat, built=engine, size=size)
+    return {"build_seconds": engine.preprocess_seconds, "kernel_load_seconds": load,
+            **{k: c[k] for k in SCALING_KEYS},
+            "seconds_per_ray": c["trace_seconds"] / c["total_rays"]}  # fmt: skip
+
+
 def scaling_row(name: str, n: int, size: int, repeat: int) -> dict:
-    """One generated scene: its engine built once with the default grid and its kernels
-    loaded before anything is timed, then the best of `repeat` SPD renders."""
+    """One generated scene under every structure of SCALING_STRUCTURES (one engine alive at a
+    time: the biggest scenes are large), their ray counts checked equal."""
     from bench.generate import GENERATORS
-    from meshnode.engine import Engine
-    from protocols.render import EngineSpec
-    from protocols.spec import default
 
     start = time.perf_counter()
     scene = GENERATORS[name](n)
     generate_seconds = time.perf_counter() - start
-    storage, density = default(EngineSpec, "storage"), default_density()
-    engine = Engine(scene, density=density, storage=storage)
-    load = engine.warmup()
-    c = run_config(scene, storage, density, repeat, built=engine, size=size)
+    runs = {s: scaling_run(scene, s, size, repeat) for s in SCALING_STRUCTURES}
+    error, warnings = check_counts(f"{name} size factor {n}", list(runs.values()))
     return {"scene": name, "size_factor": n, "objects": scene.n_objects,
-            "generate_seconds": generate_seconds, "build_seconds": engine.preprocess_seconds,
-            "kernel_load_seconds": load, **{k: c[k] for k in SCALING_KEYS},
-            "seconds_per_ray": c["trace_seconds"] / c["total_rays"]}  # fmt: skip
+            "generate_seconds": generate_seconds, "total_rays": runs["auto"]["total_rays"],
+            "runs": runs, "count_error": error, "warnings": warnings}  # fmt: skip
 
 
 def bench_scaling(plan: list[tuple[str, list[int]]], size: int, repeat: int) -> list[dict]:
-    """Rows of every scene and size factor; `growth` is time per ray over the scene's first
-    (smallest) size factor's, the figure that shows how cost follows scene size."""
+    """Rows of every scene and size factor; each structure's `growth` is its time per ray over
+    its own at the scene's first (smallest) size factor: how cost follows scene size."""
     from bench.generate import GENERATORS
 
     rows = []
     for name, sizes in plan:
-        warm_kernels(GENERATORS[name](sizes[0]))  # build seconds then exclude grid kernels
+        warm_kernels(GENERATORS[name](sizes[0]))  # build seconds then exclude build kernels
         first = None
         for n in sizes:
             print(f"  {name} size factor {n} ...", file=sys.stderr, flush=True)
             row = scaling_row(name, n, size, repeat)
             first = first or row
-            row["growth"] = row["seconds_per_ray"] / first["seconds_per_ray"]
+            for s, run in row["runs"].items():
+                run["growth"] = run["seconds_per_ray"] / first["runs"][s]["seconds_per_ray"]
             rows.append(row)
         print_scaling([r for r in rows if r["scene"] == name])
     return rows
 
 
-def growth_exponent(rows: list[dict]) -> float | None:
+def growth_exponent(rows: list[dict], structure: str) -> float | None:
     """a in time per ray ~ objects^a between the first and last rows of one scene."""
     objects = rows[-1]["objects"] / rows[0]["objects"]
-    return math.log(rows[-1]["growth"]) / math.log(objects) if objects > 1 else None
+    growth = rows[-1]["runs"][structure]["growth"]
+    return math.log(growth) / math.log(objects) if objects > 1 else None
+
+
+def _chosen(rows: list[dict]) -> str:
+    """What auto chose across the size factors, e.g. 'bvh at every size' or
+    'bvh at n=1,2, grid at n=3'."""
+    by: dict[str, list[str]] = {}
+    for r in rows:
+        by.setdefault(r["runs"]["auto"]["used_structure"], []).append(str(r["size_factor"]))
+    if len(by) == 1:
+        return f"{next(iter(by))} at every size"
+    return ", ".join(f"{s} at n={','.join(ns)}" for s, ns in by.items())
 
 
 def print_scaling(rows: list[dict]) -> None:
-    """The scaling table of one scene and its growth in one line."""
+    """The scaling table of one scene, grid and default side by side, and each one's growth."""
     name = rows[0]["scene"]
-    print(f"\n== {name}  (generated SPD {name}; default grid; best of "
-          f"{len(rows[0]['trace_seconds_all'])})")  # fmt: skip
-    headers = ["n", "objects", "gen s", "build s", "grid", "storage", "trace s", "rays",
-               "Mrays/s", "us/ray", "tests/ray", "steps/ray", "growth"]  # fmt: skip
-    body = [[r["size_factor"], f"{r['objects']:,}", f"{r['generate_seconds']:.2f}",
-             f"{r['build_seconds']:.2f}", "x".join(map(str, r["resolution"])), r["used_storage"],
-             f"{r['trace_seconds']:.3f}", f"{r['total_rays']:,}",
-             f"{r['rays_per_second'] / 1e6:.3f}", f"{r['seconds_per_ray'] * 1e6:.3f}",
-             f"{r['tests_per_ray']:.2f}", f"{r['steps_per_ray']:.2f}", f"{r['growth']:.2f}"]
-            for r in rows]  # fmt: skip
+    print(f"\n== {name}  (generated SPD {name}; grid vs the default, structure auto; best of "
+          f"{len(rows[0]['runs']['grid']['trace_seconds_all'])})")  # fmt: skip
+    headers = ["n", "objects", "gen s", "rays", "grid", "build s", "trace s", "us/ray",
+               "tests/ray", "growth", "auto", "build s", "trace s", "us/ray", "tests/ray",
+               "growth", "grid/auto"]  # fmt: skip
+    body = []
+    for r in rows:
+        g, a = r["runs"]["grid"], r["runs"]["auto"]
+        body.append([r["size_factor"], f"{r['objects']:,}", f"{r['generate_seconds']:.2f}",
+                     f"{r['total_rays']:,}",
+                     "x".join(map(str, g["resolution"])) + f" {g['used_storage']}", *_cells(g),
+                     a["used_structure"], *_cells(a),
+                     f"{g['trace_seconds'] / a['trace_seconds']:.2f}"])  # fmt: skip
     print(table(headers, body))
-    a = growth_exponent(rows)
-    if a is not None:
-        print(f"{name}: {rows[-1]['objects'] / rows[0]['objects']:,.0f}x the objects, "
-              f"{rows[-1]['growth']:.2f}x the time per ray (objects^{a:.3f})")  # fmt: skip
+    print(f"{name}: auto chose {_chosen(rows)}; at n={rows[-1]['size_factor']}: "
+          f"{rows[-1]['runs']['auto']['structure_reason']}")  # fmt: skip
+    for s in SCALING_STRUCTURES:
+        a = growth_exponent(rows, s)
+        if a is not None:
+            growth = rows[-1]["runs"][s]["growth"]
+            print(f"{name} {s}: {rows[-1]['objects'] / rows[0]['objects']:,.0f}x the objects, "
+                  f"{growth:.2f}x the time per ray (objects^{a:.3f})")  # fmt: skip
+    for r in rows:
+        if r["count_error"]:
+            print("COUNT MISMATCH:", r["count_error"])
+        for w in r["warnings"]:
+            print("WARNING:", w)
     sys.stdout.flush()
+
+
+def _cells(run: dict) -> list[str]:
+    """One structure's columns of a scaling row."""
+    return [f"{run['build_seconds']:.2f}", f"{run['trace_seconds']:.3f}",
+            f"{run['seconds_per_ray'] * 1e6:.3f}", f"{run['tests_per_ray']:.2f}",
+            f"{run['growth']:.2f}"]  # fmt: skip
 
 
 def main_scaling(args: argparse.Namespace) -> int:
     """--scaling: the table for generated scenes only (no scene folder, no POV-Ray)."""
     plan = ", ".join(f"{name} {sizes[0]}-{sizes[-1]}" for name, sizes in args.scaling)
     print(f"SPD scaling: generated {plan}; {args.size}x{args.size} SPD image "
-          f"({args.size + 1}x{args.size + 1} corner rays), depth 5, 1 thread, storage auto, "
-          f"density {default_density():g}; best of {args.repeat}")  # fmt: skip
+          f"({args.size + 1}x{args.size + 1} corner rays), depth 5, 1 thread; grid (storage "
+          f"{default_storage()}, density {default_density():g}) and the default (structure "
+          f"auto); best of {args.repeat}")  # fmt: skip
     rows = bench_scaling(args.scaling, args.size, args.repeat)
     if args.json:
         data = {"size": args.size, "repeat": args.repeat, "threads": 1,
+                "structures": list(SCALING_STRUCTURES), "storage": default_storage(),
                 "density": default_density(), "rows": rows}  # fmt: skip
         args.json.write_text(json.dumps({"scaling": data}, indent=2) + "\n")
         print(f"figures written to {args.json}")
+    errors = [r["count_error"] for r in rows if r["count_error"]]
+    if errors:
+        raise CountMismatchError("\n".join(errors))
     return 0
 
 
@@ -359,22 +497,57 @@ def run_povray(exe: str, pov: Path, repeats: int) -> dict:
     return {**best, "trace_seconds_all": [r["trace_seconds"] for r in runs]}
 
 
+def pov_file(scenes: Path, name: str) -> Path | None:
+    """The POV-Ray version of scene `name` (<scenes>/pov/NAME.pov), if there is one."""
+    pov = scenes / "pov" / f"{name}.pov"
+    return pov if pov.exists() else None
+
+
 def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
-    """POV-Ray figures and pov/ours ratios for the POV scenes among `results`."""
-    wanted = [r for r in results if r["scene"] in POV_SCENES]
+    """POV-Ray figures (best of `repeat`) and pov/ours ratios for every scene of `results`
+    that has a POV-Ray version."""
+    wanted = [r for r in results if pov_file(scenes, r["scene"])]
     if not wanted:
         return {}
     exe = find_povray()
     if exe is None:
         print("\nPOV-Ray: unavailable (not on PATH and cannot install); no ratios.")
         return {"available": False}
-    out = {"available": True, "executable": exe, "scenes": {}}
+    out = {"available": True, "executable": exe, "repeat": repeat, "scenes": {}}
     for r in wanted:
-        pov = run_povray(exe, scenes / "pov" / f"{r['scene']}.pov", repeat)
+        print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
+        pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat)
         pov["ratio_best"] = pov["trace_seconds"] / r["best_trace_seconds"]
         pov["ratio_default"] = pov["trace_seconds"] / r["default_trace_seconds"]
         out["scenes"][r["scene"]] = pov
     return out
+
+
+def goal(pov: dict) -> dict:
+    """Which of GOAL_SCENES meet the goal (POV-Ray over our default >= GOAL_RATIO), which
+    miss it, and which were not measured: {"met"|"missed": {scene: ratio}, "absent": [...]}."""
+    measured = pov.get("scenes", {}) if pov else {}
+    out = {"ratio": GOAL_RATIO, "met": {}, "missed": {}, "absent": []}
+    for name in GOAL_SCENES:
+        if name not in measured:
+            out["absent"].append(name)
+        else:
+            ratio = measured[name]["ratio_default"]
+            out["met" if ratio >= GOAL_RATIO else "missed"][name] = ratio
+    return out
+
+
+def goal_line(g: dict) -> str:
+    """The goal in one line, e.g. 'goal POV-Ray/default >= 2.0: met on balls 2.31; not met
+    on gears 1.52; not measured: tree'."""
+    line = (f"goal POV-Ray/default >= {g['ratio']:.1f}: met on {_ratios(g['met'])}; "
+            f"not met on {_ratios(g['missed'])}")  # fmt: skip
+    return line + (f"; not measured: {', '.join(g['absent'])}" if g["absent"] else "")
+
+
+def _ratios(by_scene: dict) -> str:
+    """'balls 2.31, tetra 3.02', or 'none'."""
+    return ", ".join(f"{k} {v:.2f}" for k, v in by_scene.items()) or "none"
 
 
 # ---------------------------------------------------------------------------- whole process
@@ -429,23 +602,55 @@ def print_scene(r: dict) -> None:
           f"kernel load {loads})")  # fmt: skip
     pairs = list(zip(COUNT_LABELS, COUNT_KEYS, strict=True))
     if r["count_error"] is None:
-        print("rays (identical for every grid): " + "  ".join(f"{lab} {c[k]}" for lab, k in pairs))
-    headers = ["storage", "dens", "grid", "prep s", "trace s", "Mrays/s", "tests/ray",
-               "steps/ray", "struct bytes"]  # fmt: skip
-    rows = [[_label(x).split(" ")[0], f"{x['density']:g}", "x".join(map(str, x["resolution"])),
-             f"{x['preprocess_seconds']:.3f}", f"{x['trace_seconds']:.3f}",
-             f"{x['rays_per_second'] / 1e6:.3f}", f"{x['tests_per_ray']:.2f}",
-             f"{x['steps_per_ray']:.2f}", f"{x['structure_bytes']:,}"]
-            for x in r["configs"]]  # fmt: skip
+        print("rays (identical in every configuration): "
+              + "  ".join(f"{lab} {c[k]}" for lab, k in pairs))  # fmt: skip
+    headers = ["config", "structure", "prep s", "trace s", "Mrays/s", "tests/ray", "steps/ray",
+               "struct bytes"]  # fmt: skip
+    rows = [[x["label"], _shape(x), f"{x['preprocess_seconds']:.3f}",
+             f"{x['trace_seconds']:.3f}", f"{x['rays_per_second'] / 1e6:.3f}",
+             f"{x['tests_per_ray']:.2f}", f"{x['steps_per_ray']:.2f}",
+             f"{x['structure_bytes']:,}"] for x in r["configs"]]  # fmt: skip
     if r["count_error"] is not None:
         headers += [lab for lab, _ in pairs]
         rows = [row + [x["rays"][k] for _, k in pairs] for row, x in zip(rows, r["configs"],
                                                                          strict=True)]
     print(table(headers, rows))
+    print(f"(steps/ray: voxel steps, or hierarchy nodes visited; default {r['default']}: "
+          f"{r['default_reason']})")  # fmt: skip
     if r["count_error"] is not None:
-        print("COUNT MISMATCH: the ray counts differ between grid configurations (engine bug)")
+        print("COUNT MISMATCH: the ray counts differ between configurations (engine bug)")
     for w in r["warnings"]:
         print("WARNING:", w)
+
+
+def _shape(c: dict) -> str:
+    """The structure's size: grid resolution, or the hierarchy's inner nodes and leaves."""
+    if c["bvh"] is not None:
+        return f"{c['bvh']['inner_nodes']:,} nodes {c['bvh']['leaves']:,} leaves"
+    return "x".join(map(str, c["resolution"]))
+
+
+def print_published(results: list[dict]) -> None:
+    """Our default's counts against the SPD author's, per scene with a published row."""
+    rows = []
+    for r in results:
+        p = r.get("published")
+        if p is None:
+            continue
+        cells = []
+        for k in PUBLISHED_COLUMNS.values():
+            cells += ([r["counts"][k], p["published"][k], f"{p['relative'][k]:+.3%}"]
+                      if k in p["published"] else ["-"] * 3)  # fmt: skip
+        off = [k for k, d in p["relative"].items() if abs(d) > p["tolerance"]]
+        rows.append([r["scene"], *cells, f"{p['tolerance']:.1%}",
+                     "yes" if p["within"] else "NO: " + ", ".join(off)])  # fmt: skip
+    if not rows:
+        return
+    print("\n== ray counts of the default against the SPD author's published table "
+          "(scenes README; 513x513 corner rays, depth 5)")  # fmt: skip
+    headers = ["scene", "hits", "SPD", "diff", "reflected", "SPD", "diff", "refracted", "SPD",
+               "diff", "shadow", "SPD", "diff", "tolerance", "within"]  # fmt: skip
+    print(table(headers, rows))
 
 
 def print_pov(results: list[dict], pov: dict) -> None:
@@ -453,22 +658,24 @@ def print_pov(results: list[dict], pov: dict) -> None:
     if not pov.get("available"):
         return
     print("\n== POV-Ray 3.7 side by side (512x512, 1 thread, trace time only)")
-    headers = ["scene", "ours best", "config", "ours default", "povray", "pov/best",
-               "pov/default", "shadow ours", "pov", "blocked ours", "pov", "refl ours", "pov"]
+    headers = ["scene", "povray", "ours best", "config", "ours default", "config",
+               "pov/best", "pov/default", "shadow ours", "pov", "blocked ours", "pov",
+               "refl ours", "pov"]  # fmt: skip
     rows = []
     for r in results:
         p = pov["scenes"].get(r["scene"])
         if p is None:
             continue
         c = r["counts"]
-        rows.append([r["scene"], f"{r['best_trace_seconds']:.3f}", r["best"],
-                     f"{r['default_trace_seconds']:.3f}", f"{p['trace_seconds']:.3f}",
+        rows.append([r["scene"], f"{p['trace_seconds']:.3f}", f"{r['best_trace_seconds']:.3f}",
+                     r["best"], f"{r['default_trace_seconds']:.3f}", r["default"],
                      f"{p['ratio_best']:.2f}", f"{p['ratio_default']:.2f}",
                      c["shadow_rays"], p["shadow_rays"], c["shadow_rays_blocked"],
                      p["shadow_rays_blocked"], c["reflected_rays"], p["reflected_rays"]])
     print(table(headers, rows))
-    print("(ratio > 1: we are faster; ours traces 513x513 corner rays, POV-Ray 512x512 centres"
-          f" with adc_bailout; default = storage auto, density {default_density():g})")
+    print(f"(best of {pov['repeat']} each; ratio > 1: we are faster; ours traces 513x513 "
+          "corner rays, POV-Ray 512x512 centres with adc_bailout; default = structure auto, "
+          f"storage auto, density {default_density():g})")  # fmt: skip
 
 
 def print_wall(wall: dict) -> None:
@@ -483,7 +690,8 @@ def print_wall(wall: dict) -> None:
 
 
 def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
-    """One line per POV scene: ratios and wall times."""
+    """One line per POV-Ray or wall-timed scene: ratios and wall times; then the goal and
+    the published counts each in one line."""
     print("\n== summary")
     for r in results:
         p = pov.get("scenes", {}).get(r["scene"]) if pov else None
@@ -491,7 +699,7 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
         if p is None and w is None:
             continue
         parts = [f"{r['scene']}: ours {r['best_trace_seconds']:.3f} s ({r['best']}), "
-                 f"default {r['default_trace_seconds']:.3f} s"]
+                 f"default {r['default_trace_seconds']:.3f} s ({r['default']})"]
         if p:
             parts.append(f"POV-Ray {p['trace_seconds']:.3f} s -> pov/ours {p['ratio_best']:.2f}"
                          f" best, {p['ratio_default']:.2f} default")
@@ -500,6 +708,13 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
         print("; ".join(parts))
     total = sum(r["best_trace_seconds"] for r in results)
     print(f"all {len(results)} scenes: best tracing times sum to {total:.3f} s")
+    if pov.get("available"):
+        print(goal_line(goal(pov)))
+    checked = [r for r in results if r.get("published")]
+    if checked:
+        off = [r["scene"] for r in checked if not r["published"]["within"]]
+        print(f"published counts: {len(checked) - len(off)} of {len(checked)} scenes within "
+              f"tolerance" + (f"; outside: {', '.join(off)}" if off else ""))
 
 
 # ---------------------------------------------------------------------------- main
@@ -511,23 +726,33 @@ def main(argv=None) -> int:
     if args.scaling is not None:
         return main_scaling(args)
     files = scene_files(args.scenes, args.only)
+    plan = config_plan(args.structures, args.densities)
+    with_pov = [p.stem for p in files if pov_file(args.scenes, p.stem)]
     print(f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
-          f"1 thread; densities {args.densities}; best of {args.repeat} for "
-          f"{', '.join(POV_SCENES)}")  # fmt: skip
+          f"1 thread; {', '.join(sorted(set(args.structures) | {'auto'}))}; densities "
+          f"{args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
+          f"{', '.join(with_pov) or 'none'}")  # fmt: skip
+    published = read_published(args.scenes)
     results = []
     for path in files:
-        results.append(bench_scene(path, args.densities, args.repeat))
-        print_scene(results[-1])
+        print(f"  {path.stem} ...", file=sys.stderr, flush=True)
+        repeats = args.repeat if path.stem in with_pov else 1
+        results.append(bench_scene(path, plan, repeats))
+        r = results[-1]
+        r["published"] = compare_published(r["scene"], r["counts"], published.get(r["scene"]))
+        print_scene(r)
         sys.stdout.flush()
+    print_published(results)
     pov = {} if args.no_pov else compare_pov(results, args.scenes, args.repeat)
     print_pov(results, pov)
     wall = {} if args.no_wall else {p.stem: wall_times(p, args.repeat) for p in files
-                                    if p.stem in POV_SCENES}  # fmt: skip
+                                    if p.stem in WALL_SCENES}  # fmt: skip
     print_wall(wall)
     print_summary(results, pov, wall)
     if args.json:
-        data = {"densities": args.densities, "repeat": args.repeat, "scenes": results,
-                "povray": pov, "wall": wall}  # fmt: skip
+        data = {"structures": args.structures, "densities": args.densities,
+                "repeat": args.repeat, "scenes": results, "povray": pov,
+                "goal": goal(pov) if pov.get("available") else None, "wall": wall}  # fmt: skip
         args.json.write_text(json.dumps(data, indent=2) + "\n")
         print(f"figures written to {args.json}")
     errors = [r["count_error"] for r in results if r["count_error"]]

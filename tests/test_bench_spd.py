@@ -1,0 +1,110 @@
+"""bench.spd's pure helpers: the published counts table it checks our counts against, the
+configuration names and plan, and the goal line the benchmark's verdict rests on."""
+
+import pytest
+
+from bench.spd import (
+    _chosen,
+    _label,
+    compare_published,
+    config_plan,
+    default_density,
+    goal,
+    goal_line,
+    parse_published,
+)
+from tests.conftest import SCENES, shared_file
+
+README = """# Scenes
+
+| file | primitives |
+| --- | --- |
+| balls.nff | 7381 spheres |
+
+## Published ray counts (SPD Readme, 513x513 corner rays, depth 5)
+
+| scene | eye rays that hit | reflected rays | refracted rays | shadow rays |
+| --- | --- | --- | --- | --- |
+| balls | 263169 | 175095 | 0 | 954368 |
+| gears | 245086 | 304,643 | 207564 | 2246955 |
+
+The author notes | that counts vary.
+
+## Later section
+
+| scene | x |
+| --- | --- |
+| other | 1 |
+"""
+
+
+def test_published_table_is_parsed_and_only_it():
+    assert parse_published(README) == {
+        "balls": {"eye_hits": 263169, "reflected_rays": 175095, "refracted_rays": 0,
+                  "shadow_rays": 954368},
+        "gears": {"eye_hits": 245086, "reflected_rays": 304643, "refracted_rays": 207564,
+                  "shadow_rays": 2246955},
+    }  # fmt: skip
+    assert parse_published("# Scenes\n\n| a | b |\n| --- | --- |\n| 1 | 2 |\n") == {}
+
+
+def test_published_table_of_the_scenes_folder_has_the_six_scenes():
+    table = parse_published(shared_file(SCENES / "README.md").read_text())
+    assert set(table) == {"balls", "gears", "rings", "teapot", "tetra", "tree"}
+    assert all(set(c) == {"eye_hits", "reflected_rays", "refracted_rays", "shadow_rays"}
+               for c in table.values())  # fmt: skip
+
+
+def test_compare_published_relative_and_tolerance():
+    published = {"eye_hits": 1000, "refracted_rays": 0}
+    ok = compare_published("balls", {"eye_hits": 1001, "refracted_rays": 0}, published)
+    assert ok["relative"] == {"eye_hits": pytest.approx(0.001), "refracted_rays": 0.0}
+    assert ok["within"]
+    assert not compare_published("balls", {"eye_hits": 1002, "refracted_rays": 0},
+                                 published)["within"]  # fmt: skip
+    assert compare_published("teapot", {"eye_hits": 1004, "refracted_rays": 0},
+                             published)["within"]  # fmt: skip
+    zero = compare_published("balls", {"eye_hits": 1000, "refracted_rays": 3}, published)
+    assert zero["relative"]["refracted_rays"] == 3.0 and not zero["within"]  # finite over 0
+    assert compare_published("shells", {"eye_hits": 1}, None) is None
+
+
+def config(structure, used, storage="auto", used_storage="csr", density=1.0):
+    return {"structure": structure, "used_structure": used, "storage": storage,
+            "used_storage": used_storage, "density": density}  # fmt: skip
+
+
+def test_labels_say_what_was_asked_and_what_auto_chose():
+    assert _label(config("grid", "grid", "hash", "hash", 2.0)) == "grid hash d2"
+    assert _label(config("grid", "grid", "auto", "csr", 0.5)) == "grid auto(csr) d0.5"
+    assert _label(config("bvh", "bvh", used_storage=None)) == "bvh"
+    assert _label(config("auto", "bvh", used_storage=None)) == "auto(bvh)"
+    assert _label(config("auto", "grid")) == "auto(grid csr d1)"
+
+
+def test_plan_ends_with_the_default_whatever_is_restricted():
+    d = default_density()
+    full = config_plan(["grid", "bvh", "auto"], [1.0, 2.0])
+    assert [c[0] for c in full] == ["grid"] * 4 + ["bvh", "auto"]
+    assert full[-1] == ("auto", "auto", d)
+    assert config_plan(["bvh"], [1.0]) == [("bvh", "auto", d), ("auto", "auto", d)]
+    assert config_plan(["auto"], [1.0]) == [("auto", "auto", d)]
+
+
+def test_goal_sorts_scenes_by_the_default_ratio():
+    pov = {"scenes": {"balls": {"ratio_default": 2.5}, "gears": {"ratio_default": 1.9},
+                      "tetra": {"ratio_default": 2.0}, "shells": {"ratio_default": 9.0}}}
+    g = goal(pov)
+    assert g["met"] == {"balls": 2.5, "tetra": 2.0} and g["missed"] == {"gears": 1.9}
+    assert g["absent"] == ["rings", "teapot", "tree"]
+    assert goal_line(g) == ("goal POV-Ray/default >= 2.0: met on balls 2.50, tetra 2.00; "
+                            "not met on gears 1.90; not measured: rings, teapot, tree")
+    assert goal({})["absent"] == ["balls", "tetra", "gears", "rings", "teapot", "tree"]
+
+
+def test_scaling_says_what_auto_chose():
+    def row(n, used):
+        return {"size_factor": n, "runs": {"auto": {"used_structure": used}}}
+
+    assert _chosen([row(1, "bvh"), row(2, "bvh")]) == "bvh at every size"
+    assert _chosen([row(1, "bvh"), row(2, "grid"), row(3, "bvh")]) == "bvh at n=1,3, grid at n=2"

@@ -3,15 +3,18 @@
     python -m bench.embree [--scenes DIR] [--only tetra,teapot,gears] [--size 512]
                            [--levels 9] [--repeat 3]
 
-Embree comes from the `embreex` package (`pip install embreex`; a benchmark dependency, not
-a runtime one). For each scene its triangles and polygons (fanned into triangles for Embree;
-spheres and cones left out of both) are traced with the same eye rays (the scene's view,
-SIZE x SIZE pixel centres) by `Engine.first_hits` (float64, one thread) and by Embree
-(float32 `rtcIntersect1` per ray in embreex's loop, one thread); plus a generated recursive
-tetrahedron of 4 x 4^LEVELS triangles (9: 1,048,576). Printed per scene: triangles, build
-seconds both ways, rays per second both ways (best of --repeat), ours / Embree, and the
-first-hit agreement: hit/miss disagreements and percentiles of the relative difference of t
-where both hit.
+Embree comes from the `embreex` package and polygon triangulation from `mapbox-earcut`
+(`pip install -e ".[bench]"`; benchmark dependencies, not runtime ones). For each scene its
+triangles and polygons (spheres and cones left out of both) are traced with the same eye
+rays (the scene's view, SIZE x SIZE pixel centres) by `Engine.first_hits` (float64, one
+thread) and by Embree (float32 `rtcIntersect1` per ray in embreex's loop, one thread). Ours
+traces the surfaces as `host render` does, polygons native ("native" rows); Embree takes
+triangles only, so polygons are cut into triangles by ear clipping (exact for concave ones:
+gears' outlines), and ours is also timed on those same triangles ("triangles" rows). Plus a
+generated recursive tetrahedron of 4 x 4^LEVELS triangles (9: 1,048,576). Printed per scene
+and structure: triangles, build seconds both ways, rays per second both ways (best of
+--repeat), ours / Embree, and the first-hit agreement: hit/miss disagreements and
+percentiles of the relative difference of t where both hit.
 """
 
 import argparse
@@ -29,13 +32,36 @@ DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 
 
 def triangles_of(scene) -> np.ndarray:
-    """(N, 3, 3) triangles: the scene's triangles and its polygons fanned from vertex 0."""
+    """(N, 3, 3) triangles: the scene's triangles and its polygons cut by ear clipping in
+    their plane (mapbox-earcut), which keeps concave outlines exact."""
+    import mapbox_earcut
+
     tris = [scene.triangles["v"].reshape(-1, 3, 3)]
     verts = scene.vertices
     for start, count in zip(scene.polygons["start"], scene.polygons["count"], strict=True):
         p = verts[start : start + count]
-        tris.append(np.stack([np.repeat(p[:1], count - 2, axis=0), p[1:-1], p[2:]], axis=1))
+        normal = np.cross(p - p.mean(axis=0), np.roll(p, -1, axis=0) - p.mean(axis=0)).sum(0)
+        keep = [a for a in range(3) if a != int(np.argmax(np.abs(normal)))]
+        ring = np.array([count], np.uint32)
+        index = mapbox_earcut.triangulate_float64(np.ascontiguousarray(p[:, keep]), ring)
+        tris.append(p[index.reshape(-1, 3)])
     return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+
+
+def surfaces_of(scene):
+    """The scene's triangles and polygons as one grey scene (no spheres or cones, which
+    Embree is not given): what ours traces in the "native" rows."""
+    from dataclasses import replace
+
+    from protocols import dtypes
+
+    scene = replace(scene, spheres=np.zeros(0, dtypes.SPHERE), cones=np.zeros(0, dtypes.CONE))
+    scene.materials = np.array([((0.8, 0.8, 0.8), 0.8, 0.0, 1.0, 0.0, 1.0)], dtypes.MATERIAL)
+    scene.triangles = scene.triangles.copy()
+    scene.polygons = scene.polygons.copy()
+    scene.triangles["mat"] = 0
+    scene.polygons["mat"] = 0
+    return scene
 
 
 def flat_scene(view, tris: np.ndarray):
@@ -62,12 +88,12 @@ def best(fn, repeat: int) -> tuple[float, object]:
     return min(times), out
 
 
-def ours(view, tris, o, d, structure: str, repeat: int) -> dict:
+def ours(scene, o, d, structure: str, repeat: int) -> dict:
     """Build our engine with `structure` and time its first hits on the rays."""
     from meshnode.engine import Engine
 
     start = time.perf_counter()
-    engine = Engine(flat_scene(view, tris), structure=structure)
+    engine = Engine(scene, structure=structure)
     build = time.perf_counter() - start
     engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
     seconds, (t, _) = best(lambda: engine.first_hits(o, d), repeat)
@@ -75,8 +101,9 @@ def ours(view, tris, o, d, structure: str, repeat: int) -> dict:
 
 
 def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
-            structures: list[str]) -> list[dict]:  # fmt: skip
-    """One row per structure of ours against Embree on identical rays and triangles."""
+            structures: list[str], native=None) -> list[dict]:  # fmt: skip
+    """One row per structure (and per surface form: `native`, the scene's own polygons, if
+    given, then Embree's triangles) of ours against Embree on identical rays."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
@@ -84,7 +111,9 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
     from protocols.render import ImageSpec
 
     rays = eye_rays(view, ImageSpec(width=size, height=size))
-    o, d = rays["o"], rays["d"] / np.linalg.norm(rays["d"], axis=1)[:, None]
+    # Both sides get contiguous arrays made before timing (Embree its float32 copies).
+    o = np.ascontiguousarray(rays["o"])
+    d = np.ascontiguousarray(rays["d"] / np.linalg.norm(rays["d"], axis=1)[:, None])
     start = time.perf_counter()
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene, tris.astype(np.float32))
@@ -94,21 +123,24 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
     embree_s, hits = best(lambda: scene.run(o32, d32, output=1), repeat)
     t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
     rows = []
-    for structure in structures:
-        run = ours(view, tris, o, d, structure, repeat)
+    forms = ([("native", native)] if native is not None else []) + [
+        ("triangles", flat_scene(view, tris))]  # fmt: skip
+    for (form, scene), structure in ((f, s) for f in forms for s in structures):
+        run = ours(scene, o, d, structure, repeat)
         t_ours = run["t"]
         ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
         both = ours_hit & emb_hit
         rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
         pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
-        row = {"scene": name, "structure": structure, "chosen": run["chosen"],
+        row = {"scene": name, "form": form, "structure": structure, "chosen": run["chosen"],
                "triangles": len(tris), "rays": len(o),
                "ours_build_s": run["build_s"], "embree_build_s": embree_build,
                "ours_rays_per_s": len(o) / run["seconds"], "embree_rays_per_s": len(o) / embree_s,
                "mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
         row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
         label = f"auto={run['chosen']}" if structure == "auto" else structure
-        print(f"{name:>16} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} {embree_build:>8.2f} "
+        print(f"{name:>16} {form:>9} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} "
+              f"{embree_build:>8.2f} "
               f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
               f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
               f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}", flush=True)  # fmt: skip
@@ -139,14 +171,16 @@ def main(argv=None) -> int:
     from protocols.scene import View
 
     numba.set_num_threads(1)
-    print(f"{'scene':>16} {'structure':>9} {'triangles':>10} {'build s':>8} {'embree':>8} "
+    print(f"{'scene':>16} {'ours on':>9} {'structure':>9} {'triangles':>10} {'build s':>8} "
+          f"{'embree':>8} "
           f"{'ours rays/s':>11} {'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} "
           f"{'p99':>9} {'max':>9}")  # fmt: skip
     structures = args.structures.split(",")
     rows = []
     for name in args.only.split(",") if args.only else []:
         scene = read_nff(args.scenes / f"{name}.nff")
-        rows += compare(name, scene.view, triangles_of(scene), args.size, args.repeat, structures)
+        rows += compare(name, scene.view, triangles_of(scene), args.size, args.repeat,
+                        structures, native=surfaces_of(scene))  # fmt: skip
     if args.levels > 0:
         view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
         tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels

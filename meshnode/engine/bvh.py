@@ -2,9 +2,10 @@
 grid is weak (many small objects crowded unevenly: tetra, teapot, scanned meshes), chosen per
 node by `Engine` (DESIGN.md 4).
 
-Binary tree split by the surface area heuristic over 16 centroid bins per axis (kinds first:
-a leaf holds one kind), built depth-first as pbrt-v4 builds its LinearBVHNode array, then
-stored as one 64-byte row per inner node holding both children's boxes (`BvhArrays`). The
+Binary tree split by the surface area heuristic over 16 centroid bins per axis (a leaf that
+would mix kinds becomes one child per kind), built depth-first as pbrt-v4 builds its
+LinearBVHNode array, then stored as one 128-byte row per inner node holding both children's
+boxes (`BvhArrays`). The
 engine renumbers its objects in leaf order, so a leaf is a run of local ids whose rows lie
 side by side. Each object sits in exactly one leaf, so no mailbox is needed; equal distances
 go to the lower gid as in the grid (`traverse.better`), so the first hit is the grid's and
@@ -37,21 +38,24 @@ class BvhArrays(NamedTuple):
     """The hierarchy as the traversal kernels read it (`Bvh.arrays`); empty when the node uses
     the grid (a value, not a type: both structures share a compiled variant).
 
-    One 64-byte row per inner node, one cache line: its two children's boxes (float32, rounded
-    outward, so a box never shrinks) in columns 0-11 and, read through the int32 view of the
-    same memory, their references in columns 12-13: >= 0 an inner node; < 0 a leaf, ~ref
-    packing (first local id << LEAF_BITS) | count. Leaves are runs of consecutive local ids
-    (the engine renumbers its objects in leaf order, `Tables.permuted`). A visit tests both
-    boxes and goes to the nearer child: a missed child is never visited."""
+    One 128-byte row per inner node (two cache lines): its two children's boxes in columns
+    0-11 and, read through the int64 view of the same memory, their references in columns 12
+    and 13: >= 0 an inner node; < 0 a leaf, ~ref packing (first local id << LEAF_BITS) |
+    count. Box planes are moved outward to the next float32 step beyond them, a margin that
+    lets a ray lying in an object's bounding plane (a tangent, a face in a wall) still enter.
+    Leaves are runs of consecutive local ids (the engine renumbers its objects in leaf order,
+    `Tables.permuted`). A visit tests both boxes and goes to the nearer child: a missed child
+    is never visited. (float32 rows of one cache line measured no faster, within this
+    machine's noise, and slower on the million-triangle tetrahedron.)"""
 
-    box: np.ndarray  # (N, 16) float32 child boxes: lo xyz, hi xyz of child 0, then child 1
-    ref: np.ndarray  # (N, 16) int32 view of `box`: columns 12, 13 the child references
+    box: np.ndarray  # (N, 16) float64 child boxes: lo xyz, hi xyz of child 0, then child 1
+    ref: np.ndarray  # (N, 16) int64 view of `box`: columns 12, 13 the child references
 
 
 def empty_arrays() -> BvhArrays:
     """The arrays of a node that walks its grid instead."""
-    box = np.zeros((0, 16), np.float32)
-    return BvhArrays(box, box.view(np.int32))
+    box = np.zeros((0, 16), np.float64)
+    return BvhArrays(box, box.view(np.int64))
 
 
 @kernel
@@ -227,7 +231,7 @@ def _kind_split(prims, start, end, off):
 
 @kernel
 def _rows(box, meta, first_id):
-    """The depth-first tree (box, meta) as 64-byte inner-node rows (see `BvhArrays`); a leaf
+    """The depth-first tree (box, meta) as 128-byte inner-node rows (see `BvhArrays`); a leaf
     starting at prims position p refers to the run of new local ids from first_id[p]. A tree
     that is one leaf gets an inner root whose second child is an empty leaf in an empty box."""
     n = box.shape[0]
@@ -237,8 +241,8 @@ def _rows(box, meta, first_id):
         if meta[k, 2] >= 0:
             inner_id[k] = n_inner
             n_inner += 1
-    rows = np.zeros((max(n_inner, 1), 16), np.float32)
-    refs = rows.view(np.int32)
+    rows = np.zeros((max(n_inner, 1), 16), np.float64)
+    refs = rows.view(np.int64)
     if n_inner == 0:
         for a in range(3):
             rows[0, a] = _down(box[0, a])
@@ -320,7 +324,7 @@ class Bvh:
 
     def arrays(self) -> BvhArrays:
         """The hierarchy as the traversal kernels take it."""
-        return BvhArrays(self.rows, self.rows.view(np.int32))
+        return BvhArrays(self.rows, self.rows.view(np.int64))
 
 
 @inline

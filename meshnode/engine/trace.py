@@ -67,13 +67,11 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         if not (0.0 < big < math.inf) or not (abs(ox) < math.inf and abs(oy) < math.inf
                                                and abs(oz) < math.inf):  # fmt: skip
             return t_out, g_out, i
-        dx /= big
-        dy /= big
-        dz /= big
-        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
-        dx /= norm
-        dy /= norm
-        dz /= norm
+        s = 1.0 / big
+        k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
+        dx *= k
+        dy *= k
+        dz *= k
         if brute:
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip

@@ -47,10 +47,10 @@ def variant_scene(variant: Variant) -> SceneData:
     return scene
 
 
-def warmup(variants=(ALL_KINDS,), report=None) -> float:
+def warmup(variants=(ALL_KINDS,), report=None, common: bool = True) -> float:
     """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
-    `all_variants()`), the pinhole eye rays, ray routing and the camera; returns the seconds.
-    `report(i, n, name)` is called before each variant."""
+    `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
+    returns the seconds. `report(i, n, name)` is called before each variant."""
     from meshnode.engine import Engine
 
     start = time.perf_counter()
@@ -58,8 +58,14 @@ def warmup(variants=(ALL_KINDS,), report=None) -> float:
     for i, variant in enumerate(variants):
         if report is not None:
             report(i, len(variants), variant.name)
-        Engine(variant_scene(variant)).warmup()
-    _common_warmup()
+        # The grid's build kernels are typed by the variant too; the tracing kernels hold
+        # both structures' code, and the hierarchy's build kernels are the same for all.
+        scene = variant_scene(variant)
+        Engine(scene, structure="grid").warmup()
+        if i == 0:
+            Engine(scene, structure="bvh")
+    if common:
+        _common_warmup()
     return time.perf_counter() - start
 
 

@@ -45,19 +45,46 @@ def shared_file(path: Path) -> Path:
     return path
 
 
+# Scenes whose kernel variants most test files use (the all-kinds variant aside).
+WARM_SCENES = ("balls_s1.nff", "tetra_s1.nff", "teapot_s1.nff", "rings_s1.nff", "tree_s1.nff",
+               "gears_s1.nff", "mount_s1.nff")  # fmt: skip
+
+
+def warm_jobs() -> list:
+    """What the session compiles up front, heaviest first: the all-kinds variant, the common
+    kernels (eye rays, routing, camera), then the SPD scenes' variants (when present)."""
+    from meshnode.engine.engine import variant_of
+    from meshnode.engine.tables import build_tables
+    from meshnode.warmup import ALL_KINDS, warmup
+
+    jobs = [lambda: warmup([ALL_KINDS], common=False), lambda: warmup([], common=True)]
+    if SCENES.exists():
+        from host.nff import read_nff
+
+        found = {variant_of(build_tables(read_nff(SCENES / n))) for n in WARM_SCENES
+                 if (SCENES / n).exists()}  # fmt: skip
+        jobs += [lambda v=v: warmup([v], common=False) for v in sorted(found - {ALL_KINDS})]
+    return jobs
+
+
 @pytest.fixture(scope="session", autouse=True)
 def kernels(request):
-    """Compile (cold cache) or load (warm) the all-kinds engine and camera kernels once,
-    before any test, so node processes started later load them from disk."""
+    """Compile (cold cache) or load (warm) the kernels most tests use, before any test, so
+    node processes started later load them from disk. pytest-xdist workers share the jobs
+    out (worker k takes jobs k, k + n, ...): on a cold cache each kernel compiles on one
+    core while the other compiles others, instead of both compiling the same; a kernel
+    another worker compiled is then loaded from disk when first used."""
     import numba
-
-    from meshnode.warmup import warmup
 
     cache = Path(numba.config.CACHE_DIR)
     KERNEL_LOAD["cache"] = str(cache)
     KERNEL_LOAD["cold"] = not any(cache.rglob("*.nbi")) if cache.exists() else True
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
     start = time.perf_counter()
-    warmup()
+    for job in warm_jobs()[index::count]:
+        job()
     KERNEL_LOAD["seconds"] = time.perf_counter() - start
     report = getattr(request.config, "workeroutput", None)  # a pytest-xdist worker
     if report is not None:

@@ -90,3 +90,19 @@ def test_random_layouts_equal_brute_force():
         t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
         t, g = Engine(scene, structure="bvh").first_hits(o, d)
         assert_same_hits(t_ref, g_ref, t, g)
+
+
+def test_extreme_coordinates_build_and_hit_as_brute_force():
+    # Centres 5e-324 apart (a subnormal extent: a bin scale of inf) and objects near 1e100:
+    # binning must stay inside its bins and the hits equal brute force.
+    tiny = [((0.0, 0.0, 5e-324 * i), 1.0, 0) for i in range(20)]
+    far = [((1e100, 1e100 * (1 + 1e-15 * i), 0.0), 1e90, 0) for i in range(20)]
+    scene = make_scene(spheres=tiny + far)
+    engine = Engine(scene, structure="bvh")
+    o = np.array([[0.0, 0.0, -5.0], [1e100, 1e100, -1e91], [3.0, 3.0, 3.0]])
+    d = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
+    t, g = engine.first_hits(o, d)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(t, t_ref)
+    assert g[0] >= 0 and g[1] >= 20 and g[2] == -1

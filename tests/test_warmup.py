@@ -61,7 +61,11 @@ print(kernels_compiled())
 
 
 def test_a_render_in_a_fresh_process_after_warmup_compiles_nothing():
-    # The session's first fixture ran warmup() for the all-kinds variant in this cache.
+    from meshnode.warmup import warmup
+
+    # The session's workers share the warmup out: make sure it is all in this cache (a load
+    # from disk when another worker compiled it already).
+    warmup()
     r = subprocess.run([sys.executable, "-c", FRESH_RENDER], capture_output=True, text=True,
                        timeout=600)  # fmt: skip
     assert r.returncode == 0, r.stderr

@@ -68,6 +68,18 @@ def _area(lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @kernel
+def _bin(c, cmin, scale):
+    """Bin of centroid coordinate c: clamped, and 0 for NaN, so no product of extreme
+    coordinates can index outside the bins."""
+    x = (c - cmin) * scale
+    if not x >= 0.0:
+        return 0
+    if x >= N_BINS - 1:
+        return N_BINS - 1
+    return int(x)
+
+
+@kernel
 def _split(lo, hi, cen, prims, start, end, cmin, cmax):
     """Best binned SAH split of prims[start:end]: (axis, bin boundary, cost) or axis -1."""
     best_axis = -1
@@ -80,15 +92,15 @@ def _split(lo, hi, cen, prims, start, end, cmin, cmax):
     right_cnt = np.empty(N_BINS, np.int64)
     for a in range(3):
         ext = cmax[a] - cmin[a]
-        if not ext > 0.0:
+        scale = N_BINS / ext if ext > 0.0 else math.inf
+        if not scale < math.inf:  # no extent (or a subnormal one): nothing to split by
             continue
-        scale = N_BINS / ext
         cnt[:] = 0
         blo[:] = math.inf
         bhi[:] = -math.inf
         for k in range(start, end):
             u = prims[k]
-            b = min(int((cen[u, a] - cmin[a]) * scale), N_BINS - 1)
+            b = _bin(cen[u, a], cmin[a], scale)
             cnt[b] += 1
             for c in range(3):
                 blo[b, c] = min(blo[b, c], lo[u, c])
@@ -189,7 +201,7 @@ def _build(lo, hi, off):
             i = start
             j = end - 1
             while i <= j:
-                if min(int((cen[prims[i], axis] - cmin[axis]) * scale), N_BINS - 1) <= b:
+                if _bin(cen[prims[i], axis], cmin[axis], scale) <= b:
                     i += 1
                 else:
                     prims[i], prims[j] = prims[j], prims[i]

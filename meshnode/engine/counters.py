@@ -2,13 +2,26 @@
 
 Every ray ends exactly once: created = eye + reflected + refracted + shadow rays, ended =
 hits + escaped + shadow rays blocked + shadow rays lit; forwarded rays end on another node.
+`internal_reflections` counts hits on a transmitter where the refracted ray would be totally
+reflected: the transmitted share joins the reflected ray (no ray is created for it), and the
+SPD author's counter counts such an event as a refracted ray (`spd_counts`).
 """
 
 EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
-TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED = range(6, 13)
-N_COUNTERS = 13
+TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED, INTERNAL = range(6, 14)
+N_COUNTERS = 14
 COUNTER_NAMES = (
     "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
     "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
-    "hits", "shadow_rays_lit", "rays_forwarded",
+    "hits", "shadow_rays_lit", "rays_forwarded", "internal_reflections",
 )  # fmt: skip
+# What the SPD author's published table counts: eye rays that hit, reflected rays, refracted
+# rays (total internal reflections included) and shadow rays.
+SPD_COUNT_KEYS = ("eye_hits", "reflected_rays", "refracted_rays", "shadow_rays")
+
+
+def spd_counts(rays: dict) -> dict:
+    """Counts of a render's `rays` statistics as the SPD author's table counts them."""
+    out = {k: rays[k] for k in SPD_COUNT_KEYS}
+    out["refracted_rays"] += rays.get("internal_reflections", 0)
+    return out

@@ -17,6 +17,7 @@ from meshnode.engine.counters import (
     EYE_HITS,
     FORWARDED,
     HITS,
+    INTERNAL,
     REFLECTED_RAYS,
     REFRACTED_RAYS,
     SEGMENTS,
@@ -305,6 +306,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                                hit_gid, 0)  # fmt: skip
                 else:
                     refl += kt  # total internal reflection: the transmitted share reflects
+                    counters[INTERNAL] += 1
             if ks > 0.0 or kt > 0.0:  # SPD: reflective or transmitting surfaces reflect
                 counters[REFLECTED_RAYS] += 1
                 sp = _push(so, sd, sw, st, sk, sp, px, py, pz, rx, ry, rz, wr * refl,

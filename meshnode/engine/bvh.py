@@ -20,7 +20,7 @@ import numpy as np
 
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.jit import inline, kernel, leaf
-from meshnode.engine.traverse import TIE, better, test_object
+from meshnode.engine.traverse import TIE, better, hinted, test_object
 
 N_BINS = 16
 MAX_LEAF = 8  # a leaf may hold more only where the heuristic says splitting does not pay
@@ -371,12 +371,10 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
     scratch of 2 * STACK (reference, entry t) pairs, one per thread. Both children's boxes
     are tested at each inner node; the nearer is visited first, the other kept on the stack
     and dropped when popped if a hit nearer than its entry was found meanwhile."""
-    if hint >= 0:
-        counters[TESTS] += 1
-        t = test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                        sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-        if t < t_hi:
-            return t, hint
+    t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
+               sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+    if t < t_hi:
+        return t, hint
     box, refs = bvh
     rx = _reciprocal(dx)
     ry = _reciprocal(dy)

@@ -51,6 +51,18 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
     return INF
 
 
+@inline
+def hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
+           sph, tri, poly, pinfo, puv, cone):  # fmt: skip
+    """Distance to the any-hit query's hint object (the last blocker towards the same light),
+    tested before any walk; inf without a hint or when it misses."""
+    if hint < 0:
+        return INF
+    counters[TESTS] += 1
+    return test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
+                       sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+
+
 @leaf
 def box_span(ox, oy, oz, rx, ry, rz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
     """Clip [t_lo, t_hi] to the box by slabs; empty when the result has t0 > t1.
@@ -106,12 +118,10 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
 
     In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
     the empty cube of radius k - 1 around it in one step and the walk restarts there."""
-    if hint >= 0:
-        counters[TESTS] += 1
-        t = test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                        sph, tri, poly, pinfo, puv, cone)  # fmt: skip
-        if t < t_hi:
-            return t, hint
+    t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
+               sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+    if t < t_hi:
+        return t, hint
     glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs, macro, mres, mshift = grid
     nx = res[0]
     ny = res[1]

@@ -49,19 +49,13 @@ def triangles_of(scene) -> np.ndarray:
 
 
 def surfaces_of(scene):
-    """The scene's triangles and polygons as one grey scene (no spheres or cones, which
-    Embree is not given): what ours traces in the "native" rows."""
+    """The scene's triangles and polygons alone (no spheres or cones, which Embree is not
+    given): what ours traces in the "native" rows. First hits read no materials."""
     from dataclasses import replace
 
     from protocols import dtypes
 
-    scene = replace(scene, spheres=np.zeros(0, dtypes.SPHERE), cones=np.zeros(0, dtypes.CONE))
-    scene.materials = np.array([((0.8, 0.8, 0.8), 0.8, 0.0, 1.0, 0.0, 1.0)], dtypes.MATERIAL)
-    scene.triangles = scene.triangles.copy()
-    scene.polygons = scene.polygons.copy()
-    scene.triangles["mat"] = 0
-    scene.polygons["mat"] = 0
-    return scene
+    return replace(scene, spheres=np.zeros(0, dtypes.SPHERE), cones=np.zeros(0, dtypes.CONE))
 
 
 def flat_scene(view, tris: np.ndarray):

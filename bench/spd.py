@@ -244,17 +244,11 @@ def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]
     return error, warnings
 
 
-def spd_counts(rays: dict) -> dict:
-    """Our counts as the SPD author's table counts them (meshnode.engine.counters)."""
-    from meshnode.engine.counters import spd_counts as counted
-
-    return counted(rays)
-
-
 def bench_scene(path: Path, plan: list[tuple[str, str, float]], repeats: int) -> dict:
     """Every configuration of `plan` on one scene, best of `repeats` each; the last is the
     default (structure auto, storage auto, default density)."""
     from host.nff import read_nff
+    from meshnode.engine.counters import spd_counts
 
     scene = read_nff(path)
     loads = warm_kernels(scene)

@@ -380,6 +380,14 @@ DirectionalLight { on FALSE }
 # --- errors name the file and line ------------------------------------------------------------
 
 
+def file_error(path, text: str) -> tuple:
+    """(path, message) of the SceneError that reading `text` written to `path` raises."""
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        read_scene(path)
+    return path, str(info.value)
+
+
 def error_of(text: str, source: str = "t.iv") -> str:
     with pytest.raises(SceneError) as info:
         parse_inventor(text, source)
@@ -422,11 +430,8 @@ def test_inventor_header_is_required():
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 0\nf 1//1 2//1 3//1\n", 5, "zero length"),
 ])  # fmt: skip
 def test_obj_errors_name_file_and_line(tmp_path, text, line, words):
-    (tmp_path / "t.obj").write_text(text)
-    with pytest.raises(SceneError) as info:
-        read_scene(tmp_path / "t.obj")
-    msg = str(info.value)
-    assert msg.startswith(f"{tmp_path / 't.obj'}:{line}: ") and words in msg, msg
+    path, msg = file_error(tmp_path / "t.obj", text)
+    assert msg.startswith(f"{path}:{line}: ") and words in msg, msg
 
 
 PLY_HEAD = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n" \
@@ -442,11 +447,8 @@ PLY_HEAD = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty 
     (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", 13, "at least 3 corners"),
 ])  # fmt: skip
 def test_ply_errors_name_file_and_line(tmp_path, text, line, words):
-    (tmp_path / "t.ply").write_text(text)
-    with pytest.raises(SceneError) as info:
-        read_scene(tmp_path / "t.ply")
-    msg = str(info.value)
-    assert msg.startswith(f"{tmp_path / 't.ply'}:{line}: ") and words in msg, msg
+    path, msg = file_error(tmp_path / "t.ply", text)
+    assert msg.startswith(f"{path}:{line}: ") and words in msg, msg
 
 
 @pytest.mark.parametrize("toml,line,words", [
@@ -458,11 +460,8 @@ def test_ply_errors_name_file_and_line(tmp_path, text, line, words):
     ("[view]\nfrom = [0, 0, 0]\nat = [0, 0, 0]\n", 1, "coincide"),
 ])  # fmt: skip
 def test_settings_errors_name_file_and_line(tmp_path, toml, line, words):
-    (tmp_path / "t.obj").write_text(obj_of(FACES))
     (tmp_path / "t.toml").write_text(toml)
-    with pytest.raises(SceneError) as info:
-        read_scene(tmp_path / "t.obj")
-    msg = str(info.value)
+    _, msg = file_error(tmp_path / "t.obj", obj_of(FACES))
     assert msg.startswith(f"{tmp_path / 't.toml'}:{line}: ") and words in msg, msg
 
 

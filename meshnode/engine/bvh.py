@@ -23,7 +23,7 @@ from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.traverse import TIE, better, hinted, test_object
 
 N_BINS = 16
-MAX_LEAF = 8  # a leaf may hold more only where the heuristic says splitting does not pay
+MAX_LEAF = 8  # beyond this a range is split even where the heuristic calls a leaf cheaper
 LEAF_BITS = 4  # a leaf reference packs its first id and its count (< 16) in one int32
 LEAF_CAP = (1 << LEAF_BITS) - 1
 MAX_DEPTH = 64  # below this depth ranges are only halved (at most 27 more levels)
@@ -177,7 +177,7 @@ def _build(lo, hi, off):
             axis, b, cost = _split(lo, hi, cen, prims, start, end, cmin, cmax)
             area = _area(box[k, 0], box[k, 1], box[k, 2], box[k, 3], box[k, 4], box[k, 5])
             # Leaf cost: test all; split cost: one visit plus the children's expected tests.
-            if axis >= 0 and size <= min(MAX_LEAF, LEAF_CAP) and area > 0.0:
+            if axis >= 0 and size <= MAX_LEAF and area > 0.0:
                 if TRAVERSE_COST + cost / area >= size:
                     axis = -1
         elif size == 2 and depth < MAX_DEPTH:

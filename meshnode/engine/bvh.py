@@ -365,14 +365,14 @@ def _slabs(box, k, b, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound):
 
 @leaf
 def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, counters,
-             gid, off, sph, tri, poly, pinfo, puv, cone, bvh):  # fmt: skip
+             gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh):  # fmt: skip
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `BvhArrays` bvh:
     (t, local id or -1). Arguments as `traverse.walk`'s; `stack` is the caller's float64
     scratch of 2 * STACK (reference, entry t) pairs, one per thread. Both children's boxes
     are tested at each inner node; the nearer is visited first, the other kept on the stack
     and dropped when popped if a hit nearer than its entry was found meanwhile."""
     t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-               sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+               sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
     if t < t_hi:
         return t, hint
     box, refs = bvh
@@ -415,7 +415,7 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
             for u in range(first, first + (packed & LEAF_CAP)):
                 tests += 1
                 t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                                sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                                sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
                 if t < math.inf and better(t, u, best_t, best_u, gid):
                     best_t = t
                     best_u = u

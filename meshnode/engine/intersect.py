@@ -8,13 +8,16 @@ skipped by the caller).
 Table layouts (built by `tables.py`):
 - sphere row: cx cy cz r vis (vis +1 outside visible, -1 inside, 0 both sides)
 - triangle row: v0(3) e1(3) e2(3) n(3)  (n unit geometric normal)
-- polygon row: p0(3) n(3) ; info row: start count axis_u axis_v ; 2-D vertices relative to p0
+- polygon row: p0(3) n(3) vmin band_scale ; info row: start count axis_u axis_v first_band bands ;
+  2-D vertices relative to p0 ; band table: offsets of each band's edge list, then the lists
+  (an edge named by the row of its end vertex)
 - cone row: b(3) a(3) L r0 k vis   (a unit axis, radius r0 + k s for s in [0, L])
 """
 
 import math
 
 from meshnode.engine.jit import inline, leaf
+from meshnode.engine.tables import POLY_BAND_SCALE, POLY_VMIN
 
 INF = math.inf
 
@@ -86,8 +89,12 @@ def hit_triangle(tr, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
 
 
 @leaf
-def hit_polygon(pl, info, v2, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
-    """Plane hit then an even-odd crossing test in 2-D: any vertex count, concave allowed."""
+def hit_polygon(pl, info, v2, band, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
+    """Plane hit then an even-odd crossing test in 2-D: any vertex count, concave allowed.
+
+    A polygon with bands (info column 5 > 0) tests only the edges listed for the band of v the
+    hit lies in, not all of them (a gear face has 144): the same per-edge arithmetic on the
+    edges that can cross, so the same answer (Haines, "Point in Polygon Strategies")."""
     nx, ny, nz = pl[i, 3], pl[i, 4], pl[i, 5]
     dn = nx * dx + ny * dy + nz * dz
     if dn == 0.0:
@@ -106,19 +113,38 @@ def hit_polygon(pl, info, v2, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     pv = rel[0] if av == 0 else (rel[1] if av == 1 else rel[2])
     start = info[i, 0]
     count = info[i, 1]
+    bands = info[i, 5]
     inside = False
-    ju = v2[start + count - 1, 0]
-    jv = v2[start + count - 1, 1]
-    for k in range(start, start + count):
-        iu = v2[k, 0]
-        iv = v2[k, 1]
-        if (iv > pv) != (jv > pv):
-            xu = (ju - iu) * (pv - iv) / (jv - iv) + iu
-            if pu < xu:
+    if bands == 0:
+        ju = v2[start + count - 1, 0]
+        jv = v2[start + count - 1, 1]
+        for k in range(start, start + count):
+            iu = v2[k, 0]
+            iv = v2[k, 1]
+            if crosses(iu, iv, ju, jv, pu, pv):
                 inside = not inside
-        ju = iu
-        jv = iv
+            ju = iu
+            jv = iv
+        return t if inside else INF
+    f = (pv - pl[i, POLY_VMIN]) * pl[i, POLY_BAND_SCALE]
+    if f < 0.0:  # below the lowest vertex: no edge crosses
+        return INF
+    b = info[i, 4] + (int(f) if f < bands else bands - 1)
+    for e in range(band[b], band[b + 1]):
+        k = band[e]
+        j = k - 1 if k > start else start + count - 1
+        if crosses(v2[k, 0], v2[k, 1], v2[j, 0], v2[j, 1], pu, pv):
+            inside = not inside
     return t if inside else INF
+
+
+@leaf
+def crosses(iu, iv, ju, jv, pu, pv):
+    """Whether the edge (i, j) crosses the line v = pv to the right of pu (half-open in v, so
+    a vertex on the line counts once)."""
+    if (iv > pv) == (jv > pv):
+        return False
+    return pu < (ju - iu) * (pv - iv) / (jv - iv) + iu
 
 
 @leaf

@@ -13,7 +13,12 @@ import numpy as np
 
 from protocols.scene import SceneData
 
-SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 6, 10
+SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 8, 10
+# Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v.
+POLY_VMIN, POLY_BAND_SCALE = 6, 7
+# Polygons with at least this many vertices get bands (a quad's four edges cost less than a
+# band lookup); about two vertices per band, at most MAX_BANDS.
+BAND_MIN_VERTICES, MAX_BANDS = 12, 256
 # Columns of a materials row and of a lights row (MAT_RGB, LIGHT_POS and LIGHT_RGB: the first
 # of three).
 MAT_RGB, MAT_KD, MAT_KS, MAT_SHINE, MAT_TRANSMIT, MAT_IOR, MAT_COLS = 0, 3, 4, 5, 6, 7, 8
@@ -34,8 +39,9 @@ class Geometry(NamedTuple):
     sph: np.ndarray | None  # (ns, SPHERE_COLS)
     tri: np.ndarray | None  # (nt, TRIANGLE_COLS)
     poly: np.ndarray | None  # (np, POLYGON_COLS) plane rows
-    pinfo: np.ndarray | None  # (np, 4) int64 start count axis_u axis_v
+    pinfo: np.ndarray | None  # (np, 6) int64 start count axis_u axis_v first_band bands
     puv: np.ndarray | None  # (nv, 2) polygon vertices in their plane, relative to p0
+    pband: np.ndarray | None  # (nb,) int64 band offsets then edge lists (`polygon_bands`)
     cone: np.ndarray | None  # (nc, CONE_COLS)
 
 
@@ -59,9 +65,10 @@ class Tables:
     spheres: np.ndarray | None  # (ns, 5)
     triangles: np.ndarray | None  # (nt, 12)
     tri_normals: np.ndarray | None  # (nt, 9) vertex normals, only if some triangle is smooth
-    polygons: np.ndarray | None  # (np, 6)
-    poly_info: np.ndarray | None  # (np, 4) int64 start count axis_u axis_v
+    polygons: np.ndarray | None  # (np, POLYGON_COLS)
+    poly_info: np.ndarray | None  # (np, 6) int64 start count axis_u axis_v first_band bands
     poly_uv: np.ndarray | None  # (nv, 2) vertices in the polygon plane, relative to p0
+    poly_bands: np.ndarray | None  # (nb,) int64 band offsets then edge lists
     cones: np.ndarray | None  # (nc, 10)
     gid: np.ndarray  # (n,) int32 scene object id per local id
     mat: np.ndarray  # (n,) int32 material per local id
@@ -100,7 +107,7 @@ class Tables:
     def geometry(self) -> Geometry:
         """The object tables as the intersection kernels take them."""
         return Geometry(self.gid, self.offsets, self.spheres, self.triangles, self.polygons,
-                        self.poly_info, self.poly_uv, self.cones)  # fmt: skip
+                        self.poly_info, self.poly_uv, self.poly_bands, self.cones)  # fmt: skip
 
 
 def _or_none(a: np.ndarray) -> np.ndarray | None:
@@ -136,7 +143,8 @@ def _polygon_tables(scene: SceneData):
     total = int(counts.sum()) if n_poly else 0
     if total == 0:
         z3 = np.zeros((0, 3))
-        return np.zeros((0, POLYGON_COLS)), np.zeros((0, 4), np.int64), np.zeros((0, 2)), z3, z3
+        none = np.zeros((0, POLYGON_COLS)), np.zeros((0, 6), np.int64), np.zeros((0, 2))
+        return *none, np.zeros(0, np.int64), z3, z3
     rows, at, owner, succ = segments(polys["start"], counts)
     v = scene.vertices[rows]
     nxt = v[succ]
@@ -150,13 +158,58 @@ def _polygon_tables(scene: SceneData):
     au = np.where(drop == 0, 1, 0)
     av = np.where(drop == 2, 1, 2)
     p0 = v[at]
-    rows = np.column_stack([p0, n])
-    info = np.column_stack([at, counts, au, av]).astype(np.int64)
     rel = v - p0[owner]
     uv = np.column_stack([rel[np.arange(total), au[owner]], rel[np.arange(total), av[owner]]])
+    vmin, scale, first, bands, table = polygon_bands(uv, at, counts, owner, succ)
+    rows = np.column_stack([p0, n, vmin, scale])
+    info = np.column_stack([at, counts, au, av, first, bands]).astype(np.int64)
     lo = np.minimum.reduceat(v, at, axis=0)
     hi = np.maximum.reduceat(v, at, axis=0)
-    return rows, info, uv, lo, hi
+    return rows, info, uv, table, lo, hi
+
+
+def band_of(v, vmin, scale, bands):
+    """The band holding v, as the kernel computes it (monotone in v, so an edge whose v range
+    holds v is listed in v's band when it is listed in the bands of its two ends and between)."""
+    f = (v - vmin) * scale
+    return np.where(f < 0.0, 0, np.where(f < bands, np.floor(np.maximum(f, 0.0)), bands - 1))
+
+
+def polygon_bands(uv, at, counts, owner, succ):
+    """Per polygon: v of band 0, bands per unit of v, first offset in the table and band count
+    (0: test every edge); the table: each band's offset into it (one past the last band: the
+    end) then each band's edges, named by their end vertex's row, in vertex order."""
+    v = uv[:, 1]
+    vmin = np.minimum.reduceat(v, at)
+    height = np.maximum.reduceat(v, at) - vmin
+    bands = np.where(counts >= BAND_MIN_VERTICES, np.minimum(counts // 2, MAX_BANDS), 0)
+    with np.errstate(divide="ignore", over="ignore"):
+        scale = np.where(height > 0.0, bands / np.where(height > 0.0, height, 1.0), 0.0)
+    bands = np.where(np.isfinite(scale) & (scale > 0.0), bands, 0).astype(np.int64)
+    scale = np.where(bands > 0, scale, 0.0)
+    # Edge k runs from vertex k's predecessor to vertex k: pred is k's position in `succ`.
+    pred = np.empty(len(v), np.int64)
+    pred[succ] = np.arange(len(v))
+    banded = bands[owner] > 0
+    ends = np.flatnonzero(banded)
+    o = owner[ends]
+    lo_v = np.minimum(v[ends], v[pred[ends]])
+    hi_v = np.maximum(v[ends], v[pred[ends]])
+    b_lo = band_of(lo_v, vmin[o], scale[o], bands[o]).astype(np.int64)
+    b_hi = band_of(hi_v, vmin[o], scale[o], bands[o]).astype(np.int64)
+    # Global band ids: the polygon's first band plus the band; one entry per (edge, band).
+    band0 = np.concatenate([[0], np.cumsum(bands)[:-1]]).astype(np.int64)
+    n_bands = int(bands.sum())
+    span = b_hi - b_lo + 1
+    edge = np.repeat(ends, span)
+    step = np.arange(len(edge)) - np.repeat(np.cumsum(span) - span, span)
+    gband = np.repeat(band0[o] + b_lo, span) + step
+    order = np.argsort(gband, kind="stable")  # by band, edges in vertex order within it
+    per_band = np.bincount(gband, minlength=n_bands)
+    offsets = (n_bands + 1) + np.concatenate([[0], np.cumsum(per_band)])
+    table = np.concatenate([offsets, edge[order]]).astype(np.int64) if n_bands else offsets[:0]
+    first = np.where(bands > 0, band0, 0)
+    return vmin, scale, first, bands, table
 
 
 def _cone_tables(scene: SceneData, transmits):
@@ -204,7 +257,7 @@ def build_tables(scene: SceneData) -> Tables:
     smooth = bool(len(t)) and bool(t["smooth"].any())
     tri_n = t["n"].reshape(-1, 9) if smooth else np.zeros((0, 9))
 
-    poly, info, uv, pl_lo, pl_hi = _polygon_tables(scene)
+    poly, info, uv, bands, pl_lo, pl_hi = _polygon_tables(scene)
     cone, cn_lo, cn_hi = _cone_tables(scene, transmits_mat[scene.cones["mat"]])
 
     groups = (s, t, scene.polygons, scene.cones)
@@ -225,6 +278,8 @@ def build_tables(scene: SceneData) -> Tables:
         polygons=_or_none(poly),
         poly_info=_or_none(info),
         poly_uv=_or_none(uv) if len(poly) else None,
+        # Never None beside polygons: a kernel reads it whenever it reads them.
+        poly_bands=np.ascontiguousarray(bands) if len(poly) else None,
         cones=_or_none(cone),
         gid=np.concatenate([g["gid"] for g in groups]).astype(np.int32),
         mat=np.concatenate([g["mat"] for g in groups]).astype(np.int32),

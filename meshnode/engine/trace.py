@@ -52,7 +52,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     else the `GridArrays` grid (or all, with brute). Directions are made unit length here, in
     the same pass: distances are in scene units. Returns (t, gid, index of the first ray with
     a zero or non-finite direction or a non-finite origin, or -1); the caller refuses those."""
-    gid, off, sph, tri, poly, pinfo, puv, cone = geo
+    gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
     g_out = np.full(n, -1, np.int64)
@@ -75,13 +75,14 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         dz *= k
         if brute:
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
-                               gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                               gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
         elif use_bvh:
             t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, stack,
-                            counters, gid, off, sph, tri, poly, pinfo, puv, cone, bvh)  # fmt: skip
+                            counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
+                            bvh)  # fmt: skip
         else:
             t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
-                        gid, off, sph, tri, poly, pinfo, puv, cone, grid)  # fmt: skip
+                        gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid)  # fmt: skip
         counters[SEGMENTS] += 1
         t_out[i] = t
         if u >= 0:
@@ -124,7 +125,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     With `out` None (one node, box = scene) this code is compiled out."""
     # Fields into locals once: numba counts references at each read of a tuple's field, and
     # reads in the ray loop made balls and rings trace 10% slower.
-    gid, off, sph, tri, poly, pinfo, puv, cone = geo
+    gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     mat, materials, tri_n, amb, background, max_depth, t_eps = shading
     glo, cell, res = grid.glo, grid.cell, grid.res
     n_lights = 0 if lights is None else lights.shape[0]
@@ -189,16 +190,16 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     continue
             if brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
-                                   gid, off, sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                                   gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
             elif use_bvh:
                 hint = blocker[light] if shadow else -1
                 t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, stack,
-                                counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                                counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
                                 bvh)  # fmt: skip
             else:
                 hint = blocker[light] if shadow else -1
                 t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, ray_id,
-                            mail, counters, gid, off, sph, tri, poly, pinfo, puv, cone,
+                            mail, counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
                             grid)  # fmt: skip
             if out is not None:
                 if u >= 0 and not shadow and t > n1:

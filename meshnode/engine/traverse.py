@@ -33,7 +33,7 @@ def better(t, u, best_t, best_u, gid):
 
 @inline
 def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                sph, tri, poly, pinfo, puv, cone):  # fmt: skip
+                sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
     """Dispatch on the local id's kind; kinds passed as None are compiled out."""
     self_hit = origin >= 0 and gid[u] == origin  # eye rays (origin -1) skip the load
     if sph is not None and u < off[1]:
@@ -45,7 +45,8 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
     if poly is not None and u < off[3]:
         if self_hit:
             return INF
-        return hit_polygon(poly, pinfo, puv, u - off[2], ox, oy, oz, dx, dy, dz, t_lo, t_hi)
+        return hit_polygon(poly, pinfo, puv, pband, u - off[2], ox, oy, oz, dx, dy, dz,
+                           t_lo, t_hi)
     if cone is not None:
         return hit_cone(cone, u - off[3], ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit)
     return INF
@@ -53,14 +54,14 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
 
 @inline
 def hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-           sph, tri, poly, pinfo, puv, cone):  # fmt: skip
+           sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
     """Distance to the any-hit query's hint object (the last blocker towards the same light),
     tested before any walk; inf without a hint or when it misses."""
     if hint < 0:
         return INF
     counters[TESTS] += 1
     return test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                       sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                       sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
 
 
 @leaf
@@ -107,7 +108,7 @@ def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
 
 @leaf
 def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail, counters,
-         gid, off, sph, tri, poly, pinfo, puv, cone, grid):  # fmt: skip
+         gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid):  # fmt: skip
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `GridArrays` grid:
     returns (t, local id or -1). mail[u] == ray_id marks object u as tested for this ray.
 
@@ -119,7 +120,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
     In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
     the empty cube of radius k - 1 around it in one step and the walk restarts there."""
     t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-               sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+               sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
     if t < t_hi:
         return t, hint
     glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs, macro, mres, mshift = grid
@@ -228,7 +229,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
             tests += 1
             bound = best_t if best_u < 0 else best_t * TIE
             t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                            sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                            sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
             if t < INF and better(t, u, best_t, best_u, gid):
                 best_t = t
                 best_u = u
@@ -270,7 +271,7 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
 
 @leaf
 def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
-                gid, off, sph, tri, poly, pinfo, puv, cone):  # fmt: skip
+                gid, off, sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
     """Every object against the ray: the no-grid reference the grid must agree with (gid ...
     cone: a `Geometry`'s fields, as in `walk`)."""
     best_t = t_hi
@@ -280,7 +281,7 @@ def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
         counters[TESTS] += 1
         bound = best_t if best_u < 0 else best_t * TIE
         t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                        sph, tri, poly, pinfo, puv, cone)  # fmt: skip
+                        sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
         if t < INF and better(t, u, best_t, best_u, gid):
             best_t = t
             best_u = u

@@ -4,8 +4,8 @@ node by `Engine` (DESIGN.md 4).
 
 Binary tree split by the surface area heuristic over 16 centroid bins per axis (a leaf that
 would mix kinds becomes one child per kind), built depth-first as pbrt-v4 builds its
-LinearBVHNode array, then collapsed four children to a node, as Embree's BVH4 stores it, one
-224-byte row per stored node with its children's boxes plane by plane (`BvhArrays`). The
+LinearBVHNode array, then stored as one 128-byte row per inner node holding both children's
+boxes (`BvhArrays`). The
 engine renumbers its objects in leaf order, so a leaf is a run of local ids whose rows lie
 side by side. Each object sits in exactly one leaf, so no mailbox is needed; equal distances
 go to the lower gid as in the grid (`traverse.better`), so the first hit is the grid's and
@@ -27,10 +27,7 @@ MAX_LEAF = 8  # beyond this a range is split even where the heuristic calls a le
 LEAF_BITS = 4  # a leaf reference packs its first id and its count (< 16) in one int32
 LEAF_CAP = (1 << LEAF_BITS) - 1
 MAX_DEPTH = 64  # below this depth ranges are only halved (at most 27 more levels)
-LEVELS = 128  # levels of the binary tree at most (MAX_DEPTH, then at most 27 halvings)
-WIDTH = 4  # children per stored node: the binary tree's nodes collapsed four at a time
-HI, REF, ROW_COLS = 3 * WIDTH, 6 * WIDTH, 7 * WIDTH  # row columns: lo xyz, hi xyz, refs
-STACK = (WIDTH - 1) * LEVELS + 1  # pending children in a walk: at most three per level
+STACK = 128  # pending children: at most one per level
 TRAVERSE_COST = 0.5  # one node visit against one object test, in the heuristic
 NEAR_ZERO = 1e-300  # direction components below this get a finite huge reciprocal
 HUGE = 1e300
@@ -41,27 +38,23 @@ class BvhArrays(NamedTuple):
     """The hierarchy as the traversal kernels read it (`Bvh.arrays`); empty when the node uses
     the grid (a value, not a type: both structures share a compiled variant).
 
-    One 224-byte row per stored node, holding up to four children (the binary tree collapsed:
-    a wide node takes its binary children, then splits its largest inner child until it has
-    four). Columns by plane, child c at offset c, so one plane of all four children is four
-    adjacent doubles: lo x 0-3, lo y 4-7, lo z 8-11, hi x 12-15, hi y 16-19, hi z 20-23; read
-    through the int64 view of the same memory, columns 24-27 are the references: >= 0 a stored
-    node; < 0 a leaf, ~ref packing (first local id << LEAF_BITS) | count. An unused slot has an
-    inverted box (lo +inf, hi -inf) that no ray enters. Box planes are moved outward to the
-    next float32 step beyond them, a margin that lets a ray lying in an object's bounding plane
-    (a tangent, a face in a wall) still enter. Leaves are runs of consecutive local ids (the
-    engine renumbers its objects in leaf order, `Tables.permuted`). A visit tests the four
-    boxes and goes to the nearest child entered; a missed child is never visited. (float32
-    rows measured no faster, within this machine's noise, and slower on the million-triangle
-    tetrahedron.)"""
+    One 128-byte row per inner node (two cache lines): its two children's boxes in columns
+    0-11 and, read through the int64 view of the same memory, their references in columns 12
+    and 13: >= 0 an inner node; < 0 a leaf, ~ref packing (first local id << LEAF_BITS) |
+    count. Box planes are moved outward to the next float32 step beyond them, a margin that
+    lets a ray lying in an object's bounding plane (a tangent, a face in a wall) still enter.
+    Leaves are runs of consecutive local ids (the engine renumbers its objects in leaf order,
+    `Tables.permuted`). A visit tests both boxes and goes to the nearer child: a missed child
+    is never visited. (float32 rows of one cache line measured no faster, within this
+    machine's noise, and slower on the million-triangle tetrahedron.)"""
 
-    box: np.ndarray  # (N, ROW_COLS) float64 child boxes by plane, then the references
-    ref: np.ndarray  # (N, ROW_COLS) int64 view of `box`: columns REF .. REF + 3
+    box: np.ndarray  # (N, 16) float64 child boxes: lo xyz, hi xyz of child 0, then child 1
+    ref: np.ndarray  # (N, 16) int64 view of `box`: columns 12, 13 the child references
 
 
 def empty_arrays() -> BvhArrays:
     """The arrays of a node that walks its grid instead."""
-    box = np.zeros((0, ROW_COLS), np.float64)
+    box = np.zeros((0, 16), np.float64)
     return BvhArrays(box, box.view(np.int64))
 
 
@@ -151,7 +144,7 @@ def _build(lo, hi, off):
     box = np.empty((cap, 6))
     meta = np.zeros((cap, 3), np.int32)
     # Pending nodes: start, end, depth, parent whose second-child index this node is (or -1).
-    todo = np.empty((2 * LEVELS + 8, 4), np.int64)
+    todo = np.empty((2 * STACK + 8, 4), np.int64)
     todo[0, 0], todo[0, 1], todo[0, 2], todo[0, 3] = 0, n, 0, -1
     top = 1
     count = 0
@@ -250,61 +243,41 @@ def _kind_split(prims, start, end, off):
 
 @kernel
 def _rows(box, meta, first_id):
-    """The depth-first binary tree (box, meta) as wide rows (see `BvhArrays`), stored in depth
-    first order; a leaf starting at prims position p refers to the run of new local ids from
-    first_id[p]. A tree that is one leaf gets a root with that leaf as its only child."""
+    """The depth-first tree (box, meta) as 128-byte inner-node rows (see `BvhArrays`); a leaf
+    starting at prims position p refers to the run of new local ids from first_id[p]. A tree
+    that is one leaf gets an inner root whose second child is an empty leaf in an empty box."""
     n = box.shape[0]
-    rows = np.zeros((max(n, 1), ROW_COLS), np.float64)
-    refs = rows.view(np.int64)
-    # Binary nodes that head a stored node, with the stored row they fill.
-    todo = np.empty((WIDTH * LEVELS + 8, 2), np.int64)
-    kids = np.empty(WIDTH, np.int64)
-    todo[0, 0], todo[0, 1] = 0, 0
-    top = 1
-    n_rows = 1
-    while top > 0:
-        top -= 1
-        k, p = todo[top, 0], todo[top, 1]
+    inner_id = np.full(n, -1, np.int64)
+    n_inner = 0
+    for k in range(n):
         if meta[k, 2] >= 0:
-            kids[0], kids[1] = k + 1, meta[k, 0]
-            m = 2
-        else:  # the whole tree is one leaf
-            kids[0] = k
-            m = 1
-        while m < WIDTH:  # open the inner child of largest area
-            pick = -1
-            best = -1.0
-            for j in range(m):
-                c = kids[j]
-                if meta[c, 2] >= 0:
-                    a = _area(box[c, 0], box[c, 1], box[c, 2], box[c, 3], box[c, 4], box[c, 5])
-                    if a > best:
-                        best = a
-                        pick = j
-            if pick < 0:
-                break
-            c = kids[pick]
-            kids[pick] = c + 1
-            kids[m] = meta[c, 0]
-            m += 1
-        for j in range(WIDTH):
+            inner_id[k] = n_inner
+            n_inner += 1
+    rows = np.zeros((max(n_inner, 1), 16), np.float64)
+    refs = rows.view(np.int64)
+    if n_inner == 0:
+        for a in range(3):
+            rows[0, a] = _down(box[0, a])
+            rows[0, 3 + a] = _up(box[0, 3 + a])
+            rows[0, 6 + a] = np.inf
+            rows[0, 9 + a] = -np.inf
+        refs[0, 12] = ~((first_id[meta[0, 0]] << LEAF_BITS) | meta[0, 1]) if n else ~0
+        refs[0, 13] = ~0
+        return rows
+    for k in range(n):
+        if meta[k, 2] < 0:
+            continue
+        p = inner_id[k]
+        for j in range(2):
+            c = k + 1 if j == 0 else meta[k, 0]
             for a in range(3):
-                rows[p, WIDTH * a + j] = _down(box[kids[j], a]) if j < m else np.inf
-                rows[p, HI + WIDTH * a + j] = _up(box[kids[j], 3 + a]) if j < m else -np.inf
-            if j >= m:
-                refs[p, REF + j] = ~0
-                continue
-            c = kids[j]
+                rows[p, 6 * j + a] = _down(box[c, a])
+                rows[p, 6 * j + 3 + a] = _up(box[c, 3 + a])
             if meta[c, 2] >= 0:
-                refs[p, REF + j] = n_rows
-                todo[top, 0], todo[top, 1] = c, n_rows
-                top += 1
-                n_rows += 1
+                refs[p, 12 + j] = inner_id[c]
             else:
-                refs[p, REF + j] = ~((first_id[meta[c, 0]] << LEAF_BITS) | meta[c, 1])
-    if n == 0:
-        refs[0, REF] = ~0
-    return rows[:n_rows].copy()
+                refs[p, 12 + j] = ~((first_id[meta[c, 0]] << LEAF_BITS) | meta[c, 1])
+    return rows
 
 
 @kernel
@@ -353,8 +326,7 @@ class Bvh:
             # tested and inner nodes visited (nested or long thin objects drive tests up).
             "expected_tests": float((area[leaves] * counts).sum() / root),
             "expected_visits": float(area[~leaves].sum() / root),
-            "inner_nodes": int((~leaves).sum()),
-            "stored_nodes": int(len(self.rows)),
+            "inner_nodes": int(len(self.rows)),
             "leaves": int(leaves.sum()),
             "objects_per_leaf": float(counts.mean()) if len(counts) else 0.0,
             "max_leaf": int(counts.max()) if len(counts) else 0,
@@ -376,44 +348,19 @@ def _reciprocal(d):
 
 
 @inline
-def _slabs(box, k, c, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound):
-    """Entry t of child c's box in stored node k, or inf when the ray misses it in
-    (t_lo, bound). nx, ny, nz are the columns of each axis's near planes (lo or hi, by the
-    sign of the direction; the far ones are the others), so each slab is two products and no
-    min/max; the reciprocals are finite (`_reciprocal`), so no product is inf * 0."""
-    t0 = max((box[k, nx + c] - ox) * rx, max((box[k, ny + c] - oy) * ry,
-                                             (box[k, nz + c] - oz) * rz))  # fmt: skip
-    t1 = min((box[k, HI - nx + c] - ox) * rx,
-             min((box[k, HI + 2 * WIDTH - ny + c] - oy) * ry,
-                 (box[k, HI + 4 * WIDTH - nz + c] - oz) * rz))  # fmt: skip
+def _slabs(box, k, b, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound):
+    """Entry t of the box in columns b .. b + 5 of inner node k, or inf when the ray misses
+    it in (t_lo, bound). nx, ny, nz pick each axis's near plane (0: lo, 3: hi, by the sign of
+    the direction), so each slab is two products and no min/max; the reciprocals are finite
+    (`_reciprocal`), so no product is inf * 0."""
+    t0 = max((box[k, b + nx] - ox) * rx, max((box[k, b + 1 + ny] - oy) * ry,
+                                             (box[k, b + 2 + nz] - oz) * rz))  # fmt: skip
+    t1 = min((box[k, b + 3 - nx] - ox) * rx, min((box[k, b + 4 - ny] - oy) * ry,
+                                                 (box[k, b + 5 - nz] - oz) * rz))  # fmt: skip
     t1 *= SLACK
     if t0 <= t1 and t1 > t_lo and t0 < bound:
         return t0
     return math.inf
-
-
-@inline
-def _push(stack, top, ref, t):
-    """Child `ref` entered at t onto the walk's stack, kept in decreasing t above `base`."""
-    stack[2 * top] = ref
-    stack[2 * top + 1] = t
-    return top + 1
-
-
-@inline
-def _sort_top(stack, base, top):
-    """Insertion sort of the entries base .. top - 1 (at most four) by decreasing entry t, so
-    the nearest is popped first."""
-    for a in range(base + 1, top):
-        r = stack[2 * a]
-        t = stack[2 * a + 1]
-        b = a - 1
-        while b >= base and stack[2 * b + 1] < t:
-            stack[2 * b + 2] = stack[2 * b]
-            stack[2 * b + 3] = stack[2 * b + 1]
-            b -= 1
-        stack[2 * b + 2] = r
-        stack[2 * b + 3] = t
 
 
 @leaf
@@ -421,9 +368,9 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
              gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh):  # fmt: skip
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `BvhArrays` bvh:
     (t, local id or -1). Arguments as `traverse.walk`'s; `stack` is the caller's float64
-    scratch of 2 * STACK (reference, entry t) pairs, one per thread. All four children's boxes
-    are tested at each stored node; those entered go onto the stack nearest on top, and one
-    popped is dropped if a hit nearer than its entry was found meanwhile."""
+    scratch of 2 * STACK (reference, entry t) pairs, one per thread. Both children's boxes
+    are tested at each inner node; the nearer is visited first, the other kept on the stack
+    and dropped when popped if a hit nearer than its entry was found meanwhile."""
     t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
                sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
     if t < t_hi:
@@ -432,9 +379,9 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
     rx = _reciprocal(dx)
     ry = _reciprocal(dy)
     rz = _reciprocal(dz)
-    nx = 0 if rx >= 0.0 else HI
-    ny = WIDTH if ry >= 0.0 else HI + WIDTH
-    nz = 2 * WIDTH if rz >= 0.0 else HI + 2 * WIDTH
+    nx = 0 if rx >= 0.0 else 3
+    ny = 0 if ry >= 0.0 else 3
+    nz = 0 if rz >= 0.0 else 3
     best_t = t_hi
     best_u = -1
     bound = t_hi
@@ -445,16 +392,22 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
     while True:
         if ref >= 0:
             visits += 1
-            base = top
-            for c in range(WIDTH):
-                tc = _slabs(box, ref, c, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound)
-                if tc < math.inf:
-                    top = _push(stack, top, refs[ref, REF + c], tc)
-            if top > base:
-                if top > base + 1:
-                    _sort_top(stack, base, top)
-                top -= 1
-                ref = int(stack[2 * top])
+            ta = _slabs(box, ref, 0, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound)
+            tb = _slabs(box, ref, 6, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound)
+            ca = refs[ref, 12]
+            cb = refs[ref, 13]
+            if ta < math.inf:
+                if tb < math.inf:
+                    if tb < ta:
+                        ca, cb = cb, ca
+                        ta, tb = tb, ta
+                    stack[2 * top] = cb
+                    stack[2 * top + 1] = tb
+                    top += 1
+                ref = ca
+                continue
+            if tb < math.inf:
+                ref = cb
                 continue
         else:
             packed = ~ref

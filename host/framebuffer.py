@@ -28,6 +28,9 @@ class Framebuffer:
         lo, hi = int(cells.min()), int(cells.max()) + 1
         if lo < 0 or hi > len(self.sums):
             raise ValueError(f"deposits for samples outside the frame ({lo}..{hi - 1})")
+        if hi - lo == len(cells) and (len(cells) == 1 or bool((np.diff(cells) == 1).all())):
+            self.sums[lo:hi] += rgb  # one deposit per cell, in order (a band of eye rays)
+            return
         local = cells - lo
         for c in range(3):
             self.sums[lo:hi, c] += np.bincount(local, weights=rgb[:, c], minlength=hi - lo)

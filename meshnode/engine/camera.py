@@ -122,7 +122,8 @@ def eye_rays(view: View, image: ImageSpec, rows: tuple[int, int] | None = None,
     spp = 1 if corners else image.spp
     x0, x1 = cols or (0, gw)
     y0, y1 = rows or (0, gh)
-    out = np.zeros((x1 - x0) * (y1 - y0) * spp, RAY)
+    # Not zeroed: the kernel writes every field of every record (RAY has no padding bytes).
+    out = np.empty((x1 - x0) * (y1 - y0) * spp, RAY)
     fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, image.seed,
                   x0, x1, y0, y1, float(view.hither))  # fmt: skip
     return out

@@ -20,6 +20,7 @@ from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, trace_batch
+from meshnode.heap import keep_freed_memory
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
 from protocols.scene import SceneData
@@ -116,6 +117,7 @@ class Engine:
         """`announce(variant name)` is called, before anything compiles, when this variant's
         kernels are not in the disk cache yet (building the grid compiles some of them)."""
         start = time.perf_counter()
+        keep_freed_memory()  # batches reuse freed memory instead of faulting in new pages
         self.scene = scene
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)

@@ -484,9 +484,11 @@ def parse_povray(text: str) -> dict:
     return out
 
 
-def run_povray(exe: str, pov: Path, repeats: int) -> dict:
-    """Render `pov` at 512x512 on one thread `repeats` times; best trace time and counts."""
-    runs = []
+def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
+    """Render `pov` at 512x512 on one thread `repeats` times; best trace time and counts.
+    `between()`, if given, runs after each POV-Ray run and returns our trace seconds: the two
+    tracers take turns, so a slow spell of this shared machine falls on both alike."""
+    runs, ours = [], []
     with tempfile.TemporaryDirectory(prefix="bench-pov-") as tmp:
         cmd = [exe, f"+I{pov}", f"+O{Path(tmp) / pov.stem}.png", "+W512", "+H512", "-A",
                "+MV3.7", "-D", "+WT1", "+FN"]  # fmt: skip
@@ -495,8 +497,25 @@ def run_povray(exe: str, pov: Path, repeats: int) -> dict:
             if done.returncode != 0:
                 raise RuntimeError(f"povray failed ({done.returncode}):\n{done.stderr[-2000:]}")
             runs.append(parse_povray(done.stderr + done.stdout))
+            if between is not None:
+                ours.append(between())
     best = min(runs, key=lambda r: r["trace_seconds"])
-    return {**best, "trace_seconds_all": [r["trace_seconds"] for r in runs]}
+    out = {**best, "trace_seconds_all": [r["trace_seconds"] for r in runs]}
+    if ours:
+        out["ours_default_seconds"] = min(ours)
+        out["ours_default_seconds_all"] = ours
+    return out
+
+
+def default_runner(path: Path):
+    """A function tracing `path` once with the default engine (built here, once) and returning
+    its trace seconds: our turns between POV-Ray's."""
+    from host.nff import read_nff
+
+    scene = read_nff(path)
+    storage, density = default_storage(), default_density()
+    engine = build(scene, "auto", storage, density)
+    return lambda: run_config(scene, "auto", storage, density, 1, built=engine)["trace_seconds"]
 
 
 def pov_file(scenes: Path, name: str) -> Path | None:
@@ -518,9 +537,10 @@ def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
     out = {"available": True, "executable": exe, "repeat": repeat, "scenes": {}}
     for r in wanted:
         print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
-        pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat)
+        ours = default_runner(Path(r["file"]))
+        pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat, between=ours)
         pov["ratio_best"] = pov["trace_seconds"] / r["best_trace_seconds"]
-        pov["ratio_default"] = pov["trace_seconds"] / r["default_trace_seconds"]
+        pov["ratio_default"] = pov["trace_seconds"] / pov["ours_default_seconds"]
         out["scenes"][r["scene"]] = pov
     return out
 
@@ -671,12 +691,13 @@ def print_pov(results: list[dict], pov: dict) -> None:
             continue
         c = r["counts"]
         rows.append([r["scene"], f"{p['trace_seconds']:.3f}", f"{r['best_trace_seconds']:.3f}",
-                     r["best"], f"{r['default_trace_seconds']:.3f}", r["default"],
+                     r["best"], f"{p['ours_default_seconds']:.3f}", r["default"],
                      f"{p['ratio_best']:.2f}", f"{p['ratio_default']:.2f}",
                      c["shadow_rays"], p["shadow_rays"], c["shadow_rays_blocked"],
                      p["shadow_rays_blocked"], c["reflected_rays"], p["reflected_rays"]])
     print(table(headers, rows))
-    print(f"(best of {pov['repeat']} each; ratio > 1: we are faster; ours traces 513x513 "
+    print(f"(best of {pov['repeat']} each, ours' default taking turns with POV-Ray (ours best: "
+          "the scene's own pass); ratio > 1: we are faster; ours traces 513x513 "
           "corner rays, POV-Ray 512x512 centres with adc_bailout; default = structure auto, "
           f"storage auto, density {default_density():g})")  # fmt: skip
 

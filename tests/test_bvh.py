@@ -5,14 +5,14 @@ import numpy as np
 
 from host.nff import read_nff
 from meshnode.engine import Engine
-from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP
+from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS
 from tests.conftest import make_scene, spd_scene
 from tests.test_grid import assert_same_hits, random_scene
 
 
 def leaves(engine: Engine) -> list[tuple[int, int]]:
     """(first local id, count) of every leaf the hierarchy's inner nodes refer to."""
-    refs = engine.bvh_arrays.ref[:, 12:14].ravel()
+    refs = engine.bvh_arrays.ref.reshape(-1, ROW_COLS)[:, 12:14].ravel()
     packed = ~refs[refs < 0]
     return [(int(p >> LEAF_BITS), int(p & LEAF_CAP)) for p in packed]
 

@@ -5,6 +5,7 @@ and pixel samples (W x H x spp, centred or jittered). Jitter comes from a counte
 (seed, sample, dimension), so any node can generate any sample and get the same ray.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -19,7 +20,17 @@ def view_basis(view: View, width: int, height: int):
     """Eye, forward, right, up vectors and the image-plane step per pixel at unit distance.
 
     The angle spans the centres of the outermost pixel columns (rows if the image is taller);
-    up is projected onto the image plane."""
+    up is projected onto the image plane. Remembered per view and size (a render asks once
+    per band: 50 us of small-array NumPy each time, 4% of tetra's render); copies returned."""
+    try:
+        eye, fwd, right, up, step = _view_basis(view, width, height)
+    except TypeError:  # a View built with unhashable fields (arrays)
+        eye, fwd, right, up, step = _view_basis.__wrapped__(view, width, height)
+    return eye.copy(), fwd.copy(), right.copy(), up.copy(), step
+
+
+@functools.lru_cache(maxsize=16)
+def _view_basis(view: View, width: int, height: int):
     eye = np.asarray(view.eye, float)
     fwd = np.asarray(view.at, float) - eye
     fwd /= np.linalg.norm(fwd)

@@ -88,7 +88,7 @@ def test_144_vertex_gear_face():
 
 
 def test_banded_crossing_test_agrees_with_every_edge_on_random_polygons():
-    """Polygons of 12-300 vertices (stars, and random self-crossing outlines) answer exactly as
+    """Polygons of 12-300 vertices (stars, and self-crossing random walks) answer exactly as
     the every-edge crossing test, on random points and on points level with a vertex, the
     lowest and the highest vertex (where half-open edges decide)."""
     rng = np.random.default_rng(7)
@@ -96,12 +96,16 @@ def test_banded_crossing_test_agrees_with_every_edge_on_random_polygons():
     for k in range(24):
         n = int(rng.integers(12, 301))
         ang = np.sort(rng.uniform(0, 2 * np.pi, n))
-        r = rng.uniform(0.3, 1.0, n) if k % 2 else rng.uniform(-1, 1, (n, 2))
-        xy = np.column_stack([r * np.cos(ang), r * np.sin(ang)]) if k % 2 else r
+        if k % 2:  # a star
+            r = rng.uniform(0.3, 1.0, n)
+            xy = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+        else:  # a closed random walk: crosses itself, short edges
+            xy = np.cumsum(rng.normal(0.0, 1.0, (n, 2)), axis=0)
+            xy = 2.0 * (xy - xy.min(axis=0)) / np.ptp(xy, axis=0) - 1.0
         shapes.append((np.column_stack([xy, np.zeros(n)]), 0))
     tb = build_tables(make_scene(polygons=shapes))
     info = tb.poly_info
-    assert (info[:, 5] > 0).all()  # every one of these has bands
+    assert (info[:, 5] > 0).sum() >= 18  # most have bands (some walks are combs: none)
     plain = info.copy()
     plain[:, 5] = 0
     for i, (verts, _) in enumerate(shapes):
@@ -113,6 +117,24 @@ def test_banded_crossing_test_agrees_with_every_edge_on_random_polygons():
             banded = hit_polygon(tb.polygons, info, tb.poly_uv, tb.poly_bands, *args)
             every = hit_polygon(tb.polygons, plain, tb.poly_uv, tb.poly_bands, *args)
             assert banded == every or (np.isinf(banded) and np.isinf(every)), (i, qx, qy)
+
+
+def test_a_zigzag_of_tall_edges_keeps_the_every_edge_test_and_a_small_table():
+    """Every band would list every edge of a comb (teeth reaching from bottom to top): such a
+    polygon gets no bands, so its table does not grow as vertices x bands, and it still hits
+    as the every-edge test says (inside a tooth, in a gap)."""
+    n = 400  # 200 teeth
+    x = np.repeat(np.arange(n // 2, dtype=float), 2)
+    y = np.tile([0.0, 1.0, 1.0, 0.0], n // 4)
+    comb = np.column_stack([x, y, np.zeros(n)])
+    base = [(n / 2, 0.0, 0.0), (n / 2, -1.0, 0.0), (0.0, -1.0, 0.0)]
+    scene = make_scene(polygons=[(np.vstack([comb, base]), 0)])
+    tb = build_tables(scene)
+    assert tb.poly_info[0, 5] == 0 and len(tb.poly_bands) == 0  # every edge, no table
+    pts = np.array([[0.5, 0.5], [1.5, 0.5], [10.5, -0.5], [2.5, 0.5]])
+    o = np.column_stack([pts, np.ones(len(pts))])
+    t, g = hits(scene, o, np.tile([0, 0, -1.0], (len(pts), 1)))
+    assert g.tolist() == [0, -1, 0, 0]
 
 
 def test_cylinder_and_cone_analytic():

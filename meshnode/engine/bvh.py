@@ -41,14 +41,14 @@ class BvhArrays(NamedTuple):
 
     One 128-byte row per inner node (two cache lines), the rows flattened into one vector (a
     load is one index, not a row and a column: 9% faster walks, interleaved A/B): its two
-    children's boxes in columns 0-11 and, read through the int64 view of the same memory,
-    their references in columns 12 and 13: >= 0 an inner node; < 0 a leaf, ~ref packing (first local id << LEAF_BITS) |
-    count. Box planes are moved outward to the next float32 step beyond them, a margin that
-    lets a ray lying in an object's bounding plane (a tangent, a face in a wall) still enter.
-    Leaves are runs of consecutive local ids (the engine renumbers its objects in leaf order,
-    `Tables.permuted`). A visit tests both boxes and goes to the nearer child: a missed child
-    is never visited. (float32 rows of one cache line measured no faster, within this
-    machine's noise, and slower on the million-triangle tetrahedron.)"""
+    children's boxes in columns 0-11 and, read through the int64 view of the same memory, their
+    references in columns 12 and 13: >= 0 an inner node; < 0 a leaf, ~ref packing (first local
+    id << LEAF_BITS) | count. Box planes are moved outward to the next float32 step beyond them,
+    a margin that lets a ray lying in an object's bounding plane (a tangent, a face in a wall)
+    still enter. Leaves are runs of consecutive local ids (the engine renumbers its objects in
+    leaf order, `Tables.permuted`). A visit tests both boxes and goes to the nearer child: a
+    missed child is never visited. (float32 rows of one cache line measured no faster, within
+    this machine's noise, and slower on the million-triangle tetrahedron.)"""
 
     box: np.ndarray  # (N * ROW_COLS,) float64 rows: lo xyz, hi xyz of child 0, then child 1
     ref: np.ndarray  # (N * ROW_COLS,) int64 view of `box`: columns 12, 13 of a row the refs

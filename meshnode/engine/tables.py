@@ -17,8 +17,10 @@ SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 8, 10
 # Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v.
 POLY_VMIN, POLY_BAND_SCALE = 6, 7
 # Polygons with at least this many vertices get bands (a quad's four edges cost less than a
-# band lookup); about two vertices per band, at most MAX_BANDS.
-BAND_MIN_VERTICES, MAX_BANDS = 12, 256
+# band lookup); about two vertices per band, at most MAX_BANDS. Bands are kept only where a
+# band lists at most 1/MIN_SAVING of the edges on average, and all bands together at most
+# MAX_LISTINGS entries per vertex (`polygon_bands`).
+BAND_MIN_VERTICES, MAX_BANDS, MIN_SAVING, MAX_LISTINGS = 12, 256, 8, 64
 # Columns of a materials row and of a lights row (MAT_RGB, LIGHT_POS and LIGHT_RGB: the first
 # of three).
 MAT_RGB, MAT_KD, MAT_KS, MAT_SHINE, MAT_TRANSMIT, MAT_IOR, MAT_COLS = 0, 3, 4, 5, 6, 7, 8
@@ -178,7 +180,10 @@ def band_of(v, vmin, scale, bands):
 def polygon_bands(uv, at, counts, owner, succ):
     """Per polygon: v of band 0, bands per unit of v, first offset in the table and band count
     (0: test every edge); the table: each band's offset into it (one past the last band: the
-    end) then each band's edges, named by their end vertex's row, in vertex order."""
+    end) then each band's edges, named by their end vertex's row, in vertex order. A polygon
+    whose bands would each list many of its edges (a comb of tall teeth: every band crosses
+    every tooth) keeps the every-edge test: bands would not pay, and the table stays linear in
+    the vertices."""
     v = uv[:, 1]
     vmin = np.minimum.reduceat(v, at)
     height = np.maximum.reduceat(v, at) - vmin
@@ -186,21 +191,21 @@ def polygon_bands(uv, at, counts, owner, succ):
     with np.errstate(divide="ignore", over="ignore"):
         scale = np.where(height > 0.0, bands / np.where(height > 0.0, height, 1.0), 0.0)
     bands = np.where(np.isfinite(scale) & (scale > 0.0), bands, 0).astype(np.int64)
-    scale = np.where(bands > 0, scale, 0.0)
     # Edge k runs from vertex k's predecessor to vertex k: pred is k's position in `succ`.
     pred = np.empty(len(v), np.int64)
     pred[succ] = np.arange(len(v))
-    banded = bands[owner] > 0
-    ends = np.flatnonzero(banded)
-    o = owner[ends]
-    lo_v = np.minimum(v[ends], v[pred[ends]])
-    hi_v = np.maximum(v[ends], v[pred[ends]])
-    b_lo = band_of(lo_v, vmin[o], scale[o], bands[o]).astype(np.int64)
-    b_hi = band_of(hi_v, vmin[o], scale[o], bands[o]).astype(np.int64)
+    ends, o, b_lo, span = _edge_bands(v, pred, owner, vmin, scale, bands)
+    listed = np.bincount(o, weights=span, minlength=len(counts))
+    crowded = (listed * MIN_SAVING > counts * np.maximum(bands, 1)) | (
+        listed > MAX_LISTINGS * counts
+    )
+    if crowded.any():
+        bands[crowded] = 0
+        ends, o, b_lo, span = _edge_bands(v, pred, owner, vmin, scale, bands)
+    scale = np.where(bands > 0, scale, 0.0)
     # Global band ids: the polygon's first band plus the band; one entry per (edge, band).
     band0 = np.concatenate([[0], np.cumsum(bands)[:-1]]).astype(np.int64)
     n_bands = int(bands.sum())
-    span = b_hi - b_lo + 1
     edge = np.repeat(ends, span)
     step = np.arange(len(edge)) - np.repeat(np.cumsum(span) - span, span)
     gband = np.repeat(band0[o] + b_lo, span) + step
@@ -210,6 +215,18 @@ def polygon_bands(uv, at, counts, owner, succ):
     table = np.concatenate([offsets, edge[order]]).astype(np.int64) if n_bands else offsets[:0]
     first = np.where(bands > 0, band0, 0)
     return vmin, scale, first, bands, table
+
+
+def _edge_bands(v, pred, owner, vmin, scale, bands):
+    """Edges of the banded polygons (by end vertex), their polygon, first band and number of
+    bands they are listed in."""
+    ends = np.flatnonzero(bands[owner] > 0)
+    o = owner[ends]
+    lo_v = np.minimum(v[ends], v[pred[ends]])
+    hi_v = np.maximum(v[ends], v[pred[ends]])
+    b_lo = band_of(lo_v, vmin[o], scale[o], bands[o]).astype(np.int64)
+    b_hi = band_of(hi_v, vmin[o], scale[o], bands[o]).astype(np.int64)
+    return ends, o, b_lo, b_hi - b_lo + 1
 
 
 def _cone_tables(scene: SceneData, transmits):

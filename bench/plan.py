@@ -71,6 +71,12 @@ def bench_scene(scene: Path, repeat: int) -> dict:
     return out
 
 
+def _plan(line: str) -> str:
+    """The plan of a 'host: plan: ...' line without its reason: 'one process, 2 tracing
+    threads'."""
+    return line.removeprefix("host: plan: ").split(" (")[0]
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     names = [n for n in args.only.split(",") if n]
@@ -95,8 +101,11 @@ def main(argv=None) -> int:
         print(f"{r['scene']}: default {r['default']['plan'] or '(no plan line)'}")
         print(f"{r['scene']}: 1x1     {r['1x1']['plan'] or '(no plan line)'}")
     slower = [r["scene"] for r in rows if r["wall_ratio"] > 1.0]
+    same = [r["scene"] for r in rows if _plan(r["default"]["plan"]) == _plan(r["1x1"]["plan"])]
     print("default at least as fast as --mesh 1x1 (wall): "
           + ("on every scene" if not slower else f"not on {', '.join(slower)}"))
+    if same:
+        print(f"same plan both ways on {', '.join(same)}: a ratio there is this machine's noise")
     if args.json:
         args.json.write_text(json.dumps({"repeat": args.repeat, "rows": rows}, indent=2) + "\n")
         print(f"figures written to {args.json}")

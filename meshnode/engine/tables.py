@@ -173,8 +173,7 @@ def _polygon_tables(scene: SceneData):
 def band_of(v, vmin, scale, bands):
     """The band holding v, as the kernel computes it (monotone in v, so an edge whose v range
     holds v is listed in v's band when it is listed in the bands of its two ends and between)."""
-    f = (v - vmin) * scale
-    return np.where(f < 0.0, 0, np.where(f < bands, np.floor(np.maximum(f, 0.0)), bands - 1))
+    return np.clip(np.floor((v - vmin) * scale), 0, bands - 1)
 
 
 def polygon_bands(uv, at, counts, owner, succ):
@@ -206,9 +205,8 @@ def polygon_bands(uv, at, counts, owner, succ):
     # Global band ids: the polygon's first band plus the band; one entry per (edge, band).
     band0 = np.concatenate([[0], np.cumsum(bands)[:-1]]).astype(np.int64)
     n_bands = int(bands.sum())
-    edge = np.repeat(ends, span)
-    step = np.arange(len(edge)) - np.repeat(np.cumsum(span) - span, span)
-    gband = np.repeat(band0[o] + b_lo, span) + step
+    gband, _, listing_of, _ = segments(band0[o] + b_lo, span)  # edge listing_of[i] in gband[i]
+    edge = ends[listing_of]
     order = np.argsort(gband, kind="stable")  # by band, edges in vertex order within it
     per_band = np.bincount(gband, minlength=n_bands)
     offsets = (n_bands + 1) + np.concatenate([[0], np.cumsum(per_band)])

@@ -86,18 +86,34 @@ class AdaptiveFilm:
         self.rays = np.zeros(p, np.int64)  # divisor: rays generated (or that left, "left")
         self.refined = np.zeros(p, np.bool_)
 
-    def _chunks(self, idx: np.ndarray, per_pixel: int):
+    def split(self, idx: np.ndarray, per_pixel: int):
+        """`idx` in slices of at most RAYS_PER_BATCH rays at `per_pixel` rays a pixel."""
         step = max(1, RAYS_PER_BATCH // max(per_pixel, 1))
         return (idx[i : i + step] for i in range(0, len(idx), step))
 
+    @property
+    def rest(self) -> np.ndarray:
+        """The sample indices of pass 2: all but pass 1's two corners."""
+        return np.setdiff1d(np.arange(self.n), self.first)
+
+    def make(self, idx: np.ndarray, refine: bool, view, width, height) -> np.ndarray:
+        """The camera rays of own pixels `idx` (indices into `pixels`) for pass 1 (their two
+        corners) or pass 2 (the rest), books kept: which corners the camera let through, and
+        each pixel's divisor. A pixel whose rays a neighbour traces (stealing) gets its books
+        kept here the same way, the rays dropped: camera rays are a pure function of camera,
+        view, pixel, sample and seed, so the thief makes the very same ones."""
+        samples = self.rest if refine else self.first
+        rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], samples,
+                                  self.seed)  # fmt: skip
+        if not refine:
+            self.corner_alive[idx] = alive
+        self._count(idx, alive)
+        return rays
+
     def pass1(self, view, width, height):
         """Batches of the two corner rays of every owned pixel."""
-        for idx in self._chunks(np.arange(len(self.pixels)), 2):
-            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], self.first,
-                                       self.seed)
-            self.corner_alive[idx] = alive
-            self._count(idx, alive)
-            yield rays
+        for idx in self.split(np.arange(len(self.pixels)), 2):
+            yield self.make(idx, False, view, width, height)
 
     def decide(self) -> np.ndarray:
         """Which own pixels get the rest of their rays: corners apart, or the corners' mean
@@ -120,16 +136,38 @@ class AdaptiveFilm:
         # A corner ray lost in the camera (rim, diaphragm) says nothing of the scene's colour.
         return refine.ravel() | ~self.corner_alive.all(axis=1)
 
+    def start_refine(self) -> None:
+        """Pick the pixels that get the rest of their rays (`decide`; all pass-1 deposits
+        must be in by now)."""
+        n = len(self.pixels)
+        self.refined = self.decide() if len(self.rest) else np.zeros(n, np.bool_)
+
     def pass2(self, view, width, height):
         """Batches of the remaining rays of the pixels `decide` picks (decided when the first
         batch is asked for)."""
-        rest = np.setdiff1d(np.arange(self.n), self.first)
-        self.refined = self.decide() if len(rest) else np.zeros(len(self.pixels), np.bool_)
-        for idx in self._chunks(np.flatnonzero(self.refined), len(rest)):
-            rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], rest,
-                                      self.seed)  # fmt: skip
-            self._count(idx, alive)
-            yield rays
+        self.start_refine()
+        for idx in self.split(np.flatnonzero(self.refined), len(self.rest)):
+            yield self.make(idx, True, view, width, height)
+
+    def index_of(self, rect) -> np.ndarray:
+        """Indices into `pixels` of the pixels of `rect` (x0, x1, y0, y1), inside the own
+        rectangle."""
+        x0, x1, y0, y1 = self.rect
+        cx0, cx1, cy0, cy1 = rect
+        cols = np.arange(cx0, cx1) - x0
+        return ((np.arange(cy0, cy1) - y0)[:, None] * (x1 - x0) + cols[None, :]).ravel()
+
+    def refined_runs(self, rect) -> list[tuple[int, int, int, int]]:
+        """The refined pixels of `rect` as runs along its rows, each a one-row rectangle
+        (x0, x1, y, y + 1): pass 2's work in the form a GIVE carries, so a neighbour can
+        trace it without this node's books."""
+        cx0, cx1, cy0, cy1 = rect
+        mask = self.refined[self.index_of(rect)].reshape(cy1 - cy0, cx1 - cx0)
+        edges = np.diff(np.pad(mask, ((0, 0), (1, 1))).astype(np.int8), axis=1)
+        row_s, start = np.nonzero(edges == 1)
+        _, end = np.nonzero(edges == -1)  # row-major order pairs each start with its end
+        return [(cx0 + a, cx0 + b, cy0 + r, cy0 + r + 1)
+                for r, a, b in zip(row_s.tolist(), start.tolist(), end.tolist(), strict=True)]
 
     def _count(self, idx: np.ndarray, alive: np.ndarray) -> None:
         if self.spec.sampling.adaptation == "left":

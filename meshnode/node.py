@@ -138,6 +138,8 @@ class NodeCore:
         if self.films:
             if state not in (State.TRACE, State.REFINE):
                 return Primaries()
+            if self.spec.plan.steal:
+                return self._adaptive_chunks(state == State.REFINE)
             return Primaries(batch for f in self.films for batch in
                              (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
         if state != State.TRACE:
@@ -149,6 +151,67 @@ class NodeCore:
             return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
                              self.rect_batches)  # fmt: skip
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
+
+    def _adaptive_chunks(self, refine: bool) -> ChunkFeed:
+        """Adaptive sampling with stealing: one pass over chunks of the own rectangles in
+        spiral order; in pass 2 (REFINE) a chunk's refined pixels, as runs along its rows
+        (`AdaptiveFilm.refined_runs`). An own chunk's books are kept once, by this node,
+        when it is traced here or given away (`AdaptiveFilm.make`), whichever comes first: a
+        stolen chunk may be passed on, or even come back. The node that traces a chunk makes
+        its rays; their deposits go to the pixels' owner, as every deposit does."""
+        side = self.spec.plan.tile
+        chunks = []
+        for film in self.films:
+            if refine:
+                film.start_refine()
+            for c in spiral_chunks(film.rect, side):
+                chunks.extend(film.refined_runs(c) if refine else [c])
+        counted: set = set()
+
+        def own(chunk) -> AdaptiveFilm | None:
+            """The film of an own chunk whose books are still to keep (now taken on)."""
+            film = self._film_of(chunk)
+            if film is None or chunk in counted:
+                return None
+            counted.add(chunk)
+            return film
+
+        def give(chunk) -> None:
+            if (film := own(chunk)) is not None:
+                for _ in self._film_batches(film, chunk, refine):
+                    pass  # books kept; the thief makes these same rays
+
+        def batches(chunk):
+            film = own(chunk)
+            if film is None:
+                return self._stolen_batches(chunk, refine)
+            return self._film_batches(film, chunk, refine)
+
+        return ChunkFeed(chunks, batches, give)
+
+    def _film_of(self, chunk) -> AdaptiveFilm | None:
+        """The film of the own rectangle holding `chunk`, None for a neighbour's chunk."""
+        x0, _, y0, _ = chunk
+        i = int(self.own_rect(np.array([y0 * self.spec.image.size[0] + x0]))[0])
+        return self.films[i] if i >= 0 else None
+
+    def _film_batches(self, film: AdaptiveFilm, chunk, refine: bool):
+        """An own chunk's rays for one adaptive pass, its books kept as they are made."""
+        w, h = self.spec.image.size
+        per_pixel = len(film.rest) if refine else 2
+        for idx in film.split(film.index_of(chunk), per_pixel):
+            yield film.make(idx, refine, self.view, w, h)
+
+    def _stolen_batches(self, chunk, refine: bool):
+        """The rays of a chunk whose books its owner keeps, for one adaptive pass."""
+        w, h = self.spec.image.size
+        f = self.films[0]
+        samples = f.rest if refine else f.first
+        pixels = rect_pixels(chunk, w)
+        step = max(1, RAYS_PER_BATCH // len(samples))
+        for at in range(0, len(pixels), step):
+            yield camera_rays(self.spec.camera, self.view, w, h, pixels[at : at + step], samples,
+                              self.spec.image.seed)[0]  # fmt: skip
 
     def rect_batches(self, rect):
         """Every primary ray of one rectangle (no adaptive sampling), batch by batch."""

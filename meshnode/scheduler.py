@@ -9,7 +9,7 @@ links; then this node's primary rays, while its links have room), flush buffered
 once idle, send the state packet on, or wait for the next event (None).
 """
 
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,8 +97,8 @@ class ChunkFeed(Primaries):
     neighbour gave. `batches(chunk)` makes a chunk's primary rays, one batch at a time. A
     chunk is started (and can no longer be given) once its first batch is looked ahead."""
 
-    def __init__(self, chunks, batches):
-        self.chunks, self.make = deque(chunks), batches
+    def __init__(self, chunks, batches, on_give=None):
+        self.chunks, self.make, self.on_give = deque(chunks), batches, on_give
         self.current = iter(())
         super().__init__()
 
@@ -114,8 +114,13 @@ class ChunkFeed(Primaries):
 
     def take(self) -> list:
         """Half of the unstarted chunks, from the outer end (none when one or none is left:
-        this node will start it sooner than a message could carry it)."""
-        return [self.chunks.pop() for _ in range(len(self.chunks) // 2)]
+        this node will start it sooner than a message could carry it); `on_give(chunk)` is
+        told of each (adaptive sampling keeps its books as it gives)."""
+        given = [self.chunks.pop() for _ in range(len(self.chunks) // 2)]
+        if self.on_give is not None:
+            for chunk in given:
+                self.on_give(chunk)
+        return given
 
     def add(self, chunks) -> None:
         self.chunks.extend(tuple(c) for c in chunks)
@@ -207,6 +212,7 @@ class Scheduler:
         self.steal_from: int | None = None  # the neighbour whose answer is awaited
         self.thieves: deque = deque()  # neighbours waiting for an answer from this node
         self.chunks_given = self.chunks_taken = 0
+        self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
         self.term = Termination(node)
         self.state = State.DOWNLOAD
@@ -283,6 +289,7 @@ class Scheduler:
                 feed = self.primaries
                 chunks = feed.take() if isinstance(feed, ChunkFeed) else []
                 self.chunks_given += len(chunks)
+                self.given_in[self.state.name] += len(chunks)
                 return Give(self.thieves.popleft(), chunks)
             if self.forward and self.packet is not None:
                 # The packet brought a state with primary rays: hand it on at once, so the
@@ -315,9 +322,11 @@ class Scheduler:
                 return None
 
     def _steal_target(self) -> int | None:
-        """The neighbour to ask for chunks when out of primaries in TRACE with no answer
-        awaited: the first not yet found empty in this state (None: nobody to ask)."""
-        if not self.steal or self.state != State.TRACE or self.primaries or \
+        """The neighbour to ask for chunks when out of chunked primaries (TRACE, or adaptive
+        sampling's REFINE) with no answer awaited: the first not yet found empty in this
+        state (None: nobody to ask)."""
+        if not self.steal or self.state not in (State.TRACE, State.REFINE) or \
+                not isinstance(self.primaries, ChunkFeed) or self.primaries or \
                 self.steal_from is not None:  # fmt: skip
             return None
         return next((m for m in self.neighbours if m not in self.asked), None)

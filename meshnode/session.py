@@ -299,6 +299,7 @@ class Session:
             report["engine_reused"] = self.core.engine_reused
             report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
             report["chunks_taken"] = self.sched.chunks_taken
+            report["chunks_given_by_state"] = dict(self.sched.given_in)
             report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
             self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 

@@ -35,6 +35,7 @@ class NodeRecord:
     packet_visits: int = 0
     chunks_given: int = 0  # chunks of its rectangle neighbours took (MeshPlan.steal)
     chunks_taken: int = 0  # chunks it took from neighbours
+    given_in: dict = field(default_factory=dict)  # chunks given by state (TRACE, REFINE)
     counts: dict = field(default_factory=lambda: defaultdict(int))
 
     @property
@@ -101,6 +102,7 @@ class _Mesh:
                 self._act(int(n))
         for rec, sched in zip(self.records, self.scheds, strict=True):
             rec.chunks_given, rec.chunks_taken = sched.chunks_given, sched.chunks_taken
+            rec.given_in = dict(sched.given_in)
         return Outcome(self.deposits, self.records, self.round)
 
     def _send(self, src: int, dst: int, kind: str, payload) -> None:

@@ -117,7 +117,8 @@ class MeshPlan(Spec):
     and one more whenever a node reports one finished (a node never waits on the network).
     `steal` (object space): a node traces its rectangle in chunks spiralling out from the
     centre, and one that has run out takes unstarted chunks from the outer end of a busy
-    neighbour's spiral and makes their eye rays itself."""
+    neighbour's spiral and makes their eye rays itself; under adaptive sampling in both
+    passes (pass 2's chunks are the refined pixels' row runs), the owner keeping the books."""
 
     rows: int = 1
     cols: int = 1
@@ -256,9 +257,6 @@ class RenderSpec(Spec):
                 self.fail(name, f"must be a {record.__name__}")
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
-        if self.plan.steal and self.camera is not None and self.camera.adaptive:
-            self.fail("plan", "adaptive sampling keeps each pixel's books on its owner: it "
-                      "cannot be stolen (MeshPlan.steal)")  # fmt: skip
         if self.plan.dynamic and self.camera is not None and self.camera.adaptive:
             self.fail("plan", "adaptive sampling with dynamic tiles is not supported yet (its "
                               "seams need every tile's owner up front): use static tiles")

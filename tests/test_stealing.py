@@ -17,15 +17,18 @@ from host.meshclient import render_on_mesh
 from host.nff import read_nff
 from host.plan import plan_render
 from host.render import render
+from meshnode.adaptive import AdaptiveFilm
 from meshnode.node import spiral_chunks
 from meshnode.scheduler import ChunkFeed, Give, Scheduler, Steal, Trace
 from meshnode.termination import Packet, State
+from protocols.camera import CameraSampling
 from protocols.dtypes import RAY
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from protocols.spec import SpecError
 from tests.conftest import records, spd_scene
 from tests.meshsim import render_mesh
 from tests.test_mesh_algorithm import SPD_COUNTS
+from tests.test_sampling import dof_scene, thin_camera
 
 
 def test_spiral_chunks_tile_the_rectangle_once_from_the_centre_out():
@@ -123,6 +126,49 @@ def test_stealing_through_a_camera_and_where_it_is_refused():
         MeshPlan(2, 2, mode="image", steal=True)
 
 
+def adaptive_setup(width, height):
+    """The depth-of-field scene, an adaptive thin-lens camera, and its `CameraSpec`."""
+    scene = dof_scene()
+    image = ImageSpec(width=width, height=height, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    return scene, image, setup, spec
+
+
+def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image():
+    """Pass 1's chunks and pass 2's runs of refined pixels change hands; the owners keep
+    the books, so every pixel is divided by the rays it got, exactly as on one node."""
+    scene, image, setup, spec = adaptive_setup(30, 24)
+    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    given = {"TRACE": 0, "REFINE": 0}
+    for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
+        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 30, 24, seed=3, camera=spec,
+                                            steal=True, tile=3)  # fmt: skip
+        assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+        assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)
+        for n in nodes:
+            for state, count in n.given_in.items():
+                given[state] += count
+    assert given["TRACE"] > 0 and given["REFINE"] > 0  # both passes were stolen from
+
+
+def test_refined_runs_cover_exactly_the_refined_pixels_of_a_chunk():
+    film = AdaptiveFilm(adaptive_setup(16, 12)[3], (2, 12, 1, 9), 16, 12)
+    rng = np.random.default_rng(5)
+    film.refined = rng.random(len(film.pixels)) < 0.4
+    chunk = (4, 11, 2, 7)
+    cover = np.zeros((12, 16), int)
+    for x0, x1, y0, y1 in film.refined_runs(chunk):
+        assert y1 == y0 + 1 and x1 > x0
+        cover[y0:y1, x0:x1] += 1
+    want = np.zeros((12, 16), int)
+    want.reshape(-1)[film.pixels[film.refined]] = 1
+    mask = np.zeros((12, 16), bool)
+    mask[2:7, 4:11] = True
+    assert (cover == want * mask).all()  # each refined pixel of the chunk once, nothing else
+
+
 def test_stealing_over_tcp_gives_the_single_node_image():
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=48, height=48, spp=4, threads=1)
@@ -135,3 +181,18 @@ def test_stealing_over_tcp_gives_the_single_node_image():
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
         n["chunks_taken"] for n in stats["nodes"])  # fmt: skip
+
+
+def test_adaptive_stealing_over_tcp_gives_the_single_node_image():
+    scene, image, setup, _ = adaptive_setup(30, 24)
+    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    with LocalMesh(4) as addresses:
+        coro = render_on_mesh(scene, image, addresses, MeshPlan(2, 2, 1, steal=True, tile=3),
+                              EngineSpec(threads=1), setup)  # fmt: skip
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    given = [n["chunks_given_by_state"] for n in stats["nodes"]]
+    assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
+        n["chunks_taken"] for n in stats["nodes"])  # fmt: skip
+    assert sum(g.get("TRACE", 0) for g in given) > 0 and sum(g.get("REFINE", 0) for g in given) > 0

@@ -1,11 +1,16 @@
 """The bounding volume hierarchy: first hits equal brute force on hard layouts, every leaf a run
-of one kind's ids within the leaf cap, and the engine's choice between it and the grid."""
+of one kind's ids within the leaf cap, packets of rays find exactly what single rays find, and
+the engine's choice between it and the grid."""
 
 import numpy as np
+import pytest
 
 from host.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS
+from meshnode.engine.camera import eye_rays
+from protocols.dtypes import EYE, RAY, SHADOW
+from protocols.render import ImageSpec
 from tests.conftest import make_scene, spd_scene
 from tests.test_grid import assert_same_hits, random_scene
 
@@ -106,3 +111,35 @@ def test_extreme_coordinates_build_and_hit_as_brute_force():
     np.testing.assert_array_equal(g, g_ref)
     np.testing.assert_array_equal(t, t_ref)
     assert g[0] >= 0 and g[1] >= 20 and g[2] == -1
+
+
+def mixed_batch(scene, lo, hi, rng, n_random=301):
+    """A batch of a scene's eye rays (coherent neighbours) then random rays from random points
+    in the box lo, hi (incoherent, some starting inside objects), with shadow rays among
+    them (not walked in packets) and a length that is no multiple of the packet size."""
+    eye = eye_rays(scene.view, ImageSpec(width=41, height=37, spd=True))
+    rays = np.zeros(n_random, RAY)
+    rays["o"] = rng.uniform(lo, hi, (n_random, 3))
+    d = rng.normal(size=(n_random, 3))
+    rays["d"] = d / np.linalg.norm(d, axis=1)[:, None]
+    rays["t_max"] = np.where(rng.random(n_random) < 0.3, rng.uniform(0.1, 5.0, n_random), np.inf)
+    rays["w"], rays["origin"], rays["depth"], rays["pixel"] = 1.0, -1, 1, np.arange(n_random)
+    rays["kind"] = np.where(rng.random(n_random) < 0.2, SHADOW, EYE)
+    return np.concatenate([eye, rays])
+
+
+@pytest.mark.parametrize("name", ["tetra_s1.nff", "teapot_s1.nff", "gears_s1.nff"])
+def test_packets_of_rays_find_exactly_what_single_rays_find(name):
+    """One node traces a batch's own rays in packets (`bvh.packet_walk`); a mesh node, whose
+    box is here the whole scene, walks each ray alone: colours and counts must be the same
+    to the last bit, on coherent eye rays and on scattered ones."""
+    scene = read_nff(spd_scene(name))
+    engine = Engine(scene, structure="bvh")
+    rays = mixed_batch(scene, engine.scene_lo, engine.scene_hi, np.random.default_rng(7))
+    rgb, counts = engine.trace(rays)
+    rgb_node, counts_node, passed = engine.trace_node(rays)
+    assert len(passed) == 0  # nothing leaves a box that is the whole scene
+    np.testing.assert_array_equal(rgb, rgb_node)
+    for k in ("eye_hits", "shadow_rays", "shadow_rays_blocked", "reflected_rays", "ray_segments"):
+        assert counts[k] == counts_node[k], k
+    assert counts["eye_hits"] > 100

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine import kernelcache
-from meshnode.engine.bvh import Bvh, empty_arrays
+from meshnode.engine.bvh import PACKET, Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
@@ -173,6 +173,11 @@ class Engine:
             "structure_reason": why,
             "grid": self.grid.stats,
             "bvh": None if self.bvh is None else self.bvh.stats,
+            "packet": PACKET if self.bvh is not None else 1,
+            "packet_reason": (
+                f"with the hierarchy a batch's own rays walk it {PACKET} neighbours together "
+                "(one node: a mesh node walks each ray alone, as it must stop at its box)"
+                if self.bvh is not None else "the grid walks each ray alone"),
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
             "preprocess_seconds": self.preprocess_seconds,
         }

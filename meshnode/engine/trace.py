@@ -10,8 +10,20 @@ import math
 
 import numpy as np
 
+from meshnode.engine.bvh import (
+    P_BEST,
+    P_BOUND,
+    P_D,
+    P_LO,
+    P_O,
+    P_R,
+    P_ROWS,
+    PACKET,
+    bvh_walk,
+    packet_walk,
+    reciprocal,
+)
 from meshnode.engine.bvh import STACK as BVH_STACK
-from meshnode.engine.bvh import bvh_walk
 from meshnode.engine.counters import (
     ESCAPED,
     EYE_HITS,
@@ -45,22 +57,43 @@ def _push(so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi
     return sp + 1
 
 
+@inline
+def _load(f, origin, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi, org):
+    """Ray k of a packet's scratch (`bvh.packet_walk`)."""
+    f[P_O, k], f[P_O + 1, k], f[P_O + 2, k] = ox, oy, oz
+    f[P_D, k], f[P_D + 1, k], f[P_D + 2, k] = dx, dy, dz
+    f[P_R, k], f[P_R + 1, k], f[P_R + 2, k] = reciprocal(dx), reciprocal(dy), reciprocal(dz)
+    f[P_LO, k], f[P_BOUND, k] = t_lo, t_hi
+    origin[k] = org
+
+
+@kernel
+def _packets():
+    """A packet's scratch: float rows, origins, hits, pending children and their refs, and
+    which ray of the batch each column holds."""
+    return (np.empty((P_ROWS, PACKET)), np.empty(PACKET, np.int64), np.empty(PACKET, np.int64),
+            np.empty((BVH_STACK, PACKET)), np.empty(BVH_STACK, np.int64),
+            np.empty(PACKET, np.int64))  # fmt: skip
+
+
 @kernel
 def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
-    among the objects of the `Geometry` geo through the `BvhArrays` bvh if it is not empty,
-    else the `GridArrays` grid (or all, with brute). Directions are made unit length here, in
-    the same pass: distances are in scene units. Returns (t, gid, index of the first ray with
-    a zero or non-finite direction or a non-finite origin, or -1); the caller refuses those."""
+    among the objects of the `Geometry` geo through the `BvhArrays` bvh if it is not empty
+    (PACKET neighbouring rays at a time, `packet_walk`), else the `GridArrays` grid (or all,
+    with brute). Directions are made unit length here: distances are in scene units.
+    Returns (t, gid, index of the first ray with a zero or non-finite direction or a
+    non-finite origin, or -1); the caller refuses those."""
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
     g_out = np.full(n, -1, np.int64)
     mail = np.full(gid.shape[0], -1, np.int64)
-    stack = np.empty(2 * BVH_STACK)
     # Decided once, outside the loop: reading a tuple's field in the loop costs reference
     # counting on every array of the tuple (5x the whole walk of a ray that misses).
-    use_bvh = bvh.box.shape[0] > 0
+    packets = bvh.box.shape[0] > 0 and not brute
+    f, origin, best_u, pstack, refs, idx = _packets()
+    m = 0
     for i in range(n):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -73,21 +106,58 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         dx *= k
         dy *= k
         dz *= k
+        counters[SEGMENTS] += 1
+        if packets:
+            _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1)
+            idx[m] = i
+            m += 1
+            if m == PACKET or i == n - 1:
+                packet_walk(f, origin, best_u, m, pstack, refs, counters,
+                            gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+                for j in range(m):
+                    t_out[idx[j]] = f[P_BEST, j]
+                    if best_u[j] >= 0:
+                        g_out[idx[j]] = gid[best_u[j]]
+                m = 0
+            continue
         if brute:
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
-        elif use_bvh:
-            t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, stack,
-                            counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                            bvh)  # fmt: skip
         else:
             t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
                         gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid)  # fmt: skip
-        counters[SEGMENTS] += 1
         t_out[i] = t
         if u >= 0:
             g_out[i] = gid[u]
     return t_out, g_out, -1
+
+
+@kernel
+def _packet_hits(rays, on, counters, geo, bvh):
+    """With `on`, the first hit (t, local id) of each of the batch's rays but shadow rays,
+    PACKET neighbours at a time (`packet_walk`): what walking each alone finds. Without,
+    empty arrays."""
+    gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
+    n = rays.shape[0] if on else 0
+    first_t = np.empty(n)
+    first_u = np.empty(n, np.int64)
+    f, origin, best_u, pstack, refs, idx = _packets()
+    m = 0
+    for i in range(n):
+        r = rays[i]
+        if r.kind != SHADOW:
+            _load(f, origin, m, r.o[0], r.o[1], r.o[2], r.d[0], r.d[1], r.d[2], r.t_min,
+                  r.t_max, r.origin)  # fmt: skip
+            idx[m] = i
+            m += 1
+        if m == PACKET or (i == n - 1 and m > 0):
+            packet_walk(f, origin, best_u, m, pstack, refs, counters,
+                        gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+            for j in range(m):
+                first_t[idx[j]] = f[P_BEST, j]
+                first_u[idx[j]] = best_u[j]
+            m = 0
+    return first_t, first_u
 
 
 @kernel
@@ -138,6 +208,10 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
     use_bvh = bvh.box.shape[0] > 0  # once: see first_hits
+    # One node's hierarchy: the batch's own rays (all but shadow rays) find their first hits
+    # in packets of neighbours (`_packet_hits`) before their trees are traced one by one.
+    packets = out is None and use_bvh and not brute
+    first_t, first_u = _packet_hits(rays, packets, counters, geo, bvh)
     # Shadow cache: the object that last blocked each light is tried first (walk's hint).
     blocker = np.full(max(n_lights, 1), -1, np.int64)
     fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
@@ -159,6 +233,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
         cr = 0.0
         cg = 0.0
         cb = 0.0
+        root = True  # the first segment popped is the batch's ray itself
         while sp > 0:
             sp -= 1
             ox, oy, oz = so[sp, 0], so[sp, 1], so[sp, 2]
@@ -188,7 +263,9 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
-            if brute:
+            if packets and root and not shadow:
+                t, u = first_t[i], first_u[i]  # the batch's ray itself: walked in a packet
+            elif brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
             elif use_bvh:
@@ -201,6 +278,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, ray_id,
                             mail, counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
                             grid)  # fmt: skip
+            root = False
             if out is not None:
                 if u >= 0 and not shadow and t > n1:
                     u = -1  # a hit beyond this box: another node may hold a nearer object

@@ -130,16 +130,20 @@ def mixed_batch(scene, lo, hi, rng, n_random=301):
 
 @pytest.mark.parametrize("name", ["tetra_s1.nff", "teapot_s1.nff", "gears_s1.nff"])
 def test_packets_of_rays_find_exactly_what_single_rays_find(name):
-    """One node traces a batch's own rays in packets (`bvh.packet_walk`); a mesh node, whose
-    box is here the whole scene, walks each ray alone: colours and counts must be the same
-    to the last bit, on coherent eye rays and on scattered ones."""
+    """A batch's own rays walk the hierarchy in packets (`bvh.packet_walk`), on one node and
+    on an image-space node (its box the scene's); with packets off each walks alone: colours
+    and counts must be the same to the last bit, on coherent eye rays and scattered ones."""
     scene = read_nff(spd_scene(name))
     engine = Engine(scene, structure="bvh")
+    single = Engine(scene, structure="bvh", packets=False)
+    assert engine.stats["packet"] == 8 and single.stats["packet"] == 1
     rays = mixed_batch(scene, engine.scene_lo, engine.scene_hi, np.random.default_rng(7))
+    rgb_ref, counts_ref = single.trace(rays)
+    assert counts_ref["eye_hits"] > 100
+    keys = ("eye_hits", "shadow_rays", "shadow_rays_blocked", "reflected_rays", "ray_segments")
     rgb, counts = engine.trace(rays)
     rgb_node, counts_node, passed = engine.trace_node(rays)
     assert len(passed) == 0  # nothing leaves a box that is the whole scene
-    np.testing.assert_array_equal(rgb, rgb_node)
-    for k in ("eye_hits", "shadow_rays", "shadow_rays_blocked", "reflected_rays", "ray_segments"):
-        assert counts[k] == counts_node[k], k
-    assert counts["eye_hits"] > 100
+    for got, n in ((rgb, counts), (rgb_node, counts_node)):
+        np.testing.assert_array_equal(got, rgb_ref)
+        assert {k: n[k] for k in keys} == {k: counts_ref[k] for k in keys}

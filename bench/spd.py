@@ -637,7 +637,7 @@ def print_scene(r: dict) -> None:
         rows = [row + [x["rays"][k] for _, k in pairs] for row, x in zip(rows, r["configs"],
                                                                          strict=True)]
     print(table(headers, rows))
-    print(f"(steps/ray: voxel steps, or hierarchy nodes visited; default {r['default']}: "
+    print(f"(steps/ray: voxel steps, or ray-box tests in the hierarchy; default {r['default']}: "
           f"{r['default_reason']})")  # fmt: skip
     if r["count_error"] is not None:
         print("COUNT MISMATCH: the ray counts differ between configurations (engine bug)")

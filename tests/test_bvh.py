@@ -113,7 +113,7 @@ def test_extreme_coordinates_build_and_hit_as_brute_force():
     assert g[0] >= 0 and g[1] >= 20 and g[2] == -1
 
 
-def mixed_batch(scene, lo, hi, rng, n_random=301):
+def mixed_batch(scene, lo, hi, rng, n_random=2001):
     """A batch of a scene's eye rays (coherent neighbours) then random rays from random points
     in the box lo, hi (incoherent, some starting inside objects), with shadow rays among
     them (not walked in packets) and a length that is no multiple of the packet size."""

@@ -20,6 +20,7 @@ from meshnode.engine.bvh import (
     P_ROWS,
     PACKET,
     bvh_walk,
+    keep_packets,
     packet_walk,
     reciprocal,
 )
@@ -80,8 +81,9 @@ def _packets():
 def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
     among the objects of the `Geometry` geo through the `BvhArrays` bvh if it is not empty
-    (PACKET neighbouring rays at a time, `packet_walk`), else the `GridArrays` grid (or all,
-    with brute). Directions are made unit length here: distances are in scene units.
+    (PACKET neighbouring rays at a time, `packet_walk`, while they stay coherent enough,
+    `keep_packets`), else the `GridArrays` grid (or all, with brute). Directions are made
+    unit length here: distances are in scene units.
     Returns (t, gid, index of the first ray with a zero or non-finite direction or a
     non-finite origin, or -1); the caller refuses those."""
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
@@ -91,9 +93,11 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     mail = np.full(gid.shape[0], -1, np.int64)
     # Decided once, outside the loop: reading a tuple's field in the loop costs reference
     # counting on every array of the tuple (5x the whole walk of a ray that misses).
-    packets = bvh.box.shape[0] > 0 and not brute
+    use_bvh = bvh.box.shape[0] > 0 and not brute
+    packets = use_bvh
     f, origin, best_u, pstack, refs, idx = _packets()
-    m = 0
+    stack = np.empty(2 * BVH_STACK)
+    m = walked = entered = tested = 0
     for i in range(n):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -112,15 +116,23 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
             idx[m] = i
             m += 1
             if m == PACKET or i == n - 1:
-                packet_walk(f, origin, best_u, m, pstack, refs, counters,
-                            gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+                e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters, gid, off,
+                                   sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
                 for j in range(m):
                     t_out[idx[j]] = f[P_BEST, j]
                     if best_u[j] >= 0:
                         g_out[idx[j]] = gid[best_u[j]]
                 m = 0
+                walked += 1
+                entered += e
+                tested += v
+                packets = keep_packets(walked, entered, tested)
             continue
-        if brute:
+        if use_bvh:
+            t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, stack,
+                            counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
+                            bvh)  # fmt: skip
+        elif brute:
             t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
                                gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
         else:
@@ -135,14 +147,15 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
 @kernel
 def _packet_hits(rays, on, counters, geo, bvh):
     """With `on`, the first hit (t, local id) of each of the batch's rays but shadow rays,
-    PACKET neighbours at a time (`packet_walk`): what walking each alone finds. Without,
-    empty arrays."""
+    PACKET neighbours at a time (`packet_walk`): what walking each alone finds; local id -2
+    for the rays left to walk alone, once packets stop paying (`keep_packets`) and for
+    shadow rays. Without, empty arrays."""
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     n = rays.shape[0] if on else 0
     first_t = np.empty(n)
-    first_u = np.empty(n, np.int64)
+    first_u = np.full(n, -2, np.int64)
     f, origin, best_u, pstack, refs, idx = _packets()
-    m = 0
+    m = walked = entered = tested = 0
     for i in range(n):
         r = rays[i]
         if r.kind != SHADOW:
@@ -151,12 +164,17 @@ def _packet_hits(rays, on, counters, geo, bvh):
             idx[m] = i
             m += 1
         if m == PACKET or (i == n - 1 and m > 0):
-            packet_walk(f, origin, best_u, m, pstack, refs, counters,
-                        gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+            e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters,
+                               gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
             for j in range(m):
                 first_t[idx[j]] = f[P_BEST, j]
                 first_u[idx[j]] = best_u[j]
             m = 0
+            walked += 1
+            entered += e
+            tested += v
+            if not keep_packets(walked, entered, tested):
+                break
     return first_t, first_u
 
 
@@ -268,7 +286,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
-            if packets and root and not shadow:
+            if packets and root and not shadow and first_u[i] > -2:
                 t, u = first_t[i], first_u[i]  # the batch's ray itself: walked in a packet
             elif brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,

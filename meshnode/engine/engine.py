@@ -15,9 +15,10 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine import kernelcache
-from meshnode.engine.bvh import PACKET, Bvh, empty_arrays
+from meshnode.engine.bvh import Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
+from meshnode.engine.packet import PACKET
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, trace_batch
 from meshnode.heap import keep_freed_memory

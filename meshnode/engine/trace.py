@@ -10,21 +10,8 @@ import math
 
 import numpy as np
 
-from meshnode.engine.bvh import (
-    P_BEST,
-    P_BOUND,
-    P_D,
-    P_LO,
-    P_O,
-    P_R,
-    P_ROWS,
-    PACKET,
-    bvh_walk,
-    keep_packets,
-    packet_walk,
-    reciprocal,
-)
 from meshnode.engine.bvh import STACK as BVH_STACK
+from meshnode.engine.bvh import bvh_walk, reciprocal
 from meshnode.engine.counters import (
     ESCAPED,
     EYE_HITS,
@@ -39,6 +26,18 @@ from meshnode.engine.counters import (
     SHADOW_RAYS,
 )
 from meshnode.engine.jit import inline, kernel
+from meshnode.engine.packet import (
+    P_BEST,
+    P_BOUND,
+    P_D,
+    P_LO,
+    P_O,
+    P_R,
+    P_ROWS,
+    PACKET,
+    keep_packets,
+    packet_walk,
+)
 from meshnode.engine.shade import normals, phong, refract
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
 from meshnode.engine.traverse import box_span, brute_force, walk

@@ -75,6 +75,7 @@ class AdaptiveFilm:
         self.spec, self.width, self.seed = spec, width, seed
         self.n = spec.per_pixel
         self.first = first_pass(spec)
+        self.rest = np.setdiff1d(np.arange(self.n), self.first)  # pass 2's sample indices
         x0, x1, y0, y1 = self.rect = tuple(int(v) for v in rect)
         self.pixels = rect_pixels(self.rect, width)
         self.halo = (max(x0 - 1, 0), min(x1 + 1, width), max(y0 - 1, 0), min(y1 + 1, height))
@@ -90,11 +91,6 @@ class AdaptiveFilm:
         """`idx` in slices of at most RAYS_PER_BATCH rays at `per_pixel` rays a pixel."""
         step = max(1, RAYS_PER_BATCH // max(per_pixel, 1))
         return (idx[i : i + step] for i in range(0, len(idx), step))
-
-    @property
-    def rest(self) -> np.ndarray:
-        """The sample indices of pass 2: all but pass 1's two corners."""
-        return np.setdiff1d(np.arange(self.n), self.first)
 
     def make(self, idx: np.ndarray, refine: bool, view, width, height) -> np.ndarray:
         """The camera rays of own pixels `idx` (indices into `pixels`) for pass 1 (their two

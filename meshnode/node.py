@@ -198,8 +198,7 @@ class NodeCore:
     def _film_batches(self, film: AdaptiveFilm, chunk, refine: bool):
         """An own chunk's rays for one adaptive pass, its books kept as they are made."""
         w, h = self.spec.image.size
-        per_pixel = len(film.rest) if refine else 2
-        for idx in film.split(film.index_of(chunk), per_pixel):
+        for idx in film.split(film.index_of(chunk), len(film.rest if refine else film.first)):
             yield film.make(idx, refine, self.view, w, h)
 
     def _stolen_batches(self, chunk, refine: bool):
@@ -207,10 +206,8 @@ class NodeCore:
         w, h = self.spec.image.size
         f = self.films[0]
         samples = f.rest if refine else f.first
-        pixels = rect_pixels(chunk, w)
-        step = max(1, RAYS_PER_BATCH // len(samples))
-        for at in range(0, len(pixels), step):
-            yield camera_rays(self.spec.camera, self.view, w, h, pixels[at : at + step], samples,
+        for part in f.split(rect_pixels(chunk, w), len(samples)):
+            yield camera_rays(self.spec.camera, self.view, w, h, part, samples,
                               self.spec.image.seed)[0]  # fmt: skip
 
     def rect_batches(self, rect):

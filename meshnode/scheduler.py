@@ -211,7 +211,7 @@ class Scheduler:
         self.asked: set[int] = set()
         self.steal_from: int | None = None  # the neighbour whose answer is awaited
         self.thieves: deque = deque()  # neighbours waiting for an answer from this node
-        self.chunks_given = self.chunks_taken = 0
+        self.chunks_taken = 0
         self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
         self.term = Termination(node)
@@ -268,6 +268,11 @@ class Scheduler:
         self.unflushed = True
 
     @property
+    def chunks_given(self) -> int:
+        """Chunks of this node's rectangle neighbours took (MeshPlan.steal)."""
+        return sum(self.given_in.values())
+
+    @property
     def may_read(self) -> bool:
         return self.incoming_rays <= self.incoming_high // 4
 
@@ -288,7 +293,6 @@ class Scheduler:
             if self.thieves:
                 feed = self.primaries
                 chunks = feed.take() if isinstance(feed, ChunkFeed) else []
-                self.chunks_given += len(chunks)
                 self.given_in[self.state.name] += len(chunks)
                 return Give(self.thieves.popleft(), chunks)
             if self.forward and self.packet is not None:

@@ -146,8 +146,9 @@ class Engine:
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
         self.scene_lo, self.scene_hi = (np.asarray(b, float) for b in sb)
-        # One node, or an image-space node: its box holds the scene (primary rays in packets).
-        self.whole = bool(packets and np.all(self.grid.lo <= self.scene_lo)
+        # One node, or an image-space node: its box holds the scene, so a batch's own rays
+        # may walk in packets.
+        self.packets = bool(packets and np.all(self.grid.lo <= self.scene_lo)
                           and np.all(self.grid.hi >= self.scene_hi))  # fmt: skip
         # From the scene's box, not this node's: every node must use the same guard, or a hit
         # at a tiny t (touching spheres) would count on one node and not on another.
@@ -179,11 +180,11 @@ class Engine:
             "structure_reason": why,
             "grid": self.grid.stats,
             "bvh": None if self.bvh is None else self.bvh.stats,
-            "packet": PACKET if self.bvh is not None and self.whole else 1,
+            "packet": PACKET if self.bvh is not None and self.packets else 1,
             "packet_reason": (
                 "the grid walks each ray alone" if self.bvh is None else
                 f"a batch's own rays walk the hierarchy {PACKET} neighbours together"
-                if self.whole else "asked for single rays" if not packets else
+                if self.packets else "asked for single rays" if not packets else
                 "an object-space node's rays mostly start outside its box: each walks alone"),
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
             "preprocess_seconds": self.preprocess_seconds,
@@ -253,7 +254,7 @@ class Engine:
             # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
             # more arrays early in the list (code layout), so keep the hot ones first (tetra:
             # 2-4% slower with the shading table ahead of the geometry and grid)
-            self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.whole,
+            self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.packets,
         )  # fmt: skip
         passed = None if out is None else out[:n_out].copy()
         return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=True)), passed

@@ -76,19 +76,6 @@ def _packets():
             np.empty(PACKET, np.int64))  # fmt: skip
 
 
-@inline
-def _walk_packet(f, origin, best_u, m, pstack, refs, idx, t_out, u_out, counters,
-                 gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh):  # fmt: skip
-    """Walk the m rays loaded in the packet (`_load`) and write each one's t and local id
-    (-1: none) at its batch index `idx`; returns `packet_walk`'s coherence figures."""
-    e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters,
-                       gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
-    for j in range(m):
-        t_out[idx[j]] = f[P_BEST, j]
-        u_out[idx[j]] = best_u[j]
-    return e, v
-
-
 @kernel
 def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
@@ -101,7 +88,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
-    u_out = np.full(n, -1, np.int64)
+    g_out = np.full(n, -1, np.int64)
     mail = np.full(gid.shape[0], -1, np.int64)
     # Decided once, outside the loop: reading a tuple's field in the loop costs reference
     # counting on every array of the tuple (5x the whole walk of a ray that misses).
@@ -116,7 +103,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         big = max(abs(dx), max(abs(dy), abs(dz)))  # scaled first: no overflow in the norm
         if not (0.0 < big < math.inf) or not (abs(ox) < math.inf and abs(oy) < math.inf
                                                and abs(oz) < math.inf):  # fmt: skip
-            return t_out, _gids(u_out, gid), i
+            return t_out, g_out, i
         s = 1.0 / big
         k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
         dx *= k
@@ -128,9 +115,12 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
             idx[m] = i
             m += 1
             if m == PACKET or i == n - 1:
-                e, v = _walk_packet(f, origin, best_u, m, pstack, refs, idx, t_out, u_out,
-                                    counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                                    bvh)  # fmt: skip
+                e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters, gid, off,
+                                   sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+                for j in range(m):
+                    t_out[idx[j]] = f[P_BEST, j]
+                    if best_u[j] >= 0:
+                        g_out[idx[j]] = gid[best_u[j]]
                 m = 0
                 walked += 1
                 entered += e
@@ -148,18 +138,9 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
             t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
                         gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid)  # fmt: skip
         t_out[i] = t
-        u_out[i] = u
-    return t_out, _gids(u_out, gid), -1
-
-
-@kernel
-def _gids(u, gid):
-    """Scene object ids of local ids u (-1 stays -1)."""
-    out = np.full(u.shape[0], -1, np.int64)
-    for i in range(u.shape[0]):
-        if u[i] >= 0:
-            out[i] = gid[u[i]]
-    return out
+        if u >= 0:
+            g_out[i] = gid[u]
+    return t_out, g_out, -1
 
 
 @kernel
@@ -182,9 +163,11 @@ def _packet_hits(rays, on, counters, geo, bvh):
             idx[m] = i
             m += 1
         if m == PACKET or (i == n - 1 and m > 0):
-            e, v = _walk_packet(f, origin, best_u, m, pstack, refs, idx, first_t, first_u,
-                                counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                                bvh)  # fmt: skip
+            e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters,
+                               gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+            for j in range(m):
+                first_t[idx[j]] = f[P_BEST, j]
+                first_u[idx[j]] = best_u[j]
             m = 0
             walked += 1
             entered += e
@@ -302,7 +285,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
-            if packets and root and first_u[i] > -2:  # shadow rays are -2
+            if packets and root and not shadow and first_u[i] > -2:
                 t, u = first_t[i], first_u[i]  # the batch's ray itself: walked in a packet
             elif brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,

@@ -4,14 +4,17 @@ process.
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
                          [--modes object,image] [--tiles static] [--size 512 --spp 1]
-                         [--json FILE] [--plots DIR]
+                         [--min-trace 5] [--repeat 3] [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (and the same for wall time), parallel efficiency (sum of
 node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
 seconds (until every node is built and linked), rays passed between nodes, and bytes per link
 (mean and max over directed links). Counts are checked against the single node's. Without
---size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples.
+--size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples, and
+with `--min-trace S` at more samples for a scene that one node traces in less than S CPU
+seconds. `--repeat N`: one node and every row the best of N renders (the least busiest-node
+CPU; the mesh's nodes keep running between them, so later renders reuse their engines).
 `--node-threads 1,2` runs every row with nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
 space tilings. `--plots DIR` writes a per-node load plot (PNG) for every row: each node's
@@ -34,28 +37,57 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
           "shadow_rays_blocked")  # fmt: skip
 
 
-def single(scene, image):
-    """One node in this process, one thread: the CPU-seconds reference."""
+def single(scene, image, repeat: int = 1):
+    """One node in this process, one thread: the CPU-seconds reference, the best of `repeat`
+    runs (least tracing CPU) after a warm one."""
     from host.render import render
     from protocols.render import EngineSpec
 
     render(scene, image, EngineSpec(threads=1))  # warm
-    start = time.perf_counter()
-    _, stats = render(scene, image, EngineSpec(threads=1))
-    return time.perf_counter() - start, stats
+    runs = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        _, stats = render(scene, image, EngineSpec(threads=1))
+        runs.append((time.perf_counter() - start, stats))
+    return min(runs, key=lambda r: r[1]["trace_cpu_seconds"])
+
+
+def sized(scene, image, min_trace: float, repeat: int = 1):
+    """(image, single-node run) with the samples per pixel raised, in one step from a first
+    measurement, until one node traces at least `min_trace` CPU seconds: the issue's work size
+    for scenes that one node traces quickly (per-render costs then weigh as on a long render)."""
+    import dataclasses
+    import math
+
+    run = single(scene, image, repeat)
+    cpu = run[1]["trace_cpu_seconds"]
+    if not min_trace or cpu >= min_trace:
+        return image, run
+    spp = math.ceil(image.spp * min_trace * 1.1 / cpu)
+    image = dataclasses.replace(image, spp=spp)
+    return image, single(scene, image, repeat)
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False):  # fmt: skip
+            tiles="static", steal=False, repeat=1):  # fmt: skip
+    """(wall seconds, stats) of the render on a local mesh: of `repeat` renders on the same
+    running nodes, the one whose busiest node traced least; its `setup_seconds` are the first
+    render's (engines built), `setup_reused_seconds` its own (engines kept)."""
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
     plan = MeshPlan(rows, cols, overlap, balance, mode, tiles, steal=steal)
+    runs = []
     with LocalMesh(rows * cols, threads=threads) as addresses:
-        start = time.perf_counter()
-        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
-        return time.perf_counter() - start, stats
+        for _ in range(repeat):
+            start = time.perf_counter()
+            _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
+            runs.append((time.perf_counter() - start, stats))
+    wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
+    best["setup_reused_seconds"] = best["setup_seconds"]
+    best["setup_seconds"] = runs[0][1]["setup_seconds"]
+    return wall, best
 
 
 def load_plot(path: Path, title: str, stats: dict) -> None:
@@ -99,14 +131,21 @@ def main(argv=None) -> int:
                    "to compare: off,on")  # fmt: skip
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
+    p.add_argument("--min-trace", type=float, default=0.0,
+                   help="with --size: raise a scene's samples per pixel until one node "
+                        "traces at least this many CPU seconds")  # fmt: skip
+    p.add_argument("--repeat", type=int, default=1,
+                   help="best of N renders (least busiest-node CPU) for one node and each row")
     p.add_argument("--json", type=Path)
     p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
     args = p.parse_args(argv)
     from host.nff import read_nff
     from protocols.render import ImageSpec
 
-    image = (ImageSpec(width=args.size, height=args.size, spp=args.spp) if args.size
-             else ImageSpec(spd=True))  # fmt: skip
+    if args.min_trace and not args.size:
+        p.error("--min-trace needs --size")
+    base = (ImageSpec(width=args.size, height=args.size, spp=args.spp) if args.size
+            else ImageSpec(spd=True))  # fmt: skip
     if args.plots:
         args.plots.mkdir(parents=True, exist_ok=True)
 
@@ -116,10 +155,11 @@ def main(argv=None) -> int:
     bad = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        wall1, s1 = single(scene, image)
+        image, (wall1, s1) = sized(scene, base, args.min_trace, args.repeat)
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
-        print(f"\n== {name}: 1x1 in process  wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
+        print(f"\n== {name}: {image.width}x{image.height} at {image.spp} spp, 1x1 in process  "
+              f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
         print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>10} {'wall s':>7} "
               f"{'busiest CPU s':>13} {'speedup':>7} {'wall':>5} {'effic':>5} "
               f"{'imbalance':>9} {'setup s':>7} {'rays passed':>11} {'bytes/link mean':>15} "
@@ -134,10 +174,11 @@ def main(argv=None) -> int:
         for rows, cols in meshes:
             for mode, overlap, thr, cut, steal in runs:
                 if mode == "image":  # `cut` names the tiling here
-                    wall, st = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut)
+                    wall, st = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
+                                       repeat=args.repeat)  # fmt: skip
                 else:
                     wall, st = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
-                                       steal=steal)  # fmt: skip
+                                       steal=steal, repeat=args.repeat)  # fmt: skip
                     cut += "+steal" if steal else ""
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
@@ -150,8 +191,11 @@ def main(argv=None) -> int:
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
                        "parallel_efficiency": st["parallel_efficiency"],
                        "setup_seconds": st["setup_seconds"], "imbalance": st["imbalance"],
+                       "setup_reused_seconds": st["setup_reused_seconds"],
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
-                       "bytes_per_link_max": top, "single_cpu_seconds": cpu1}  # fmt: skip
+                       "bytes_per_link_max": top, "single_cpu_seconds": cpu1,
+                       "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
+                       "image": image.to_wire()}  # fmt: skip
                 results.append(row)
                 print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>10} {wall:>7.2f} "
                       f"{busiest:>13.3f} {row['speedup']:>7.2f} {row['wall_speedup']:>5.2f} "

@@ -6,7 +6,10 @@ runs the mesh itself on a coarse image: the simulated mesh of `meshnode.simulato
 nodes decide with the same scheduler as real ones, each node's cost counted as its
 intersection tests, voxel steps and rays. The column cuts then move so that the columns of
 nodes share the measured cost evenly (cost spread evenly over the pixels of each column band),
-the row cuts likewise, and the pass repeats; the cuts with the smallest busiest node win.
+the row cuts likewise, and the pass repeats; the cuts with the smallest busiest node win. Two
+families are tried: row cuts shared by every column (boxes in a grid), and row cuts of each
+column's own (each column's nodes share that column's work evenly: where the work gathers in
+one place, cuts common to all columns leave the node over it with most of it).
 Correctness never depends on the cuts, only the balance of work does.
 """
 
@@ -14,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from host.partition import partition, splits, subset
+from host.partition import column_rows, partition, splits, subset
 from meshnode.simulator import simulate
 from protocols.camera import CameraSampling, Generation
 from protocols.render import ImageSpec, RenderSpec
@@ -30,8 +33,10 @@ def _bands(inner, n: int) -> list[int]:
     return [*out, n]
 
 
-def _coarse(bounds: list[int], n: int, coarse_n: int) -> list[int]:
-    """Boundaries on an n-sample axis scaled to a coarse_n-sample one."""
+def _coarse(bounds: list, n: int, coarse_n: int) -> list:
+    """Boundaries on an n-sample axis scaled to a coarse_n-sample one (a list of them: each)."""
+    if len(bounds) and isinstance(bounds[0], list):
+        return [_coarse(b, n, coarse_n) for b in bounds]
     return _bands([round(b * coarse_n / n) for b in bounds[1:-1]], coarse_n)
 
 
@@ -71,18 +76,28 @@ def _even_out(bounds: list[int], band_cost: np.ndarray, n: int) -> list[int]:
 
 def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3):
     """(xs, ys, report): cuts of the sample grid whose simulated busiest node is the least
-    loaded over `rounds` re-cuts starting from even cuts."""
+    loaded over `rounds` re-cuts from even cuts, with row cuts shared by all columns and
+    with each column's own (`ys` is then a list per column)."""
     (width, height), plan = spec.sample_grid, spec.plan
-    xs, ys = splits(width, plan.cols), splits(height, plan.rows)
     tried = []
-    for _ in range(rounds + 1):
-        cost = node_costs(scene, spec, xs, ys)
-        tried.append((float(cost.max()), xs, ys, cost))
-        grid = cost.reshape(plan.rows, plan.cols)
-        xs = _even_out(xs, grid.sum(axis=0), width)
-        ys = _even_out(ys, grid.sum(axis=1), height)
-    best, bx, by, cost = min(tried, key=lambda t: t[0])
-    even = tried[0][0]
-    report = {"columns": bx, "rows": by, "simulated_busiest_vs_even": best / even if even else 1.0,
+    for own_rows in (False, True) if plan.rows > 1 and plan.cols > 1 else (False,):
+        xs, ys = splits(width, plan.cols), splits(height, plan.rows)
+        for _ in range(rounds + 1):
+            cost = node_costs(scene, spec, xs, ys)
+            tried.append((float(cost.max()), xs, ys, cost, own_rows))
+            grid = cost.reshape(plan.rows, plan.cols)
+            if own_rows:
+                rows = column_rows(ys, height, plan.rows, plan.cols)
+                ys = [_even_out(rows[c], grid[:, c], height) for c in range(plan.cols)]
+            else:
+                ys = _even_out(ys, grid.sum(axis=1), height)
+            xs = _even_out(xs, grid.sum(axis=0), width)
+    best, bx, by, cost, own_rows = min(tried, key=lambda t: t[0])
+    even = tried[0][0] or 1.0
+    report = {"columns": bx, "rows": by, "rows_per_column": own_rows,
+              "simulated_busiest_vs_even": best / even,
+              "simulated_busiest_vs_even_by_rows": {  # the best of each family: why this one
+                  "shared": min(t[0] for t in tried if not t[4]) / even,
+                  "per_column": min((t[0] for t in tried if t[4]), default=even) / even},
               "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0}
     return bx, by, report

@@ -28,11 +28,27 @@ def splits(n: int, parts: int) -> list[int]:
 def rectangles(width: int, height: int, rows: int, cols: int, xs=None,
                ys=None) -> list[tuple[int, int, int, int]]:  # fmt: skip
     """(x0, x1, y0, y1) of each node's part of a width x height sample grid, node = r*cols+c;
-    column and row boundaries `xs`, `ys` (default: even)."""
+    column boundaries `xs` and row boundaries `ys` (default: even), one list for every
+    column or a list per column (`column_rows`)."""
     if rows > height or cols > width:
         raise ValueError(f"a {rows}x{cols} mesh needs at least {cols}x{rows} samples")
-    xs, ys = xs or splits(width, cols), ys or splits(height, rows)
-    return [(xs[c], xs[c + 1], ys[r], ys[r + 1]) for r in range(rows) for c in range(cols)]
+    xs = xs or splits(width, cols)
+    yss = column_rows(ys, height, rows, cols)
+    return [(xs[c], xs[c + 1], yss[c][r], yss[c][r + 1]) for r in range(rows)
+            for c in range(cols)]  # fmt: skip
+
+
+def column_rows(ys, height: int, rows: int, cols: int) -> list[list[int]]:
+    """Row boundaries of each column of nodes: `ys` is None (even), one list shared by every
+    column, or one list per column (each column of nodes cut where its own work lies: a
+    scene whose work gathers in one place cannot be shared out by cuts common to all)."""
+    if ys is None:
+        ys = splits(height, rows)
+    if len(ys) and isinstance(ys[0], (list, tuple, np.ndarray)):
+        if len(ys) != cols:
+            raise ValueError(f"{len(ys)} columns of row cuts for {cols} columns of nodes")
+        return [list(y) for y in ys]
+    return [list(ys)] * cols
 
 
 def scene_box(scene: SceneData) -> tuple[np.ndarray, np.ndarray]:
@@ -74,7 +90,8 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
 def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
                overlap: float, xs=None, ys=None):  # fmt: skip
     """(los, his), each (rows*cols, 3): node r*cols+c's box of object space, cut where rays
-    through the rectangles' boundaries (`xs`, `ys`; default even) meet the scene."""
+    through the rectangles' boundaries (`xs`, `ys` as `rectangles` takes them; default even)
+    meet the scene."""
     if overlap < 0:
         raise ValueError("overlap must not be negative")
     lo, hi = (np.asarray(b, float) for b in box)
@@ -84,16 +101,17 @@ def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     # The image's columns follow the world axis closest to `right`, rows the other one.
     col_axis = max(others, key=lambda a: abs(right[a]))
     row_axis = [a for a in others if a != col_axis][0]
-    xs, ys = xs or splits(width, cols), ys or splits(height, rows)
+    xs = xs or splits(width, cols)
     xcuts = _cuts(scene.view, width, height, xs, lo, hi, cols, col_axis, 0)
-    ycuts = _cuts(scene.view, width, height, ys, lo, hi, rows, row_axis, 1)
+    ycuts = [_cuts(scene.view, width, height, ys_c, lo, hi, rows, row_axis, 1)
+             for ys_c in column_rows(ys, height, rows, cols)]  # fmt: skip
     los = np.tile(lo, (rows * cols, 1))
     his = np.tile(hi, (rows * cols, 1))
     for r in range(rows):
         for c in range(cols):
             n = r * cols + c
             xa, xb = sorted((xcuts[c], xcuts[c + 1]))
-            ya, yb = sorted((ycuts[r], ycuts[r + 1]))
+            ya, yb = sorted((ycuts[c][r], ycuts[c][r + 1]))
             los[n, col_axis], his[n, col_axis] = xa, xb
             los[n, row_axis], his[n, row_axis] = ya, yb
     grow = (his - los) * (overlap / 100.0)

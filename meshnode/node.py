@@ -25,8 +25,9 @@ from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
 
-HOST = -1  # deposits for the host (through node 0)
+HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
+IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows at once
 
 
 @dataclass
@@ -85,6 +86,30 @@ def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
     return [(xs[i], min(xs[i] + side, x1), ys[j], min(ys[j] + side, y1)) for i, j in cells]
 
 
+def per_cell(deposits: np.ndarray, ids_per_cell: int) -> np.ndarray:
+    """A batch's deposits summed per framebuffer cell, under the cell's first id: a pixel's
+    samples travel as one deposit instead of `spp`. Each cell's deposits are summed in the
+    order they came, from zero, as the host's framebuffer sums them (`np.bincount` adds in
+    order), so the image is the same to the bit."""
+    if len(deposits) < 2:
+        return deposits
+    cells = deposits["pixel"] // ids_per_cell
+    step = cells[1:] != cells[:-1]
+    if bool((cells[1:] >= cells[:-1]).all()):  # eye rays in order: cells in runs
+        first = cells[np.concatenate(([True], step))]
+        inverse = np.concatenate(([0], np.cumsum(step)))
+    else:  # passed and secondary rays: any order
+        first, inverse = np.unique(cells, return_inverse=True)
+    if len(first) == len(cells):
+        return deposits
+    out = np.empty(len(first), DEPOSIT)
+    out["pixel"] = first * ids_per_cell
+    for c in range(3):
+        out["rgb"][:, c] = np.bincount(inverse, weights=deposits["rgb"][:, c],
+                                       minlength=len(first))  # fmt: skip
+    return out
+
+
 class NodeCore:
     """One node's engine, primary rays and routing, for one render; pinhole eye rays are
     made in batches of about `eye_batch` (whole rows of the node's rectangle); `engines`
@@ -93,7 +118,7 @@ class NodeCore:
     def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
                  eye_batch: int = EYE_BATCH, engines: EngineCache | None = None):  # fmt: skip
         self.node, self.spec, self.view, self.part = node, spec, scene.view, part
-        self.eye_batch = eye_batch
+        self.eye_batch = eye_batch if spec.plan.mode == "object" else max(eye_batch, IMAGE_BATCH)
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
@@ -252,7 +277,7 @@ class NodeCore:
         if len(deposits) == 0:
             return {}
         if not self.films:
-            return {HOST: deposits}
+            return {HOST: per_cell(deposits, self.spec.ids_per_cell)}
         idx, rect = self._routes(deposits, self.every_rect)
         node = self.rect_owner[rect]
         keep = np.unique(node * len(deposits) + idx)  # once per node, however many tiles

@@ -136,8 +136,11 @@ class Session:
         self.outboxes[hop].post(message, records.nbytes)
 
     def to_host(self, deposits: np.ndarray) -> None:
-        """Deposits toward the host: straight from node 0, from others through node 0."""
-        if self.node == 0:
+        """Deposits toward the host: in object space straight from node 0, from others
+        through node 0 over the torus; in image space, where nothing else travels the torus,
+        straight from every node (through node 0 its pixels left node 0's row no time to
+        trace: 0.01-0.05 s of tracing CPU against 1.1 s on a 3x3)."""
+        if self.node == 0 or self.config.render.plan.mode == "image":
             self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
         else:
             self.post_data(0, Kind.PIXELS, deposits)

@@ -271,3 +271,10 @@ class RenderSpec(Spec):
     @property
     def corners(self) -> bool:
         return self.image.corners(self.camera is not None)
+
+    @property
+    def ids_per_cell(self) -> int:
+        """Deposit ids per framebuffer cell: a pixel's `spp` pinhole samples (ids pixel * spp
+        + s); one under the SPD corners (a cell is a corner) and through a camera (its rays
+        carry their pixel)."""
+        return 1 if self.corners or self.camera is not None else self.image.spp

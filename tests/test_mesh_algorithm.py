@@ -3,10 +3,15 @@ and exactly the single-node ray counts; every ray ends once; delays change nothi
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from host.framebuffer import Framebuffer
 from host.nff import read_nff
-from host.partition import holders, node_boxes, rectangles, scene_box, subset
+from host.partition import column_rows, holders, node_boxes, rectangles, scene_box, subset
 from host.render import render
+from meshnode.node import per_cell
+from protocols.dtypes import DEPOSIT
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
@@ -179,10 +184,64 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
     spec = RenderSpec(ImageSpec(width=96, height=96), plan=MeshPlan(2, 3, 1.0))
     xs, ys, report = balanced_cuts(scene, spec)
-    for bounds, n, parts in ((xs, 96, 3), (ys, 96, 2)):
+    for bounds, n, parts in ((xs, 96, 3), *((y, 96, 2) for y in column_rows(ys, 96, 2, 3))):
         assert bounds[0] == 0 and bounds[-1] == n and len(bounds) == parts + 1
         assert all(a < b for a, b in zip(bounds, bounds[1:], strict=False))
     even = node_costs(scene, spec, splits(96, 3), splits(96, 2))
     cost = node_costs(scene, spec, xs, ys)
     assert cost.max() < 0.7 * even.max()
     assert report["simulated_busiest_vs_even"] == pytest.approx(cost.max() / even.max())
+
+
+def test_each_column_cut_where_its_work_lies():
+    # Spheres gathered in one corner of the view: row cuts shared by every column leave the
+    # node over them most of the work; each column cutting its own rows shares it out (the
+    # pre-pass tries both and keeps the better, and says so), and the mesh cut that way still
+    # gives the single node's image and counts.
+    from host.balance import balanced_cuts, node_costs
+    from host.partition import splits
+
+    rng = np.random.default_rng(5)
+    centres = np.column_stack([rng.uniform(-4, -2, 150), rng.uniform(1.5, 3.5, 150),
+                               rng.uniform(-1, 1, 150)])  # fmt: skip
+    scene = make_scene(spheres=[(tuple(c), 0.2, 0) for c in centres] + [((3.0, -3.0, 0.0),
+                                                                          0.5, 0)],
+                       lights=[(0.0, 5.0, -10.0)])  # fmt: skip
+    spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(3, 3, 1.0))
+    xs, ys, report = balanced_cuts(scene, spec)
+    family = report["simulated_busiest_vs_even_by_rows"]
+    assert report["rows_per_column"] and family["per_column"] < 0.9 * family["shared"]
+    assert len(column_rows(ys, SIZE, 3, 3)) == 3 and len({tuple(y) for y in ys}) > 1
+    cost = node_costs(scene, spec, xs, ys)
+    even = node_costs(scene, spec, splits(SIZE, 3), splits(SIZE, 3))
+    assert cost.max() == pytest.approx(report["simulated_busiest_vs_even"] * even.max())
+    ref_img, ref_counts = single(scene)
+    img, totals, _, _ = render_mesh(scene, 3, 3, 1.0, SIZE, SIZE, cuts=(xs, ys))
+    np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-5)
+    assert {k: totals[k] for k in SPD_COUNTS} == ref_counts
+
+
+colour = st.floats(0.0, 4.0, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 6), st.lists(st.tuples(st.integers(0, 40), colour, colour, colour),
+                                   max_size=120), st.integers(1, 3), st.booleans())  # fmt: skip
+def test_deposits_summed_per_cell_give_the_same_frame_to_the_bit(spp, raw, batches, ordered):
+    """A node sums a batch's deposits per pixel before they travel (`per_cell`); the host's
+    frame from those sums equals, bit for bit, its frame from every deposit, over several
+    batches, with samples in order (eye rays) or in any order (secondary rays), and nothing
+    is dropped: at most one deposit per pixel per batch."""
+    rng = np.random.default_rng(len(raw) * 7 + spp)
+    d = np.zeros(len(raw), DEPOSIT)
+    d["pixel"] = [r[0] * spp + int(rng.integers(spp)) for r in raw]
+    d["rgb"] = np.array([r[1:] for r in raw]).reshape(-1, 3)
+    if ordered:
+        d = d[np.argsort(d["pixel"] // spp, kind="stable")]
+    every, summed = (Framebuffer(41, 1, corners=False, spp=spp) for _ in range(2))
+    for part in np.array_split(d, batches):
+        every.add(part["pixel"], part["rgb"])
+        sums = per_cell(part, spp)
+        assert len(sums) == len(np.unique(part["pixel"] // spp))
+        summed.add(sums["pixel"], sums["rgb"])
+    assert np.array_equal(every.sums, summed.sums)

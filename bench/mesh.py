@@ -7,14 +7,19 @@ process.
                          [--min-trace 5] [--repeat 3] [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
-node's CPU seconds / busiest node's (and the same for wall time), parallel efficiency (sum of
+node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
+of one node's CPU / the busiest node's in the mesh render that followed; "work": the same
+in the engine's work units, tests + voxel steps + segments, which no machine noise moves;
+and for wall time), parallel efficiency (sum of
 node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
 seconds (until every node is built and linked), rays passed between nodes, and bytes per link
 (mean and max over directed links). Counts are checked against the single node's. Without
 --size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples, and
 with `--min-trace S` at more samples for a scene that one node traces in less than S CPU
-seconds. `--repeat N`: one node and every row the best of N renders (the least busiest-node
-CPU; the mesh's nodes keep running between them, so later renders reuse their engines).
+seconds. Every row renders on one node (in this process) and on the mesh in turns, `--repeat
+N` times (the mesh's nodes keep running, so later renders reuse their engines), and compares
+the best of each (least tracing CPU; least busiest-node CPU): this machine's speed moves by
+up to 1.6x for minutes at a time, so both sides are measured over the same span.
 `--node-threads 1,2` runs every row with nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
 space tilings. `--plots DIR` writes a per-node load plot (PNG) for every row: each node's
@@ -25,6 +30,7 @@ processes share them: wall time shows that; CPU seconds show the division of wor
 import argparse
 import asyncio
 import json
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -37,13 +43,14 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
           "shadow_rays_blocked")  # fmt: skip
 
 
-def single(scene, image, repeat: int = 1):
+def single(scene, image, repeat: int = 1, warm: bool = True):
     """One node in this process, one thread: the CPU-seconds reference, the best of `repeat`
-    runs (least tracing CPU) after a warm one."""
+    runs (least tracing CPU), after a warm one."""
     from host.render import render
     from protocols.render import EngineSpec
 
-    render(scene, image, EngineSpec(threads=1))  # warm
+    if warm:
+        render(scene, image, EngineSpec(threads=1))
     runs = []
     for _ in range(repeat):
         start = time.perf_counter()
@@ -70,24 +77,36 @@ def sized(scene, image, min_trace: float, repeat: int = 1):
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
             tiles="static", steal=False, repeat=1):  # fmt: skip
-    """(wall seconds, stats) of the render on a local mesh: of `repeat` renders on the same
-    running nodes, the one whose busiest node traced least; its `setup_seconds` are the first
-    render's (engines built), `setup_reused_seconds` its own (engines kept)."""
+    """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
+    renders on the same running nodes, the one whose busiest node traced least; its
+    `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
+    (engines kept). One node renders in this process before each mesh render, taking turns
+    with it, and the best of those runs is the row's reference: this machine's speed moves
+    by up to 1.6x for minutes at a time, so the two sides are measured over the same span."""
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
     plan = MeshPlan(rows, cols, overlap, balance, mode, tiles, steal=steal)
-    runs = []
-    with LocalMesh(rows * cols, threads=threads) as addresses:
+    runs, singles = [], []
+    with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
         for _ in range(repeat):
+            singles.append(single(scene, image, warm=False))
             start = time.perf_counter()
             _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
             runs.append((time.perf_counter() - start, stats))
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
     best["setup_reused_seconds"] = best["setup_seconds"]
     best["setup_seconds"] = runs[0][1]["setup_seconds"]
-    return wall, best
+    best["paired_speedups"] = [one[1]["trace_cpu_seconds"] / run[1]["busiest_node_cpu_seconds"]
+                               for one, run in zip(singles, runs, strict=True)]  # fmt: skip
+    return wall, best, min(singles, key=lambda r: r[1]["trace_cpu_seconds"])
+
+
+def work(rays: dict) -> int:
+    """Work in the engine's own units (intersection tests, voxel steps, ray segments), as the
+    simulated mesh counts it: the same on any machine, at any load."""
+    return rays["intersection_tests"] + rays["voxel_steps"] + rays["ray_segments"]
 
 
 def load_plot(path: Path, title: str, stats: dict) -> None:
@@ -155,15 +174,17 @@ def main(argv=None) -> int:
     bad = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        image, (wall1, s1) = sized(scene, base, args.min_trace, args.repeat)
+        image, (wall1, s1) = sized(scene, base, args.min_trace)
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
         print(f"\n== {name}: {image.width}x{image.height} at {image.spp} spp, 1x1 in process  "
-              f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s")
+              f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
+              "taking turns with the mesh)")
         print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>10} {'wall s':>7} "
-              f"{'busiest CPU s':>13} {'speedup':>7} {'wall':>5} {'effic':>5} "
-              f"{'imbalance':>9} {'setup s':>7} {'rays passed':>11} {'bytes/link mean':>15} "
-              f"{'max':>11}")  # fmt: skip
+              f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
+              f"{'work':>5} {'wall':>5} "
+              f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
+              f"{'bytes/link mean':>15} {'max':>11}")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         steals = [s == "on" for s in args.steal.split(",")]
@@ -174,12 +195,17 @@ def main(argv=None) -> int:
         for rows, cols in meshes:
             for mode, overlap, thr, cut, steal in runs:
                 if mode == "image":  # `cut` names the tiling here
-                    wall, st = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
-                                       repeat=args.repeat)  # fmt: skip
+                    got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
+                                  repeat=args.repeat)  # fmt: skip
                 else:
-                    wall, st = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
-                                       steal=steal, repeat=args.repeat)  # fmt: skip
+                    got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
+                                  steal=steal, repeat=args.repeat)  # fmt: skip
                     cut += "+steal" if steal else ""
+                wall, st, (wall1, s1) = got
+                cpu1 = s1["trace_cpu_seconds"]
+                work1 = work({**s1["rays"], "intersection_tests": s1["intersection_tests"],
+                              "voxel_steps": s1["voxel_steps"]})  # fmt: skip
+                work_busiest = max(work(n["rays"]) for n in st["nodes"])
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {overlap}%: {counts} != {ref}")
@@ -189,6 +215,8 @@ def main(argv=None) -> int:
                        "node_threads": thr, "cuts": cut, "steal": steal,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
+                       "paired_speedups": st["paired_speedups"],
+                       "work_speedup": work1 / work_busiest,
                        "parallel_efficiency": st["parallel_efficiency"],
                        "setup_seconds": st["setup_seconds"], "imbalance": st["imbalance"],
                        "setup_reused_seconds": st["setup_reused_seconds"],
@@ -198,10 +226,12 @@ def main(argv=None) -> int:
                        "image": image.to_wire()}  # fmt: skip
                 results.append(row)
                 print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>10} {wall:>7.2f} "
-                      f"{busiest:>13.3f} {row['speedup']:>7.2f} {row['wall_speedup']:>5.2f} "
-                      f"{st['parallel_efficiency']:>5.2f} {st['imbalance']:>9.2f} "
-                      f"{st['setup_seconds']:>7.2f} {st['rays_passed']:>11} "
-                      f"{mean:>15,.0f} {top:>11,}")  # fmt: skip
+                      f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
+                      f"{statistics.median(st['paired_speedups']):>6.2f} "
+                      f"{row['work_speedup']:>5.2f} "
+                      f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
+                      f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
+                      f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,}")  # fmt: skip
                 if args.plots:
                     tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{overlap:g}-t{thr}"
                     load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "

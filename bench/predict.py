@@ -6,11 +6,12 @@ ones.
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
                             [--size 128] [--measured mesh.json]
 
-Per scene, mesh and mode (object space, overlap 2, with stealing; image space, dynamic
-tiles): the predicted speedup = the one-node cost / the busiest node's cost, and rays
-passed. `--measured FILE` (the JSON `bench.mesh --json` writes) puts the measured busiest-CPU
-speedups of the same scene, mesh and mode beside the predictions, with their ratio: the model
-has no per-batch or per-process overhead, so it predicts an upper bound.
+Per scene, mesh and mode (object space, overlap 2, with stealing, cuts even or from the cost
+pre-pass; image space, dynamic tiles): the predicted speedup = the one-node cost / the
+busiest node's cost, and rays passed. `--measured FILE` (the JSON `bench.mesh --json`
+writes) puts the measured busiest-CPU speedups of the same scene, mesh and mode beside the
+predictions, with their ratio: the model has no per-batch or per-process overhead, so it
+predicts an upper bound.
 """
 
 import argparse
@@ -24,11 +25,13 @@ if __package__ in (None, ""):
 
 DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 MODES = {"object+steal": {"mode": "object", "steal": True},
+         "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
 def simulated(scene, rows: int, cols: int, size: int, plan: dict):
     """(busiest node's cost, total cost, rays passed) of a simulated render."""
+    from host.balance import balanced_cuts
     from host.partition import partition, subset
     from meshnode.simulator import simulate
     from protocols.render import ImageSpec, MeshPlan, RenderSpec
@@ -36,7 +39,8 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict):
     image = ImageSpec(width=size, height=size).sized(scene.view)
     tile = max(4, size // 32)
     spec = RenderSpec(image, plan=MeshPlan(rows, cols, 2, tile=tile, **plan))
-    part, keep = partition(scene, spec)
+    cuts = balanced_cuts(scene, spec)[:2] if spec.plan.balance == "cost" else (None, None)
+    part, keep = partition(scene, spec, *cuts)
     out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
     costs = [n.cost for n in out.nodes]
     return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)
@@ -46,11 +50,14 @@ def measured_table(path: Path | None) -> dict:
     if path is None:
         return {}
     rows = json.loads(path.read_text())
-    key = {(False, "object"): None, (True, "object"): "object+steal"}
     out = {}
     for r in rows:
-        mode = "image dynamic" if r["mode"] == "image" else key[(r.get("steal", False),
-                                                                  "object")]  # fmt: skip
+        if r["mode"] == "image":
+            mode = "image dynamic" if r["cuts"] == "dynamic" else None
+        elif r.get("steal") and r["overlap"] == 2:
+            mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost"}.get(r["cuts"])
+        else:
+            mode = None
         if mode:
             out[(r["scene"], r["mesh"], mode)] = r["speedup"]
     return out

@@ -4,14 +4,15 @@ voxel steps + rays traced), for meshes larger than this machine can run, next to
 ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
-                            [--size 128] [--measured mesh.json]
+                            [--size 128] [--measured image.json object.json] [--json FILE]
 
-Per scene, mesh and mode (object space, overlap 2, with stealing, cuts even or from the cost
-pre-pass; image space, dynamic tiles): the predicted speedup = the one-node cost / the
-busiest node's cost, and rays passed. `--measured FILE` (the JSON `bench.mesh --json`
-writes) puts the measured busiest-CPU speedups of the same scene, mesh and mode beside the
-predictions, with their ratio: the model has no per-batch or per-process overhead, so it
-predicts an upper bound.
+Per scene, mesh and mode (object space, overlap 2: with stealing, cuts even or from the cost
+pre-pass, and cost cuts without stealing; image space, dynamic tiles): the predicted
+speedup = the one-node cost / the busiest node's cost, and rays passed. `--measured FILES`
+(JSON that `bench.mesh --json` writes) puts the measured busiest-CPU speedups of the same
+scene, mesh and mode beside the predictions, with their ratio, and the measured speedup in
+work units (what the model counts): the model has no per-batch, per-process or per-message
+cost, so it predicts an upper bound of the CPU speedup.
 """
 
 import argparse
@@ -26,6 +27,7 @@ if __package__ in (None, ""):
 DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 MODES = {"object+steal": {"mode": "object", "steal": True},
          "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
+         "object+cost": {"mode": "object", "balance": "cost"},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
@@ -46,20 +48,21 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict):
     return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)
 
 
-def measured_table(path: Path | None) -> dict:
-    if path is None:
-        return {}
-    rows = json.loads(path.read_text())
+def measured_table(paths: list[Path]) -> dict:
+    """(scene, mesh, mode) -> (measured CPU speedup, measured work speedup), from `bench.mesh
+    --json` files (the later file wins)."""
+    rows = [r for path in paths for r in json.loads(path.read_text())]
     out = {}
     for r in rows:
         if r["mode"] == "image":
             mode = "image dynamic" if r["cuts"] == "dynamic" else None
-        elif r.get("steal") and r["overlap"] == 2:
-            mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost"}.get(r["cuts"])
+        elif r["overlap"] == 2:
+            mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost",
+                    "cost": "object+cost"}.get(r["cuts"])  # fmt: skip
         else:
             mode = None
         if mode:
-            out[(r["scene"], r["mesh"], mode)] = r["speedup"]
+            out[(r["scene"], r["mesh"], mode)] = (r["speedup"], r.get("work_speedup"))
     return out
 
 
@@ -69,27 +72,36 @@ def main(argv=None) -> int:
     p.add_argument("--only", default="balls,gears")
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
-    p.add_argument("--measured", type=Path, help="bench.mesh --json output to compare with")
+    p.add_argument("--measured", type=Path, nargs="+", default=[],
+                   help="bench.mesh --json outputs to compare with")
+    p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
     from host.nff import read_nff
 
     measured = measured_table(args.measured)
+    table = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
         one, _, _ = simulated(scene, 1, 1, args.size, {})
         print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
-        print(f"{'mesh':>6} {'mode':>14} {'predicted':>9} {'measured':>8} {'ratio':>5} "
-              f"{'rays passed':>11} {'seconds':>7}")  # fmt: skip
+        print(f"{'mesh':>6} {'mode':>17} {'predicted':>9} {'measured':>8} {'ratio':>5} "
+              f"{'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
             for mode, plan in MODES.items():
                 start = time.perf_counter()
                 busiest, _, passed = simulated(scene, rows, cols, args.size, plan)
                 predicted = one / busiest
-                got = measured.get((name, mesh, mode))
+                got, got_work = measured.get((name, mesh, mode), (None, None))
                 seen = f"{got:8.2f} {got / predicted:5.2f}" if got else f"{'-':>8} {'-':>5}"
-                print(f"{mesh:>6} {mode:>14} {predicted:>9.2f} {seen} {passed:>11,} "
+                seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
+                print(f"{mesh:>6} {mode:>17} {predicted:>9.2f} {seen} {passed:>11,} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
+                table.append({"scene": name, "mesh": mesh, "mode": mode, "predicted": predicted,
+                             "measured": got, "measured_work": got_work,
+                             "rays_passed": passed})  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(table, indent=2) + "\n")
     return 0
 
 

@@ -4,7 +4,8 @@ voxel steps + rays traced), for meshes larger than this machine can run, next to
 ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
-                            [--size 128] [--measured image.json object.json] [--json FILE]
+                            [--size 128] [--modes object+steal,image dynamic]
+                            [--measured image.json object.json] [--json FILE]
 
 Per scene, mesh and mode (object space, overlap 2: with stealing, cuts even or from the cost
 pre-pass, and cost cuts without stealing; image space, dynamic tiles): the predicted
@@ -72,10 +73,14 @@ def main(argv=None) -> int:
     p.add_argument("--only", default="balls,gears")
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
+    p.add_argument("--modes", default=",".join(MODES), help=f"of {', '.join(MODES)}")
     p.add_argument("--measured", type=Path, nargs="+", default=[],
                    help="bench.mesh --json outputs to compare with")
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
+    unknown = set(args.modes.split(",")) - set(MODES)
+    if unknown:
+        p.error(f"unknown modes {', '.join(sorted(unknown))}: choose from {', '.join(MODES)}")
     from host.nff import read_nff
 
     measured = measured_table(args.measured)
@@ -88,7 +93,8 @@ def main(argv=None) -> int:
               f"{'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
-            for mode, plan in MODES.items():
+            for mode in args.modes.split(","):
+                plan = MODES[mode]
                 start = time.perf_counter()
                 busiest, _, passed = simulated(scene, rows, cols, args.size, plan)
                 predicted = one / busiest

@@ -90,11 +90,7 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3):
     with each column's own (`ys` is then a list per column)."""
     (width, height), plan = spec.sample_grid, spec.plan
     tried = []
-    # Each column's own rows only without stealing, for now: a stolen chunk's rays on such
-    # a mesh lost a few secondary rays (mount_s1 2x2 at 1024x1024, 10 spp, cost cuts: 6 of
-    # 14.2 M refracted rays; exact without stealing, with shared rows, and in the simulator).
-    families = (False, True) if plan.rows > 1 and plan.cols > 1 and not plan.steal else (False,)
-    for own_rows in families:
+    for own_rows in (False, True) if plan.rows > 1 and plan.cols > 1 else (False,):
         xs, ys = splits(width, plan.cols), splits(height, plan.rows)
         seen_x: list = []
         seen_y: list = [[] for _ in range(plan.cols)] if own_rows else []

@@ -17,6 +17,7 @@ import numpy as np
 from meshnode.termination import Packet, State, Termination
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
+PASSED_BATCH = 4096  # queued incoming messages merged into one batch of up to this many rays
 
 
 @dataclass(frozen=True)
@@ -262,6 +263,18 @@ class Scheduler:
         else:
             self.asked.add(giver)
 
+    def _passed_batch(self) -> np.ndarray:
+        """Queued incoming messages, in order, merged up to PASSED_BATCH rays: a message holds
+        the rays one batch of a neighbour sent here, often a few dozen, and every batch costs
+        a kernel call, its scratch and its routing whatever its size."""
+        parts = [self.incoming.popleft()]
+        n = len(parts[0])
+        while self.incoming and n + len(self.incoming[0]) <= PASSED_BATCH:
+            parts.append(self.incoming.popleft())
+            n += len(parts[-1])
+        self.incoming_rays -= n
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
     def batch_done(self) -> None:
         self.in_flight -= 1
         self.term.on_work()
@@ -305,9 +318,7 @@ class Scheduler:
                     continue
             free = self.in_flight < self.threads
             if self.incoming and free:
-                rays = self.incoming.popleft()
-                self.incoming_rays -= len(rays)
-                return self._trace(rays, primary=False)
+                return self._trace(self._passed_batch(), primary=False)
             tracing = self.state in (State.TRACE, State.REFINE) and (
                 bool(self.primaries) or self.primaries.waiting)
             if tracing and free and room and self.primaries:

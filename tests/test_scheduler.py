@@ -3,6 +3,7 @@ back, when it passes the state packet, and that a ring of one walks every state 
 
 import numpy as np
 
+from meshnode import scheduler
 from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
 from meshnode.termination import Packet, State
 from protocols.dtypes import RAY
@@ -82,15 +83,34 @@ def test_output_is_flushed_before_the_packet_moves_and_the_packet_waits_for_work
 
 
 def test_reading_stops_above_the_high_water_mark_and_resumes_at_a_quarter():
-    s = tracing(high=100)
-    assert not s.rays_in(rays(60))
-    assert s.rays_in(rays(60))  # 120 queued: stop reading
+    big = scheduler.PASSED_BATCH * 3 // 5  # two of them do not fit one batch
+    s = tracing(high=scheduler.PASSED_BATCH)
+    assert not s.rays_in(rays(big))
+    assert s.rays_in(rays(big))  # 1.2 x the mark queued: stop reading
     assert not s.may_read
-    s.next()  # 60 taken to trace: 60 left, above a quarter
+    s.next()  # one message taken to trace: the other left, above a quarter
     assert not s.may_read
     s.batch_done()
     s.next()
     assert s.may_read
+
+
+def test_queued_incoming_messages_are_traced_together_in_order_up_to_a_batch():
+    # A neighbour's batch sends a few dozen rays here; traced one message a batch, object
+    # space paid a kernel call and its routing for each.
+    s = tracing(high=10 * scheduler.PASSED_BATCH)
+    sizes = [30, 50, scheduler.PASSED_BATCH - 50, 40]
+    for i, n in enumerate(sizes):
+        r = rays(n)
+        r["pixel"] = i
+        s.rays_in(r)
+    first = s.next()
+    assert isinstance(first, Trace) and not first.primary
+    assert first.rays["pixel"].tolist() == [0] * 30 + [1] * 50  # the third would not fit
+    s.batch_done()
+    second = s.next()
+    assert second.rays["pixel"].tolist() == [2] * (scheduler.PASSED_BATCH - 50) + [3] * 40
+    assert s.incoming_rays == 0 and not s.incoming
 
 
 def test_a_ring_of_one_walks_every_state_once_and_stops():

@@ -261,7 +261,19 @@ class NodeCore:
             yield eye_rays(self.view, self.spec.image, rows=(y, min(y + rows, y1)),
                            cols=(x0, x1))  # fmt: skip
 
-    def trace(self, rays: np.ndarray) -> Batch:
+    def trace(self, rays: np.ndarray, primary: bool = False) -> Batch:
+        """Trace a batch here; in object space a batch of primary rays first sends each ray
+        to the box `owners` gives its start, as every passed segment goes: a ray's segments
+        then do not depend on the node that made it (a stolen chunk's eye rays were traced
+        from the thief's box where they started in both, and round-off at box edges then
+        changed a few trees in millions: 11 rays on a mount_s1 2x2 at 10 spp)."""
+        away: dict[int, np.ndarray] = {}
+        if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
+            dest = owners(rays, self.los, self.his)
+            here = (dest == self.node) | (dest < 0)  # < 0: misses every box, ends here
+            if not here.all():
+                away = _group(rays[~here], dest[~here])
+                rays = rays[here]
         cpu = time.thread_time()
         rgb, counts, passed = self.engine.trace_node(rays)
         counts["cpu_seconds"] = time.thread_time() - cpu
@@ -269,7 +281,11 @@ class NodeCore:
         deposits = np.zeros(int(lit.sum()), DEPOSIT)
         deposits["pixel"] = rays["pixel"][lit]
         deposits["rgb"] = rgb[lit]
-        return Batch(self.pixel_routes(deposits), self.route(passed), counts)
+        outgoing = self.route(passed)
+        counts["rays_forwarded"] += sum(len(sent) for sent in away.values())
+        for dest, sent in away.items():
+            outgoing[dest] = np.concatenate([outgoing[dest], sent]) if dest in outgoing else sent
+        return Batch(self.pixel_routes(deposits), outgoing, counts)
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning

@@ -326,7 +326,7 @@ class Session:
     async def trace(self, rays: np.ndarray, primary: bool) -> None:
         try:
             loop = asyncio.get_running_loop()
-            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays)
+            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays, primary)
             self.stats.traced(batch.counts, len(rays) if primary else 0)
             self.deliver(batch)
             if primary:

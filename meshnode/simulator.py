@@ -168,7 +168,7 @@ class _Mesh:
 
     def _trace(self, n: int, rays, primary: bool) -> None:
         rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
-        batch = core.trace(rays)
+        batch = core.trace(rays, primary)
         rec.batches += 1
         rec.rays_traced += len(rays)
         add_counts(rec.counts, batch.counts, len(rays) if primary else 0)

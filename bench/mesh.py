@@ -43,36 +43,33 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
           "shadow_rays_blocked")  # fmt: skip
 
 
-def single(scene, image, repeat: int = 1, warm: bool = True):
-    """One node in this process, one thread: the CPU-seconds reference, the best of `repeat`
-    runs (least tracing CPU), after a warm one."""
+def single(scene, image, warm: bool = True):
+    """(wall seconds, stats) of one node in this process, one thread: the CPU-seconds
+    reference, after a warm run."""
     from host.render import render
     from protocols.render import EngineSpec
 
     if warm:
         render(scene, image, EngineSpec(threads=1))
-    runs = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        _, stats = render(scene, image, EngineSpec(threads=1))
-        runs.append((time.perf_counter() - start, stats))
-    return min(runs, key=lambda r: r[1]["trace_cpu_seconds"])
+    start = time.perf_counter()
+    _, stats = render(scene, image, EngineSpec(threads=1))
+    return time.perf_counter() - start, stats
 
 
-def sized(scene, image, min_trace: float, repeat: int = 1):
+def sized(scene, image, min_trace: float):
     """(image, single-node run) with the samples per pixel raised, in one step from a first
     measurement, until one node traces at least `min_trace` CPU seconds: the issue's work size
     for scenes that one node traces quickly (per-render costs then weigh as on a long render)."""
     import dataclasses
     import math
 
-    run = single(scene, image, repeat)
+    run = single(scene, image)
     cpu = run[1]["trace_cpu_seconds"]
     if not min_trace or cpu >= min_trace:
         return image, run
     spp = math.ceil(image.spp * min_trace * 1.1 / cpu)
     image = dataclasses.replace(image, spp=spp)
-    return image, single(scene, image, repeat)
+    return image, single(scene, image)
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",

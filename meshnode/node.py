@@ -272,6 +272,8 @@ class NodeCore:
             dest = owners(rays, self.los, self.his)
             here = (dest == self.node) | (dest < 0)  # < 0: misses every box, ends here
             if not here.all():
+                # grouped by this dest: owners() moves t_min in a sliver between boxes, so a
+                # second call (route) could give another box
                 away = _group(rays[~here], dest[~here])
                 rays = rays[here]
         cpu = time.thread_time()

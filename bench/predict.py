@@ -4,10 +4,10 @@ voxel steps + rays traced), for meshes larger than this machine can run, next to
 ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
-                            [--size 128] [--modes object+steal,image dynamic]
+                            [--size 128] [--modes object+steal,image dynamic] [--overlaps 2,24]
                             [--measured image.json object.json] [--json FILE]
 
-Per scene, mesh and mode (object space, overlap 2: with stealing, cuts even or from the cost
+Per scene, mesh and mode (object space at each overlap: with stealing, cuts even or from the cost
 pre-pass, and cost cuts without stealing; image space, dynamic tiles): the predicted
 speedup = the one-node cost / the busiest node's cost, and rays passed. `--measured FILES`
 (JSON that `bench.mesh --json` writes) puts the measured busiest-CPU speedups of the same
@@ -32,7 +32,7 @@ MODES = {"object+steal": {"mode": "object", "steal": True},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
-def simulated(scene, rows: int, cols: int, size: int, plan: dict):
+def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float = 2):
     """(busiest node's cost, total cost, rays passed) of a simulated render."""
     from host.balance import balanced_cuts
     from host.partition import partition, subset
@@ -41,7 +41,7 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict):
 
     image = ImageSpec(width=size, height=size).sized(scene.view)
     tile = max(4, size // 32)
-    spec = RenderSpec(image, plan=MeshPlan(rows, cols, 2, tile=tile, **plan))
+    spec = RenderSpec(image, plan=MeshPlan(rows, cols, overlap, tile=tile, **plan))
     cuts = balanced_cuts(scene, spec)[:2] if spec.plan.balance == "cost" else (None, None)
     part, keep = partition(scene, spec, *cuts)
     out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
@@ -50,21 +50,29 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict):
 
 
 def measured_table(paths: list[Path]) -> dict:
-    """(scene, mesh, mode) -> (measured CPU speedup, measured work speedup), from `bench.mesh
-    --json` files (the later file wins)."""
+    """(scene, mesh, mode, overlap) -> (measured CPU speedup, measured work speedup), from
+    `bench.mesh --json` files (the later file wins; image space: overlap None)."""
     rows = [r for path in paths for r in json.loads(path.read_text())]
     out = {}
     for r in rows:
+        overlap = None
         if r["mode"] == "image":
             mode = "image dynamic" if r["cuts"] == "dynamic" else None
-        elif r["overlap"] == 2:
+        else:
             mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost",
                     "cost": "object+cost"}.get(r["cuts"])  # fmt: skip
-        else:
-            mode = None
+            overlap = r["overlap"]
         if mode:
-            out[(r["scene"], r["mesh"], mode)] = (r["speedup"], r.get("work_speedup"))
+            out[(r["scene"], r["mesh"], mode, overlap)] = (r["speedup"], r.get("work_speedup"))
     return out
+
+
+def runs(modes: list[str], overlaps: list[float]):
+    """(mode, overlap) pairs to simulate: object-space modes at every overlap, image space
+    once (overlap None: every node holds the whole scene)."""
+    for mode in modes:
+        for overlap in [None] if MODES[mode]["mode"] == "image" else overlaps:
+            yield mode, overlap
 
 
 def main(argv=None) -> int:
@@ -74,6 +82,7 @@ def main(argv=None) -> int:
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
     p.add_argument("--modes", default=",".join(MODES), help=f"of {', '.join(MODES)}")
+    p.add_argument("--overlaps", default="2", help="object space: box overlaps (percent)")
     p.add_argument("--measured", type=Path, nargs="+", default=[],
                    help="bench.mesh --json outputs to compare with")
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
@@ -84,28 +93,30 @@ def main(argv=None) -> int:
     from host.nff import read_nff
 
     measured = measured_table(args.measured)
+    overlaps = [float(v) for v in args.overlaps.split(",")]
     table = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
         one, _, _ = simulated(scene, 1, 1, args.size, {})
         print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
-        print(f"{'mesh':>6} {'mode':>17} {'predicted':>9} {'measured':>8} {'ratio':>5} "
-              f"{'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
+        print(f"{'mesh':>6} {'mode':>17} {'overlap':>7} {'predicted':>9} {'measured':>8} "
+              f"{'ratio':>5} {'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
-            for mode in args.modes.split(","):
-                plan = MODES[mode]
+            for mode, overlap in runs(args.modes.split(","), overlaps):
                 start = time.perf_counter()
-                busiest, _, passed = simulated(scene, rows, cols, args.size, plan)
+                busiest, _, passed = simulated(scene, rows, cols, args.size, MODES[mode],
+                                               overlap or 0)  # fmt: skip
                 predicted = one / busiest
-                got, got_work = measured.get((name, mesh, mode), (None, None))
+                got, got_work = measured.get((name, mesh, mode, overlap), (None, None))
                 seen = f"{got:8.2f} {got / predicted:5.2f}" if got else f"{'-':>8} {'-':>5}"
                 seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
-                print(f"{mesh:>6} {mode:>17} {predicted:>9.2f} {seen} {passed:>11,} "
+                shown = "-" if overlap is None else f"{overlap:g}"
+                print(f"{mesh:>6} {mode:>17} {shown:>7} {predicted:>9.2f} {seen} {passed:>11,} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
-                table.append({"scene": name, "mesh": mesh, "mode": mode, "predicted": predicted,
-                             "measured": got, "measured_work": got_work,
-                             "rays_passed": passed})  # fmt: skip
+                table.append({"scene": name, "mesh": mesh, "mode": mode, "overlap": overlap,
+                              "predicted": predicted, "measured": got,
+                              "measured_work": got_work, "rays_passed": passed})  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(table, indent=2) + "\n")
     return 0

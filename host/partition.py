@@ -3,10 +3,13 @@ node, and which objects each node holds (DESIGN.md 5).
 
 Boxes: the two world axes most perpendicular to the view are cut where test rays through the
 rectangle boundaries meet the near face of the scene box (or, when the eye is inside the box's
-slab, the plane through the view's target), so a rectangle's primary rays enter its node's box;
-outer boxes reach the scene bounds; every box then grows by the overlap
-percentage of its own size. Correctness never depends on the cut: a ray is always handed to a
-box that holds it (see `meshnode.engine.trace.owners`); the cut only decides how often.
+slab, the plane through the view's target), so a rectangle's primary rays enter its node's
+cell; outer cells reach the scene bounds, so the cells tile the scene. A node's box is its cell
+grown by the overlap percentage of its size: the node holds the box's objects and traces a ray
+until it leaves the box, then hands it to the node whose cell holds the exit (so overlap keeps
+rays longer on one node, while the cells, not the overlap, decide who takes them on).
+Correctness never depends on the cut: a ray is always handed to a box that holds it (see
+`meshnode.engine.trace.owners`); the cut only decides how often.
 """
 
 from dataclasses import replace
@@ -87,13 +90,11 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
     return np.concatenate([[lo[along]], cuts, [hi[along]]])
 
 
-def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
-               overlap: float, xs=None, ys=None):  # fmt: skip
-    """(los, his), each (rows*cols, 3): node r*cols+c's box of object space, cut where rays
+def node_cells(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
+               xs=None, ys=None):  # fmt: skip
+    """(los, his), each (rows*cols, 3): node r*cols+c's cell of object space, cut where rays
     through the rectangles' boundaries (`xs`, `ys` as `rectangles` takes them; default even)
-    meet the scene."""
-    if overlap < 0:
-        raise ValueError("overlap must not be negative")
+    meet the scene. The cells tile the scene's box."""
     lo, hi = (np.asarray(b, float) for b in box)
     eye, fwd, right, up, _ = view_basis(scene.view, width, height)
     depth = int(np.argmax(np.abs(fwd)))
@@ -114,6 +115,14 @@ def node_boxes(scene: SceneData, box, width: int, height: int, rows: int, cols: 
             ya, yb = sorted((ycuts[c][r], ycuts[c][r + 1]))
             los[n, col_axis], his[n, col_axis] = xa, xb
             los[n, row_axis], his[n, row_axis] = ya, yb
+    return los, his
+
+
+def grown(los: np.ndarray, his: np.ndarray, overlap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes grown by `overlap` percent of their size on every side: what each node holds
+    and traces (its cell only decides which rays it takes on)."""
+    if overlap < 0:
+        raise ValueError("overlap must not be negative")
     grow = (his - los) * (overlap / 100.0)
     return los - grow, his + grow
 
@@ -228,9 +237,10 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None) -> tuple[Par
         los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
         keep = np.ones((plan.nodes, build_tables(scene).n), bool)
         return Partition.make(rects, los, his, box, owner), keep
-    los, his = node_boxes(scene, box, width, height, plan.rows, plan.cols, plan.overlap, xs, ys)
+    cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
+    los, his = grown(*cells, plan.overlap)
     rects = rectangles(gw, gh, plan.rows, plan.cols, xs, ys)
-    return Partition.make(rects, los, his, box), holders(scene, los, his)
+    return Partition.make(rects, los, his, box, cells=cells), holders(scene, los, his)
 
 
 def tiles(width: int, height: int, plan) -> tuple[list, list]:

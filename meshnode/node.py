@@ -122,6 +122,7 @@ class NodeCore:
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
+        self.cells = part.cells  # who takes a ray on (the boxes grown by the overlap hold it)
         options = dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
                        density=spec.engine.density, storage=spec.engine.storage,
                        structure=spec.engine.structure, max_depth=spec.image.depth)  # fmt: skip
@@ -149,7 +150,7 @@ class NodeCore:
         ray = np.zeros(1, RAY)
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
-        owners(ray, self.los, self.his)
+        owners(ray, *self.cells)
         if self.spec.camera is not None:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
             camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
@@ -269,7 +270,7 @@ class NodeCore:
         changed a few trees in millions: 11 rays on a mount_s1 2x2 at 10 spp)."""
         away: dict[int, np.ndarray] = {}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
-            dest = owners(rays, self.los, self.his)
+            dest = self.takers(rays)
             here = (dest == self.node) | (dest < 0)  # < 0: misses every box, ends here
             if not here.all():
                 # grouped by this dest: owners() moves t_min in a sliver between boxes, so a
@@ -315,11 +316,17 @@ class NodeCore:
         idx, rect = deposit_routes(deposits["pixel"], f.n, f.first, w, h, index)
         return idx[rect >= 0], rect[rect >= 0]
 
+    def takers(self, rays: np.ndarray) -> np.ndarray:
+        """The node that takes each ray on from its t_min: the one whose cell holds it there
+        (or, from outside the scene, where it enters), not any box that holds it: boxes
+        overlap, cells tile the scene (`owners` moves t_min to that entry; -1: none ahead)."""
+        return owners(rays, *self.cells)
+
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
         """Rays grouped by the node that takes them on."""
         if len(rays) == 0:
             return {}
-        dest = owners(rays, self.los, self.his)
+        dest = self.takers(rays)
         if (dest < 0).any():
             raise RuntimeError(f"node {self.node}: {int((dest < 0).sum())} rays have no owner box")
         return _group(rays, dest)

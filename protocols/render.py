@@ -161,8 +161,11 @@ class MeshPlan(Spec):
 @dataclass(frozen=True)
 class Partition(Spec):
     """The plan made concrete: node n's rectangles (x0, x1, y0, y1) of the sample grid (one in
-    object space, its tiles in image space; `owner[i]` is rectangle i's node) and its box
-    (lo, hi), and the scene's box."""
+    object space, its tiles in image space; `owner[i]` is rectangle i's node), its box (lo,
+    hi: the objects it holds and the space it traces, grown by the overlap) and its cell (the
+    box before growing: cells tile the scene, and a ray is taken on by the node whose cell
+    holds it, so overlap keeps rays longer on a node without drawing them all to one), and
+    the scene's box."""
 
     rects: tuple
     owner: tuple
@@ -170,6 +173,8 @@ class Partition(Spec):
     his: tuple
     scene_lo: tuple
     scene_hi: tuple
+    cell_los: tuple
+    cell_his: tuple
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -188,19 +193,27 @@ class Partition(Spec):
         los, his = _array(self, "los", float, (n, 3)), _array(self, "his", float, (n, 3))
         if np.any(los > his):
             self.fail("his", "every box needs lo <= hi")
+        c_lo = _array(self, "cell_los", float, (n, 3))
+        c_hi = _array(self, "cell_his", float, (n, 3))
+        if np.any(c_lo > c_hi) or np.any(c_lo < los) or np.any(c_hi > his):
+            self.fail("cell_his", "every cell needs lo <= hi inside its node's box")
         if np.any(_array(self, "scene_lo", float, (3,)) > _array(self, "scene_hi", float, (3,))):
             self.fail("scene_hi", "the scene box needs lo <= hi")
 
     @classmethod
-    def make(cls, rects, los, his, scene_box, owner=None) -> "Partition":
-        """From arrays; `owner` None: rectangle n is node n's (object space)."""
+    def make(cls, rects, los, his, scene_box, owner=None, cells=None) -> "Partition":
+        """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
+        hi) None: the boxes themselves (no overlap)."""
 
         def rows(a):
-            return tuple(tuple(x) for x in np.asarray(a).tolist())
+            return tuple(tuple(x) for x in np.asarray(a, float).tolist())
 
         owner = range(len(rects)) if owner is None else owner
-        return cls(rows(rects), tuple(int(o) for o in owner), rows(los), rows(his),
-                   *(tuple(np.asarray(b, float).tolist()) for b in scene_box))  # fmt: skip
+        cells = (los, his) if cells is None else cells
+        return cls(tuple(tuple(x) for x in np.asarray(rects).tolist()),
+                   tuple(int(o) for o in owner), rows(los), rows(his),
+                   *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
+                   rows(cells[0]), rows(cells[1]))  # fmt: skip
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
         """The rectangles node `node` owns, in order."""
@@ -220,6 +233,10 @@ class Partition(Spec):
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.los, float), np.array(self.his, float)
+
+    @property
+    def cells(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.cell_los, float), np.array(self.cell_his, float)
 
     @property
     def scene_box(self) -> tuple[np.ndarray, np.ndarray]:

@@ -8,9 +8,19 @@ from hypothesis import strategies as st
 
 from host.framebuffer import Framebuffer
 from host.nff import read_nff
-from host.partition import column_rows, holders, node_boxes, rectangles, scene_box, subset
+from host.partition import (
+    column_rows,
+    grown,
+    holders,
+    node_cells,
+    partition,
+    rectangles,
+    scene_box,
+    subset,
+)
 from host.render import render
-from meshnode.node import per_cell
+from meshnode.engine.camera import eye_rays
+from meshnode.node import NodeCore, per_cell
 from protocols.dtypes import DEPOSIT
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import make_scene, spd_scene
@@ -70,6 +80,34 @@ def test_random_scene_on_every_mesh_equals_single_node(seed):
     check_mesh(scene, SHAPES, (1, 24, 100))
 
 
+@pytest.mark.parametrize("overlap", [1, 24, 100])
+def test_an_eye_ray_goes_to_the_cell_where_it_enters_the_scene(overlap):
+    # A node's box is its cell grown by the overlap; a ray goes to the node whose cell holds
+    # it. Were it handed to any box holding it (the one it crosses farthest), a large overlap
+    # would draw every ray to one node (at 100% on 2x2 each box spans the scene). Reference:
+    # the slab entry into the scene box, nudged inside, looked up in the cells with numpy.
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    spec = RenderSpec(ImageSpec(width=40, height=30).sized(scene.view),
+                      plan=MeshPlan(2, 2, overlap))  # fmt: skip
+    part, keep = partition(scene, spec)
+    core = NodeCore(0, subset(scene, keep[0]), spec, part)
+    rays = eye_rays(scene.view, spec.image)
+    o, d = rays["o"], rays["d"]
+    lo, hi = (np.asarray(b) for b in (part.scene_lo, part.scene_hi))
+    with np.errstate(divide="ignore"):
+        t = np.stack([(lo - o) / d, (hi - o) / d])
+    enter, leave = np.nanmax(t.min(axis=0), axis=1), np.nanmin(t.max(axis=0), axis=1)
+    inside = (enter < leave) & (leave > 0)
+    p = o + (np.maximum(enter, 0) + 1e-6 * (leave - enter))[:, None] * d
+    c_lo, c_hi = part.cells
+    holds = ((p[:, None] >= c_lo[None]) & (p[:, None] <= c_hi[None])).all(axis=2)
+    clear = inside & (holds.sum(axis=1) == 1)  # not on a face two cells share
+    assert clear.sum() > 0.9 * len(rays)
+    expected = holds.argmax(axis=1)[clear]
+    assert np.array_equal(core.takers(rays)[clear], expected)
+    assert np.bincount(expected, minlength=4).min() > 0.05 * len(expected)
+
+
 def test_delayed_link_still_gives_the_whole_image():
     scene = read_nff(spd_scene("balls_s2.nff"))
     ref_img, ref_counts = single(scene)
@@ -97,7 +135,7 @@ def test_partition_covers_the_scene_and_rectangles_tile_the_image():
         for x0, x1, y0, y1 in rects:
             cover[y0:y1, x0:x1] += 1
         assert (cover == 1).all()
-        los, his = node_boxes(scene, box, 64, 48, rows, cols, overlap=1)
+        los, his = grown(*node_cells(scene, box, 64, 48, rows, cols), overlap=1)
         # Random points of the scene box each lie in some node box.
         pts = np.random.default_rng(0).uniform(box[0], box[1], (2000, 3))
         inside = ((pts[:, None] >= los[None]) & (pts[:, None] <= his[None])).all(axis=2)

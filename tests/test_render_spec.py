@@ -63,11 +63,20 @@ def test_partition_round_trips_and_checks_its_shapes():
     with pytest.raises(SpecError, match=r"Partition\.his"):
         Partition.make([(0, 1, 0, 1)], np.ones((1, 3)), np.zeros((1, 3)), (np.zeros(3),) * 2)
     with pytest.raises(SpecError, match=r"Partition\.los"):
-        Partition(((0, 1, 0, 1),), (0,), ((0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+        Partition(((0, 1, 0, 1),), (0,), ((0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
+                  ((0, 0, 0),), ((1, 1, 1),))
     with pytest.raises(SpecError, match=r"Partition\.rects"):
-        Partition(((5, 1, 0, 1),), (0,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+        Partition(((5, 1, 0, 1),), (0,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
+                  ((0, 0, 0),), ((1, 1, 1),))
     with pytest.raises(SpecError, match=r"Partition\.owner"):
-        Partition(((0, 1, 0, 1),), (3,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1))
+        Partition(((0, 1, 0, 1),), (3,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
+                  ((0, 0, 0),), ((1, 1, 1),))
+    with pytest.raises(SpecError, match=r"Partition\.cell_his"):  # a cell outside its box
+        Partition.make([(0, 1, 0, 1)], np.zeros((1, 3)), np.ones((1, 3)), (np.zeros(3),) * 2,
+                       cells=(np.zeros((1, 3)), np.full((1, 3), 2.0)))
+    grown = Partition.make([(0, 1, 0, 1)], np.zeros((1, 3)), np.ones((1, 3)), (np.zeros(3),) * 2,
+                           cells=(np.full((1, 3), 0.25), np.full((1, 3), 0.75)))
+    assert over_the_wire(grown) == grown and grown.cells[0].tolist() == [[0.25] * 3]
     tiled = Partition.make([(0, 2, 0, 2), (2, 4, 0, 2), (0, 4, 2, 4)], np.zeros((2, 3)),
                            np.ones((2, 3)), (np.zeros(3), np.ones(3)), owner=[0, 1, 0])
     assert over_the_wire(tiled) == tiled and tiled.nodes == 2

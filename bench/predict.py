@@ -42,8 +42,8 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
     image = ImageSpec(width=size, height=size).sized(scene.view)
     tile = max(4, size // 32)
     spec = RenderSpec(image, plan=MeshPlan(rows, cols, overlap, tile=tile, **plan))
-    cuts = balanced_cuts(scene, spec)[:2] if spec.plan.balance == "cost" else (None, None)
-    part, keep = partition(scene, spec, *cuts)
+    cuts = balanced_cuts(scene, spec) if spec.plan.balance == "cost" else None
+    part, keep = partition(scene, spec, *((cuts.xs, cuts.ys, cuts.cells) if cuts else ()))
     out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
     costs = [n.cost for n in out.nodes]
     return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)

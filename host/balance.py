@@ -10,19 +10,48 @@ the row cuts likewise, and the pass repeats; the cuts with the smallest busiest 
 families are tried: row cuts shared by every column (boxes in a grid), and row cuts of each
 column's own (each column's nodes share that column's work evenly: where the work gathers in
 one place, cuts common to all columns leave the node over it with most of it).
+A third family cuts object space itself where the work lies, apart from the image: a work
+map (the scene's box cut into FINE x FINE cells of equal size along the two cut axes, each
+simulated as a node of its own) gives each column of cells an equal share of the work, and
+each column's rows likewise (a teapot on a wide floor, a mountain seen from above: cells cut
+from the image at the scene's near face leave one node with most of the work). The image's
+rectangles then stay even: they only say who makes which eye rays, and each eye ray goes to
+the node whose cell it enters.
 Correctness never depends on the cuts, only the balance of work does.
 """
 
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
-from host.partition import column_rows, partition, splits, subset
+from host.partition import (
+    cell_axes,
+    cells_from_cuts,
+    column_rows,
+    node_cells,
+    partition,
+    scene_box,
+    splits,
+    subset,
+)
 from meshnode.simulator import simulate
 from protocols.camera import CameraSampling, Generation
 from protocols.render import ImageSpec, RenderSpec
 
 COARSE = 64  # coarse samples along the longer image axis
+FINE = 12  # work map cells along each cut axis
+
+
+class Cuts(NamedTuple):
+    """Where the pre-pass cuts: the image (`xs`, `ys` as `host.partition.rectangles` takes
+    them; None: even), object space (`cells` (los, his), None: from the image cuts), and why
+    (`report`, for the statistics)."""
+
+    xs: list | None
+    ys: list | None
+    report: dict
+    cells: tuple | None = None
 
 
 def _bands(inner, n: int) -> list[int]:
@@ -55,12 +84,15 @@ def coarse_spec(spec: RenderSpec) -> RenderSpec:
     return RenderSpec(image, spec.engine, plan, camera)
 
 
-def node_costs(scene, spec: RenderSpec, xs, ys) -> np.ndarray:
+def node_costs(scene, spec: RenderSpec, xs, ys, cells=None) -> np.ndarray:
     """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
-    grid): the mesh simulated in this process."""
+    grid; None: even), its cells `cells` (None: from the image cuts): the mesh simulated in
+    this process."""
     coarse = coarse_spec(spec)
     (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
-    part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch))
+    xs, ys = xs or splits(width, spec.plan.cols), ys or splits(height, spec.plan.rows)
+    part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch),
+                           cells)  # fmt: skip
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
     return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
 
@@ -84,36 +116,119 @@ def _even_out(seen: list, n: int) -> list[int]:
                                   np.arange(1, parts) / parts), n)  # fmt: skip
 
 
-def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3):
-    """(xs, ys, report): cuts of the sample grid whose simulated busiest node is the least
-    loaded over `rounds` re-cuts from even cuts, with row cuts shared by all columns and
-    with each column's own (`ys` is then a list per column)."""
-    (width, height), plan = spec.sample_grid, spec.plan
-    tried = []
-    for own_rows in (False, True) if plan.rows > 1 and plan.cols > 1 else (False,):
-        xs, ys = splits(width, plan.cols), splits(height, plan.rows)
-        seen_x: list = []
-        seen_y: list = [[] for _ in range(plan.cols)] if own_rows else []
-        for _ in range(rounds + 1):
-            cost = node_costs(scene, spec, xs, ys)
-            tried.append((float(cost.max()), xs, ys, cost, own_rows))
-            grid = cost.reshape(plan.rows, plan.cols)
-            seen_x.append((xs, grid.sum(axis=0)))
-            if own_rows:
-                rows = column_rows(ys, height, plan.rows, plan.cols)
-                for c in range(plan.cols):
-                    seen_y[c].append((rows[c], grid[:, c]))
-                ys = [_even_out(seen_y[c], height) for c in range(plan.cols)]
-            else:
-                seen_y.append((ys, grid.sum(axis=1)))
-                ys = _even_out(seen_y, height)
-            xs = _even_out(seen_x, width)
-    best, bx, by, cost, own_rows = min(tried, key=lambda t: t[0])
-    even = tried[0][0] or 1.0
-    report = {"columns": bx, "rows": by, "rows_per_column": own_rows,
-              "simulated_busiest_vs_even": best / even,
-              "simulated_busiest_vs_even_by_rows": {  # the best of each family: why this one
-                  "shared": min(t[0] for t in tried if not t[4]) / even,
-                  "per_column": min((t[0] for t in tried if t[4]), default=even) / even},
+def work_map(scene, spec: RenderSpec, fine: int = FINE):
+    """(axes, column edges, row edges, cost[row, column]): the scene's box cut into fine x
+    fine cells of equal size along the cut axes (`host.partition.cell_axes`), each simulated
+    as a node without overlap on the coarse image: where in object space the work lies."""
+    box = scene_box(scene)
+    axes = cell_axes(scene.view, *spec.image.size)
+    ex, ey = (np.linspace(box[0][a], box[1][a], fine + 1) for a in axes)
+    plan = replace(spec.plan, rows=fine, cols=fine, overlap=0.0, balance="even", steal=False)
+    cells = cells_from_cuts(box, axes, ex, [ey] * fine)
+    cost = node_costs(scene, replace(spec, plan=plan), None, None, cells)
+    return axes, ex, ey, cost.reshape(fine, fine)
+
+
+def _shares(edges: np.ndarray, cost: np.ndarray, parts: int) -> list[float]:
+    """Positions along `edges` splitting `cost` (per bin, spread evenly inside each) into
+    `parts` equal shares, the ends included."""
+    cum = np.concatenate([[0.0], np.cumsum(cost + 1e-9 * max(float(cost.sum()), 1.0))])
+    inner = np.interp(np.arange(1, parts) / parts, cum / cum[-1], edges)
+    return [float(edges[0]), *inner.tolist(), float(edges[-1])]
+
+
+def _cover(edges: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The share of each bin between `edges` that lies in [a, b] (either order)."""
+    a, b = min(a, b), max(a, b)
+    return np.clip((np.minimum(edges[1:], b) - np.maximum(edges[:-1], a)) / np.diff(edges), 0, 1)
+
+
+def map_cells(scene, spec: RenderSpec, axes, ex, ey, cost) -> tuple[np.ndarray, np.ndarray]:
+    """Cells giving each column of nodes an equal share of the work map `cost`, and each
+    node of a column an equal share of its column's; numbered the way the image's even
+    cells run, so a rectangle's eye rays mostly enter its own node's cell."""
+    plan = spec.plan
+    xcuts = _shares(ex, cost.sum(axis=0), plan.cols)
+    ycuts = [_shares(ey, cost @ _cover(ex, a, b), plan.rows)
+             for a, b in zip(xcuts[:-1], xcuts[1:], strict=True)]  # fmt: skip
+    los, _ = node_cells(scene, scene_box(scene), *spec.image.size, plan.rows, plan.cols)
+    if plan.cols > 1 and los[0, axes[0]] > los[1, axes[0]]:  # the image runs against x
+        xcuts, ycuts = xcuts[::-1], ycuts[::-1]
+    if plan.rows > 1 and los[0, axes[1]] > los[plan.cols, axes[1]]:
+        ycuts = [y[::-1] for y in ycuts]
+    return cells_from_cuts(scene_box(scene), axes, xcuts, ycuts)
+
+
+def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:
+    """The work map with each node's part scaled to the cost the node was measured at:
+    the map counts the work of small cells (more rays passed, none kept by an overlap)."""
+    scale = np.zeros_like(cost)
+    for lo, hi, got in zip(*cells, measured, strict=True):
+        share = np.outer(_cover(ey, lo[axes[1]], hi[axes[1]]), _cover(ex, lo[axes[0]], hi[axes[0]]))
+        scale += share * got / max(float((share * cost).sum()), 1e-300)
+    return cost * scale
+
+
+FAMILIES = ("shared rows", "rows per column", "work map")
+
+
+def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3, families=FAMILIES) -> Cuts:
+    """The cuts whose simulated busiest node is the least loaded, of those each family tried
+    in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
+    with each column's own (`ys` is then a list per column), and cells cut on the work map
+    (`map_cells`), corrected by each round's measured costs."""
+    plan = spec.plan
+    even = node_costs(scene, spec, None, None)
+    tried = [(float(even.max()), None, None, even, "even", None)]
+    for family in families:
+        if family == "work map":
+            tried += _map_tries(scene, spec, rounds)
+        elif family == "shared rows" or plan.rows > 1 and plan.cols > 1:
+            tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
+    best, bx, by, cost, family, cells = min(tried, key=lambda t: t[0])
+    base = tried[0][0] or 1.0
+    report = {"columns": bx, "rows": by, "family": family,
+              "simulated_busiest_vs_even": best / base,
+              "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
+                  f: min((t[0] for t in tried if t[4] == f), default=base) / base
+                  for f in families},
               "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0}
-    return bx, by, report
+    return Cuts(bx, by, report, cells)
+
+
+def _image_tries(scene, spec: RenderSpec, rounds: int, own_rows: bool, cost) -> list[tuple]:
+    """(busiest, xs, ys, costs, family, None) of each re-cut of the image from even cuts
+    (whose node costs are `cost`)."""
+    (width, height), plan = spec.sample_grid, spec.plan
+    family = "rows per column" if own_rows else "shared rows"
+    xs, ys = splits(width, plan.cols), splits(height, plan.rows)
+    seen_x: list = []
+    seen_y: list = [[] for _ in range(plan.cols)] if own_rows else []
+    tried = []
+    for _ in range(rounds):
+        grid = cost.reshape(plan.rows, plan.cols)
+        seen_x.append((xs, grid.sum(axis=0)))
+        if own_rows:
+            rows = column_rows(ys, height, plan.rows, plan.cols)
+            for c in range(plan.cols):
+                seen_y[c].append((rows[c], grid[:, c]))
+            ys = [_even_out(seen_y[c], height) for c in range(plan.cols)]
+        else:
+            seen_y.append((ys, grid.sum(axis=1)))
+            ys = _even_out(seen_y, height)
+        xs = _even_out(seen_x, width)
+        cost = node_costs(scene, spec, xs, ys)
+        tried.append((float(cost.max()), xs, ys, cost, family, None))
+    return tried
+
+
+def _map_tries(scene, spec: RenderSpec, rounds: int) -> list[tuple]:
+    """(busiest, None, None, costs, "work map", cells) of each cut of the work map."""
+    axes, ex, ey, work = work_map(scene, spec)
+    tried = []
+    for _ in range(rounds):
+        cells = map_cells(scene, spec, axes, ex, ey, work)
+        cost = node_costs(scene, spec, None, None, cells)
+        tried.append((float(cost.max()), None, None, cost, "work map", cells))
+        work = _corrected(axes, ex, ey, work, cells, cost)
+    return tried

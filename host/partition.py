@@ -96,16 +96,31 @@ def node_cells(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     through the rectangles' boundaries (`xs`, `ys` as `rectangles` takes them; default even)
     meet the scene. The cells tile the scene's box."""
     lo, hi = (np.asarray(b, float) for b in box)
-    eye, fwd, right, up, _ = view_basis(scene.view, width, height)
-    depth = int(np.argmax(np.abs(fwd)))
-    others = [a for a in range(3) if a != depth]
-    # The image's columns follow the world axis closest to `right`, rows the other one.
-    col_axis = max(others, key=lambda a: abs(right[a]))
-    row_axis = [a for a in others if a != col_axis][0]
+    col_axis, row_axis = cell_axes(scene.view, width, height)
     xs = xs or splits(width, cols)
     xcuts = _cuts(scene.view, width, height, xs, lo, hi, cols, col_axis, 0)
     ycuts = [_cuts(scene.view, width, height, ys_c, lo, hi, rows, row_axis, 1)
              for ys_c in column_rows(ys, height, rows, cols)]  # fmt: skip
+    return cells_from_cuts(box, (col_axis, row_axis), xcuts, ycuts)
+
+
+def cell_axes(view: View, width: int, height: int) -> tuple[int, int]:
+    """(column axis, row axis): the world axes cells are cut along, the two most
+    perpendicular to the view; columns follow the one closest to the image's `right`."""
+    _, fwd, right, _, _ = view_basis(view, width, height)
+    depth = int(np.argmax(np.abs(fwd)))
+    others = [a for a in range(3) if a != depth]
+    col_axis = max(others, key=lambda a: abs(right[a]))
+    return col_axis, [a for a in others if a != col_axis][0]
+
+
+def cells_from_cuts(box, axes: tuple[int, int], xcuts, ycuts) -> tuple[np.ndarray, np.ndarray]:
+    """(los, his) of rows x cols cells of `box`: column c between world positions xcuts[c]
+    and xcuts[c + 1] on axes[0], its row r between ycuts[c][r] and ycuts[c][r + 1] on axes[1]
+    (each list running either way); the third axis spans the box."""
+    lo, hi = (np.asarray(b, float) for b in box)
+    cols, rows = len(xcuts) - 1, len(ycuts[0]) - 1
+    col_axis, row_axis = axes
     los = np.tile(lo, (rows * cols, 1))
     his = np.tile(hi, (rows * cols, 1))
     for r in range(rows):
@@ -224,10 +239,12 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     )  # fmt: skip
 
 
-def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None) -> tuple[Partition, np.ndarray]:
+def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
+              cells=None) -> tuple[Partition, np.ndarray]:  # fmt: skip
     """The plan made concrete: every node's rectangles of the sample grid and its box, and
     which objects each node holds (nodes x objects, bool). Object space: one rectangle a
-    node, cut at `xs`, `ys` (default even), boxes cut to match. Image space: tiles, every box
+    node, cut at `xs`, `ys` (default even); cells (los, his) as given (cut where the work
+    lies: `host.balance`), else cut to match the rectangles. Image space: tiles, every box
     the scene's, every object on every node."""
     plan, (width, height) = spec.plan, spec.image.size
     gw, gh = spec.sample_grid
@@ -237,7 +254,8 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None) -> tuple[Par
         los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
         keep = np.ones((plan.nodes, build_tables(scene).n), bool)
         return Partition.make(rects, los, his, box, owner), keep
-    cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
+    if cells is None:
+        cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
     rects = rectangles(gw, gh, plan.rows, plan.cols, xs, ys)
     return Partition.make(rects, los, his, box, cells=cells), holders(scene, los, his)

@@ -36,13 +36,13 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
         camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image,
                                                                            engine))  # fmt: skip
     spec = RenderSpec(image, engine, plan, camera_spec)
-    xs = ys = None
+    xs = ys = cells = None
     balance: dict = {"cuts": plan.balance}
     if plan.balance == "cost" and plan.nodes > 1:
         t0 = time.perf_counter()
-        xs, ys, report = balanced_cuts(scene, spec)
+        xs, ys, report, cells = balanced_cuts(scene, spec)
         balance.update(report, seconds=time.perf_counter() - t0)
-    part, keep = partition(scene, spec, xs, ys)
+    part, keep = partition(scene, spec, xs, ys, cells)
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 

@@ -14,16 +14,18 @@ from protocols.render import ImageSpec, MeshPlan, RenderSpec
 
 
 def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1, depth=5,
-                seed=0, delay=None, camera=None, batch=512, cuts=None, **plan):  # fmt: skip
+                seed=0, delay=None, camera=None, batch=512, cuts=None, cells=None,
+                **plan):  # fmt: skip
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
     `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `cuts`:
-    (xs, ys) as `host.partition.rectangles` takes them (default even); `plan`: more MeshPlan
+    (xs, ys) as `host.partition.rectangles` takes them (default even); `cells`: (los, his) of
+    the nodes' cells (default: cut to match the rectangles); `plan`: more MeshPlan
     fields (mode, tiles, tile)."""
     image = ImageSpec(width=width, height=height, spd=corners, spp=spp, depth=depth, seed=seed)
     spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan),
                       camera=camera)  # fmt: skip
-    part, keep = partition(scene, spec, *(cuts or (None, None)))
+    part, keep = partition(scene, spec, *(cuts or (None, None)), cells)
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
     out = simulate(scenes, spec, part, seed, delay, batch)
     w, h = spec.image.size

@@ -221,7 +221,8 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres],
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
     spec = RenderSpec(ImageSpec(width=96, height=96), plan=MeshPlan(2, 3, 1.0))
-    xs, ys, report = balanced_cuts(scene, spec)
+    xs, ys, report, cells = balanced_cuts(scene, spec, families=("shared rows",))
+    assert report["family"] == "shared rows" and cells is None
     for bounds, n, parts in ((xs, 96, 3), *((y, 96, 2) for y in column_rows(ys, 96, 2, 3))):
         assert bounds[0] == 0 and bounds[-1] == n and len(bounds) == parts + 1
         assert all(a < b for a, b in zip(bounds, bounds[1:], strict=False))
@@ -229,6 +230,28 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     cost = node_costs(scene, spec, xs, ys)
     assert cost.max() < 0.7 * even.max()
     assert report["simulated_busiest_vs_even"] == pytest.approx(cost.max() / even.max())
+
+
+def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
+    # Cells cut from the image where it meets the scene's near face leave the node over the
+    # teapot with nearly all the work (the floor reaches far beyond it); cells cut where the
+    # work map puts the work share it out, and the mesh cut so still gives the single node's
+    # image and counts (eye rays are made by the rectangles' nodes and sent to the cells').
+    from host.balance import balanced_cuts, node_costs
+
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE).sized(scene.view),
+                      plan=MeshPlan(2, 2, 1.0))  # fmt: skip
+    xs, ys, report, cells = balanced_cuts(scene, spec)
+    assert report["family"] == "work map" and xs is None and ys is None
+    family = report["simulated_busiest_vs_even_by_family"]
+    assert family["work map"] < 0.5 * min(family["shared rows"], family["rows per column"])
+    cost = node_costs(scene, spec, None, None, cells)
+    assert cost.max() < 0.4 * cost.sum()
+    ref_img, ref_counts = single(scene)
+    img, totals, _, _ = render_mesh(scene, 2, 2, 1.0, SIZE, SIZE, cells=cells)
+    np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-5)
+    assert {k: totals[k] for k in SPD_COUNTS} == ref_counts
 
 
 def test_each_column_cut_where_its_work_lies():
@@ -246,9 +269,9 @@ def test_each_column_cut_where_its_work_lies():
                                                                           0.5, 0)],
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(3, 3, 1.0))
-    xs, ys, report = balanced_cuts(scene, spec)
-    family = report["simulated_busiest_vs_even_by_rows"]
-    assert report["rows_per_column"] and family["per_column"] < 0.9 * family["shared"]
+    xs, ys, report, _ = balanced_cuts(scene, spec)
+    family = report["simulated_busiest_vs_even_by_family"]
+    assert family["rows per column"] < 0.9 * family["shared rows"]
     assert len(column_rows(ys, SIZE, 3, 3)) == 3 and len({tuple(y) for y in ys}) > 1
     cost = node_costs(scene, spec, xs, ys)
     even = node_costs(scene, spec, splits(SIZE, 3), splits(SIZE, 3))

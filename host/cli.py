@@ -129,8 +129,9 @@ def _parser() -> argparse.ArgumentParser:
                         "on the nodes left, same image) or fail (default replan)")  # fmt: skip
     _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
            type=float)  # fmt: skip
-    _field(r, "--balance", MeshPlan, "balance", "mesh image cuts: even, or from a coarse "
-           "simulated pass that evens the nodes' work (costs a fraction of a second up front)",
+    _field(r, "--balance", MeshPlan, "balance", "mesh cuts: even image rectangles, or image "
+           "cuts or object-space cells from a coarse simulated pass that evens the nodes' "
+           "work (costs a few seconds up front)",
            choices=BALANCES)  # fmt: skip
     r.add_argument("--mode", choices=PLAN_MODES, default="auto",
                    help="object: each node holds its box of space and passes rays; image: "

@@ -237,14 +237,18 @@ def test_nodes_tracing_on_several_threads_give_the_single_node_image():
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
 
 
-def test_cost_balanced_cuts_give_the_single_node_image():
-    # Cuts from the simulated pre-pass: rectangles and boxes of unequal sizes, same image and
-    # counts (correctness never depends on the cuts).
-    scene = read_nff(spd_scene("balls_s1.nff"))
+@pytest.mark.parametrize("name,rows,cols,family", [("balls_s1.nff", 3, 3, "rows per column"),
+                                                   ("teapot_s1.nff", 2, 2, "work map")])
+def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family):
+    # Cuts from the simulated pre-pass: rectangles and boxes of unequal sizes, or cells cut
+    # on the work map (sent to the nodes in the partition, eye rays sent on to the cell they
+    # enter), same image and counts (correctness never depends on the cuts).
+    scene = read_nff(spd_scene(name))
     rs = records(width=60, height=60, threads=1)
     ref, ref_stats = render(scene, *rs)
-    img, stats = mesh_render(scene, MeshPlan(3, 3, 2, balance="cost"), rs)
-    assert stats["balance"]["cuts"] == "cost"
-    assert stats["balance"]["columns"] != [0, 20, 40, 60]  # the pre-pass moved them
+    img, stats = mesh_render(scene, MeshPlan(rows, cols, 2, balance="cost"), rs)
+    assert stats["balance"]["cuts"] == "cost" and stats["balance"]["family"] == family
+    if family != "work map":
+        assert stats["balance"]["columns"] != [0, 20, 40, 60]  # the pre-pass moved them
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

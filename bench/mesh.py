@@ -220,6 +220,7 @@ def main(argv=None) -> int:
                        "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
                        "bytes_per_link_max": top, "single_cpu_seconds": cpu1,
                        "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
+                       "node_batches": [n["batches"] for n in st["nodes"]],
                        "balance": st.get("balance"), "counts": counts,
                        "image": image.to_wire()}  # fmt: skip
                 results.append(row)

@@ -3,9 +3,10 @@
 The asyncio service and the simulated mesh (the host's cost pre-pass, the tests) drive it
 alike, so a simulated mesh decides exactly as a real one. The driver reports events (rays
 arrived, a pixel message arrived, messages sent, the state packet arrived, a batch finished)
-and asks `next()` what to do: enter a new state, trace a batch (rays from other nodes first:
-they are partly traced, and finishing them keeps queues short and cannot deadlock full
-links; then this node's primary rays, while its links have room), flush buffered output
+and asks `next()` what to do: enter a new state, trace a batch (rays from other nodes first
+once PASSED_MIN of them wait, or whenever no primary batch can start: they are partly
+traced, and finishing them keeps queues short and cannot deadlock full links; then this
+node's primary rays, while its links have room), flush buffered output
 once idle, send the state packet on, or wait for the next event (None).
 """
 
@@ -18,6 +19,10 @@ from meshnode.termination import Packet, State, Termination
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
 PASSED_BATCH = 4096  # queued incoming messages merged into one batch of up to this many rays
+# Passed rays wait for a primary batch until this many are queued: a neighbour's batch
+# sends a few dozen rays here, and traced one message at a time each paid a kernel call
+# (~30 us) for a few microseconds of tracing.
+PASSED_MIN = 1024
 
 
 @dataclass(frozen=True)
@@ -317,11 +322,12 @@ class Scheduler:
                     self.term.on_work()
                     continue
             free = self.in_flight < self.threads
-            if self.incoming and free:
-                return self._trace(self._passed_batch(), primary=False)
             tracing = self.state in (State.TRACE, State.REFINE) and (
                 bool(self.primaries) or self.primaries.waiting)
-            if tracing and free and room and self.primaries:
+            primary = tracing and free and room and bool(self.primaries)
+            if self.incoming and free and (self.incoming_rays >= PASSED_MIN or not primary):
+                return self._trace(self._passed_batch(), primary=False)
+            if primary:
                 return self._trace(self.primaries.pop(), primary=True)
             if (target := self._steal_target()) is not None:
                 self.steal_from = target

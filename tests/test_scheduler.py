@@ -46,15 +46,28 @@ def test_a_state_with_primaries_is_handed_on_before_this_node_traces_them():
     assert back.packet.state == State.TRACE  # no advance: this node worked since
 
 
-def test_incoming_rays_go_before_primaries_and_threads_bound_the_batches():
-    s = tracing(threads=2)
+def test_passed_rays_go_first_once_enough_wait_and_threads_bound_the_batches():
+    # A few dozen passed rays wait behind a primary batch (traced as they came, each message
+    # paid a kernel call for microseconds of tracing); PASSED_MIN of them go first, and any
+    # go at once when no primary batch can start.
+    s = tracing(threads=2, high=10 * scheduler.PASSED_MIN)
     s.rays_in(rays(7))
-    first, second = s.next(), s.next()
-    assert isinstance(first, Trace) and not first.primary and len(first.rays) == 7
-    assert isinstance(second, Trace) and second.primary
+    first = s.next()
+    assert isinstance(first, Trace) and first.primary
+    s.rays_in(rays(scheduler.PASSED_MIN - 7))
+    second = s.next()
+    assert isinstance(second, Trace) and not second.primary
+    assert len(second.rays) == scheduler.PASSED_MIN
     assert s.next() is None  # two threads, two batches in flight
     s.batch_done()
-    assert isinstance(s.next(), Trace)
+    assert s.next().primary
+    s.batch_done()
+    s.batch_done()
+    s.rays_in(rays(5))
+    assert s.next().primary  # the last primary batch
+    s.rays_in(rays(3))
+    last = s.next()  # no primaries left: the few passed rays go at once
+    assert isinstance(last, Trace) and not last.primary and len(last.rays) == 8
 
 
 def test_no_new_primaries_while_the_links_are_full_but_incoming_rays_still_run():

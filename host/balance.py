@@ -172,7 +172,7 @@ def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:
 FAMILIES = ("shared rows", "rows per column", "work map")
 
 
-def balanced_cuts(scene, spec: RenderSpec, rounds: int = 3, families=FAMILIES) -> Cuts:
+def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -> Cuts:
     """The cuts whose simulated busiest node is the least loaded, of those each family tried
     in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
     with each column's own (`ys` is then a list per column), and cells cut on the work map

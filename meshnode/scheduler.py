@@ -205,11 +205,12 @@ class TileDealer:
 class Scheduler:
     """One node's decisions. `ring_next`: the node after this one on the packet's ring;
     `threads`: batches traced at once; `incoming_high`: queued incoming rays above which the
-    driver stops reading (it resumes once `may_read`, at a quarter of that)."""
+    driver stops reading (it resumes once `may_read`, at a quarter of that); `passed_min`:
+    queued incoming rays that go before a primary batch (PASSED_MIN)."""
 
     def __init__(self, node: int, ring_next: int, nodes: int, threads: int = 1,
                  incoming_high: int = INCOMING_HIGH, neighbours=(),
-                 steal: bool = False):  # fmt: skip
+                 steal: bool = False, passed_min: int = PASSED_MIN):  # fmt: skip
         self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
         # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
         # one that had nothing is not asked again in this state.
@@ -220,6 +221,7 @@ class Scheduler:
         self.chunks_taken = 0
         self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
+        self.passed_min = passed_min
         self.term = Termination(node)
         self.state = State.DOWNLOAD
         self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
@@ -325,7 +327,7 @@ class Scheduler:
             tracing = self.state in (State.TRACE, State.REFINE) and (
                 bool(self.primaries) or self.primaries.waiting)
             primary = tracing and free and room and bool(self.primaries)
-            if self.incoming and free and (self.incoming_rays >= PASSED_MIN or not primary):
+            if self.incoming and free and (self.incoming_rays >= self.passed_min or not primary):
                 return self._trace(self._passed_batch(), primary=False)
             if primary:
                 return self._trace(self.primaries.pop(), primary=True)

@@ -14,7 +14,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshnode.node import EYE_BATCH, HOST, EngineCache, NodeCore
-from meshnode.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, TileDealer, Trace
+from meshnode.scheduler import (
+    PASSED_MIN,
+    Enter,
+    Flush,
+    Give,
+    Scheduler,
+    SendPacket,
+    Steal,
+    TileDealer,
+    Trace,
+)
 from meshnode.stats import add_counts
 from meshnode.termination import State
 from protocols.render import Partition, RenderSpec
@@ -60,24 +70,26 @@ class Outcome:
 
 
 def simulate(scenes, spec: RenderSpec, part: Partition, seed: int = 0, delay=None,
-             eye_batch: int = EYE_BATCH) -> Outcome:  # fmt: skip
+             eye_batch: int = EYE_BATCH, passed_min: int = PASSED_MIN) -> Outcome:  # fmt: skip
     """Render on a simulated mesh; `scenes[n]` holds node n's objects. `delay` = (src, dst,
     rounds): messages on that link arrive that many rounds late; `eye_batch`: eye rays per
-    primary batch (small ones interleave more). Nodes with the same objects in the same box
-    (image space) share one engine, so a simulated 16x16 builds it once."""
+    primary batch (small ones interleave more); `passed_min`: the nodes' Scheduler's. Nodes
+    with the same objects in the same box (image space) share one engine, so a simulated
+    16x16 builds it once."""
     plan = spec.plan
     engines = EngineCache()
     cores = [NodeCore(n, scenes[n], spec, part, eye_batch, engines) for n in range(plan.nodes)]
-    mesh = _Mesh(cores, spec, seed, delay)
+    mesh = _Mesh(cores, spec, seed, delay, passed_min)
     return mesh.run()
 
 
 class _Mesh:
-    def __init__(self, cores, spec: RenderSpec, seed, delay):
+    def __init__(self, cores, spec: RenderSpec, seed, delay, passed_min):
         torus = Torus(spec.plan.rows, spec.plan.cols)
         self.cores = cores
         self.scheds = [Scheduler(n, torus.ring_next(n), torus.size, neighbours=torus.links(n),
-                                 steal=spec.plan.steal) for n in range(torus.size)]  # fmt: skip
+                                 steal=spec.plan.steal, passed_min=passed_min)
+                       for n in range(torus.size)]  # fmt: skip
         self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
         self.rng = np.random.default_rng(seed)
         self.delay = delay

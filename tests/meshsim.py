@@ -9,25 +9,27 @@ same NodeCore and the same Scheduler.
 
 from host.framebuffer import Framebuffer
 from host.partition import partition, subset
+from meshnode.scheduler import PASSED_MIN
 from meshnode.simulator import simulate
 from protocols.render import ImageSpec, MeshPlan, RenderSpec
 
 
 def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1, depth=5,
                 seed=0, delay=None, camera=None, batch=512, cuts=None, cells=None,
-                **plan):  # fmt: skip
+                passed_min=PASSED_MIN, **plan):  # fmt: skip
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
     `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `cuts`:
     (xs, ys) as `host.partition.rectangles` takes them (default even); `cells`: (los, his) of
-    the nodes' cells (default: cut to match the rectangles); `plan`: more MeshPlan
+    the nodes' cells (default: cut to match the rectangles); `passed_min`: the nodes'
+    Scheduler's; `plan`: more MeshPlan
     fields (mode, tiles, tile)."""
     image = ImageSpec(width=width, height=height, spd=corners, spp=spp, depth=depth, seed=seed)
     spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan),
                       camera=camera)  # fmt: skip
     part, keep = partition(scene, spec, *(cuts or (None, None)), cells)
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
-    out = simulate(scenes, spec, part, seed, delay, batch)
+    out = simulate(scenes, spec, part, seed, delay, batch, passed_min)
     w, h = spec.image.size
     fb = Framebuffer(w, h, spec.corners, spec.image.spp)
     for d in out.deposits:

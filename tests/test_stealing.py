@@ -101,8 +101,12 @@ def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
     ref, st = render(scene, image, EngineSpec(threads=1))
     moved = 0
     for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
+        # Passed rays go first as they come (passed_min 1): at this size they never reach
+        # PASSED_MIN, so every node would trace its primaries at one pace and none run out
+        # early; this way nodes busy with passed rays fall behind and the others steal.
         img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, size, size, corners=corners,
-                                            spp=spp, steal=True, tile=4)  # fmt: skip
+                                            spp=spp, steal=True, tile=4,
+                                            passed_min=1)  # fmt: skip
         assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
         assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)
@@ -137,13 +141,14 @@ def adaptive_setup(width, height):
 
 def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image():
     """Pass 1's chunks and pass 2's runs of refined pixels change hands; the owners keep
-    the books, so every pixel is divided by the rays it got, exactly as on one node."""
+    the books, so every pixel is divided by the rays it got, exactly as on one node (passed
+    rays first as they come, so nodes fall behind and steal at this size: see above)."""
     scene, image, setup, spec = adaptive_setup(30, 24)
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     given = {"TRACE": 0, "REFINE": 0}
     for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
         img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 30, 24, seed=3, camera=spec,
-                                            steal=True, tile=3)  # fmt: skip
+                                            steal=True, tile=3, passed_min=1)  # fmt: skip
         assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
         assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)

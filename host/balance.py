@@ -1,5 +1,5 @@
-"""Where to cut the image between mesh nodes (DESIGN.md 6, "cut positions chosen from a cheap
-pre-pass that estimates cost per region").
+"""Where to cut the work between mesh nodes, in the image or in object space (DESIGN.md 6,
+"cut positions chosen from a cheap pre-pass that estimates cost per region").
 
 A node's work is the rays it traces inside its box, wherever they came from, so the pre-pass
 runs the mesh itself on a coarse image: the simulated mesh of `meshnode.simulator`, whose
@@ -7,7 +7,7 @@ nodes decide with the same scheduler as real ones, each node's cost counted as i
 intersection tests, voxel steps and rays. The column cuts then move so that the columns of
 nodes share the measured cost evenly (cost spread evenly over the pixels of each column band),
 the row cuts likewise, and the pass repeats; the cuts with the smallest busiest node win. Two
-families are tried: row cuts shared by every column (boxes in a grid), and row cuts of each
+image families are tried: row cuts shared by every column (boxes in a grid), and row cuts of each
 column's own (each column's nodes share that column's work evenly: where the work gathers in
 one place, cuts common to all columns leave the node over it with most of it).
 A third family cuts object space itself where the work lies, apart from the image: a work
@@ -165,7 +165,8 @@ def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:
     scale = np.zeros_like(cost)
     for lo, hi, got in zip(*cells, measured, strict=True):
         share = np.outer(_cover(ey, lo[axes[1]], hi[axes[1]]), _cover(ex, lo[axes[0]], hi[axes[0]]))
-        scale += share * got / max(float((share * cost).sum()), 1e-300)
+        mapped = float((share * cost).sum())
+        scale += share * (got / mapped if mapped > 0 else 1.0)  # no mapped work: nothing to scale
     return cost * scale
 
 

@@ -8,7 +8,9 @@ cell; outer cells reach the scene bounds, so the cells tile the scene. A node's 
 grown by the overlap percentage of its size: the node holds the box's objects and traces a ray
 until it leaves the box, then hands it to the node whose cell holds the exit (so overlap keeps
 rays longer on one node, while the cells, not the overlap, decide who takes them on).
-Correctness never depends on the cut: a ray is always handed to a box that holds it (see
+The cost pre-pass may cut the cells in object space instead, where its work map puts the work
+(`host.balance`); the rectangles then only say who makes which eye rays. Correctness never
+depends on the cut: a ray is always handed to a box that holds it (see
 `meshnode.engine.trace.owners`); the cut only decides how often.
 """
 

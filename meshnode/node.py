@@ -264,10 +264,11 @@ class NodeCore:
 
     def trace(self, rays: np.ndarray, primary: bool = False) -> Batch:
         """Trace a batch here; in object space a batch of primary rays first sends each ray
-        to the box `owners` gives its start, as every passed segment goes: a ray's segments
-        then do not depend on the node that made it (a stolen chunk's eye rays were traced
-        from the thief's box where they started in both, and round-off at box edges then
-        changed a few trees in millions: 11 rays on a mount_s1 2x2 at 10 spp)."""
+        to the node whose cell holds its start (`takers`), as every passed segment goes: a
+        ray's segments then do not depend on the node that made it (a stolen chunk's eye
+        rays were traced from the thief's box where they started in both, and round-off at
+        box edges then changed a few trees in millions: 11 rays on a mount_s1 2x2 at 10
+        spp)."""
         away: dict[int, np.ndarray] = {}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             dest = self.takers(rays)

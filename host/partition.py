@@ -18,10 +18,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from meshnode.engine.camera import view_basis
+from meshnode.engine.camera import eye_rays, view_basis
 from meshnode.engine.grid import grow_box
 from meshnode.engine.tables import build_tables, segments
-from protocols.render import Partition, RenderSpec
+from meshnode.engine.trace import owners
+from protocols.render import ImageSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
 
 
@@ -259,8 +260,37 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
     if cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
-    rects = rectangles(gw, gh, plan.rows, plan.cols, xs, ys)
-    return Partition.make(rects, los, his, box, cells=cells), holders(scene, los, his)
+    rects, owner = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None
+    if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
+        rects, owner = taker_tiles(scene, spec, cells, rects)
+    return Partition.make(rects, los, his, box, owner, cells), holders(scene, los, his)
+
+
+PROBE = 256  # eye rays along the longer image side that vote for each tile's maker
+
+
+def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback) -> tuple[list, list]:
+    """Object space: tiles of `plan.tile` samples, each made by the node whose cell most of
+    its eye rays enter (a probe of pinhole rays votes), so eye rays are made where they are
+    taken on: a node's rectangle's eye rays mostly entered other cells (through the scene's
+    top, or cells cut on the work map) and each went there first as a passed ray. A tile no
+    probe ray enters goes to the node whose rectangle in `fallback` holds its corner."""
+    (gw, gh), t, nodes = spec.sample_grid, spec.plan.tile, spec.plan.nodes
+    scale = max(1, max(gw, gh) // PROBE)
+    cw, ch = max(1, gw // scale), max(1, gh // scale)
+    taker = owners(eye_rays(scene.view, ImageSpec(width=cw, height=ch)), *cells)
+    ntx, nty = -(-gw // t), -(-gh // t)
+    tile = ((np.arange(ch) * gh // ch // t)[:, None] * ntx
+            + (np.arange(cw) * gw // cw // t)[None, :]).ravel()  # fmt: skip
+    votes = np.zeros((ntx * nty, nodes), np.int64)
+    np.add.at(votes, (tile[taker >= 0], taker[taker >= 0]), 1)
+    rects = [(x * t, min(x * t + t, gw), y * t, min(y * t + t, gh))
+             for y in range(nty) for x in range(ntx)]  # fmt: skip
+    owner = votes.argmax(axis=1)
+    for i in np.flatnonzero(votes.sum(axis=1) == 0).tolist():
+        x0, _, y0, _ = rects[i]
+        owner[i] = next(n for n, (a, b, c, d) in enumerate(fallback) if a <= x0 < b and c <= y0 < d)
+    return rects, owner.tolist()
 
 
 def tiles(width: int, height: int, plan) -> tuple[list, list]:

@@ -318,8 +318,14 @@ class Scheduler:
             if self.forward and self.packet is not None:
                 # The packet brought a state with primary rays: hand it on at once, so the
                 # nodes after this one start theirs now, not when this one has finished
-                # (Safra: passing it busy marks this node last busy; it stays dirty).
+                # (Safra: passing it busy marks this node last busy; it stays dirty). Marked
+                # before it goes: else the node that advanced the state, idle with no
+                # primaries of its own, saw the packet back unmarked and ended the state
+                # while this one still had primaries to trace.
                 self.forward = False
+                busy = self.state in (State.TRACE, State.REFINE) and bool(self.primaries)
+                if busy:
+                    self.term.on_work()
                 if self._pass_packet():
                     self.term.on_work()
                     continue

@@ -46,6 +46,20 @@ def test_a_state_with_primaries_is_handed_on_before_this_node_traces_them():
     assert back.packet.state == State.TRACE  # no advance: this node worked since
 
 
+def test_a_clean_node_marks_the_packet_it_hands_on_with_primaries_to_trace():
+    # Node 0 advanced the ring to TRACE and has no primaries; node 1, clean since its last
+    # visit, hands the packet on at once. Unmarked, the packet came back to node 0 as it left
+    # (last busy 0, counts balanced) and TRACE ended while node 1 still traced its primaries.
+    s = Scheduler(1, 0, 2)
+    s.term.dirty = False
+    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(2, np.int64), np.zeros(2, np.int64)))
+    assert s.next() == Enter(State.TRACE)
+    s.primaries = Primaries([rays(10)])
+    step = s.next()
+    assert isinstance(step, SendPacket) and step.packet.last_busy == 1
+    assert s.term.dirty  # and it stays busy for the packet's next visit
+
+
 def test_passed_rays_go_first_once_enough_wait_and_threads_bound_the_batches():
     # A few dozen passed rays wait behind a primary batch (traced as they came, each message
     # paid a kernel call for microseconds of tracing); PASSED_MIN of them go first, and any

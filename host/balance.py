@@ -15,8 +15,7 @@ map (the scene's box cut into FINE x FINE cells of equal size along the two cut 
 simulated as a node of its own) gives each column of cells an equal share of the work, and
 each column's rows likewise (a teapot on a wide floor, a mountain seen from above: cells cut
 from the image at the scene's near face leave one node with most of the work). The image's
-rectangles then stay even: they only say who makes which eye rays, and each eye ray goes to
-the node whose cell it enters.
+tiles then follow the cells (`host.partition.taker_tiles`).
 Correctness never depends on the cuts, only the balance of work does.
 """
 

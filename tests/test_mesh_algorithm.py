@@ -263,7 +263,7 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     # Cells cut from the image where it meets the scene's near face leave the node over the
     # teapot with nearly all the work (the floor reaches far beyond it); cells cut where the
     # work map puts the work share it out, and the mesh cut so still gives the single node's
-    # image and counts (eye rays are made by the rectangles' nodes and sent to the cells').
+    # image and counts.
     from host.balance import balanced_cuts, node_costs
 
     scene = read_nff(spd_scene("teapot_s1.nff"))

@@ -9,7 +9,8 @@ process.
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
 of one node's CPU / the busiest node's in the mesh render that followed; "work": the same
-in the engine's work units, tests + voxel steps + segments, which no machine noise moves;
+in the engine's work units (`meshnode.stats.work_units`: tests + voxel steps + segments,
+each segment sent on weighted), which no machine noise moves;
 and for wall time), parallel efficiency (sum of
 node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
 seconds (until every node is built and linked), rays passed between nodes, and bytes per link
@@ -101,9 +102,11 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
 
 
 def work(rays: dict) -> int:
-    """Work in the engine's own units (intersection tests, voxel steps, ray segments), as the
-    simulated mesh counts it: the same on any machine, at any load."""
-    return rays["intersection_tests"] + rays["voxel_steps"] + rays["ray_segments"]
+    """Work in the engine's own units, as the simulated mesh counts it
+    (`meshnode.stats.work_units`): the same on any machine, at any load."""
+    from meshnode.stats import work_units
+
+    return work_units(rays)
 
 
 def load_plot(path: Path, title: str, stats: dict) -> None:

@@ -1,7 +1,7 @@
 """Predicted mesh speedups from the simulated mesh (meshnode.simulator: every node's NodeCore
 and Scheduler in one process, work counted in the engine's own units: intersection tests +
-voxel steps + rays traced), for meshes larger than this machine can run, next to measured
-ones.
+voxel steps + segments, each segment sent on weighted: `meshnode.stats.work_units`), for
+meshes larger than this machine can run, next to measured ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
                             [--size 128] [--modes object+steal,image dynamic] [--overlaps 2,24]

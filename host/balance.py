@@ -4,7 +4,8 @@
 A node's work is the rays it traces inside its box, wherever they came from, so the pre-pass
 runs the mesh itself on a coarse image: the simulated mesh of `meshnode.simulator`, whose
 nodes decide with the same scheduler as real ones, each node's cost counted as its
-intersection tests, voxel steps and rays. The column cuts then move so that the columns of
+intersection tests, voxel steps and segments, with each segment sent on weighted
+(`meshnode.stats.work_units`). The column cuts then move so that the columns of
 nodes share the measured cost evenly (cost spread evenly over the pixels of each column band),
 the row cuts likewise, and the pass repeats; the cuts with the smallest busiest node win. Two
 image families are tried: row cuts shared by every column (boxes in a grid), and row cuts of each

@@ -25,7 +25,7 @@ from meshnode.scheduler import (
     TileDealer,
     Trace,
 )
-from meshnode.stats import add_counts
+from meshnode.stats import add_counts, work_units
 from meshnode.termination import State
 from protocols.render import Partition, RenderSpec
 from protocols.topology import Torus
@@ -50,9 +50,8 @@ class NodeRecord:
 
     @property
     def cost(self) -> int:
-        """Work done, in the engine's own units: tests, voxel steps and rays."""
-        return (self.counts["intersection_tests"] + self.counts["voxel_steps"]
-                + self.rays_traced)  # fmt: skip
+        """Work done, in the engine's own units (`meshnode.stats.work_units`)."""
+        return work_units(self.counts)
 
 
 @dataclass

@@ -200,4 +200,7 @@ def test_adaptive_stealing_over_tcp_gives_the_single_node_image():
     given = [n["chunks_given_by_state"] for n in stats["nodes"]]
     assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
         n["chunks_taken"] for n in stats["nodes"])  # fmt: skip
-    assert sum(g.get("TRACE", 0) for g in given) > 0 and sum(g.get("REFINE", 0) for g in given) > 0
+    # Whether chunks change hands over TCP, and in which pass, depends on timing (a clean
+    # CI run once gave none in one pass): the by-state record must add up; the simulated
+    # mesh above shows both passes stolen from, deterministically.
+    assert sum(sum(g.values()) for g in given) == sum(n["chunks_given"] for n in stats["nodes"])

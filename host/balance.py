@@ -146,17 +146,18 @@ def _cover(edges: np.ndarray, a: float, b: float) -> np.ndarray:
 def map_cells(scene, spec: RenderSpec, axes, ex, ey, cost) -> tuple[np.ndarray, np.ndarray]:
     """Cells giving each column of nodes an equal share of the work map `cost`, and each
     node of a column an equal share of its column's; numbered the way the image's even
-    cells run, so a rectangle's eye rays mostly enter its own node's cell."""
-    plan = spec.plan
+    cells run, so where rectangles stay one a node (adaptive sampling) a rectangle's eye
+    rays mostly enter its own node's cell."""
+    plan, box = spec.plan, scene_box(scene)
     xcuts = _shares(ex, cost.sum(axis=0), plan.cols)
     ycuts = [_shares(ey, cost @ _cover(ex, a, b), plan.rows)
              for a, b in zip(xcuts[:-1], xcuts[1:], strict=True)]  # fmt: skip
-    los, _ = node_cells(scene, scene_box(scene), *spec.image.size, plan.rows, plan.cols)
+    los, _ = node_cells(scene, box, *spec.image.size, plan.rows, plan.cols)
     if plan.cols > 1 and los[0, axes[0]] > los[1, axes[0]]:  # the image runs against x
         xcuts, ycuts = xcuts[::-1], ycuts[::-1]
     if plan.rows > 1 and los[0, axes[1]] > los[plan.cols, axes[1]]:
         ycuts = [y[::-1] for y in ycuts]
-    return cells_from_cuts(scene_box(scene), axes, xcuts, ycuts)
+    return cells_from_cuts(box, axes, xcuts, ycuts)
 
 
 def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:

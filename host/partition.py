@@ -284,8 +284,7 @@ def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback) -> tuple[li
             + (np.arange(cw) * gw // cw // t)[None, :]).ravel()  # fmt: skip
     votes = np.zeros((ntx * nty, nodes), np.int64)
     np.add.at(votes, (tile[taker >= 0], taker[taker >= 0]), 1)
-    rects = [(x * t, min(x * t + t, gw), y * t, min(y * t + t, gh))
-             for y in range(nty) for x in range(ntx)]  # fmt: skip
+    rects = tile_grid(gw, gh, t)
     owner = votes.argmax(axis=1)
     for i in np.flatnonzero(votes.sum(axis=1) == 0).tolist():
         x0, _, y0, _ = rects[i]
@@ -299,7 +298,11 @@ def tiles(width: int, height: int, plan) -> tuple[list, list]:
     if plan.tiles == "none":
         ys = splits(height, plan.nodes)
         return [(0, width, ys[i], ys[i + 1]) for i in range(plan.nodes)], list(range(plan.nodes))
-    t = plan.tile
-    rects = [(x, min(x + t, width), y, min(y + t, height))
-             for y in range(0, height, t) for x in range(0, width, t)]  # fmt: skip
+    rects = tile_grid(width, height, plan.tile)
     return rects, [i % plan.nodes for i in range(len(rects))]
+
+
+def tile_grid(width: int, height: int, t: int) -> list[tuple[int, int, int, int]]:
+    """Tiles of t x t samples (the last of a row or column cut short), row by row."""
+    return [(x, min(x + t, width), y, min(y + t, height))
+            for y in range(0, height, t) for x in range(0, width, t)]  # fmt: skip

@@ -272,7 +272,7 @@ class NodeCore:
         away: dict[int, np.ndarray] = {}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             dest = self.takers(rays)
-            here = (dest == self.node) | (dest < 0)  # < 0: misses every box, ends here
+            here = (dest == self.node) | (dest < 0)  # < 0: enters no cell, ends here
             if not here.all():
                 # grouped by this dest: owners() moves t_min in a sliver between boxes, so a
                 # second call (route) could give another box

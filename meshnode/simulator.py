@@ -39,7 +39,6 @@ class NodeRecord:
 
     objects: int = 0
     batches: int = 0
-    rays_traced: int = 0
     rays_sent: int = 0
     rays_received: int = 0
     packet_visits: int = 0
@@ -181,7 +180,6 @@ class _Mesh:
         rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
         batch = core.trace(rays, primary)
         rec.batches += 1
-        rec.rays_traced += len(rays)
         add_counts(rec.counts, batch.counts, len(rays) if primary else 0)
         for dest, deposits in batch.deposits.items():
             if dest == HOST:

@@ -22,7 +22,7 @@ from meshnode.engine.camera import eye_rays, view_basis
 from meshnode.engine.grid import grow_box
 from meshnode.engine.tables import build_tables, segments
 from meshnode.engine.trace import owners
-from protocols.render import ImageSpec, Partition, RenderSpec
+from protocols.render import MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
 
 
@@ -263,7 +263,38 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
     rects, owner = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None
     if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
         rects, owner = taker_tiles(scene, spec, cells, rects)
-    return Partition.make(rects, los, his, box, owner, cells), holders(scene, los, his)
+    occupancy = occupancy_map(scene, box) if plan.nodes > 1 else ((1, 1, 1), b"\x80")
+    return (Partition.make(rects, los, his, box, owner, cells, occupancy),
+            holders(scene, los, his))  # fmt: skip
+
+
+OCC_VOXELS = 32**3  # voxels in the scene's occupancy map
+
+
+def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:
+    """(voxels per axis, packed bits) of the scene's occupancy map over `box`: about
+    `voxels` near-cubic voxels (a flat scene gets layers too), a voxel set where some
+    object's bounds, padded as the grid pads a box, reach it (`meshnode.engine.occupancy`:
+    conservative, so a node that skips what the map calls empty misses nothing). Every
+    object's range of voxels is marked at its eight corners and summed along the three
+    axes: no loop per object."""
+    tb = build_tables(scene)
+    lo, hi = (np.asarray(b, float) for b in box)
+    ext = hi - lo
+    thick = np.maximum(ext, 1e-3 * ext.max())
+    res = np.clip(np.round(thick * (voxels / thick.prod()) ** (1 / 3)), 1, MAX_OCC_SIDE)
+    res = res.astype(np.int64)
+    diff = np.zeros(tuple((res + 1)[::-1]), np.int64)  # z, y, x: x fastest once flattened
+    if tb.n:
+        pad = 1e-6 * float(ext.max()) + 1e-12 * np.maximum(np.abs(tb.lo), np.abs(tb.hi))
+        cell = ext / res
+        first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, res - 1).astype(np.int64)
+        last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, res - 1).astype(np.int64) + 1
+        for corner in range(8):
+            at = [np.where(corner >> a & 1, last[:, a], first[:, a]) for a in range(3)]
+            np.add.at(diff, (at[2], at[1], at[0]), (-1) ** bin(corner).count("1"))
+    full = diff.cumsum(0).cumsum(1).cumsum(2)[:-1, :-1, :-1] > 0
+    return tuple(res.tolist()), np.packbits(full.ravel()).tobytes()
 
 
 PROBE = 256  # eye rays along the longer image side that vote for each tile's maker

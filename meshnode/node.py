@@ -125,7 +125,8 @@ class NodeCore:
         self.cells = part.cells  # who takes a ray on (the boxes grown by the overlap hold it)
         options = dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
                        density=spec.engine.density, storage=spec.engine.storage,
-                       structure=spec.engine.structure, max_depth=spec.image.depth)  # fmt: skip
+                       structure=spec.engine.structure, max_depth=spec.image.depth,
+                       occupancy=(part.occ_res, part.occ_bits))  # fmt: skip
         if engines is None:
             self.engine, self.engine_reused = Engine(scene, **options), False
         else:

@@ -25,6 +25,7 @@ MAX_SPP = 65536
 MAX_DEPTH = 64
 MAX_NODES = 1024  # nodes in one mesh
 MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
+MAX_OCC_SIDE = 256  # voxels along a side of the scene's occupancy map
 STORAGES = ("auto", "csr", "hash")
 STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per node by content)
 BALANCES = ("even", "cost")
@@ -165,7 +166,10 @@ class Partition(Spec):
     hi: the objects it holds and the space it traces, grown by the overlap) and its cell (the
     box before growing: cells tile the scene, and a ray is taken on by the node whose cell
     holds it, so overlap keeps rays longer on a node without drawing them all to one), and
-    the scene's box."""
+    the scene's box, with its occupancy map (`occ_res` voxels along x, y, z, and `occ_bits`,
+    one bit per voxel packed as numpy's packbits does, x fastest: 1 where some object may
+    lie; nodes end or skip segments with only empty voxels ahead; the default, one occupied
+    voxel, skips nothing)."""
 
     rects: tuple
     owner: tuple
@@ -175,6 +179,8 @@ class Partition(Spec):
     scene_hi: tuple
     cell_los: tuple
     cell_his: tuple
+    occ_res: tuple = (1, 1, 1)
+    occ_bits: bytes = b"\x80"
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -199,11 +205,21 @@ class Partition(Spec):
             self.fail("cell_his", "every cell needs lo <= hi inside its node's box")
         if np.any(_array(self, "scene_lo", float, (3,)) > _array(self, "scene_hi", float, (3,))):
             self.fail("scene_hi", "the scene box needs lo <= hi")
+        res = _array(self, "occ_res", np.int64, (3,))
+        if np.any(res < 1) or np.any(res > MAX_OCC_SIDE):
+            self.fail("occ_res", f"voxels per axis must be from 1 to {MAX_OCC_SIDE}")
+        want = -(-int(res.prod()) // 8)
+        if not isinstance(self.occ_bits, bytes) or len(self.occ_bits) != want:
+            got = (f"{len(self.occ_bits)} bytes" if isinstance(self.occ_bits, bytes) else
+                   f"a {type(self.occ_bits).__name__}")  # fmt: skip
+            raise SpecError(f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
+                            f"of the {'x'.join(map(str, res.tolist()))} voxels")  # fmt: skip
 
     @classmethod
-    def make(cls, rects, los, his, scene_box, owner=None, cells=None) -> "Partition":
+    def make(cls, rects, los, his, scene_box, owner=None, cells=None,
+             occupancy=((1, 1, 1), b"\x80")) -> "Partition":  # fmt: skip
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
-        hi) None: the boxes themselves (no overlap)."""
+        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits)."""
 
         def rows(a):
             return tuple(tuple(x) for x in np.asarray(a, float).tolist())
@@ -213,7 +229,8 @@ class Partition(Spec):
         return cls(tuple(tuple(x) for x in np.asarray(rects).tolist()),
                    tuple(int(o) for o in owner), rows(los), rows(his),
                    *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
-                   rows(cells[0]), rows(cells[1]))  # fmt: skip
+                   rows(cells[0]), rows(cells[1]), tuple(int(v) for v in occupancy[0]),
+                   bytes(occupancy[1]))  # fmt: skip
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
         """The rectangles node `node` owns, in order."""

@@ -282,18 +282,20 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
 
 
 def test_each_column_cut_where_its_work_lies():
-    # Spheres gathered in one corner of the view: row cuts shared by every column leave the
-    # node over them most of the work; each column cutting its own rows shares it out (the
-    # pre-pass tries both and keeps the better, and says so), and the mesh cut that way still
-    # gives the single node's image and counts.
+    # Spheres gathered in two opposite corners of the view (top left, bottom right): row cuts
+    # shared by every column leave each cluster in one node; each column cutting its own
+    # rows shares them out (the pre-pass tries both and keeps the better, and says so), and
+    # the mesh cut that way still gives the single node's image and counts.
     from host.balance import balanced_cuts, node_costs
     from host.partition import splits
 
     rng = np.random.default_rng(5)
-    centres = np.column_stack([rng.uniform(-4, -2, 150), rng.uniform(1.5, 3.5, 150),
-                               rng.uniform(-1, 1, 150)])  # fmt: skip
-    scene = make_scene(spheres=[(tuple(c), 0.2, 0) for c in centres] + [((3.0, -3.0, 0.0),
-                                                                          0.5, 0)],
+    centres = np.concatenate([
+        np.column_stack([rng.uniform(-4, -2, 100), rng.uniform(1.5, 3.5, 100),
+                         rng.uniform(-1, 1, 100)]),
+        np.column_stack([rng.uniform(2, 4, 100), rng.uniform(-3.5, -1.5, 100),
+                         rng.uniform(-1, 1, 100)])])  # fmt: skip
+    scene = make_scene(spheres=[(tuple(c), 0.2, 0) for c in centres],
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(3, 3, 1.0))
     xs, ys, report, _ = balanced_cuts(scene, spec, families=("shared rows", "rows per column"))

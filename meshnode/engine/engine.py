@@ -18,6 +18,7 @@ from meshnode.engine import kernelcache
 from meshnode.engine.bvh import Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
+from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, trace_batch
@@ -115,10 +116,14 @@ class Engine:
         scene_box: tuple | None = None,
         announce=None,
         packets: bool = True,
+        occupancy: tuple | None = None,
     ):
         """`announce(variant name)` is called, before anything compiles, when this variant's
         kernels are not in the disk cache yet (building the grid compiles some of them).
-        `packets=False`: every ray walks alone (the reference packets are tested against)."""
+        `packets=False`: every ray walks alone (the reference packets are tested against).
+        `occupancy` (voxels per axis, packed bits): the scene's occupancy map over
+        `scene_box` (`Partition.occ_res`, `occ_bits`), so a mesh node ends or skips segments
+        with only empty space ahead; None: nothing skipped."""
         start = time.perf_counter()
         keep_freed_memory()  # batches reuse freed memory instead of faulting in new pages
         self.scene = scene
@@ -146,6 +151,8 @@ class Engine:
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
         self.scene_lo, self.scene_hi = (np.asarray(b, float) for b in sb)
+        self.occupancy = (everywhere(self.scene_lo, self.scene_hi) if occupancy is None else
+                          occupancy_arrays(self.scene_lo, self.scene_hi, *occupancy))  # fmt: skip
         # One node, or an image-space node: its box holds the scene, so a batch's own rays
         # may walk in packets.
         self.packets = bool(packets and np.all(self.grid.lo <= self.scene_lo)
@@ -187,6 +194,13 @@ class Engine:
                 if self.packets else "asked for single rays" if not packets else
                 "an object-space node's rays mostly start outside its box: each walks alone"),
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
+            "occupancy": {
+                "voxels": self.occupancy.res.tolist(),
+                "occupied": float(np.mean(self.occupancy.clear == 0)),
+                "reason": "segments leaving this node's box with only empty voxels of the "
+                          "scene ahead end here; others resume at the first occupied voxel"
+                if self.occupancy.res.prod() > 1 else "one node or whole scene: nothing "
+                "leaves the box to be skipped"},
             "preprocess_seconds": self.preprocess_seconds,
         }
 
@@ -254,7 +268,7 @@ class Engine:
             # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
             # more arrays early in the list (code layout), so keep the hot ones first (tetra:
             # 2-4% slower with the shading table ahead of the geometry and grid)
-            self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.packets,
+            self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.packets, self.occupancy,
         )  # fmt: skip
         passed = None if out is None else out[:n_out].copy()
         return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=True)), passed

@@ -26,6 +26,7 @@ from meshnode.engine.counters import (
     SHADOW_RAYS,
 )
 from meshnode.engine.jit import inline, kernel
+from meshnode.engine.occupancy import first_occupied
 from meshnode.engine.packet import (
     P_BEST,
     P_BOUND,
@@ -196,7 +197,7 @@ def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, o
 
 @kernel
 def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, lights,
-                scene_lo, scene_hi, out, bvh, whole):  # fmt: skip
+                scene_lo, scene_hi, out, bvh, whole, occ):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
     The objects are the `Geometry` geo in the `BvhArrays` bvh, or when that is empty the
@@ -211,12 +212,15 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     elsewhere may come first); a shadow ray blocked by any object it meets is blocked.
     With `out` None (one node, box = scene) this code is compiled out. `whole`: this node's
     box holds the whole scene (one node, image space), so no segment of a batch's own rays
-    starts outside it, and they may walk in packets."""
+    starts outside it, and they may walk in packets. `occ`: the scene's `Occupancy` map; a
+    segment with nothing but empty voxels ahead of it ends here instead of going on, one that
+    goes on resumes at the first occupied voxel (`meshnode.engine.occupancy`)."""
     # Fields into locals once: numba counts references at each read of a tuple's field, and
     # reads in the ray loop made balls and rings trace 10% slower.
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     mat, materials, tri_n, amb, background, max_depth, t_eps = shading
     glo, cell, res = grid.glo, grid.cell, grid.res
+    occ_lo, occ_cell, occ_res, occ_clear = occ
     n_lights = 0 if lights is None else lights.shape[0]
     cap = int(max_depth) * (n_lights + 2) + 4
     so = np.empty((cap, 3))
@@ -266,6 +270,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             shadow = kind == SHADOW
             ray_id += 1
             counters[SEGMENTS] += 1
+            clear = False
             if out is not None:
                 irx = 1.0 / dx if dx != 0.0 else math.inf
                 iry = 1.0 / dy if dy != 0.0 else math.inf
@@ -279,13 +284,20 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     n1 = math.inf  # the segment misses the scene: it ends here, below
                 elif n0 > s0 or n1 <= s0:
                     resume = s0  # not in this box where its part inside the scene starts
+                    if first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, s0, s1, occ_lo,
+                                      occ_cell, occ_res, occ_clear, counters) == math.inf:
+                        resume = -1.0  # nothing lies ahead: it ends here, below
+                        n1 = math.inf
+                        clear = True
                 if resume >= 0.0:
                     buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, resume, t_hi,
                                     r.pixel, origin, depth, kind, light)  # fmt: skip
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
-            if packets and root and not shadow and first_u[i] > -2:
+            if clear:
+                t, u = math.inf, -1  # only empty voxels lie ahead
+            elif packets and root and not shadow and first_u[i] > -2:
                 t, u = first_t[i], first_u[i]  # the batch's ray itself: walked in a packet
             elif brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
@@ -305,12 +317,17 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 if u >= 0 and not shadow and t > n1:
                     u = -1  # a hit beyond this box: another node may hold a nearer object
                 if u < 0 and n1 < s1:
-                    # Leaves this box inside the scene: continue on the node owning the exit.
-                    buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, n1, t_hi,
-                                    r.pixel, origin, depth, kind, light)  # fmt: skip
-                    n_out += 1
-                    counters[FORWARDED] += 1
-                    continue
+                    # Leaves this box inside the scene: continue on the node owning the first
+                    # occupied voxel ahead; with none ahead it ends here, below.
+                    t_on = first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, n1, s1, occ_lo,
+                                          occ_cell, occ_res, occ_clear, counters)  # fmt: skip
+                    if t_on < math.inf:
+                        buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb,
+                                        max(n1, t_on), t_hi, r.pixel, origin, depth, kind,
+                                        light)  # fmt: skip
+                        n_out += 1
+                        counters[FORWARDED] += 1
+                        continue
             if shadow:
                 # The light is reached unless something lies in between.
                 if u >= 0:

@@ -1,0 +1,131 @@
+"""The scene's occupancy map on an object-space node: which coarse voxels of the whole scene
+any object touches (the host rasterises every object's padded bounds, `host.partition.
+occupancy_map`; each node gets the same map with its partition).
+
+A segment leaving a node's box goes on to the node whose cell holds it; when the rest of its
+path crosses only empty voxels there is nothing left to hit, and passing it on would only
+send it through every cell ahead to escape or reach its light. With the map the node that
+has it ends it at once (the same colour, the same count: an escaped ray or a lit shadow ray),
+and a segment that does meet an occupied voxel resumes at that voxel, so the nodes whose
+cells it crosses empty never see it.
+
+Exact because the map is conservative: an object's bounds are padded before they are
+rasterised, so any point of any object lies inside occupied voxels by at least the padding,
+and a segment resumed at the first occupied voxel it enters misses nothing before it.
+"""
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from meshnode.engine.counters import STEPS
+from meshnode.engine.jit import leaf
+from meshnode.engine.traverse import _region_exit, _voxel
+
+INF = math.inf
+
+
+class Occupancy(NamedTuple):
+    """The map as the kernels take it: box corner, voxel size, voxels per axis, and per voxel
+    (x fastest) the Chebyshev distance in voxels to the nearest occupied one (0: occupied,
+    capped at 255): a walk through empty space jumps out of the empty cube around it in one
+    step, as the grid's walk does through empty macro cells."""
+
+    lo: np.ndarray
+    cell: np.ndarray
+    res: np.ndarray
+    clear: np.ndarray
+
+
+def occupancy_arrays(lo, hi, res, bits: bytes) -> Occupancy:
+    """The kernels' form of a map over the box lo..hi of res voxels (x, y, z), packed `bits`
+    (numpy's packbits order, x fastest); the caller has checked the sizes."""
+    res = np.asarray(res, np.int64)
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    n = int(np.prod(res))
+    full = np.unpackbits(np.frombuffer(bits, np.uint8), count=n).astype(bool)
+    clear = distances(full.reshape(res[::-1]))
+    return Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, clear.ravel())
+
+
+def distances(full: np.ndarray) -> np.ndarray:
+    """Chebyshev distance of every voxel to the nearest occupied one, capped at 255: grow
+    the occupied set one voxel at a time (a max over each axis in turn) and note when each
+    voxel joins. At most max(res) rounds of whole-array steps."""
+    clear = np.full(full.shape, 255, np.uint8)
+    clear[full] = 0
+    reached = full.copy()
+    for k in range(1, min(255, max(full.shape) + 1)):
+        if reached.all():
+            break
+        grown = reached.copy()
+        for axis in range(3):
+            step = grown.copy()
+            lead = [slice(None)] * 3
+            lag = [slice(None)] * 3
+            lead[axis], lag[axis] = slice(1, None), slice(None, -1)
+            step[tuple(lead)] |= grown[tuple(lag)]
+            step[tuple(lag)] |= grown[tuple(lead)]
+            grown = step
+        clear[grown & ~reached] = k
+        reached = grown
+    return clear
+
+
+def everywhere(lo, hi) -> Occupancy:
+    """A map of one occupied voxel: nothing is skipped (one node, image space)."""
+    return occupancy_arrays(lo, hi, (1, 1, 1), b"\x80")
+
+
+@leaf
+def _clamp(i, a, b):
+    return min(max(i, a), b)
+
+
+@leaf
+def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, clear, counters):
+    """t where the ray enters the first occupied voxel between t0 and t1 (t0 itself when it
+    starts in one), inf when every voxel it crosses there is empty. rx, ry, rz are the
+    reciprocal direction; each step (out of one voxel, or of the empty cube around it)
+    counts as a voxel step."""
+    nx = res[0]
+    ny = res[1]
+    nz = res[2]
+    ix = _voxel(ox, dx, t0, lo[0], cell[0], nx)
+    iy = _voxel(oy, dy, t0, lo[1], cell[1], ny)
+    iz = _voxel(oz, dz, t0, lo[2], cell[2], nz)
+    t = t0
+    # Each step leaves the cube it was in along the ray: at most nx + ny + nz of them (the
+    # bound also stops a ray whose arithmetic went non-finite).
+    for _ in range(nx + ny + nz + 3):
+        counters[STEPS] += 1
+        k = clear[ix + nx * (iy + ny * iz)]
+        if k == 0:
+            return t
+        r = k - 1
+        x0, x1 = max(ix - r, 0), min(ix + r, nx - 1)
+        y0, y1 = max(iy - r, 0), min(iy + r, ny - 1)
+        z0, z1 = max(iz - r, 0), min(iz + r, nz - 1)
+        tx = _region_exit(ox, dx, rx, x0, x1, lo[0], cell[0])
+        ty = _region_exit(oy, dy, ry, y0, y1, lo[1], cell[1])
+        tz = _region_exit(oz, dz, rz, z0, z1, lo[2], cell[2])
+        t = min(tx, min(ty, tz))
+        if t > t1:
+            return INF
+        if not t >= t0:
+            return t0  # non-finite arithmetic: skip nothing
+        # Out through the wall reached first; along the other axes the point is still
+        # inside the cube's slab (clamped against round-off), so every step leaves the cube.
+        ix = _clamp(_voxel(ox, dx, t, lo[0], cell[0], nx), x0, x1)
+        iy = _clamp(_voxel(oy, dy, t, lo[1], cell[1], ny), y0, y1)
+        iz = _clamp(_voxel(oz, dz, t, lo[2], cell[2], nz), z0, z1)
+        if t == tx:
+            ix = x1 + 1 if dx > 0.0 else x0 - 1
+        elif t == ty:
+            iy = y1 + 1 if dy > 0.0 else y0 - 1
+        else:
+            iz = z1 + 1 if dz > 0.0 else z0 - 1
+        if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
+            return INF
+    return t0  # non-finite arithmetic: skip nothing

@@ -1,0 +1,95 @@
+"""The scene's occupancy map: conservative (no ray with an object ahead is told the way is
+clear), its distances exact, its wire form checked, and a mesh that skips empty space with it
+gives the image and ray counts it gave without it, passing fewer segments."""
+
+import math
+
+import numpy as np
+import pytest
+
+import host.partition
+from host.nff import read_nff
+from host.partition import occupancy_map, scene_box
+from meshnode.engine import Engine
+from meshnode.engine.counters import N_COUNTERS
+from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
+from meshnode.engine.traverse import box_span
+from protocols.render import Partition
+from protocols.spec import SpecError
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_mesh_algorithm import SPD_COUNTS
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_distances_are_chebyshev_to_the_nearest_occupied_voxel(seed):
+    rng = np.random.default_rng(seed)
+    full = rng.random((5, 7, 9)) < 0.03 * (seed + 1)
+    full[0, 0, 0] |= seed == 0  # at least one occupied voxel
+    got = distances(full)
+    at = np.argwhere(full)
+    grid = np.indices(full.shape).reshape(3, -1).T
+    want = np.abs(grid[:, None, :] - at[None, :, :]).max(axis=2).min(axis=1)
+    assert np.array_equal(got.ravel(), np.minimum(want, 255))
+
+
+def test_an_empty_map_is_clear_everywhere():
+    assert (distances(np.zeros((4, 4, 4), bool)) == 255).all()
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "mount_s1.nff", "teapot_s1.nff",
+                                  "gears_s1.nff", "tetra_s3.nff"])  # fmt: skip
+def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
+    """Rays from random points of the scene's box in random directions: the first occupied
+    voxel comes no later than the first hit (brute force), and a ray told nothing lies
+    ahead hits nothing."""
+    scene = read_nff(spd_scene(name))
+    lo, hi = scene_box(scene)
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
+    rng = np.random.default_rng(1)
+    n = 3000
+    origins = lo + rng.random((n, 3)) * (hi - lo)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_hit, _ = Engine(scene, brute=True).first_hits(origins, dirs)
+    counters = np.zeros(N_COUNTERS, np.int64)
+    clear = early = 0
+    for (ox, oy, oz), (dx, dy, dz), th in zip(origins, dirs, t_hit, strict=True):
+        rx, ry, rz = (1.0 / v if v != 0.0 else math.inf for v in (dx, dy, dz))
+        t0, t1 = box_span(ox, oy, oz, rx, ry, rz, 0.0, math.inf, *lo, *hi)
+        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, *occ, counters)
+        assert t <= th, (name, (ox, oy, oz), (dx, dy, dz), t, th)
+        clear += t == math.inf
+        early += t0 < t < math.inf
+    # The map must skip something: rays that reach no object, rays that start in empty space.
+    assert clear > 0.05 * n and early > 0.05 * n, (clear, early)
+
+
+def test_a_partition_checks_its_occupancy_map():
+    part = Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
+                          occupancy=((4, 4, 2), bytes(4)))  # fmt: skip
+    again = Partition.from_wire(part.to_wire())
+    assert again.occ_res == (4, 4, 2) and again.occ_bits == bytes(4)
+    with pytest.raises(SpecError, match=r"occ_bits is 3 bytes: must be 4 bytes.*4x4x2"):
+        Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
+                       occupancy=((4, 4, 2), bytes(3)))  # fmt: skip
+    with pytest.raises(SpecError, match="occ_res"):
+        Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
+                       occupancy=((0, 4, 2), b""))  # fmt: skip
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "teapot_s1.nff"])
+def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch):
+    scene = read_nff(spd_scene(name))
+    runs = {}
+    for skip in (True, False):
+        if not skip:  # one occupied voxel: every segment goes on as it did before the map
+            monkeypatch.setattr(host.partition, "occupancy_map",
+                                lambda *_: ((1, 1, 1), b"\x80"))  # fmt: skip
+        runs[skip] = render_mesh(scene, 2, 2, 2, 32, 32, spp=2)
+    (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit"):
+        assert totals[k] == ref_totals[k], k
+    sent, ref_sent = (sum(n.rays_sent for n in ns) for ns in (nodes, ref_nodes))
+    assert sent < 0.8 * ref_sent, (sent, ref_sent)

@@ -268,7 +268,7 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
             holders(scene, los, his))  # fmt: skip
 
 
-OCC_VOXELS = 32**3  # voxels in the scene's occupancy map
+OCC_VOXELS = 64**3  # voxels in the occupancy map (32^3 skipped less: teapot 3x3 5.78 vs 5.91)
 
 
 def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:

@@ -147,3 +147,33 @@ def test_packets_of_rays_find_exactly_what_single_rays_find(name):
     for got, n in ((rgb, counts), (rgb_node, counts_node)):
         np.testing.assert_array_equal(got, rgb_ref)
         assert {k: n[k] for k in keys} == {k: counts_ref[k] for k in keys}
+
+
+@pytest.mark.parametrize("name", ["tetra_s1.nff", "teapot_s1.nff", "gears_s1.nff"])
+def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(name):
+    """On a node holding half the scene, packets and single rays give the same colours,
+    counts and rays passed on, to the bit: a packet's hit beyond the box is dropped as a
+    single walk's is, and rays starting outside the box go on before either is read."""
+    from host.partition import holders, subset
+    from meshnode.engine.trace import owners
+
+    scene = read_nff(spd_scene(name))
+    whole = Engine(scene, structure="bvh")
+    lo, hi = whole.scene_lo, whole.scene_hi
+    axis = int(np.argmax(hi - lo))
+    box_hi = hi.copy()
+    box_hi[axis] = (lo[axis] + hi[axis]) / 2
+    held = subset(scene, holders(scene, lo[None], box_hi[None])[0])
+    options = dict(structure="bvh", box=(lo, box_hi), scene_box=(lo, hi))
+    engine, single = Engine(held, **options), Engine(held, packets=False, **options)
+    assert engine.stats["packet"] == 8 and single.stats["packet"] == 1
+    rays = mixed_batch(scene, lo, hi, np.random.default_rng(3))
+    owners(rays, lo[None], box_hi[None])  # eye rays start where they enter the box, as made
+    rgb_ref, counts_ref, passed_ref = single.trace_node(rays)
+    rgb, counts, passed = engine.trace_node(rays)
+    assert counts_ref["eye_hits"] > 50 and len(passed_ref) > 50
+    np.testing.assert_array_equal(rgb, rgb_ref)
+    assert passed.tobytes() == passed_ref.tobytes()
+    keys = ("eye_hits", "shadow_rays", "shadow_rays_blocked", "reflected_rays", "ray_segments",
+            "rays_forwarded")  # fmt: skip
+    assert {k: counts[k] for k in keys} == {k: counts_ref[k] for k in keys}

@@ -197,7 +197,7 @@ def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, o
 
 @kernel
 def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, lights,
-                scene_lo, scene_hi, out, bvh, whole, occ):  # fmt: skip
+                scene_lo, scene_hi, out, bvh, in_packets, occ):  # fmt: skip
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
     The objects are the `Geometry` geo in the `BvhArrays` bvh, or when that is empty the
@@ -210,11 +210,11 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     (origin and direction unchanged, so every node computes the same t), and the grown array
     and the count written are returned. A hit beyond the box is not trusted (an object held
     elsewhere may come first); a shadow ray blocked by any object it meets is blocked.
-    With `out` None (one node, box = scene) this code is compiled out. `whole`: this node's
-    box holds the whole scene (one node, image space), so no segment of a batch's own rays
-    starts outside it, and they may walk in packets. `occ`: the scene's `Occupancy` map; a
-    segment with nothing but empty voxels ahead of it ends here instead of going on, one that
-    goes on resumes at the first occupied voxel (`meshnode.engine.occupancy`)."""
+    With `out` None (one node, box = scene) this code is compiled out. `in_packets`: a
+    batch's own rays may find their first hits in packets (with a hierarchy). `occ`: the
+    scene's `Occupancy` map; a segment with nothing but empty voxels ahead of it ends here
+    instead of going on, one that goes on resumes at the first occupied voxel
+    (`meshnode.engine.occupancy`)."""
     # Fields into locals once: numba counts references at each read of a tuple's field, and
     # reads in the ray loop made balls and rings trace 10% slower.
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
@@ -231,12 +231,12 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
     use_bvh = bvh.box.shape[0] > 0  # once: see first_hits
-    # A hierarchy over the whole scene (one node; an image-space node, whose box is the
-    # scene's): the batch's own rays (all but shadow rays) find their first hits in packets
-    # of neighbours (`_packet_hits`) before their trees are traced one by one. Each is the
-    # walk the loop below would make (same span, same origin); an object-space node's rays
-    # mostly leave its box first, so it walks each alone.
-    packets = whole and use_bvh and not brute
+    # With a hierarchy the batch's own rays (all but shadow rays) find their first hits in
+    # packets of neighbours (`_packet_hits`) before their trees are traced one by one. Each
+    # is the walk the loop below would make (same span, same origin); on an object-space
+    # node a hit beyond the box is then dropped as a walk's would be, and the hit of a ray
+    # that starts outside the box is never read (it goes on first).
+    packets = in_packets and use_bvh and not brute
     first_t, first_u = _packet_hits(rays, packets, counters, geo, bvh)
     # Shadow cache: the object that last blocked each light is tried first (walk's hint).
     blocker = np.full(max(n_lights, 1), -1, np.int64)

@@ -265,7 +265,16 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
         rects, owner = taker_tiles(scene, spec, cells, rects)
     occupancy = occupancy_map(scene, box) if plan.nodes > 1 else ((1, 1, 1), b"\x80")
     return (Partition.make(rects, los, his, box, owner, cells, occupancy),
-            holders(scene, los, his))  # fmt: skip
+            holders(scene, *traced(los, his)))  # fmt: skip
+
+
+def traced(los: np.ndarray, his: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The space each node traces: its box padded as its engine pads it (`grow_box`). A
+    node holds every object that reaches this, not only its box: an object in the padding
+    was missed there while the node traced past it and sent the ray on beyond it (balls
+    2x2 at 1024x1024, 6 spp: 4 shadow rays in 33 M lit that one node found blocked)."""
+    padded = [grow_box(lo, hi) for lo, hi in zip(los, his, strict=True)]  # once a plan
+    return np.array([p[0] for p in padded]), np.array([p[1] for p in padded])
 
 
 OCC_VOXELS = 64**3  # voxels in the occupancy map (32^3 skipped less: teapot 3x3 5.78 vs 5.91)

@@ -213,3 +213,4 @@ def records(camera=None, **options) -> Job:
     if options:
         raise TypeError(f"no render record has fields {sorted(options)}")
     return Job(image, engine, setup)
+

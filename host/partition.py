@@ -22,7 +22,7 @@ from meshnode.engine.camera import eye_rays, view_basis
 from meshnode.engine.grid import grow_box
 from meshnode.engine.tables import build_tables, segments
 from meshnode.engine.trace import owners
-from protocols.render import MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
+from protocols.render import EVERYWHERE, MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
 
 
@@ -263,7 +263,7 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
     rects, owner = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None
     if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
         rects, owner = taker_tiles(scene, spec, cells, rects)
-    occupancy = occupancy_map(scene, box) if plan.nodes > 1 else ((1, 1, 1), b"\x80")
+    occupancy = occupancy_map(scene, box) if plan.nodes > 1 else EVERYWHERE
     return (Partition.make(rects, los, his, box, owner, cells, occupancy),
             holders(scene, *traced(los, his)))  # fmt: skip
 

@@ -26,6 +26,7 @@ MAX_DEPTH = 64
 MAX_NODES = 1024  # nodes in one mesh
 MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
 MAX_OCC_SIDE = 256  # voxels along a side of the scene's occupancy map
+EVERYWHERE = ((1, 1, 1), b"\x80")  # an occupancy map of one occupied voxel: skips nothing
 STORAGES = ("auto", "csr", "hash")
 STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per node by content)
 BALANCES = ("even", "cost")
@@ -179,8 +180,8 @@ class Partition(Spec):
     scene_hi: tuple
     cell_los: tuple
     cell_his: tuple
-    occ_res: tuple = (1, 1, 1)
-    occ_bits: bytes = b"\x80"
+    occ_res: tuple = EVERYWHERE[0]
+    occ_bits: bytes = EVERYWHERE[1]
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -217,7 +218,7 @@ class Partition(Spec):
 
     @classmethod
     def make(cls, rects, los, his, scene_box, owner=None, cells=None,
-             occupancy=((1, 1, 1), b"\x80")) -> "Partition":  # fmt: skip
+             occupancy=EVERYWHERE) -> "Partition":  # fmt: skip
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
         hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits)."""
 

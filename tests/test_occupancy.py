@@ -14,7 +14,7 @@ from meshnode.engine import Engine
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
 from meshnode.engine.traverse import box_span
-from protocols.render import Partition
+from protocols.render import EVERYWHERE, Partition
 from protocols.spec import SpecError
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
@@ -85,7 +85,7 @@ def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch)
     for skip in (True, False):
         if not skip:  # one occupied voxel: every segment goes on as it did before the map
             monkeypatch.setattr(host.partition, "occupancy_map",
-                                lambda *_: ((1, 1, 1), b"\x80"))  # fmt: skip
+                                lambda *_: EVERYWHERE)  # fmt: skip
         runs[skip] = render_mesh(scene, 2, 2, 2, 32, 32, spp=2)
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)

@@ -22,6 +22,7 @@ import numpy as np
 from meshnode.engine.counters import STEPS
 from meshnode.engine.jit import leaf
 from meshnode.engine.traverse import _region_exit, _voxel
+from protocols.render import EVERYWHERE
 
 INF = math.inf
 
@@ -75,7 +76,7 @@ def distances(full: np.ndarray) -> np.ndarray:
 
 def everywhere(lo, hi) -> Occupancy:
     """A map of one occupied voxel: nothing is skipped (one node, image space)."""
-    return occupancy_arrays(lo, hi, (1, 1, 1), b"\x80")
+    return occupancy_arrays(lo, hi, *EVERYWHERE)
 
 
 @leaf

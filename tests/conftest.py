@@ -96,8 +96,6 @@ def kernels(request):
     out (worker k takes jobs k, k + n, ...): on a cold cache each kernel compiles on one
     core while the other compiles others, instead of both compiling the same; a kernel
     another worker compiled is then loaded from disk when first used."""
-    import fcntl
-
     import numba
 
     cache = Path(numba.config.CACHE_DIR)
@@ -107,17 +105,8 @@ def kernels(request):
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     index = int(worker[2:]) if worker[2:].isdigit() else 0
     start = time.perf_counter()
-    cache.mkdir(parents=True, exist_ok=True)
-    jobs = warm_jobs()
-    # Own jobs first, then everyone else's, each under its own lock: a worker whose share
-    # is done waits for the others' kernels (then loads them from disk) instead of starting
-    # tests whose node processes would compile them within their deadlines.
-    order = list(range(index, len(jobs), count))
-    order += [i for i in range(len(jobs)) if i not in order]
-    for i in order:
-        with open(cache / f"warm-{i}.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            jobs[i]()
+    for job in warm_jobs()[index::count]:
+        job()
     KERNEL_LOAD["seconds"] = time.perf_counter() - start
     report = getattr(request.config, "workeroutput", None)  # a pytest-xdist worker
     if report is not None:
@@ -213,4 +202,3 @@ def records(camera=None, **options) -> Job:
     if options:
         raise TypeError(f"no render record has fields {sorted(options)}")
     return Job(image, engine, setup)
-

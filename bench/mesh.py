@@ -9,9 +9,9 @@ process.
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
 of one node's CPU / the busiest node's in the mesh render that followed; "work": the same
-in the engine's work units (`meshnode.stats.work_units`: tests + voxel steps + segments,
-each segment sent on weighted), which no machine noise moves;
-and for wall time), parallel efficiency (sum of
+in the engine's work units (`meshnode.stats.work_units`: tests, hierarchy and occupancy
+map steps, segments and segments sent on, each weighted by its fitted cost), which no
+machine noise moves; and for wall time), parallel efficiency (sum of
 node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
 seconds (until every node is built and linked), rays passed between nodes, and bytes per link
 (mean and max over directed links). Counts are checked against the single node's. Without
@@ -68,9 +68,15 @@ def sized(scene, image, min_trace: float):
     cpu = run[1]["trace_cpu_seconds"]
     if not min_trace or cpu >= min_trace:
         return image, run
-    spp = math.ceil(image.spp * min_trace * 1.1 / cpu)
+    spp = math.ceil(image.spp * min_trace * SIZE_MARGIN / cpu)
     image = dataclasses.replace(image, spp=spp)
     return image, single(scene, image)
+
+
+# Samples are raised for min_trace * SIZE_MARGIN seconds: one node's later runs in the rows
+# (best of --repeat, caches warm) traced 10-20% less than the sizing run (session 10: balls
+# and tetra 4.1-4.8 s at --min-trace 5 with a margin of 1.1).
+SIZE_MARGIN = 1.3
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",

@@ -1,6 +1,7 @@
 """Predicted mesh speedups from the simulated mesh (meshnode.simulator: every node's NodeCore
-and Scheduler in one process, work counted in the engine's own units: intersection tests +
-voxel steps + segments, each segment sent on weighted: `meshnode.stats.work_units`), for
+and Scheduler in one process, work counted in the engine's own units: intersection tests,
+hierarchy and occupancy map steps, segments and segments sent on, each weighted by its
+fitted cost: `meshnode.stats.work_units`), for
 meshes larger than this machine can run, next to measured ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
@@ -43,7 +44,8 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
     tile = max(4, size // 32)
     spec = RenderSpec(image, plan=MeshPlan(rows, cols, overlap, tile=tile, **plan))
     cuts = balanced_cuts(scene, spec) if spec.plan.balance == "cost" else None
-    part, keep = partition(scene, spec, *((cuts.xs, cuts.ys, cuts.cells) if cuts else ()))
+    cut = (cuts.xs, cuts.ys, cuts.cells, cuts.occupancy) if cuts else ()
+    part, keep = partition(scene, spec, *cut)
     out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
     costs = [n.cost for n in out.nodes]
     return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)

@@ -45,13 +45,15 @@ FINE = 12  # work map cells along each cut axis
 
 class Cuts(NamedTuple):
     """Where the pre-pass cuts: the image (`xs`, `ys` as `host.partition.rectangles` takes
-    them; None: even), object space (`cells` (los, his), None: from the image cuts), and why
-    (`report`, for the statistics)."""
+    them; None: even), object space (`cells` (los, his), None: from the image cuts), whether
+    the nodes get the scene's occupancy map (`occupancy`), and why (`report`, for the
+    statistics)."""
 
     xs: list | None
     ys: list | None
     report: dict
     cells: tuple | None = None
+    occupancy: bool = True
 
 
 def _bands(inner, n: int) -> list[int]:
@@ -84,15 +86,15 @@ def coarse_spec(spec: RenderSpec) -> RenderSpec:
     return RenderSpec(image, spec.engine, plan, camera)
 
 
-def node_costs(scene, spec: RenderSpec, xs, ys, cells=None) -> np.ndarray:
+def node_costs(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True) -> np.ndarray:
     """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
-    grid; None: even), its cells `cells` (None: from the image cuts): the mesh simulated in
-    this process."""
+    grid; None: even), its cells `cells` (None: from the image cuts), with or without the
+    occupancy map: the mesh simulated in this process."""
     coarse = coarse_spec(spec)
     (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
     xs, ys = xs or splits(width, spec.plan.cols), ys or splits(height, spec.plan.rows)
     part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch),
-                           cells)  # fmt: skip
+                           cells, occupancy)  # fmt: skip
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
     return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
 
@@ -178,7 +180,8 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -
     """The cuts whose simulated busiest node is the least loaded, of those each family tried
     in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
     with each column's own (`ys` is then a list per column), and cells cut on the work map
-    (`map_cells`), corrected by each round's measured costs."""
+    (`map_cells`), corrected by each round's measured costs; then, on those cuts, whether
+    the occupancy map lightens the busiest node or not."""
     plan = spec.plan
     even = node_costs(scene, spec, None, None)
     tried = [(float(even.max()), None, None, even, "even", None)]
@@ -189,13 +192,18 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -
             tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
     best, bx, by, cost, family, cells = min(tried, key=lambda t: t[0])
     base = tried[0][0] or 1.0
+    # The map's walk costs (a fractal: many small empty cubes) against the passes it saves.
+    without = node_costs(scene, spec, bx, by, cells, occupancy=False)
+    occupancy = not without.max() < best
     report = {"columns": bx, "rows": by, "family": family,
               "simulated_busiest_vs_even": best / base,
               "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
                   f: min((t[0] for t in tried if t[4] == f), default=base) / base
                   for f in families},
-              "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0}
-    return Cuts(bx, by, report, cells)
+              "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0,
+              "occupancy_map": occupancy,
+              "simulated_busiest_without_map_vs_with": float(without.max() / best) if best else 1.0}
+    return Cuts(bx, by, report, cells, occupancy)
 
 
 def _image_tries(scene, spec: RenderSpec, rounds: int, own_rows: bool, cost) -> list[tuple]:

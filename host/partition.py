@@ -242,13 +242,14 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     )  # fmt: skip
 
 
-def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
-              cells=None) -> tuple[Partition, np.ndarray]:  # fmt: skip
+def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
+              occupancy: bool = True) -> tuple[Partition, np.ndarray]:  # fmt: skip
     """The plan made concrete: every node's rectangles of the sample grid and its box, and
     which objects each node holds (nodes x objects, bool). Object space: one rectangle a
     node, cut at `xs`, `ys` (default even); cells (los, his) as given (cut where the work
-    lies: `host.balance`), else cut to match the rectangles. Image space: tiles, every box
-    the scene's, every object on every node."""
+    lies: `host.balance`), else cut to match the rectangles; the scene's occupancy map
+    unless `occupancy` is False (where walking it costs more than the passes it saves:
+    `host.balance`). Image space: tiles, every box the scene's, every object on every node."""
     plan, (width, height) = spec.plan, spec.image.size
     gw, gh = spec.sample_grid
     box = scene_box(scene)
@@ -263,8 +264,8 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None,
     rects, owner = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None
     if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
         rects, owner = taker_tiles(scene, spec, cells, rects)
-    occupancy = occupancy_map(scene, box) if plan.nodes > 1 else EVERYWHERE
-    return (Partition.make(rects, los, his, box, owner, cells, occupancy),
+    occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
+    return (Partition.make(rects, los, his, box, owner, cells, occ),
             holders(scene, *traced(los, his)))  # fmt: skip
 
 

@@ -37,12 +37,13 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
                                                                            engine))  # fmt: skip
     spec = RenderSpec(image, engine, plan, camera_spec)
     xs = ys = cells = None
+    occupancy = True
     balance: dict = {"cuts": plan.balance}
     if plan.balance == "cost" and plan.nodes > 1:
         t0 = time.perf_counter()
-        xs, ys, report, cells = balanced_cuts(scene, spec)
+        xs, ys, report, cells, occupancy = balanced_cuts(scene, spec)
         balance.update(report, seconds=time.perf_counter() - t0)
-    part, keep = partition(scene, spec, xs, ys, cells)
+    part, keep = partition(scene, spec, xs, ys, cells, occupancy)
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 

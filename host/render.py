@@ -16,6 +16,7 @@ from host.framebuffer import Framebuffer
 from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.counters import WALK_COUNTS
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
@@ -162,7 +163,7 @@ def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
         "engine_spec": job.engine.to_wire(),
         "max_depth": job.image.depth,
         "threads": threads,
-        "rays": {k: v for k, v in totals.items() if k not in ("intersection_tests", "voxel_steps")},
+        "rays": {k: v for k, v in totals.items() if k not in WALK_COUNTS},
         "total_rays": rays,
         "intersection_tests": totals["intersection_tests"],
         "voxel_steps": totals["voxel_steps"],

@@ -15,18 +15,20 @@ import numpy as np
 from protocols.dtypes import LINK_TRAFFIC
 
 RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
-# A segment that leaves a node's box costs about this many units more than its tests and
-# steps show (fitted on every node of 2x2 and 3x3 meshes of six SPD scenes, each node's
-# batches traced again alone: the spread of CPU per unit within a scene fell from 17% with
-# tests + steps + rays to 8%).
-FORWARD_UNITS = 8
+# What each counted event costs, in units of half a hierarchy step: fitted (non-negative
+# least squares, one scale per scene) on each node's kernel CPU in simulated 2x2 and 3x3
+# meshes of six SPD scenes, one process, one thread. Within a scene the CPU per unit spread
+# 13% with tests + steps + segments + 8 per segment sent on; 5.5% with these. A step of the
+# occupancy map costs four of a hierarchy's (a chain of divisions and a table look-up per
+# step), a segment five (box spans, the ray's record, the stack), a test about half a step.
+UNIT_WEIGHTS = {"intersection_tests": 1, "voxel_steps": 2, "occupancy_steps": 8,
+                "ray_segments": 10, "rays_forwarded": 8}
 
 
 def work_units(counts: dict) -> int:
-    """A node's work in the engine's own units, the same on any machine at any load:
-    intersection tests + voxel steps + ray segments, and FORWARD_UNITS per segment sent on."""
-    return (counts["intersection_tests"] + counts["voxel_steps"] + counts["ray_segments"]
-            + FORWARD_UNITS * counts.get("rays_forwarded", 0))  # fmt: skip
+    """A node's work in the engine's own units, the same on any machine at any load: its
+    counted events weighted by what each costs (UNIT_WEIGHTS)."""
+    return sum(w * counts.get(k, 0) for k, w in UNIT_WEIGHTS.items())
 
 
 class NodeStats:

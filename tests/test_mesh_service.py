@@ -238,7 +238,7 @@ def test_nodes_tracing_on_several_threads_give_the_single_node_image():
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
 
 
-@pytest.mark.parametrize("name,rows,cols,family", [("balls_s1.nff", 3, 3, "rows per column"),
+@pytest.mark.parametrize("name,rows,cols,family", [("gears_s1.nff", 3, 3, "rows per column"),
                                                    ("teapot_s1.nff", 2, 2, "work map")])
 def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family, monkeypatch):
     # Cuts from the simulated pre-pass, of one family each: rectangles and boxes of unequal

@@ -1,6 +1,7 @@
 """The scene's occupancy map: conservative (no ray with an object ahead is told the way is
 clear), its distances exact, its wire form checked, and a mesh that skips empty space with it
-gives the image and ray counts it gave without it, passing fewer segments."""
+gives the image and ray counts it gave without it, passing fewer segments; the cost pre-pass
+gives it to the nodes where it lightens the busiest one."""
 
 import math
 
@@ -11,10 +12,10 @@ import host.partition
 from host.nff import read_nff
 from host.partition import occupancy_map, scene_box
 from meshnode.engine import Engine
-from meshnode.engine.counters import N_COUNTERS
+from meshnode.engine.counters import N_COUNTERS, OCC_STEPS, STEPS
 from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
 from meshnode.engine.traverse import box_span
-from protocols.render import EVERYWHERE, Partition
+from protocols.render import EVERYWHERE, ImageSpec, MeshPlan, Partition, RenderSpec
 from protocols.spec import SpecError
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
@@ -63,6 +64,8 @@ def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
         early += t0 < t < math.inf
     # The map must skip something: rays that reach no object, rays that start in empty space.
     assert clear > 0.05 * n and early > 0.05 * n, (clear, early)
+    # Its steps are counted apart from a structure's (they cost differently: work units).
+    assert counters[OCC_STEPS] >= n and counters[STEPS] == 0
 
 
 def test_a_partition_checks_its_occupancy_map():
@@ -93,3 +96,24 @@ def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch)
         assert totals[k] == ref_totals[k], k
     sent, ref_sent = (sum(n.rays_sent for n in ns) for ns in (nodes, ref_nodes))
     assert sent < 0.8 * ref_sent, (sent, ref_sent)
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "tetra_s3.nff"])
+def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
+    # Walking the map costs (a fractal leaves many small empty cubes to step through) and
+    # saves passes; on the cuts it chose, the pre-pass simulates the mesh with and without
+    # the map and keeps whichever leaves the busiest node less work, and says so.
+    from host.balance import balanced_cuts, node_costs
+
+    scene = read_nff(spd_scene(name))
+    spec = RenderSpec(ImageSpec(width=48, height=48).sized(scene.view),
+                      plan=MeshPlan(2, 2, 2.0, balance="cost"))  # fmt: skip
+    cuts = balanced_cuts(scene, spec)
+    busiest = {on: node_costs(scene, spec, cuts.xs, cuts.ys, cuts.cells, on).max()
+               for on in (True, False)}  # fmt: skip
+    assert cuts.occupancy == (busiest[True] <= busiest[False])
+    assert cuts.report["occupancy_map"] == cuts.occupancy
+    ratio = cuts.report["simulated_busiest_without_map_vs_with"]
+    assert ratio == pytest.approx(busiest[False] / busiest[True])
+    if name == "balls_s1.nff":  # a floor and spheres: most of the scene's box is empty
+        assert cuts.occupancy and ratio > 1.05, ratio

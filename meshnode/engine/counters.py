@@ -5,16 +5,21 @@ hits + escaped + shadow rays blocked + shadow rays lit; forwarded rays end on an
 `internal_reflections` counts hits on a transmitter where the refracted ray would be totally
 reflected: the transmitted share joins the reflected ray (no ray is created for it), and the
 SPD author's counter counts such an event as a refracted ray (`spd_counts`).
+`voxel_steps` counts steps of a walk through the node's own structure (grid voxels or
+hierarchy nodes), `occupancy_steps` steps through the scene's occupancy map (an object-space
+node's segments leaving its box): the two cost differently (`meshnode.stats.work_units`).
 """
 
 EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
-TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED, INTERNAL = range(6, 14)
-N_COUNTERS = 14
+TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED, INTERNAL, OCC_STEPS = range(6, 15)
+N_COUNTERS = 15
 COUNTER_NAMES = (
     "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
     "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
-    "hits", "shadow_rays_lit", "rays_forwarded", "internal_reflections",
+    "hits", "shadow_rays_lit", "rays_forwarded", "internal_reflections", "occupancy_steps",
 )  # fmt: skip
+# The walks' work, not rays: kept apart from the ray counts in a render's statistics.
+WALK_COUNTS = ("intersection_tests", "voxel_steps", "occupancy_steps")
 # What the SPD author's published table counts: eye rays that hit, reflected rays, refracted
 # rays (total internal reflections included) and shadow rays.
 SPD_COUNT_KEYS = ("eye_hits", "reflected_rays", "refracted_rays", "shadow_rays")

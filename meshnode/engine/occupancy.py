@@ -19,9 +19,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from meshnode.engine.counters import STEPS
+from meshnode.engine.counters import OCC_STEPS
 from meshnode.engine.jit import leaf
-from meshnode.engine.traverse import _region_exit, _voxel
+from meshnode.engine.traverse import _region_exit
 from protocols.render import EVERYWHERE
 
 INF = math.inf
@@ -80,8 +80,10 @@ def everywhere(lo, hi) -> Occupancy:
 
 
 @leaf
-def _clamp(i, a, b):
-    return min(max(i, a), b)
+def _index(o, d, t, lo, inv, i0, i1):
+    """Voxel index along one axis of the point at t, clamped to [i0, i1] (a multiply by the
+    voxel's reciprocal size: a step's division was on its critical path)."""
+    return min(max(int(math.floor((o + t * d - lo) * inv)), i0), i1)
 
 
 @leaf
@@ -89,44 +91,54 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
     """t where the ray enters the first occupied voxel between t0 and t1 (t0 itself when it
     starts in one), inf when every voxel it crosses there is empty. rx, ry, rz are the
     reciprocal direction; each step (out of one voxel, or of the empty cube around it)
-    counts as a voxel step."""
-    nx = res[0]
-    ny = res[1]
-    nz = res[2]
-    ix = _voxel(ox, dx, t0, lo[0], cell[0], nx)
-    iy = _voxel(oy, dy, t0, lo[1], cell[1], ny)
-    iz = _voxel(oz, dz, t0, lo[2], cell[2], nz)
+    counts as an occupancy step."""
+    nx, ny, nz = res[0], res[1], res[2]
+    lx, ly, lz = lo[0], lo[1], lo[2]
+    cx, cy, cz = cell[0], cell[1], cell[2]
+    qx, qy, qz = 1.0 / cx, 1.0 / cy, 1.0 / cz
+    ix = _index(ox, dx, t0, lx, qx, 0, nx - 1)
+    iy = _index(oy, dy, t0, ly, qy, 0, ny - 1)
+    iz = _index(oz, dz, t0, lz, qz, 0, nz - 1)
     t = t0
+    found = t0  # non-finite arithmetic: skip nothing
+    steps = 0
     # Each step leaves the cube it was in along the ray: at most nx + ny + nz of them (the
     # bound also stops a ray whose arithmetic went non-finite).
     for _ in range(nx + ny + nz + 3):
-        counters[STEPS] += 1
+        steps += 1
         k = clear[ix + nx * (iy + ny * iz)]
         if k == 0:
-            return t
+            found = t
+            break
         r = k - 1
         x0, x1 = max(ix - r, 0), min(ix + r, nx - 1)
         y0, y1 = max(iy - r, 0), min(iy + r, ny - 1)
         z0, z1 = max(iz - r, 0), min(iz + r, nz - 1)
-        tx = _region_exit(ox, dx, rx, x0, x1, lo[0], cell[0])
-        ty = _region_exit(oy, dy, ry, y0, y1, lo[1], cell[1])
-        tz = _region_exit(oz, dz, rz, z0, z1, lo[2], cell[2])
+        tx = _region_exit(ox, dx, rx, x0, x1, lx, cx)
+        ty = _region_exit(oy, dy, ry, y0, y1, ly, cy)
+        tz = _region_exit(oz, dz, rz, z0, z1, lz, cz)
         t = min(tx, min(ty, tz))
         if t > t1:
-            return INF
+            found = INF
+            break
         if not t >= t0:
-            return t0  # non-finite arithmetic: skip nothing
+            break
         # Out through the wall reached first; along the other axes the point is still
         # inside the cube's slab (clamped against round-off), so every step leaves the cube.
-        ix = _clamp(_voxel(ox, dx, t, lo[0], cell[0], nx), x0, x1)
-        iy = _clamp(_voxel(oy, dy, t, lo[1], cell[1], ny), y0, y1)
-        iz = _clamp(_voxel(oz, dz, t, lo[2], cell[2], nz), z0, z1)
         if t == tx:
             ix = x1 + 1 if dx > 0.0 else x0 - 1
+            iy = _index(oy, dy, t, ly, qy, y0, y1)
+            iz = _index(oz, dz, t, lz, qz, z0, z1)
         elif t == ty:
             iy = y1 + 1 if dy > 0.0 else y0 - 1
+            ix = _index(ox, dx, t, lx, qx, x0, x1)
+            iz = _index(oz, dz, t, lz, qz, z0, z1)
         else:
             iz = z1 + 1 if dz > 0.0 else z0 - 1
+            ix = _index(ox, dx, t, lx, qx, x0, x1)
+            iy = _index(oy, dy, t, ly, qy, y0, y1)
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
-            return INF
-    return t0  # non-finite arithmetic: skip nothing
+            found = INF
+            break
+    counters[OCC_STEPS] += steps
+    return found

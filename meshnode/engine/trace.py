@@ -281,7 +281,8 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                                   ghi0, ghi1, ghi2)  # fmt: skip
                 resume = -1.0
                 if s0 > s1:
-                    n1 = math.inf  # the segment misses the scene: it ends here, below
+                    n1 = math.inf  # the segment misses the scene: it ends here, below,
+                    clear = True  # with nothing to walk (every object is in the scene's box)
                 elif n0 > s0 or n1 <= s0:
                     resume = s0  # not in this box where its part inside the scene starts
                     if first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, s0, s1, occ_lo,

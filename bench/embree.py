@@ -28,7 +28,7 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
 
 
 def triangles_of(scene) -> np.ndarray:
@@ -144,7 +144,7 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.embree", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    add_scenes_option(p)
     p.add_argument("--only", default="tetra,teapot,gears")
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--levels", type=int, default=9, help="generated tetrahedron's recursion")

@@ -39,7 +39,8 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
 
@@ -141,7 +142,7 @@ def link_bytes(stats):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.mesh", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    add_scenes_option(p)
     p.add_argument("--only", default="balls,tetra")
     p.add_argument("--meshes", default="2x2,3x3")
     p.add_argument("--overlaps", default="2,24,100")

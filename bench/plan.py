@@ -20,16 +20,17 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 PLANS = {"default": [], "1x1": ["--mesh", "1x1"]}
 
 if __package__ in (None, ""):  # run as `python bench/plan.py`
     sys.path.insert(0, str(ROOT))
 
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.plan", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES, help="folder of *.nff")
+    add_scenes_option(p)
     p.add_argument("--only", default="balls,gears,tetra", help="comma-separated scene names")
     p.add_argument("--repeat", type=int, default=3, help="renders per plan and scene (best)")
     p.add_argument("--json", type=Path, help="write the figures to this JSON file")

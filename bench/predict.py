@@ -26,7 +26,8 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
 MODES = {"object+steal": {"mode": "object", "steal": True},
          "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
          "object+cost": {"mode": "object", "balance": "cost"},
@@ -79,7 +80,7 @@ def runs(modes: list[str], overlaps: list[float]):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.predict", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    add_scenes_option(p)
     p.add_argument("--only", default="balls,gears")
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")

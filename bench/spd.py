@@ -30,7 +30,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 WALL_SCENES = ("balls", "tetra")  # timed as whole processes too
 GOAL_SCENES = ("balls", "tetra", "gears", "rings", "teapot", "tree")
 GOAL_RATIO = 2.0  # the project's goal: POV-Ray's trace time over our default's
@@ -55,6 +54,8 @@ SCALING_KEYS = ("label", "structure", "used_structure", "structure_reason", "use
 
 if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(ROOT))
+
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
 
 
 def default_density() -> float:
@@ -84,7 +85,7 @@ class CountMismatchError(AssertionError):
 def parse_args(argv=None) -> argparse.Namespace:
     """Command line options."""
     p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES, help="folder of *.nff")
+    add_scenes_option(p)
     p.add_argument("--only", help="comma-separated scene names (default: all)")
     p.add_argument("--structures", default=",".join(STRUCTURES),
                    help="which of grid (every storage x density), bvh, auto to run (default "

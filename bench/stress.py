@@ -30,7 +30,8 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DEFAULT_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
 
@@ -91,7 +92,7 @@ async def faulted_render(scene, image, engine, mesh, addresses, silence: float) 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.stress", description=__doc__.splitlines()[0])
-    p.add_argument("--scenes", type=Path, default=DEFAULT_SCENES)
+    add_scenes_option(p)
     p.add_argument("--scene", default="balls.nff")
     p.add_argument("--size", type=int, default=768)
     p.add_argument("--spp", type=int, default=4)

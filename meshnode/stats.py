@@ -19,8 +19,9 @@ RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 # least squares, one scale per scene) on each node's kernel CPU in simulated 2x2 and 3x3
 # meshes of six SPD scenes, one process, one thread. Within a scene the CPU per unit spread
 # 13% with tests + steps + segments + 8 per segment sent on; 5.5% with these. A step of the
-# occupancy map costs four of a hierarchy's (a chain of divisions and a table look-up per
-# step), a segment five (box spans, the ray's record, the stack), a test about half a step.
+# occupancy map costs four of a hierarchy's (a latency-bound chain of arithmetic and a
+# table look-up per step; fitted before its divisions became multiplies, 10-15% less a walk
+# since), a segment five (box spans, the ray's record, the stack), a test about half a step.
 UNIT_WEIGHTS = {"intersection_tests": 1, "voxel_steps": 2, "occupancy_steps": 8,
                 "ray_segments": 10, "rays_forwarded": 8}
 

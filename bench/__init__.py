@@ -4,10 +4,10 @@ import os
 from pathlib import Path
 
 
-def add_scenes_option(parser, **extra) -> None:
+def add_scenes_option(parser) -> None:
     """`--scenes DIR`: the folder of SPD scenes (README: where they come from), by default
     `$MESHTRACE_SCENES` as the tests read it; required when that is unset."""
     default = os.environ.get("MESHTRACE_SCENES")
     parser.add_argument("--scenes", type=Path, default=Path(default) if default else None,
                         required=not default,
-                        help="folder of SPD *.nff scenes (default: $MESHTRACE_SCENES)", **extra)
+                        help="folder of SPD *.nff scenes (default: $MESHTRACE_SCENES)")

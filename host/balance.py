@@ -194,7 +194,7 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -
     base = tried[0][0] or 1.0
     # The map's walk costs (a fractal: many small empty cubes) against the passes it saves.
     without = node_costs(scene, spec, bx, by, cells, occupancy=False)
-    occupancy = not without.max() < best
+    occupancy = best <= without.max()  # ties keep the map: fewer rays passed
     report = {"columns": bx, "rows": by, "family": family,
               "simulated_busiest_vs_even": best / base,
               "simulated_busiest_vs_even_by_family": {  # the best of each: why this one

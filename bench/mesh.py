@@ -3,7 +3,8 @@ process.
 
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
-                         [--modes object,image] [--tiles static] [--size 512 --spp 1]
+                         [--modes object,image] [--tiles static] [--tile 32]
+                         [--size 512 --spp 1]
                          [--min-trace 5] [--repeat 3] [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
@@ -23,9 +24,10 @@ the best of each (least tracing CPU; least busiest-node CPU): this machine's spe
 up to 1.6x for minutes at a time, so both sides are measured over the same span.
 `--node-threads 1,2` runs every row with nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
-space tilings. `--plots DIR` writes a per-node load plot (PNG) for every row: each node's
-tracing CPU against the busiest's. The machine has 2 cores, so meshes of 4 and more
-processes share them: wall time shows that; CPU seconds show the division of work.
+space tilings, and `--tile 32,64` their tile sides (samples). `--plots DIR` writes a
+per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The
+machine has 2 cores, so meshes of 4 and more processes share them: wall time shows that;
+CPU seconds show the division of work.
 """
 
 import argparse
@@ -81,24 +83,28 @@ SIZE_MARGIN = 1.3
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False, repeat=1):  # fmt: skip
+            tiles="static", steal=False, repeat=1, tile=32):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
     (engines kept). One node renders in this process before each mesh render, taking turns
     with it, and the best of those runs is the row's reference: this machine's speed moves
     by up to 1.6x for minutes at a time, so the two sides are measured over the same span."""
+    from host.balance import OVERLAPS
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
-    plan = MeshPlan(rows, cols, overlap, balance, mode, tiles, steal=steal)
+    auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
+    plan = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, balance, mode, tiles,
+                    tile=tile, steal=steal)  # fmt: skip
     runs, singles = [], []
     with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
         for _ in range(repeat):
             singles.append(single(scene, image, warm=False))
             start = time.perf_counter()
-            _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan))
+            _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan,
+                                                  overlaps=OVERLAPS if auto else ()))  # fmt: skip
             runs.append((time.perf_counter() - start, stats))
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
     best["setup_reused_seconds"] = best["setup_seconds"]
@@ -145,7 +151,8 @@ def main(argv=None) -> int:
     add_scenes_option(p)
     p.add_argument("--only", default="balls,tetra")
     p.add_argument("--meshes", default="2x2,3x3")
-    p.add_argument("--overlaps", default="2,24,100")
+    p.add_argument("--overlaps", default="2,24,100",
+                   help="object space overlaps (percent; auto: the pre-pass chooses)")
     p.add_argument("--node-threads", default="1", help="tracing threads per node to compare")
     p.add_argument("--balance", default="even", help="image cuts to compare: even,cost")
     p.add_argument("--modes", default="object",
@@ -153,6 +160,7 @@ def main(argv=None) -> int:
                         "(static tiles; overlap and cuts do not apply)")  # fmt: skip
     p.add_argument("--tiles", default="static", help="image space tilings to compare: "
                    "static,dynamic")  # fmt: skip
+    p.add_argument("--tile", default="32", help="image space tile sides (samples) to compare")
     p.add_argument("--steal", default="off", help="object space without and with stealing "
                    "to compare: off,on")  # fmt: skip
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
@@ -176,7 +184,7 @@ def main(argv=None) -> int:
         args.plots.mkdir(parents=True, exist_ok=True)
 
     meshes = [tuple(int(v) for v in m.split("x")) for m in args.meshes.split(",")]
-    overlaps = [float(o) for o in args.overlaps.split(",")]
+    overlaps = [o if o == "auto" else float(o) for o in args.overlaps.split(",")]
     results = []
     bad = []
     for name in args.only.split(","):
@@ -198,12 +206,17 @@ def main(argv=None) -> int:
         runs = [(m, o, t, c, st) for m in args.modes.split(",") for t in threads
                 for o, c, st in ([(o, c, st) for o in overlaps for c in cuts for st in steals]
                                  if m == "object" else
-                                 [(0.0, t, False) for t in args.tiles.split(",")])]  # fmt: skip
+                                 [(0.0, (t, int(side)), False) for t in args.tiles.split(",")
+                                  for side in args.tile.split(",")])]  # fmt: skip
         for rows, cols in meshes:
             for mode, overlap, thr, cut, steal in runs:
-                if mode == "image":  # `cut` names the tiling here
+                side = None
+                if mode == "image":  # `cut` names the tiling and its tile side here
+                    cut, side = cut
                     got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
-                                  repeat=args.repeat)  # fmt: skip
+                                  repeat=args.repeat, tile=side)  # fmt: skip
+                    cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
+
                 else:
                     got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
                                   steal=steal, repeat=args.repeat)  # fmt: skip
@@ -218,8 +231,11 @@ def main(argv=None) -> int:
                     bad.append(f"{name} {rows}x{cols} {mode} {cut} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
                 mean, top = link_bytes(st)
+                used = st["mesh"]["overlap"]  # the pre-pass's choice under "auto"
+                shown = f"a:{used:g}" if overlap == "auto" else f"{overlap:g}"
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
-                       "node_threads": thr, "cuts": cut, "steal": steal,
+                       "overlap_used": used,
+                       "node_threads": thr, "cuts": cut, "steal": steal, "tile": side,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
                        "paired_speedups": st["paired_speedups"],
@@ -234,7 +250,7 @@ def main(argv=None) -> int:
                        "balance": st.get("balance"), "counts": counts,
                        "image": image.to_wire()}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {mode:>6} {overlap:>7g} {thr:>3} {cut:>10} {wall:>7.2f} "
+                print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>10} {wall:>7.2f} "
                       f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
                       f"{statistics.median(st['paired_speedups']):>6.2f} "
                       f"{row['work_speedup']:>5.2f} "
@@ -242,7 +258,7 @@ def main(argv=None) -> int:
                       f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
                       f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,}")  # fmt: skip
                 if args.plots:
-                    tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{overlap:g}-t{thr}"
+                    tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{shown}-t{thr}"
                     load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "
                               f"{row['speedup']:.2f}, efficiency "
                               f"{st['parallel_efficiency']:.2f}", st)  # fmt: skip

@@ -34,22 +34,24 @@ MODES = {"object+steal": {"mode": "object", "steal": True},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
-def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float = 2):
-    """(busiest node's cost, total cost, rays passed) of a simulated render."""
-    from host.balance import balanced_cuts
-    from host.partition import partition, subset
+def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float | str = 2):
+    """(busiest node's cost, total cost, rays passed, overlap) of a simulated render, planned
+    as `host render` plans it (`overlap` "auto": the pre-pass chooses, with no memory bound)."""
+    from host.balance import OVERLAPS
+    from host.partition import subset
+    from host.plan import plan_render
     from meshnode.simulator import simulate
-    from protocols.render import ImageSpec, MeshPlan, RenderSpec
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
-    image = ImageSpec(width=size, height=size).sized(scene.view)
+    image = ImageSpec(width=size, height=size)
     tile = max(4, size // 32)
-    spec = RenderSpec(image, plan=MeshPlan(rows, cols, overlap, tile=tile, **plan))
-    cuts = balanced_cuts(scene, spec) if spec.plan.balance == "cost" else None
-    cut = (cuts.xs, cuts.ys, cuts.cells, cuts.occupancy) if cuts else ()
-    part, keep = partition(scene, spec, *cut)
-    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], spec, part)
+    auto = overlap == "auto"
+    mesh = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, tile=tile, **plan)
+    planned = plan_render(scene, image, EngineSpec(), mesh, overlaps=OVERLAPS if auto else ())
+    part, keep = planned.partition, planned.holders
+    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], planned.spec, part)
     costs = [n.cost for n in out.nodes]
-    return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes)
+    return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes), planned.spec.plan.overlap
 
 
 def measured_table(paths: list[Path]) -> dict:
@@ -85,7 +87,8 @@ def main(argv=None) -> int:
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
     p.add_argument("--modes", default=",".join(MODES), help=f"of {', '.join(MODES)}")
-    p.add_argument("--overlaps", default="2", help="object space: box overlaps (percent)")
+    p.add_argument("--overlaps", default="2", help="object space: box overlaps (percent; "
+                   "auto: the pre-pass chooses, as `--overlap auto` does)")
     p.add_argument("--measured", type=Path, nargs="+", default=[],
                    help="bench.mesh --json outputs to compare with")
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
@@ -96,11 +99,11 @@ def main(argv=None) -> int:
     from host.nff import read_nff
 
     measured = measured_table(args.measured)
-    overlaps = [float(v) for v in args.overlaps.split(",")]
+    overlaps = [v if v == "auto" else float(v) for v in args.overlaps.split(",")]
     table = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        one, _, _ = simulated(scene, 1, 1, args.size, {})
+        one, *_ = simulated(scene, 1, 1, args.size, {})
         print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
         print(f"{'mesh':>6} {'mode':>17} {'overlap':>7} {'predicted':>9} {'measured':>8} "
               f"{'ratio':>5} {'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
@@ -108,16 +111,18 @@ def main(argv=None) -> int:
             rows, cols = (int(v) for v in mesh.split("x"))
             for mode, overlap in runs(args.modes.split(","), overlaps):
                 start = time.perf_counter()
-                busiest, _, passed = simulated(scene, rows, cols, args.size, MODES[mode],
-                                               overlap or 0)  # fmt: skip
+                busiest, _, passed, used = simulated(scene, rows, cols, args.size,
+                                                     MODES[mode], overlap or 0)  # fmt: skip
                 predicted = one / busiest
                 got, got_work = measured.get((name, mesh, mode, overlap), (None, None))
                 seen = f"{got:8.2f} {got / predicted:5.2f}" if got else f"{'-':>8} {'-':>5}"
                 seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
-                shown = "-" if overlap is None else f"{overlap:g}"
+                shown = "-" if overlap is None else f"{used:g}"
+                shown = f"auto:{shown}" if overlap == "auto" else shown
                 print(f"{mesh:>6} {mode:>17} {shown:>7} {predicted:>9.2f} {seen} {passed:>11,} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
                 table.append({"scene": name, "mesh": mesh, "mode": mode, "overlap": overlap,
+                              "overlap_used": used if overlap is not None else None,
                               "predicted": predicted, "measured": got,
                               "measured_work": got_work, "rays_passed": passed})  # fmt: skip
     if args.json:

@@ -29,6 +29,7 @@ from host.partition import (
     cell_axes,
     cells_from_cuts,
     column_rows,
+    engine_bytes,
     node_cells,
     partition,
     scene_box,
@@ -41,19 +42,23 @@ from protocols.render import ImageSpec, RenderSpec
 
 COARSE = 64  # coarse samples along the longer image axis
 FINE = 12  # work map cells along each cut axis
+FITS = 0.25  # the share of a node's memory its engine may take (image space when the whole
+# scene's does; `--overlap auto` picks among the overlaps whose largest node's does)
+OVERLAPS = (2.0, 30.0, 60.0, 100.0)  # `--overlap auto`'s candidates, percent
 
 
 class Cuts(NamedTuple):
     """Where the pre-pass cuts: the image (`xs`, `ys` as `host.partition.rectangles` takes
     them; None: even), object space (`cells` (los, his), None: from the image cuts), whether
-    the nodes get the scene's occupancy map (`occupancy`), and why (`report`, for the
-    statistics)."""
+    the nodes get the scene's occupancy map (`occupancy`), the overlap they hold with
+    (`overlap`, percent), and why (`report`, for the statistics)."""
 
     xs: list | None
     ys: list | None
     report: dict
     cells: tuple | None = None
     occupancy: bool = True
+    overlap: float = 1.0
 
 
 def _bands(inner, n: int) -> list[int]:
@@ -90,13 +95,66 @@ def node_costs(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True) -> n
     """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
     grid; None: even), its cells `cells` (None: from the image cuts), with or without the
     occupancy map: the mesh simulated in this process."""
+    coarse, part, scenes = _coarse_mesh(scene, spec, xs, ys, cells, occupancy)
+    return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
+
+
+def _coarse_mesh(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
+    """(coarse spec, partition, each node's objects) of the mesh `node_costs` simulates."""
     coarse = coarse_spec(spec)
     (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
     xs, ys = xs or splits(width, spec.plan.cols), ys or splits(height, spec.plan.rows)
     part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch),
                            cells, occupancy)  # fmt: skip
-    scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
-    return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
+    return coarse, part, [subset(scene, keep[n]) for n in range(part.nodes)]
+
+
+def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:
+    """Bytes of the largest node's engine with these cuts (`host.partition.engine_bytes`)."""
+    return max(engine_bytes(s) for s in _coarse_mesh(scene, spec, xs, ys, cells)[2])
+
+
+def choose_holding(scene, spec: RenderSpec, xs, ys, cells, busiest: float,
+                   overlaps=(), memory: int = 0) -> tuple[float, bool, dict]:
+    """(overlap, occupancy map, report) for the nodes on these cuts, whose busiest node
+    simulates at `busiest` with the plan's overlap and the map: the plan's overlap, or
+    of `overlaps` (with the plan's) the one whose busiest node simulates least among
+    those whose largest node's engine takes at most FITS of `memory` (0: not known, every
+    overlap); with the map or without, whichever lightens the busiest node (the map's walk
+    costs, in a fractal of many small empty cubes, more than the passes it saves). A wider
+    overlap keeps rays longer on a node (fewer segments, fewer passes) at the price of
+    objects held twice: the teapot 3x3 simulated 3.51 at overlap 2 and 5.75 at 100."""
+    plan = spec.plan
+    tried, too_big = {}, []
+    for overlap in sorted({plan.overlap, *overlaps}):
+        at = replace(spec, plan=replace(plan, overlap=overlap))
+        if overlap != plan.overlap and memory:
+            held = largest_engine(scene, at, xs, ys, cells)
+            if held > FITS * memory:
+                too_big.append({"overlap": overlap, "largest_node_bytes": held})
+                continue
+        with_map = busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys,
+                                                                      cells).max()  # fmt: skip
+        tried[overlap, True] = float(with_map)
+        tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
+    # ties: the smaller overlap (less held), then the map (fewer rays passed)
+    (overlap, occupancy), least = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
+    at_plan = tried[plan.overlap, occupancy]
+    report = {"occupancy_map": occupancy,
+              "simulated_busiest_without_map_vs_with": _ratio(tried[overlap, False],
+                                                              tried[overlap, True])}  # fmt: skip
+    if overlaps:
+        report["overlap"] = {
+            "chosen": overlap, "candidates": sorted({plan.overlap, *overlaps}),
+            "simulated_busiest_vs_chosen": {f"{o:g}": _ratio(b, least)
+                                            for (o, m), b in tried.items() if m == occupancy},
+            "too_big_for_memory": too_big, "memory_bytes": memory,
+            "simulated_busiest_at_first_vs_chosen": _ratio(at_plan, least)}  # fmt: skip
+    return overlap, occupancy, report
+
+
+def _ratio(a: float, b: float) -> float:
+    return float(a / b) if b else 1.0
 
 
 def _even_out(seen: list, n: int) -> list[int]:
@@ -176,12 +234,14 @@ def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:
 FAMILIES = ("shared rows", "rows per column", "work map")
 
 
-def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -> Cuts:
+def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, overlaps=(),
+                  memory: int = 0) -> Cuts:  # fmt: skip
     """The cuts whose simulated busiest node is the least loaded, of those each family tried
-    in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
-    with each column's own (`ys` is then a list per column), and cells cut on the work map
-    (`map_cells`), corrected by each round's measured costs; then, on those cuts, whether
-    the occupancy map lightens the busiest node or not."""
+    in `rounds` re-cuts at the plan's overlap: image cuts from even ones with row cuts shared
+    by all columns or with each column's own (`ys` is then a list per column), and cells cut
+    on the work map (`map_cells`), corrected by each round's measured costs; then, on those
+    cuts, the overlap (of `overlaps`, within `memory`) and whether the nodes get the
+    occupancy map (`choose_holding`)."""
     plan = spec.plan
     even = node_costs(scene, spec, None, None)
     tried = [(float(even.max()), None, None, even, "even", None)]
@@ -192,18 +252,16 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES) -
             tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
     best, bx, by, cost, family, cells = min(tried, key=lambda t: t[0])
     base = tried[0][0] or 1.0
-    # The map's walk costs (a fractal: many small empty cubes) against the passes it saves.
-    without = node_costs(scene, spec, bx, by, cells, occupancy=False)
-    occupancy = best <= without.max()  # ties keep the map: fewer rays passed
+    overlap, occupancy, holding = choose_holding(scene, spec, bx, by, cells, best, overlaps,
+                                                 memory)  # fmt: skip
     report = {"columns": bx, "rows": by, "family": family,
               "simulated_busiest_vs_even": best / base,
               "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
                   f: min((t[0] for t in tried if t[4] == f), default=base) / base
                   for f in families},
               "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0,
-              "occupancy_map": occupancy,
-              "simulated_busiest_without_map_vs_with": float(without.max() / best) if best else 1.0}
-    return Cuts(bx, by, report, cells, occupancy)
+              **holding}
+    return Cuts(bx, by, report, cells, occupancy, overlap)
 
 
 def _image_tries(scene, spec: RenderSpec, rounds: int, own_rows: bool, cost) -> list[tuple]:

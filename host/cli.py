@@ -14,6 +14,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from host.balance import OVERLAPS
 from host.camerasetup import CameraSetup, Focus, PinholeSetup
 from host.cluster import parse_mesh, read_cluster, statefulset_cluster
 from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
@@ -127,8 +128,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--on-node-loss", choices=NODE_LOSS, default="replan",
                    help="when a node dies or falls silent mid-frame: replan (finish the frame "
                         "on the nodes left, same image) or fail (default replan)")  # fmt: skip
-    _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size",
-           type=float)  # fmt: skip
+    _field(r, "--overlap", MeshPlan, "overlap", "grow each node's box by PERCENT of its size; "
+           f"auto: the simulated pre-pass picks of {', '.join(f'{o:g}' for o in OVERLAPS)} the "
+           "fastest whose largest node fits the nodes' memory", type=_overlap)  # fmt: skip
     _field(r, "--balance", MeshPlan, "balance", "mesh cuts: even image rectangles, or image "
            "cuts or object-space cells from a coarse simulated pass that evens the nodes' "
            "work (costs a few seconds up front)",
@@ -218,6 +220,16 @@ def _camera_options(g) -> None:
            "diagonal/1500)", type=float)  # fmt: skip
     _field(g, "--f-number", Focus, "f_number", "stop the lens to this f-number", type=float)
     g.add_argument("--film-size", type=_film_size, help=FILM_SIZE_HELP)
+
+
+def _overlap(text: str) -> float | str:
+    """An overlap in percent, or "auto"."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a percentage nor auto") from None
 
 
 def _bytes(text: str) -> int:
@@ -577,7 +589,12 @@ def _run(scene, image, engine, camera, args, watch=None):
 def _plan(rows: int, cols: int, args) -> MeshPlan:
     """The mesh plan from the options, checked now (an asked-for mode with it)."""
     asked = {"mode": args.mode} if args.mode != "auto" else {}
-    return MeshPlan(rows, cols, **_given(args, MeshPlan), **asked)
+    given = {k: v for k, v in _given(args, MeshPlan).items() if v != "auto"}  # --overlap auto
+    return MeshPlan(rows, cols, **given, **asked)
+
+
+def _auto_overlap(args) -> bool:
+    return getattr(args, "MeshPlan.overlap", None) == "auto"
 
 
 def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
@@ -601,6 +618,7 @@ def _mesh(scene, image, engine, plan, camera, addresses, secret, args, tls=None,
                                           secret=secret, progress=bar.update,
                                           on_node_loss=args.on_node_loss, tls=tls,
                                           mode=args.mode, node_memory=args.node_memory,
+                                          overlaps=OVERLAPS if _auto_overlap(args) else (),
                                           notice=lambda text: bar.write(f"host: {text}",
                                                                         file=sys.stderr),
                                           watch=watch, ready=ready, wait=wait))  # fmt: skip

@@ -21,7 +21,7 @@ import numpy as np
 from host.camerasetup import CameraSetup
 from host.framebuffer import Framebuffer
 from host.partition import subset
-from host.plan import Planned, choose_mode, plan_render
+from host.plan import Planned, choose_mode, plan_render, smallest_memory
 from meshnode.link import Link, LinkClosed, dial
 from meshnode.scheduler import TileDealer
 from protocols.errors import ProtocolError, describe
@@ -67,7 +67,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                          stall: float = 180.0, on_node_loss: str = "replan",
                          notice=None, tls: ssl.SSLContext | None = None,
                          mode: str | None = None, node_memory: int | None = None,
-                         watch=None, ready=None,
+                         overlaps=(), watch=None, ready=None,
                          wait: float = 5.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
@@ -79,7 +79,9 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     `notice(text)` hears of the plan chosen and of every lost node; `tls`: a client context
     (meshnode.tls) when the nodes listen with TLS; `mode`: "auto", "object" or "image" to
     choose the plan's mode here (host.plan.choose_mode: auto weighs the scene against the
-    memory the nodes report, or `node_memory`), None to keep `plan.mode`; `watch`: a
+    memory the nodes report, or `node_memory`), None to keep `plan.mode`; `overlaps`:
+    object-space overlaps for the cost pre-pass to choose among within that memory
+    (`--overlap auto`; empty: keep `plan.overlap`); `watch`: a
     `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS; `ready()` once
     every node has built its engine (compiled its kernels on a first run) and linked;
     `wait`: seconds for every node to accept a connection (nodes still starting), then the
@@ -93,6 +95,7 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     alive = list(range(len(addresses)))  # the original index of each node still rendering
     links, memories = await _connect(addresses, cluster, secret, tls, wait)
     connect = time.perf_counter() - start
+    memory = smallest_memory(memories, node_memory)
     why = f"MeshPlan.mode = {plan.mode}"
     if mode is not None:
         plan, why = choose_mode(plan, scene, memories, mode, node_memory)
@@ -107,7 +110,8 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                 fb, summary = await _attempt(scene, image, engine, plan, camera,
                                              [links[n] for n in alive],
                                              [addresses[n] for n in alive], names, progress,
-                                             silence, stall, watch, ready)  # fmt: skip
+                                             silence, stall, watch, ready,
+                                             (overlaps, memory))  # fmt: skip
                 break
             except MeshError as e:
                 if on_node_loss == "fail":
@@ -147,11 +151,12 @@ def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
 
 
 async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,
-                   progress, silence, stall, watch, ready):  # fmt: skip
+                   progress, silence, stall, watch, ready, holding=((), 0)):  # fmt: skip
     """One try at the frame on `links` (node i is links[i] at addresses[i], called
-    names[i] in messages): (framebuffer, summary)."""
+    names[i] in messages): (framebuffer, summary); `holding`: (overlaps, memory) for
+    `plan_render`."""
     start, ticks = time.perf_counter(), time.monotonic()
-    planned = plan_render(scene, image, engine, plan, camera)
+    planned = plan_render(scene, image, engine, plan, camera, *holding)
     await _configure(scene, planned, links, addresses)
     sent = time.perf_counter() - start
     spec = planned.spec
@@ -176,8 +181,8 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
             progress(-collector.traced)  # the frame starts again: so does the count
         raise
     ready = (collector.ready_at or time.monotonic()) - ticks
-    summary = _summary(collector.stats, plan, planned.holders, collector.deposits, ready,
-                       time.perf_counter() - start)  # fmt: skip
+    summary = _summary(collector.stats, planned.spec.plan, planned.holders, collector.deposits,
+                       ready, time.perf_counter() - start)  # fmt: skip
     summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance

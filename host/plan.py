@@ -10,9 +10,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from host.balance import balanced_cuts
+from host.balance import FITS, balanced_cuts, choose_holding, node_costs
 from host.camerasetup import CameraSetup
-from host.partition import partition
+from host.partition import engine_bytes, partition
 from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, Partition, RenderSpec
 from protocols.scene import SceneData
 
@@ -28,8 +28,14 @@ class Planned:
 
 
 def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: MeshPlan,
-                camera: CameraSetup | None = None) -> Planned:  # fmt: skip
+                camera: CameraSetup | None = None, overlaps=(),
+                memory: int = 0) -> Planned:  # fmt: skip
+    """The render planned: `overlaps` (object space) are overlaps for the pre-pass to choose
+    among, the smallest first (`host.balance.choose_holding`; `memory`: the smallest node's,
+    0 if not known), else the plan's own is kept."""
     start = time.perf_counter()
+    if overlaps and plan.mode == "object":
+        plan = replace(plan, overlap=min(overlaps))
     image = image.sized(scene.view)
     camera_spec = info = None
     if camera is not None:  # autofocus probes the scene here, before any node is configured
@@ -37,12 +43,20 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
                                                                            engine))  # fmt: skip
     spec = RenderSpec(image, engine, plan, camera_spec)
     xs = ys = cells = None
-    occupancy = True
+    occupancy, overlap = True, plan.overlap
     balance: dict = {"cuts": plan.balance}
-    if plan.balance == "cost" and plan.nodes > 1:
-        t0 = time.perf_counter()
-        xs, ys, report, cells, occupancy = balanced_cuts(scene, spec)
+    t0 = time.perf_counter()
+    if plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
+        xs, ys, report, cells, occupancy, overlap = balanced_cuts(scene, spec, overlaps=overlaps,
+                                                                  memory=memory)  # fmt: skip
         balance.update(report, seconds=time.perf_counter() - t0)
+    elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
+        even = node_costs(scene, spec, None, None).max()
+        overlap, occupancy, report = choose_holding(scene, spec, None, None, None, even,
+                                                    overlaps, memory)  # fmt: skip
+        balance.update(report, seconds=time.perf_counter() - t0)
+    if plan.mode == "object" and overlap != plan.overlap:
+        spec = replace(spec, plan=replace(plan, overlap=overlap))
     part, keep = partition(scene, spec, xs, ys, cells, occupancy)
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
@@ -56,16 +70,6 @@ def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
 
 
 PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES
-ENGINE_BYTES_PER_RECORD_BYTE = 8  # tables and grid of a whole-scene engine (balls: 1.4 MB of
-# grid and 0.6 MB of tables over 0.3 MB of records; gears, tetra and teapot alike or less)
-FITS = 0.25  # image space when a whole-scene engine takes at most this share of a node
-
-
-def engine_bytes(scene: SceneData) -> int:
-    """A whole-scene engine's memory, estimated from the object records it is built from."""
-    tables = (scene.spheres, scene.triangles, scene.polygons, scene.vertices, scene.cones,
-              scene.materials, scene.lights)  # fmt: skip
-    return ENGINE_BYTES_PER_RECORD_BYTE * sum(t.nbytes for t in tables)
 
 
 def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: str = "auto",
@@ -77,8 +81,7 @@ def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: st
     if asked != "auto":
         return replace(plan, mode=asked), f"asked for with --mode {asked}"
     need = engine_bytes(scene)
-    known = [m for m in memories if m > 0]
-    memory = override if override is not None else min(known) if known else 0
+    memory = smallest_memory(memories, override)
     size = f"the whole scene's engine (about {_size(need)})"
     if plan.balance != "even":
         return replace(plan, mode="object"), f"--balance {plan.balance} cuts object space"
@@ -92,6 +95,12 @@ def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: st
                                              "many times over: no rays cross the network")
     return replace(plan, mode="object"), (f"{size} would take over {FITS:.0%} of {where} "
                                           f"({_size(memory)}): each node holds its box")
+
+
+def smallest_memory(memories: list[int], override: int | None = None) -> int:
+    """The memory to plan for: `override` (--node-memory), else the least any node reported
+    at the handshake (0: none did)."""
+    return override if override is not None else min((m for m in memories if m > 0), default=0)
 
 
 def _size(n: int) -> str:

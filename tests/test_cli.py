@@ -237,3 +237,21 @@ def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
     cameras = Path(__file__).resolve().parents[1] / "host" / "cameras"
     monkeypatch.setattr(sys, "stdout", ClosedPipe())
     assert main(["camera", str(cameras / "thin_f2.8.toml")]) == 0
+
+
+def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys):
+    from host.balance import OVERLAPS
+
+    stats = tmp_path / "s.json"
+    assert main(["render", str(EXAMPLE), "--mesh", "2x2", "--mode", "object", "--overlap",
+                 "auto", "--balance", "cost", "--width", "24", "--height", "24", "--quiet",
+                 "-o", str(tmp_path / "a.png"), "--stats", str(stats)]) == 0  # fmt: skip
+    got = json.loads(stats.read_text())
+    chosen = got["balance"]["overlap"]["chosen"]
+    assert chosen in OVERLAPS and got["mesh"]["overlap"] == chosen  # what the nodes ran
+    assert sorted(got["balance"]["overlap"]["simulated_busiest_vs_chosen"]) == sorted(
+        f"{o:g}" for o in OVERLAPS)
+    with pytest.raises(SystemExit) as bad:
+        main(["render", str(EXAMPLE), "--mesh", "2x2", "--overlap", "wide"])
+    assert bad.value.code == 2
+    assert "'wide' is neither a percentage nor auto" in capsys.readouterr().err

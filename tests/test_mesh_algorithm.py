@@ -249,7 +249,7 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres],
                        lights=[(0.0, 5.0, -10.0)])  # fmt: skip
     spec = RenderSpec(ImageSpec(width=96, height=96), plan=MeshPlan(2, 3, 1.0))
-    xs, ys, report, cells, _ = balanced_cuts(scene, spec, families=("shared rows",))
+    xs, ys, report, cells, *_ = balanced_cuts(scene, spec, families=("shared rows",))
     assert report["family"] == "shared rows" and cells is None
     for bounds, n, parts in ((xs, 96, 3), *((y, 96, 2) for y in column_rows(ys, 96, 2, 3))):
         assert bounds[0] == 0 and bounds[-1] == n and len(bounds) == parts + 1
@@ -270,7 +270,7 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     scene = read_nff(spd_scene("teapot_s1.nff"))
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE).sized(scene.view),
                       plan=MeshPlan(2, 2, 1.0))  # fmt: skip
-    xs, ys, report, cells, _ = balanced_cuts(scene, spec)
+    xs, ys, report, cells, *_ = balanced_cuts(scene, spec)
     assert report["family"] == "work map" and xs is None and ys is None
     family = report["simulated_busiest_vs_even_by_family"]
     # 0.53 of even's busiest against 0.99 since the units weigh each event by its fitted

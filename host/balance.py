@@ -121,36 +121,51 @@ def choose_holding(scene, spec: RenderSpec, xs, ys, cells, busiest: float,
     of `overlaps` (with the plan's) the one whose busiest node simulates least among
     those whose largest node's engine takes at most FITS of `memory` (0: not known, every
     overlap); with the map or without, whichever lightens the busiest node (the map's walk
-    costs, in a fractal of many small empty cubes, more than the passes it saves). A wider
-    overlap keeps rays longer on a node (fewer segments, fewer passes) at the price of
-    objects held twice: the teapot 3x3 simulated 3.51 at overlap 2 and 5.75 at 100."""
+    costs, in a fractal of many small empty cubes, more than the passes it saves)."""
     plan = spec.plan
     tried, too_big = {}, []
     for overlap in sorted({plan.overlap, *overlaps}):
-        at = replace(spec, plan=replace(plan, overlap=overlap))
-        if overlap != plan.overlap and memory:
-            held = largest_engine(scene, at, xs, ys, cells)
-            if held > FITS * memory:
-                too_big.append({"overlap": overlap, "largest_node_bytes": held})
-                continue
+        at = _at(spec, overlap)
+        if overlap != plan.overlap and _too_big(scene, at, xs, ys, cells, memory, too_big):
+            continue
         with_map = busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys,
                                                                       cells).max()  # fmt: skip
         tried[overlap, True] = float(with_map)
         tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
     # ties: the smaller overlap (less held), then the map (fewer rays passed)
-    (overlap, occupancy), least = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
-    at_plan = tried[plan.overlap, occupancy]
+    (overlap, occupancy), _ = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
     report = {"occupancy_map": occupancy,
               "simulated_busiest_without_map_vs_with": _ratio(tried[overlap, False],
                                                               tried[overlap, True])}  # fmt: skip
     if overlaps:
-        report["overlap"] = {
-            "chosen": overlap, "candidates": sorted({plan.overlap, *overlaps}),
-            "simulated_busiest_vs_chosen": {f"{o:g}": _ratio(b, least)
-                                            for (o, m), b in tried.items() if m == occupancy},
-            "too_big_for_memory": too_big, "memory_bytes": memory,
-            "simulated_busiest_at_first_vs_chosen": _ratio(at_plan, least)}  # fmt: skip
+        report["overlap"] = _overlap_report(overlap, {o: b for (o, m), b in tried.items()
+                                                      if m == occupancy}, too_big, memory)
     return overlap, occupancy, report
+
+
+def _at(spec: RenderSpec, overlap: float) -> RenderSpec:
+    return replace(spec, plan=replace(spec.plan, overlap=overlap))
+
+
+def _too_big(scene, spec: RenderSpec, xs, ys, cells, memory: int, refused: list) -> bool:
+    """Whether the largest node's engine would take more than FITS of `memory` (noted in
+    `refused`); never when the memory is not known (0)."""
+    if not memory:
+        return False
+    held = largest_engine(scene, spec, xs, ys, cells)
+    if held <= FITS * memory:
+        return False
+    refused.append({"overlap": spec.plan.overlap, "largest_node_bytes": held})
+    return True
+
+
+def _overlap_report(chosen: float, busiest: dict, too_big: list, memory: int) -> dict:
+    """What the statistics say of an overlap choice: each overlap's simulated busiest node
+    (work units) and against the chosen one's, and those refused for memory."""
+    return {"chosen": chosen, "simulated_busiest": {f"{o:g}": b for o, b in busiest.items()},
+            "simulated_busiest_vs_chosen": {f"{o:g}": _ratio(b, busiest[chosen])
+                                            for o, b in busiest.items()},
+            "too_big_for_memory": too_big, "memory_bytes": memory}  # fmt: skip
 
 
 def _ratio(a: float, b: float) -> float:
@@ -237,23 +252,29 @@ FAMILIES = ("shared rows", "rows per column", "work map")
 def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, overlaps=(),
                   memory: int = 0) -> Cuts:  # fmt: skip
     """The cuts whose simulated busiest node is the least loaded, of those each family tried
-    in `rounds` re-cuts at the plan's overlap: image cuts from even ones with row cuts shared
-    by all columns or with each column's own (`ys` is then a list per column), and cells cut
-    on the work map (`map_cells`), corrected by each round's measured costs; then, on those
-    cuts, the overlap (of `overlaps`, within `memory`) and whether the nodes get the
-    occupancy map (`choose_holding`)."""
+    in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
+    with each column's own (`ys` is then a list per column), and cells cut on the work map
+    (`map_cells`), corrected by each round's measured costs; at the plan's overlap, or at
+    each of `overlaps` too, keeping the overlap whose best cuts simulate least among those
+    whose largest node's engine takes at most FITS of `memory` (a wider overlap keeps rays
+    longer on a node at the price of objects held twice, and moves where the cuts are best:
+    the teapot 3x3 simulated 3.51 at overlap 2 and 5.73 at 60, each on its own cuts); then,
+    on those cuts, whether the nodes get the occupancy map (`choose_holding`)."""
     plan = spec.plan
-    even = node_costs(scene, spec, None, None)
-    tried = [(float(even.max()), None, None, even, "even", None)]
-    for family in families:
-        if family == "work map":
-            tried += _map_tries(scene, spec, rounds)
-        elif family == "shared rows" or plan.rows > 1 and plan.cols > 1:
-            tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
-    best, bx, by, cost, family, cells = min(tried, key=lambda t: t[0])
+    work: dict = {}  # the work map, simulated once: it has no overlap
+    found, too_big = {}, []
+    for overlap in sorted({plan.overlap, *overlaps}):
+        at = _at(spec, overlap)
+        tried = _tries(scene, at, rounds, families, work)
+        best = min(tried, key=lambda t: t[0])
+        if overlap != plan.overlap and _too_big(scene, at, *best[1:3], best[5], memory,
+                                                too_big):  # fmt: skip
+            continue
+        found[overlap] = best, tried
+    overlap = min(found, key=lambda o: (found[o][0][0], o))  # ties: the smaller overlap
+    (best, bx, by, cost, family, cells), tried = found[overlap]
     base = tried[0][0] or 1.0
-    overlap, occupancy, holding = choose_holding(scene, spec, bx, by, cells, best, overlaps,
-                                                 memory)  # fmt: skip
+    _, occupancy, holding = choose_holding(scene, _at(spec, overlap), bx, by, cells, best)
     report = {"columns": bx, "rows": by, "family": family,
               "simulated_busiest_vs_even": best / base,
               "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
@@ -261,7 +282,23 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
                   for f in families},
               "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0,
               **holding}
+    if overlaps:
+        report["overlap"] = _overlap_report(overlap, {o: f[0][0] for o, f in found.items()},
+                                            too_big, memory)  # fmt: skip
     return Cuts(bx, by, report, cells, occupancy, overlap)
+
+
+def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[tuple]:
+    """(busiest, xs, ys, costs, family, cells) of even cuts and of every family's re-cuts."""
+    plan = spec.plan
+    even = node_costs(scene, spec, None, None)
+    tried = [(float(even.max()), None, None, even, "even", None)]
+    for family in families:
+        if family == "work map":
+            tried += _map_tries(scene, spec, rounds, work)
+        elif family == "shared rows" or plan.rows > 1 and plan.cols > 1:
+            tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
+    return tried
 
 
 def _image_tries(scene, spec: RenderSpec, rounds: int, own_rows: bool, cost) -> list[tuple]:
@@ -290,9 +327,12 @@ def _image_tries(scene, spec: RenderSpec, rounds: int, own_rows: bool, cost) -> 
     return tried
 
 
-def _map_tries(scene, spec: RenderSpec, rounds: int) -> list[tuple]:
-    """(busiest, None, None, costs, "work map", cells) of each cut of the work map."""
-    axes, ex, ey, work = work_map(scene, spec)
+def _map_tries(scene, spec: RenderSpec, rounds: int, cache: dict) -> list[tuple]:
+    """(busiest, None, None, costs, "work map", cells) of each cut of the work map (kept in
+    `cache` for other overlaps)."""
+    if "map" not in cache:
+        cache["map"] = work_map(scene, spec)
+    axes, ex, ey, work = cache["map"]
     tried = []
     for _ in range(rounds):
         cells = map_cells(scene, spec, axes, ex, ey, work)

@@ -31,8 +31,9 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
                 camera: CameraSetup | None = None, overlaps=(),
                 memory: int = 0) -> Planned:  # fmt: skip
     """The render planned: `overlaps` (object space) are overlaps for the pre-pass to choose
-    among, the smallest first (`host.balance.choose_holding`; `memory`: the smallest node's,
-    0 if not known), else the plan's own is kept."""
+    among, the smallest first (`host.balance.balanced_cuts` searches cuts at each; on even
+    cuts `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not
+    known. Without them the plan's own overlap is kept."""
     start = time.perf_counter()
     if overlaps and plan.mode == "object":
         plan = replace(plan, overlap=min(overlaps))

@@ -243,7 +243,7 @@ def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys
     from host.balance import OVERLAPS
 
     stats = tmp_path / "s.json"
-    assert main(["render", str(EXAMPLE), "--mesh", "2x2", "--mode", "object", "--overlap",
+    assert main(["render", str(EXAMPLE), "--mesh", "1x2", "--mode", "object", "--overlap",
                  "auto", "--balance", "cost", "--width", "24", "--height", "24", "--quiet",
                  "-o", str(tmp_path / "a.png"), "--stats", str(stats)]) == 0  # fmt: skip
     got = json.loads(stats.read_text())

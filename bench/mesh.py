@@ -22,7 +22,9 @@ seconds. Every row renders on one node (in this process) and on the mesh in turn
 N` times (the mesh's nodes keep running, so later renders reuse their engines), and compares
 the best of each (least tracing CPU; least busiest-node CPU): this machine's speed moves by
 up to 1.6x for minutes at a time, so both sides are measured over the same span.
-`--node-threads 1,2` runs every row with nodes tracing on that many threads, side by side;
+`--overlaps 2,auto` compares a fixed overlap with the one the cost pre-pass chooses
+(`--overlap auto`: the row shows `a:<chosen>`); `--node-threads 1,2` runs every row with
+nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
 space tilings, and `--tile 32,64` their tile sides (samples). `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The

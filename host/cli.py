@@ -589,11 +589,14 @@ def _run(scene, image, engine, camera, args, watch=None):
 def _plan(rows: int, cols: int, args) -> MeshPlan:
     """The mesh plan from the options, checked now (an asked-for mode with it)."""
     asked = {"mode": args.mode} if args.mode != "auto" else {}
-    given = {k: v for k, v in _given(args, MeshPlan).items() if v != "auto"}  # --overlap auto
+    given = _given(args, MeshPlan)
+    if _auto_overlap(args):  # the pre-pass chooses it (`render_on_mesh(overlaps=)`)
+        del given["overlap"]
     return MeshPlan(rows, cols, **given, **asked)
 
 
 def _auto_overlap(args) -> bool:
+    """--overlap auto was given."""
     return getattr(args, "MeshPlan.overlap", None) == "auto"
 
 

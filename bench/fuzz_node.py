@@ -624,10 +624,10 @@ class Fuzzer:
             table = self.rng.choice(sorted(OBJECT_TABLES))
             records = self.one[1][table]
             if self.rng.random() < 0.7:
-                message = make(Kind.OBJECTS, table=table, records=mutate_records(
+                message = make(Kind.OBJECTS, node=0, table=table, records=mutate_records(
                     self.rng, records), last=False)  # fmt: skip
             else:
-                message = mutate_message(self.rng, make(Kind.OBJECTS, table=table,
+                message = mutate_message(self.rng, make(Kind.OBJECTS, node=0, table=table,
                                                         records=records, last=False))
                 if _kind(message) in (Kind.CONFIG, Kind.SHUTDOWN):
                     message["k"] = int(Kind.OBJECTS)
@@ -665,7 +665,8 @@ class Fuzzer:
                 records = np.array(records)
                 records["count"][:1] = 2**31 - 1  # one record asking for a huge vertex range
             inputs.append((table, records))
-            c.send(encode(make(Kind.OBJECTS, table=table, records=np.ascontiguousarray(records),
+            c.send(encode(make(Kind.OBJECTS, node=0, table=table,
+                               records=np.ascontiguousarray(records),
                                last=i == len(tables) - 1)))  # fmt: skip
         self.recent.append(("render", inputs))
         outcome = "wedged"
@@ -696,7 +697,7 @@ class Fuzzer:
         host.send(self.two[0])
         tables = list(self.two[1].items())
         for i, (table, records) in enumerate(tables):
-            host.send(encode(make(Kind.OBJECTS, table=table, records=records,
+            host.send(encode(make(Kind.OBJECTS, node=1, table=table, records=records,
                                   last=i == len(tables) - 1)))  # fmt: skip
         first = await host.recv()
         if first is None or first.get("k") == Kind.ERROR:
@@ -887,7 +888,8 @@ def _valid(kind: Kind, rng: random.Random) -> dict:
         return hello(CLUSTER, "host", -1, nonce())
     if kind is Kind.OBJECTS:
         table = rng.choice(sorted(OBJECT_TABLES))
-        return make(kind, table=table, records=np.zeros(n, OBJECT_TABLES[table]), last=False)
+        return make(kind, node=0, table=table, records=np.zeros(n, OBJECT_TABLES[table]),
+                    last=False)
     plain = {int: n, str: "boom", bytes: b"\2" * 32, bool: False, dict: {"a": n},
              list: list(range(n))}  # fmt: skip
     return make(kind, **{name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]

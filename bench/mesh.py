@@ -85,7 +85,7 @@ SIZE_MARGIN = 1.3
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False, repeat=1, tile=32):  # fmt: skip
+            tiles="static", steal=False, repeat=1, tile=32, copies=False):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
@@ -99,7 +99,7 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
 
     auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
     plan = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, balance, mode, tiles,
-                    tile=tile, steal=steal)  # fmt: skip
+                    tile=tile, steal=steal, copies=copies)  # fmt: skip
     runs, singles = [], []
     with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
         for _ in range(repeat):
@@ -165,6 +165,8 @@ def main(argv=None) -> int:
     p.add_argument("--tile", default="32", help="image space tile sides (samples) to compare")
     p.add_argument("--steal", default="off", help="object space without and with stealing "
                    "to compare: off,on")  # fmt: skip
+    p.add_argument("--copies", default="off", help="object space without and with the "
+                   "neighbours' copies: off,on")
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
     p.add_argument("--min-trace", type=float, default=0.0,
@@ -197,7 +199,7 @@ def main(argv=None) -> int:
         print(f"\n== {name}: {image.width}x{image.height} at {image.spp} spp, 1x1 in process  "
               f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
               "taking turns with the mesh)")
-        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>10} {'wall s':>7} "
+        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
               f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
               f"{'work':>5} {'wall':>5} "
               f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
@@ -205,13 +207,16 @@ def main(argv=None) -> int:
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         steals = [s == "on" for s in args.steal.split(",")]
-        runs = [(m, o, t, c, st) for m in args.modes.split(",") for t in threads
-                for o, c, st in ([(o, c, st) for o in overlaps for c in cuts for st in steals]
+        copies = [s == "on" for s in args.copies.split(",")]
+        levers = [(st, cp) for st in steals for cp in copies]
+        runs = [(m, o, t, c, lv) for m in args.modes.split(",") for t in threads
+                for o, c, lv in ([(o, c, lv) for o in overlaps for c in cuts for lv in levers]
                                  if m == "object" else
-                                 [(0.0, (t, int(side)), False) for t in args.tiles.split(",")
+                                 [(0.0, (t, int(side)), (False, False))
+                                  for t in args.tiles.split(",")
                                   for side in args.tile.split(",")])]  # fmt: skip
         for rows, cols in meshes:
-            for mode, overlap, thr, cut, steal in runs:
+            for mode, overlap, thr, cut, (steal, copy) in runs:
                 side = None
                 if mode == "image":  # `cut` names the tiling and its tile side here
                     cut, side = cut
@@ -221,8 +226,8 @@ def main(argv=None) -> int:
 
                 else:
                     got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
-                                  steal=steal, repeat=args.repeat)  # fmt: skip
-                    cut += "+steal" if steal else ""
+                                  steal=steal, repeat=args.repeat, copies=copy)  # fmt: skip
+                    cut += ("+steal" if steal else "") + ("+copies" if copy else "")
                 wall, st, (wall1, s1) = got
                 cpu1 = s1["trace_cpu_seconds"]
                 work1 = work({**s1["rays"], "intersection_tests": s1["intersection_tests"],
@@ -237,7 +242,8 @@ def main(argv=None) -> int:
                 shown = f"a:{used:g}" if overlap == "auto" else f"{overlap:g}"
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
                        "overlap_used": used,
-                       "node_threads": thr, "cuts": cut, "steal": steal, "tile": side,
+                       "node_threads": thr, "cuts": cut, "steal": steal, "copies": copy,
+                       "tile": side,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
                        "paired_speedups": st["paired_speedups"],
@@ -252,7 +258,7 @@ def main(argv=None) -> int:
                        "balance": st.get("balance"), "counts": counts,
                        "image": image.to_wire()}  # fmt: skip
                 results.append(row)
-                print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>10} {wall:>7.2f} "
+                print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
                       f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
                       f"{statistics.median(st['paired_speedups']):>6.2f} "
                       f"{row['work_speedup']:>5.2f} "

@@ -31,6 +31,9 @@ from bench import add_scenes_option  # noqa: E402 (after the path is set)
 MODES = {"object+steal": {"mode": "object", "steal": True},
          "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
          "object+cost": {"mode": "object", "balance": "cost"},
+         "object+steal+copies": {"mode": "object", "steal": True, "copies": True},
+         "object+steal+cost+copies": {"mode": "object", "steal": True, "balance": "cost",
+                                      "copies": True},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 

@@ -198,7 +198,8 @@ def work_map(scene, spec: RenderSpec, fine: int = FINE):
     box = scene_box(scene)
     axes = cell_axes(scene.view, *spec.image.size)
     ex, ey = (np.linspace(box[0][a], box[1][a], fine + 1) for a in axes)
-    plan = replace(spec.plan, rows=fine, cols=fine, overlap=0.0, balance="even", steal=False)
+    plan = replace(spec.plan, rows=fine, cols=fine, overlap=0.0, balance="even", steal=False,
+                   copies=False)
     cells = cells_from_cuts(box, axes, ex, [ey] * fine)
     cost = node_costs(scene, replace(spec, plan=plan), None, None, cells)
     return axes, ex, ey, cost.reshape(fine, fine)

@@ -151,6 +151,9 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--steal", MeshPlan, "steal", "object space: nodes trace their rectangles in "
            "--tile chunks spiralling out from the centre, and one that runs out takes "
            "unstarted chunks from a busy neighbour's outer end", action="store_true")
+    _field(r, "--copies", MeshPlan, "copies", "object space: each node also holds its linked "
+           "neighbours' objects and traces the rays they would take on (with --steal, a stolen "
+           "chunk's work moves too)", action="store_true")
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))

@@ -29,6 +29,7 @@ from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from protocols.scene import SceneData
+from protocols.topology import Torus
 
 OBJECT_BATCH = 20000  # records per OBJECTS message
 
@@ -45,19 +46,22 @@ class NodeLost(MeshError):
         self.node = node
 
 
-async def _download(link: Link, scene: SceneData) -> None:
-    """The node's objects, table by table, in bounded messages."""
-    tables = [("materials", scene.materials), ("lights", scene.lights),
-              ("spheres", scene.spheres), ("triangles", scene.triangles),
-              ("polygons", scene.polygons), ("vertices", scene.vertices.reshape(-1)),
-              ("cones", scene.cones)]  # fmt: skip
-    parts = [(n, t[i : i + OBJECT_BATCH])
-             for n, t in tables for i in range(0, len(t), OBJECT_BATCH)]  # fmt: skip
-    parts = parts or [("materials", scene.materials)]
-    for i, (name, records) in enumerate(parts):
+async def _download(link: Link, scenes: dict[int, SceneData]) -> None:
+    """Objects for one node, table by table, in bounded messages: `scenes[m]` node m's (its
+    own, and under MeshPlan.copies each linked neighbour's)."""
+    parts = []
+    for m, scene in scenes.items():
+        tables = [("materials", scene.materials), ("lights", scene.lights),
+                  ("spheres", scene.spheres), ("triangles", scene.triangles),
+                  ("polygons", scene.polygons), ("vertices", scene.vertices.reshape(-1)),
+                  ("cones", scene.cones)]  # fmt: skip
+        own = [(m, n, t[i : i + OBJECT_BATCH])
+               for n, t in tables for i in range(0, len(t), OBJECT_BATCH)]  # fmt: skip
+        parts += own or [(m, "materials", scene.materials)]  # every node named at least once
+    for i, (m, name, records) in enumerate(parts):
         last = i == len(parts) - 1
         await link.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(records),
-                             last=last))  # fmt: skip
+                             node=m, last=last))  # fmt: skip
 
 
 async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str],
@@ -222,6 +226,7 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
     objects are in, and they must know the render by then), then its objects."""
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     render, part = planned.spec.to_wire(), planned.partition.to_wire()
+    plan = planned.spec.plan
     render_id = secrets.token_bytes(RENDER_ID_BYTES)  # links of a given-up try cannot join
     n = 0
     try:
@@ -231,7 +236,8 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
                                  background=list(scene.background),
                                  render_id=render_id))  # fmt: skip
         for n, link in enumerate(links):
-            await _download(link, subset(scene, planned.holders[n]))
+            held = [n, *(Torus(plan.rows, plan.cols).links(n) if plan.copies else [])]
+            await _download(link, {m: subset(scene, planned.holders[m]) for m in held})
     except LinkClosed as e:
         raise NodeLost(n, f"setting up the mesh: {describe(e)}") from e
 
@@ -382,6 +388,13 @@ def primary_rays(image: ImageSpec, camera) -> int | None:
     return gw * gh * (1 if image.corners() else image.spp)
 
 
+def _held(plan: MeshPlan, keep) -> list[int]:
+    """Objects each node's engines hold: its own, and its neighbours' under `copies`."""
+    torus, own = Torus(plan.rows, plan.cols), keep.sum(axis=1)
+    links = [torus.links(n) if plan.copies else [] for n in range(plan.nodes)]
+    return [int(own[n] + own[links[n]].sum()) for n in range(plan.nodes)]
+
+
 def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
     nodes = [stats[n] for n in range(plan.nodes)]
     totals: dict[str, int] = {}
@@ -401,5 +414,6 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "parallel_efficiency": sum(busy) / (len(busy) * max(busy)) if max(busy) > 0 else 1.0,
         "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,
         "objects_per_node": keep.sum(axis=1).tolist(),
+        "objects_held_per_node": _held(plan, keep),  # with the neighbours' copies
         "nodes": nodes,
     }

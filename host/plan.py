@@ -86,8 +86,9 @@ def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: st
     size = f"the whole scene's engine (about {_size(need)})"
     if plan.balance != "even":
         return replace(plan, mode="object"), f"--balance {plan.balance} cuts object space"
-    if plan.steal:
-        return replace(plan, mode="object"), "--steal is object space's lever"
+    if plan.steal or plan.copies:
+        lever = "--steal" if plan.steal else "--copies"
+        return replace(plan, mode="object"), f"{lever} is object space's lever"
     if memory == 0:
         return replace(plan, mode="object"), "the nodes did not report their memory"
     where = "--node-memory" if override is not None else "the smallest node's free memory"

@@ -50,27 +50,41 @@ class Config:
             raise BadFrame("CONFIG.background must be three finite numbers")
         self.view, self.background = view, tuple(float(c) for c in background)
 
+    @property
+    def copies(self) -> list[int]:
+        """The neighbours whose engines this node also holds (MeshPlan.copies)."""
+        return self.torus.links(self.node) if self.render.plan.copies else []
+
 
 class Objects:
-    """The node's objects as they arrive, table by table, bounded in bytes."""
+    """The node's objects as they arrive, table by table, bounded in bytes; keyed by whose
+    they are: this node's, or under MeshPlan.copies a linked neighbour's (`nodes`)."""
 
-    def __init__(self):
-        self.tables: dict[str, list] = {}
+    def __init__(self, nodes=()):
+        self.nodes = frozenset(nodes)
+        self.tables: dict[tuple[int, str], list] = {}
+        self.seen: set[int] = set()
         self.bytes = 0
 
-    def add(self, table: str, records: np.ndarray) -> None:
+    def add(self, node: int, table: str, records: np.ndarray) -> None:
+        if node not in self.nodes:
+            whose = ", ".join(map(str, sorted(self.nodes)))
+            raise BadFrame(f"OBJECTS.node = {node}: this render downloads objects of {whose}")
         self.bytes += records.nbytes
         if self.bytes > MAX_OBJECT_BYTES:
             raise BadFrame(f"OBJECTS: more than {MAX_OBJECT_BYTES >> 20} MiB of objects")
-        self.tables.setdefault(table, []).append(np.array(records))
+        self.seen.add(node)
+        self.tables.setdefault((node, table), []).append(np.array(records))
 
-    def scene(self, view: View, background) -> SceneData:
-        """The objects as a scene, checked first: every number finite, every material and
-        polygon vertex index in range (a bad index would read outside an array in a kernel,
-        a NaN could keep a ray walking forever)."""
+    def scene(self, node: int, view: View, background) -> SceneData:
+        """Node `node`'s objects as a scene, checked first: every number finite, every
+        material and polygon vertex index in range (a bad index would read outside an array
+        in a kernel, a NaN could keep a ray walking forever)."""
+        if node not in self.seen:
+            raise BadFrame(f"OBJECTS: none came for node {node}")
 
         def table(name):
-            parts = self.tables.get(name)
+            parts = self.tables.get((node, name))
             return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
 
         tables = {name: table(name) for name in OBJECT_TABLES}

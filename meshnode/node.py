@@ -10,6 +10,7 @@ keeps the books of its own pixels until the frame is flushed.
 
 import hashlib
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,22 +41,26 @@ class Batch:
 
 
 class EngineCache:
-    """The last engine this node built, kept for the next render of the same objects in the
-    same box with the same engine settings (a user re-rendering a scene at another size,
-    sampling or camera on a running cluster pays no build). One engine: bounded memory."""
+    """The engines this node built for its last render, kept for the next render of the same
+    objects in the same box with the same engine settings (a user re-rendering a scene at
+    another size, sampling or camera on a running cluster pays no build). At most `keep`
+    engines (one, or one per box held under MeshPlan.copies), least recently used dropped
+    first: bounded memory."""
 
     def __init__(self):
-        self.key: bytes | None = None
-        self.engine: Engine | None = None
+        self.engines: dict[bytes, Engine] = {}  # oldest use first
 
-    def get(self, scene: SceneData, **options) -> tuple[Engine, bool]:
+    def get(self, scene: SceneData, keep: int = 1, **options) -> tuple[Engine, bool]:
         """(engine, whether it was reused) for `scene` built with `options`."""
         key = _engine_key(scene, options)
-        if key != self.key or self.engine is None:
-            self.engine, self.key = None, None  # the old one's memory goes before the build
-            self.engine, self.key = Engine(scene, **options), key
-            return self.engine, False
-        return self.engine, True
+        engine = self.engines.pop(key, None)
+        reused = engine is not None
+        if engine is None:
+            while len(self.engines) >= max(1, keep):  # old memory goes before the build
+                del self.engines[next(iter(self.engines))]
+            engine = Engine(scene, **options)
+        self.engines[key] = engine
+        return engine, reused
 
 
 def _engine_key(scene: SceneData, options: dict) -> bytes:
@@ -116,21 +121,22 @@ class NodeCore:
     keeps the engine for the next render (None: always build)."""
 
     def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
-                 eye_batch: int = EYE_BATCH, engines: EngineCache | None = None):  # fmt: skip
+                 eye_batch: int = EYE_BATCH, engines: EngineCache | None = None,
+                 copies: dict[int, SceneData] | None = None):  # fmt: skip
         self.node, self.spec, self.view, self.part = node, spec, scene.view, part
         self.eye_batch = eye_batch if spec.plan.mode == "object" else max(eye_batch, IMAGE_BATCH)
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
         self.cells = part.cells  # who takes a ray on (the boxes grown by the overlap hold it)
-        options = dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
-                       density=spec.engine.density, storage=spec.engine.storage,
-                       structure=spec.engine.structure, max_depth=spec.image.depth,
-                       occupancy=(part.occ_res, part.occ_bits))  # fmt: skip
-        if engines is None:
-            self.engine, self.engine_reused = Engine(scene, **options), False
-        else:
-            self.engine, self.engine_reused = engines.get(scene, **options)
+        copies = copies or {}
+        engines = engines or EngineCache()
+        keep = 1 + len(copies)
+        self.engine, self.engine_reused = engines.get(scene, keep, **self._options(node))
+        # MeshPlan.copies: neighbour m's engine, built as m builds it (its objects, its box),
+        # traces here the segments m would take on, to the same bits. (A simulated mesh sets
+        # the very engines its other cores trace with.)
+        self.copies = {m: engines.get(c, keep, **self._options(m))[0] for m, c in copies.items()}
         self.films: list[AdaptiveFilm] = []
         if spec.camera is not None and spec.camera.adaptive:
             w, h = spec.image.size
@@ -140,6 +146,14 @@ class NodeCore:
             self.own_rect = RectIndex(self.owned, w)
             self.rect_owner = np.asarray(part.owner, np.int64)  # node of each rectangle
 
+    def _options(self, node: int) -> dict:
+        """Node `node`'s engine settings: its box, and what every node shares."""
+        spec, part = self.spec, self.part
+        return dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
+                    density=spec.engine.density, storage=spec.engine.storage,
+                    structure=spec.engine.structure, max_depth=spec.image.depth,
+                    occupancy=(part.occ_res, part.occ_bits))  # fmt: skip
+
     @property
     def keeps_pixels(self) -> bool:
         """Adaptive sampling: this node keeps the books of its own pixels."""
@@ -147,7 +161,8 @@ class NodeCore:
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
-        self.engine.warmup()
+        for engine in (self.engine, *self.copies.values()):
+            engine.warmup()
         ray = np.zeros(1, RAY)
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
@@ -269,28 +284,38 @@ class NodeCore:
         ray's segments then do not depend on the node that made it (a stolen chunk's eye
         rays were traced from the thief's box where they started in both, and round-off at
         box edges then changed a few trees in millions: 11 rays on a mount_s1 2x2 at 10
-        spp)."""
-        away: dict[int, np.ndarray] = {}
+        spp). Rays for a neighbour whose copy this node holds (MeshPlan.copies) are traced
+        here with that copy instead, and so on until none are left for a copy."""
+        todo = {self.node: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             dest = self.takers(rays)
             here = (dest == self.node) | (dest < 0)  # < 0: enters no cell, ends here
             if not here.all():
                 # grouped by this dest: owners() moves t_min in a sliver between boxes, so a
                 # second call (route) could give another box
-                away = _group(rays[~here], dest[~here])
-                rays = rays[here]
-        cpu = time.thread_time()
-        rgb, counts, passed = self.engine.trace_node(rays)
-        counts["cpu_seconds"] = time.thread_time() - cpu
-        lit = np.any(rgb != 0.0, axis=1)
-        deposits = np.zeros(int(lit.sum()), DEPOSIT)
-        deposits["pixel"] = rays["pixel"][lit]
-        deposits["rgb"] = rgb[lit]
-        outgoing = self.route(passed)
-        counts["rays_forwarded"] += sum(len(sent) for sent in away.values())
-        for dest, sent in away.items():
-            outgoing[dest] = np.concatenate([outgoing[dest], sent]) if dest in outgoing else sent
-        return Batch(self.pixel_routes(deposits), outgoing, counts)
+                todo = _group(rays[~here], dest[~here])
+                todo[self.node] = rays[here]
+        outgoing = {d: g for d, g in todo.items() if d != self.node and d not in self.copies}
+        todo = {d: g for d, g in todo.items() if d not in outgoing}
+        counts: Counter = Counter(rays_forwarded=sum(len(g) for g in outgoing.values()))
+        deposits, cpu = [], 0.0
+        while todo:
+            taker, batch = todo.popitem()
+            engine = self.engine if taker == self.node else self.copies[taker]
+            cpu -= time.thread_time()
+            rgb, done, passed = engine.trace_node(batch)
+            cpu += time.thread_time()
+            counts.update(done)
+            lit = np.any(rgb != 0.0, axis=1)
+            d = np.zeros(int(lit.sum()), DEPOSIT)
+            d["pixel"], d["rgb"] = batch["pixel"][lit], rgb[lit]
+            deposits.append(d)
+            for dest, sent in self.route(passed).items():
+                into = todo if dest in self.copies else outgoing
+                into[dest] = np.concatenate([into[dest], sent]) if dest in into else sent
+        counts["cpu_seconds"] = cpu
+        deposits = deposits[0] if len(deposits) == 1 else np.concatenate(deposits)
+        return Batch(self.pixel_routes(deposits), outgoing, dict(counts))
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning

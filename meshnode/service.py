@@ -41,7 +41,7 @@ class NodeService:
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
         self.session: Session | None = None
-        self.engines = EngineCache()  # the last render's engine, for the next of that scene
+        self.engines = EngineCache()  # the last render's engines, for the next of that scene
         # neighbour links that came before their session took them: node -> (render id, link)
         self.pending: dict[int, tuple[bytes, Link]] = {}
         self.links_ready = asyncio.Event()
@@ -184,7 +184,7 @@ class NodeService:
                 if kind is Kind.CONFIG and session is None:
                     session = self.session = Session(self, link, Config(f))
                 elif kind is Kind.OBJECTS and session is not None:
-                    session.objects.add(f["table"], f["records"])
+                    session.objects.add(f["node"], f["table"], f["records"])
                     if f["last"]:
                         session.spawn(session.build())
                 elif kind is Kind.TILES and session is not None:

@@ -44,7 +44,7 @@ class Session:
                                neighbours=config.torus.links(self.node),
                                steal=config.render.plan.steal)  # fmt: skip
         self.stats = NodeStats(self.node)
-        self.objects = Objects()
+        self.objects = Objects([self.node, *config.copies])
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
         self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
@@ -89,10 +89,12 @@ class Session:
         try:
             loop = asyncio.get_running_loop()
             c = self.config
-            scene = self.objects.scene(c.view, c.background)
+            scene = self.objects.scene(self.node, c.view, c.background)
+            copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
             self.core = await loop.run_in_executor(
                 self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition,
-                                                    engines=self.service.engines))  # fmt: skip
+                                                    engines=self.service.engines,
+                                                    copies=copies))  # fmt: skip
             if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
                 log.info("node %d: compiling kernels for %s, first run only", self.node,
                          self.core.engine.variant())  # fmt: skip
@@ -300,6 +302,7 @@ class Session:
             report = self.stats.report(self.core.engine.stats, links)
             report["packet_visits"] = self.sched.term.visits
             report["engine_reused"] = self.core.engine_reused
+            report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
             report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
             report["chunks_taken"] = self.sched.chunks_taken
             report["chunks_given_by_state"] = dict(self.sched.given_in)

@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5  # 5: OBJECTS name whose objects they are (MeshPlan.copies)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 
@@ -20,7 +20,8 @@ MAX_LINKS = 4  # a torus node's neighbours
 class Kind(IntEnum):
     HELLO = 1  # handshake: protocol version, cluster id, who is speaking, a fresh nonce
     CONFIG = 2  # node configuration from the host: mesh shape, coordinates, boxes, settings
-    OBJECTS = 3  # a batch of one primitive kind's records for the node's box
+    OBJECTS = 3  # a batch of one primitive kind's records for the node's box (or, under
+    # MeshPlan.copies, a linked neighbour's: `node` says whose)
     RAYS = 4  # a batch of rays (eye, reflected, refracted or shadow) entering a node's box
     PIXELS = 5  # deposits on their way to node 0 and the host (adaptive: to the pixel's owner)
     STATE = 6  # the state packet circulating on the ring
@@ -54,7 +55,7 @@ FIELDS = {
     # render_id: this render's random id (a new one for every try at a frame)
     Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,
                   "view": dict, "background": list, "render_id": bytes},  # fmt: skip
-    Kind.OBJECTS: {"table": str, "records": None, "last": bool},
+    Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
     Kind.STATE: {"state": int, "last_busy": int, "round": int, "sent": np.dtype("<i8"),

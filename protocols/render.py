@@ -120,7 +120,11 @@ class MeshPlan(Spec):
     `steal` (object space): a node traces its rectangle in chunks spiralling out from the
     centre, and one that has run out takes unstarted chunks from the outer end of a busy
     neighbour's spiral and makes their eye rays itself; under adaptive sampling in both
-    passes (pass 2's chunks are the refined pixels' row runs), the owner keeping the books."""
+    passes (pass 2's chunks are the refined pixels' row runs), the owner keeping the books.
+    `copies` (object space): each node also holds a copy of every linked neighbour's engine
+    (the same objects in the same box, so the same segments) and traces there the rays that
+    neighbour would take on, instead of passing them: stolen chunks then move their work,
+    not only their eye rays, at the price of holding up to five boxes' objects."""
 
     rows: int = 1
     cols: int = 1
@@ -131,6 +135,7 @@ class MeshPlan(Spec):
     tile: int = 32
     buffer: int = 2
     steal: bool = False
+    copies: bool = False
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -147,6 +152,9 @@ class MeshPlan(Spec):
             self.fail("steal", "must be true or false")
         if self.steal and self.mode != "object":
             self.fail("steal", "stealing is object space's lever (image space deals tiles)")
+        self.want_bool("copies")
+        if self.copies and self.mode != "object":
+            self.fail("copies", "neighbours' copies are object space's (image space holds all)")
         if self.mode == "image" and self.balance != "even":
             self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 

@@ -154,7 +154,8 @@ async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node
         for name in OBJECT_TABLES:
             data = getattr(scene, name)
             data = data.reshape(-1) if name == "vertices" else data
-            await host.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(data),
+            await host.send(make(Kind.OBJECTS, node=0, table=name,
+                                 records=np.ascontiguousarray(data),
                                  last=name == "lights"))  # fmt: skip
         while (answer := await asyncio.wait_for(host.recv(), 30))[0] is not Kind.ERROR:
             pass  # heartbeats while it builds and dials

@@ -124,7 +124,7 @@ def _valid(kind: Kind, n: int, flag: bool, table: str) -> dict:
     if kind is Kind.CONFIG:
         return config()
     if kind is Kind.OBJECTS:
-        return make(kind, table=table, records=np.zeros(n, OBJECT_TABLES[table]), last=flag)
+        return make(kind, node=0, table=table, records=np.zeros(n, OBJECT_TABLES[table]), last=flag)
     plain = {int: n, str: "node 0: boom", bytes: b"\2" * 32, bool: flag, dict: {"eye": n},
              list: list(range(n))}  # fmt: skip
     return make(kind, **{name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]

@@ -115,7 +115,8 @@ async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, cha
         for name in OBJECT_TABLES:
             data = records if name == table else getattr(scene, name)
             data = data.reshape(-1) if name == "vertices" else data
-            await link.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(data),
+            await link.send(make(Kind.OBJECTS, node=0, table=name,
+                                 records=np.ascontiguousarray(data),
                                  last=name == "lights"))  # fmt: skip
         while True:  # heartbeats, then the error naming the table
             kind, f = await asyncio.wait_for(link.recv(), 10)

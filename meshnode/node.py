@@ -25,6 +25,7 @@ from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
+from protocols.topology import Torus
 
 HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
@@ -191,8 +192,27 @@ class NodeCore:
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
-                             self.rect_batches)  # fmt: skip
+                             self.rect_batches, usable=self._usable())  # fmt: skip
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
+
+    def _usable(self):
+        """Under MeshPlan.copies, which chunks a thief can trace itself: those of tiles
+        whose eye rays a node it holds the engine of takes on (the tile's node: the
+        partition deals tiles to the node taking most of their eye rays on). A diagonal
+        neighbour's chunks would only have their eye rays made there and sent on. None
+        without copies: any chunk moves."""
+        if not self.spec.plan.copies:
+            return None
+        plan, (gw, _) = self.spec.plan, self.spec.sample_grid
+        torus = Torus(plan.rows, plan.cols)
+        index, owner = RectIndex(self.part.rects, gw), np.asarray(self.part.owner, np.int64)
+
+        def usable(thief: int, chunks: list) -> np.ndarray:
+            c = np.asarray(chunks, np.int64)
+            held = np.array([thief, *torus.links(thief)])
+            return np.isin(owner[index(c[:, 2] * gw + c[:, 0])], held)
+
+        return usable
 
     def _adaptive_chunks(self, refine: bool) -> ChunkFeed:
         """Adaptive sampling with stealing: one pass over chunks of the own rectangles in

@@ -101,10 +101,12 @@ class ChunkFeed(Primaries):
     order, centre first, traced from the front; `take` hands unstarted chunks from the back
     (the outer end of the spiral) to a neighbour that has run out, and `add` takes chunks a
     neighbour gave. `batches(chunk)` makes a chunk's primary rays, one batch at a time. A
-    chunk is started (and can no longer be given) once its first batch is looked ahead."""
+    chunk is started (and can no longer be given) once its first batch is looked ahead.
+    `usable(thief, chunks)` (None: all) says which chunks a thief can trace itself."""
 
-    def __init__(self, chunks, batches, on_give=None):
+    def __init__(self, chunks, batches, on_give=None, usable=None):
         self.chunks, self.make, self.on_give = deque(chunks), batches, on_give
+        self.usable = usable
         self.current = iter(())
         super().__init__()
 
@@ -118,11 +120,20 @@ class ChunkFeed(Primaries):
                     return
                 self.current = iter(self.make(self.chunks.popleft()))
 
-    def take(self) -> list:
-        """Half of the unstarted chunks, from the outer end (none when one or none is left:
-        this node will start it sooner than a message could carry it); `on_give(chunk)` is
-        told of each (adaptive sampling keeps its books as it gives)."""
-        given = [self.chunks.pop() for _ in range(len(self.chunks) // 2)]
+    def take(self, thief: int = -1) -> list:
+        """Half of the unstarted chunks `thief` can use, from the outer end (none when one
+        or none is left: this node will start it sooner than a message could carry it);
+        `on_give(chunk)` is told of each (adaptive sampling keeps its books as it gives)."""
+        chunks = list(self.chunks)
+        if self.usable is None or not chunks:
+            ok = np.arange(len(chunks))
+        else:
+            ok = np.flatnonzero(self.usable(thief, chunks))
+        picked = ok[len(ok) - len(ok) // 2 :][::-1].tolist()  # outermost first
+        given = [chunks[i] for i in picked]
+        if given:
+            gone = set(picked)
+            self.chunks = deque(c for i, c in enumerate(chunks) if i not in gone)
         if self.on_give is not None:
             for chunk in given:
                 self.on_give(chunk)
@@ -213,11 +224,16 @@ class Scheduler:
                  steal: bool = False, passed_min: int = PASSED_MIN):  # fmt: skip
         self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
         # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
-        # one that had nothing is not asked again in this state.
+        # one that had nothing is not asked again in this state, but remembers who asked
+        # (`hungry`) and gives to them unasked once it holds chunks to spare (a neighbour's
+        # it stole): else a node whose neighbours had run out when it asked idled to the
+        # end while its diagonal neighbour, which it cannot ask, still had work.
         self.steal, self.neighbours = steal, list(neighbours)
         self.asked: set[int] = set()
         self.steal_from: int | None = None  # the neighbour whose answer is awaited
         self.thieves: deque = deque()  # neighbours waiting for an answer from this node
+        self.hungry: deque = deque()  # neighbours this node had nothing for
+        self.spare = False  # chunks came in since `hungry` was last offered some
         self.chunks_taken = 0
         self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
@@ -261,12 +277,15 @@ class Scheduler:
         self.thieves.append(thief)
 
     def given(self, giver: int, chunks: list) -> None:
-        """A neighbour's answer (a counted message): chunks to trace here, or none."""
+        """A neighbour's answer (a counted message): chunks to trace here, or none; or its
+        unasked gift, once it had chunks to spare after having none when asked."""
         self.term.on_received()
-        self.steal_from = None
+        if giver == self.steal_from:
+            self.steal_from = None
         if chunks and isinstance(self.primaries, ChunkFeed):
             self.primaries.add(chunks)
             self.chunks_taken += len(chunks)
+            self.spare = bool(self.hungry)
         else:
             self.asked.add(giver)
 
@@ -311,10 +330,18 @@ class Scheduler:
                 self.forward = self.packet.state in (State.TRACE, State.REFINE)
                 return self._enter(State(self.packet.state))
             if self.thieves:
-                feed = self.primaries
-                chunks = feed.take() if isinstance(feed, ChunkFeed) else []
-                self.given_in[self.state.name] += len(chunks)
-                return Give(self.thieves.popleft(), chunks)
+                thief = self.thieves.popleft()
+                chunks = self._take(thief)
+                if not chunks and thief not in self.hungry:
+                    self.hungry.append(thief)
+                return Give(thief, chunks)
+            if self.spare:  # chunks came in: those who found none here may use some
+                self.spare = False
+                for thief in list(self.hungry):
+                    if chunks := self._take(thief):
+                        self.hungry.remove(thief)
+                        self.pending.append(Give(thief, chunks))
+                continue
             if self.forward and self.packet is not None:
                 # The packet brought a state with primary rays: hand it on at once, so the
                 # nodes after this one start theirs now, not when this one has finished
@@ -350,6 +377,13 @@ class Scheduler:
             if not self._pass_packet():
                 return None
 
+    def _take(self, thief: int) -> list:
+        """Chunks of this node's feed for `thief` (none outside a chunked state), counted."""
+        feed = self.primaries
+        chunks = feed.take(thief) if isinstance(feed, ChunkFeed) else []
+        self.given_in[self.state.name] += len(chunks)
+        return chunks
+
     def _steal_target(self) -> int | None:
         """The neighbour to ask for chunks when out of chunked primaries (TRACE, or adaptive
         sampling's REFINE) with no answer awaited: the first not yet found empty in this
@@ -363,6 +397,8 @@ class Scheduler:
     def _enter(self, state: State) -> Enter:
         self.state = state
         self.asked = set()
+        self.hungry = deque()
+        self.spare = False
         self.primaries = Primaries()
         return Enter(state)
 

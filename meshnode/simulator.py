@@ -40,6 +40,7 @@ class NodeRecord:
     objects: int = 0
     batches: int = 0
     rays_sent: int = 0
+    sent_to: dict = field(default_factory=lambda: defaultdict(int))  # node -> rays sent it
     rays_received: int = 0
     packet_visits: int = 0
     chunks_given: int = 0  # chunks of its rectangle neighbours took (MeshPlan.steal)
@@ -197,5 +198,6 @@ class _Mesh:
                 sched.rays_in(passed, message=False)
             else:
                 rec.rays_sent += len(passed)
+                rec.sent_to[dest] += len(passed)
                 self._send(n, dest, "rays", passed)
         sched.batch_done()

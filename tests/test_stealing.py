@@ -91,6 +91,27 @@ def test_a_busy_node_answers_a_steal_before_tracing_on():
     assert s.next() == Give(1, [(4, 5, 0, 1), (3, 4, 0, 1)]) and s.chunks_given == 2
 
 
+def test_a_node_that_had_nothing_gives_unasked_once_it_has_chunks_to_spare():
+    """Node 1 links to 0 and 2 only; 0 asks 1 while 1 has nothing, then 1 steals from 2: 1
+    hands 0 half of what it got without being asked again (0 could not ask 2 itself)."""
+    s = Scheduler(1, 2, 3, neighbours=[0, 2], steal=True)
+    s.state = State.TRACE
+    s.primaries = ChunkFeed([], lambda c: iter([np.zeros(1, RAY)]))
+    s.steal_request(0)
+    assert s.next() == Give(0, [])
+    s.message_out()
+    assert s.next() == Steal(0) and s.steal_from == 0  # out of work too: asks in turn
+    s.message_out()
+    s.given(0, [])  # 0 had none either
+    assert s.next() == Steal(2)
+    s.message_out()
+    s.given(2, [(i, i + 1, 0, 1) for i in range(5)])  # the first is started at once
+    assert s.next() == Give(0, [(4, 5, 0, 1), (3, 4, 0, 1)])  # unasked: 0 had asked before
+    s.message_out()
+    assert isinstance(s.next(), Trace) and s.chunks_given == 2 and not s.hungry
+    assert s.term.sent == s.term.received + 1  # the gift is a counted message
+
+
 @pytest.mark.parametrize("name,spp,corners", [("balls_s2.nff", 1, False),
                                               ("gears_s1.nff", 4, False),
                                               ("rings_s1.nff", 1, True)])  # fmt: skip

@@ -1,0 +1,120 @@
+"""Neighbours' copies (MeshPlan.copies): each node also holds the engines of the nodes it links
+to, built from their objects in their boxes, and traces there the rays they would take on.
+Every mesh shape gives the single node's image and counts with pinhole, supersampled, camera
+and adaptive renders, stolen chunks included; no ray is ever passed to a linked neighbour;
+the node refuses objects of a node it does not link to, and names a neighbour whose objects
+never came."""
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from host.camerasetup import CameraSetup
+from host.localmesh import LocalMesh
+from host.meshclient import render_on_mesh
+from host.nff import read_nff
+from host.render import render
+from meshnode.config import Config, Objects
+from meshnode.node import EngineCache
+from protocols.camera import CameraSampling
+from protocols.errors import BadFrame
+from protocols.messages import OBJECT_TABLES
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from protocols.spec import SpecError
+from protocols.topology import Torus
+from tests.conftest import records, spd_scene
+from tests.meshsim import render_mesh
+from tests.test_mesh_algorithm import SPD_COUNTS
+from tests.test_node_service import config
+from tests.test_sampling import dof_scene, thin_camera
+
+SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
+
+
+def _check_sends(rows: int, cols: int, nodes) -> int:
+    """Rays passed in all; asserts none went to a node the sender holds a copy of."""
+    torus = Torus(rows, cols)
+    for n, rec in enumerate(nodes):
+        to_links = {m: rec.sent_to.get(m, 0) for m in torus.links(n)}
+        assert not any(to_links.values()), (rows, cols, n, to_links)
+    return sum(rec.rays_sent for rec in nodes)
+
+
+@pytest.mark.parametrize("name,spp", [("balls_s2.nff", 1), ("gears_s1.nff", 4)])
+def test_copies_on_every_mesh_give_the_single_node_image(name, spp):
+    scene = read_nff(spd_scene(name))
+    image = ImageSpec(width=36, height=36, spp=spp)
+    ref, st = render(scene, image, EngineSpec(threads=1))
+    want = {k: st["rays"][k] for k in SPD_COUNTS}
+    for rows, cols in SHAPES:
+        for steal in (False, True):
+            img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 36, 36, spp=spp,
+                                                steal=steal, tile=4, passed_min=1,
+                                                copies=True)  # fmt: skip
+            assert {k: totals[k] for k in SPD_COUNTS} == want, (rows, cols, steal)
+            np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+            passed = _check_sends(rows, cols, nodes)
+            if (rows, cols) == (1, 2):
+                assert passed == 0  # each node holds the other's objects: nothing crosses
+
+
+@pytest.mark.parametrize("sampling", ["jittered", "adaptive"])
+def test_copies_through_a_camera_give_the_single_node_image(sampling):
+    scene = dof_scene()
+    image = ImageSpec(width=30, height=24, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    for rows, cols in SHAPES:
+        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 30, 24, seed=3, camera=spec,
+                                            steal=True, tile=3, passed_min=1,
+                                            copies=True)  # fmt: skip
+        assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+        _check_sends(rows, cols, nodes)
+
+
+def test_copies_over_tcp_give_the_single_node_image_and_say_what_each_node_holds():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=48, height=48, spp=4, threads=1)
+    ref, st = render(scene, *rs)
+    with LocalMesh(4) as addresses:
+        plan = MeshPlan(2, 2, 1, steal=True, tile=8, copies=True)
+        coro = render_on_mesh(scene, rs.image, addresses, plan, rs.engine)
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    torus, own = Torus(2, 2), stats["objects_per_node"]
+    for n, node in enumerate(stats["nodes"]):
+        assert sorted(map(int, node["copies"])) == torus.links(n)
+        held = own[n] + sum(own[m] for m in torus.links(n))
+        assert stats["objects_held_per_node"][n] == held
+    assert stats["mesh"]["copies"] is True
+
+
+def test_a_node_takes_objects_only_of_itself_and_its_linked_neighbours():
+    c = Config(config(node=0, plan=MeshPlan(3, 3, copies=True)))
+    assert c.copies == [1, 2, 3, 6]
+    objects = Objects([c.node, *c.copies])
+    materials = np.zeros(1, OBJECT_TABLES["materials"])
+    objects.add(3, "materials", materials)
+    with pytest.raises(BadFrame, match="node = 4: this render downloads objects of 0, 1, 2, 3, 6"):
+        objects.add(4, "materials", materials)
+    with pytest.raises(BadFrame, match="OBJECTS: none came for node 1"):
+        objects.scene(1, c.view, c.background)
+    assert Config(config(node=0, plan=MeshPlan(3, 3))).copies == []
+    with pytest.raises(SpecError, match="MeshPlan.copies"):
+        MeshPlan(2, 2, mode="image", copies=True)
+
+
+def test_the_engine_cache_keeps_the_last_renders_engines_and_no_more():
+    scenes = [read_nff(spd_scene(n)) for n in ("balls_s2.nff", "gears_s1.nff", "rings_s1.nff")]
+    cache = EngineCache()
+    first = [cache.get(s, keep=2)[0] for s in scenes[:2]]
+    again = [cache.get(s, keep=2) for s in scenes[:2]]
+    assert [e for e, _ in again] == first and all(reused for _, reused in again)
+    cache.get(scenes[2], keep=2)  # a third: the least recently used goes first
+    assert len(cache.engines) == 2
+    assert cache.get(scenes[1], keep=2) == (first[1], True)
+    assert cache.get(scenes[0], keep=2)[1] is False

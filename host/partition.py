@@ -24,6 +24,7 @@ from meshnode.engine.tables import build_tables, segments
 from meshnode.engine.trace import owners
 from protocols.render import EVERYWHERE, MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
+from protocols.topology import Torus
 
 
 def splits(n: int, parts: int) -> list[int]:
@@ -261,11 +262,13 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
     if cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
-    rects, owner = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None
+    rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
         rects, owner = taker_tiles(scene, spec, cells, rects)
+        if plan.copies:
+            takers, owner = owner, spread(owner, plan)
     occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
-    return (Partition.make(rects, los, his, box, owner, cells, occ),
+    return (Partition.make(rects, los, his, box, owner, cells, occ, takers),
             holders(scene, *traced(los, his)))  # fmt: skip
 
 
@@ -342,6 +345,22 @@ def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback) -> tuple[li
         x0, _, y0, _ = rects[i]
         owner[i] = next(n for n, (a, b, c, d) in enumerate(fallback) if a <= x0 < b and c <= y0 < d)
     return rects, owner.tolist()
+
+
+def spread(takers: list[int], plan) -> list[int]:
+    """MeshPlan.copies: each tile to the node with the fewest tiles so far among the one
+    taking its eye rays on and that one's torus neighbours (each holds its engine, so any of
+    them traces the tile without passing its rays), ties to the taker: the cells the eye
+    rays enter (all at the scene's top, say) no longer decide which nodes start with work."""
+    torus = Torus(plan.rows, plan.cols)
+    near = {t: [t, *torus.links(t)] for t in set(takers)}
+    count = [0] * plan.nodes
+    owner = []
+    for t in takers:  # once per tile, while planning
+        n = min(near[t], key=lambda m: (count[m], m != t))
+        count[n] += 1
+        owner.append(n)
+    return owner
 
 
 def tiles(width: int, height: int, plan) -> tuple[list, list]:

@@ -197,20 +197,20 @@ class NodeCore:
 
     def _usable(self):
         """Under MeshPlan.copies, which chunks a thief can trace itself: those of tiles
-        whose eye rays a node it holds the engine of takes on (the tile's node: the
-        partition deals tiles to the node taking most of their eye rays on). A diagonal
-        neighbour's chunks would only have their eye rays made there and sent on. None
-        without copies: any chunk moves."""
+        whose eye rays a node it holds the engine of takes on (`Partition.takers`: the node
+        most of a tile's eye rays enter). A diagonal neighbour's chunks would only have
+        their eye rays made there and sent on. None without copies: any chunk moves."""
         if not self.spec.plan.copies:
             return None
         plan, (gw, _) = self.spec.plan, self.spec.sample_grid
         torus = Torus(plan.rows, plan.cols)
-        index, owner = RectIndex(self.part.rects, gw), np.asarray(self.part.owner, np.int64)
+        taker = np.asarray(self.part.takers or self.part.owner, np.int64)
+        index = RectIndex(self.part.rects, gw)
 
         def usable(thief: int, chunks: list) -> np.ndarray:
             c = np.asarray(chunks, np.int64)
             held = np.array([thief, *torus.links(thief)])
-            return np.isin(owner[index(c[:, 2] * gw + c[:, 0])], held)
+            return np.isin(taker[index(c[:, 2] * gw + c[:, 0])], held)
 
         return usable
 

@@ -190,6 +190,7 @@ class Partition(Spec):
     cell_his: tuple
     occ_res: tuple = EVERYWHERE[0]
     occ_bits: bytes = EVERYWHERE[1]
+    takers: tuple = ()
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -205,6 +206,10 @@ class Partition(Spec):
         owner = _array(self, "owner", np.int64, (m,))
         if np.any(owner < 0) or np.any(owner >= n):
             self.fail("owner", f"every rectangle's node must be from 0 to {n - 1}")
+        if self.takers != ():
+            takers = _array(self, "takers", np.int64, (m,))
+            if np.any(takers < 0) or np.any(takers >= n):
+                self.fail("takers", f"every rectangle's taker must be from 0 to {n - 1}")
         los, his = _array(self, "los", float, (n, 3)), _array(self, "his", float, (n, 3))
         if np.any(los > his):
             self.fail("his", "every box needs lo <= hi")
@@ -226,9 +231,10 @@ class Partition(Spec):
 
     @classmethod
     def make(cls, rects, los, his, scene_box, owner=None, cells=None,
-             occupancy=EVERYWHERE) -> "Partition":  # fmt: skip
+             occupancy=EVERYWHERE, takers=()) -> "Partition":  # fmt: skip
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
-        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits)."""
+        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits);
+        `takers` empty: each rectangle's owner takes its eye rays on."""
 
         def rows(a):
             return tuple(tuple(x) for x in np.asarray(a, float).tolist())
@@ -239,7 +245,7 @@ class Partition(Spec):
                    tuple(int(o) for o in owner), rows(los), rows(his),
                    *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
                    rows(cells[0]), rows(cells[1]), tuple(int(v) for v in occupancy[0]),
-                   bytes(occupancy[1]))  # fmt: skip
+                   bytes(occupancy[1]), tuple(int(t) for t in takers))  # fmt: skip
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
         """The rectangles node `node` owns, in order."""

@@ -255,3 +255,15 @@ def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys
         main(["render", str(EXAMPLE), "--mesh", "2x2", "--overlap", "wide"])
     assert bad.value.code == 2
     assert "'wide' is neither a percentage nor auto" in capsys.readouterr().err
+
+
+def test_copies_render_on_a_mesh_where_each_node_holds_the_others_objects(tmp_path):
+    stats = tmp_path / "s.json"
+    assert main(["render", str(EXAMPLE), "--mesh", "1x2", "--copies", "--steal", "--width",
+                 "24", "--height", "24", "--quiet", "-o", str(tmp_path / "a.png"), "--stats",
+                 str(stats)]) == 0  # fmt: skip
+    got = json.loads(stats.read_text())
+    assert got["mesh"]["copies"] is True and got["mesh"]["mode"] == "object"
+    own = got["objects_per_node"]
+    assert got["objects_held_per_node"] == [own[0] + own[1]] * 2  # each holds both boxes
+    assert got["rays_passed"] == 0  # the only neighbour's rays are traced with its copy

@@ -14,13 +14,14 @@ from host.camerasetup import CameraSetup
 from host.localmesh import LocalMesh
 from host.meshclient import render_on_mesh
 from host.nff import read_nff
+from host.partition import partition
 from host.render import render
 from meshnode.config import Config, Objects
 from meshnode.node import EngineCache
 from protocols.camera import CameraSampling
 from protocols.errors import BadFrame
 from protocols.messages import OBJECT_TABLES
-from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.spec import SpecError
 from protocols.topology import Torus
 from tests.conftest import records, spd_scene
@@ -118,3 +119,18 @@ def test_the_engine_cache_keeps_the_last_renders_engines_and_no_more():
     assert len(cache.engines) == 2
     assert cache.get(scenes[1], keep=2) == (first[1], True)
     assert cache.get(scenes[0], keep=2)[1] is False
+
+
+def test_tiles_go_to_the_taker_or_a_neighbour_holding_its_engine_evenly():
+    """Under copies a tile may be made by any node holding its taker's engine: the partition
+    keeps the takers (without copies, the owners) and deals the tiles evenly among them."""
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    image = ImageSpec(width=64, height=64).sized(scene.view)
+    plain = partition(scene, RenderSpec(image, plan=MeshPlan(3, 3, tile=4)))[0]
+    part = partition(scene, RenderSpec(image, plan=MeshPlan(3, 3, tile=4, copies=True)))[0]
+    assert part.takers == plain.owner and plain.takers == ()
+    torus = Torus(3, 3)
+    for taker, owner in zip(part.takers, part.owner, strict=True):
+        assert owner == taker or owner in torus.links(taker)
+    counts = np.bincount(part.owner, minlength=9)
+    assert counts.max() < np.bincount(plain.owner, minlength=9).max()  # spread out

@@ -9,7 +9,8 @@ meshes larger than this machine can run, next to measured ones.
                             [--measured image.json object.json] [--json FILE]
 
 Per scene, mesh and mode (object space at each overlap: with stealing, cuts even or from the cost
-pre-pass, and cost cuts without stealing; image space, dynamic tiles): the predicted
+pre-pass, with or without the neighbours' copies, and cost cuts without stealing; image
+space, dynamic tiles): the predicted
 speedup = the one-node cost / the busiest node's cost, and rays passed. `--measured FILES`
 (JSON that `bench.mesh --json` writes) puts the measured busiest-CPU speedups of the same
 scene, mesh and mode beside the predictions, with their ratio, and the measured speedup in
@@ -68,7 +69,8 @@ def measured_table(paths: list[Path]) -> dict:
             mode = "image dynamic" if r["cuts"] == "dynamic" else None
         else:
             mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost",
-                    "cost": "object+cost"}.get(r["cuts"])  # fmt: skip
+                    "cost": "object+cost", "even+steal+copies": "object+steal+copies",
+                    "cost+steal+copies": "object+steal+cost+copies"}.get(r["cuts"])  # fmt: skip
             overlap = r["overlap"]
         if mode:
             out[(r["scene"], r["mesh"], mode, overlap)] = (r["speedup"], r.get("work_speedup"))
@@ -108,7 +110,7 @@ def main(argv=None) -> int:
         scene = read_nff(args.scenes / f"{name}.nff")
         one, *_ = simulated(scene, 1, 1, args.size, {})
         print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
-        print(f"{'mesh':>6} {'mode':>17} {'overlap':>7} {'predicted':>9} {'measured':>8} "
+        print(f"{'mesh':>6} {'mode':>24} {'overlap':>7} {'predicted':>9} {'measured':>8} "
               f"{'ratio':>5} {'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
@@ -122,7 +124,7 @@ def main(argv=None) -> int:
                 seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
                 shown = "-" if overlap is None else f"{used:g}"
                 shown = f"auto:{shown}" if overlap == "auto" else shown
-                print(f"{mesh:>6} {mode:>17} {shown:>7} {predicted:>9.2f} {seen} {passed:>11,} "
+                print(f"{mesh:>6} {mode:>24} {shown:>7} {predicted:>9.2f} {seen} {passed:>11,} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
                 table.append({"scene": name, "mesh": mesh, "mode": mode, "overlap": overlap,
                               "overlap_used": used if overlap is not None else None,

@@ -78,7 +78,8 @@ def test_message_fields_are_checked():
         parse({"k": int(Kind.ERROR)})
     with pytest.raises(BadFrame):
         parse({"k": int(Kind.STATS), "node": True, "stats": {}})
-    objs = make(Kind.OBJECTS, table="spheres", records=np.zeros(2, dtypes.SPHERE), last=True)
+    objs = make(Kind.OBJECTS, node=0, table="spheres", records=np.zeros(2, dtypes.SPHERE),
+                last=True)
     kind, fields = parse(FrameDecoder().feed(encode(objs))[0])
     assert kind is Kind.OBJECTS and len(fields["records"]) == 2
     bad = dict(objs, table="teapots")

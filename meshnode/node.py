@@ -210,7 +210,8 @@ class NodeCore:
         def usable(thief: int, chunks: list) -> np.ndarray:
             c = np.asarray(chunks, np.int64)
             held = np.array([thief, *torus.links(thief)])
-            return np.isin(taker[index(c[:, 2] * gw + c[:, 0])], held)
+            tile = index(c[:, 2] * gw + c[:, 0])
+            return (tile >= 0) & np.isin(taker[tile], held)
 
         return usable
 

@@ -19,7 +19,9 @@ from dataclasses import replace
 import numpy as np
 
 from meshnode.engine.camera import eye_rays, view_basis
+from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.grid import grow_box
+from meshnode.engine.occupancy import Occupancy, occupancy_arrays, skip_empty
 from meshnode.engine.tables import build_tables, segments
 from meshnode.engine.trace import owners
 from protocols.render import EVERYWHERE, MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
@@ -262,12 +264,13 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
     if cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
+    occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
-        rects, owner = taker_tiles(scene, spec, cells, rects)
+        rects, owner = taker_tiles(scene, spec, cells, rects, box,
+                                   occupancy_arrays(*box, *occ))  # fmt: skip
         if plan.copies:
             takers, owner = owner, spread(owner, plan)
-    occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
     return (Partition.make(rects, los, his, box, owner, cells, occ, takers),
             holders(scene, *traced(los, his)))  # fmt: skip
 
@@ -324,16 +327,22 @@ def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tupl
 PROBE = 256  # eye rays along the longer image side that vote for each tile's maker
 
 
-def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback) -> tuple[list, list]:
+def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback, box,
+                occ: Occupancy) -> tuple[list, list]:  # fmt: skip
     """Object space: tiles of `plan.tile` samples, each made by the node whose cell most of
-    its eye rays enter (a probe of pinhole rays votes), so eye rays are made where they are
-    taken on: a node's rectangle's eye rays mostly entered other cells (through the scene's
-    top, or cells cut on the work map) and each went there first as a passed ray. A tile no
-    probe ray enters goes to the node whose rectangle in `fallback` holds its corner."""
+    its eye rays enter (a probe of pinhole rays votes, each from the first voxel of the
+    occupancy map `occ` over the scene's `box` it meets, as nodes route them), so eye rays
+    are made where they are taken on: a node's rectangle's eye rays mostly entered other
+    cells (through the scene's top, or cells cut on the work map) and each went there first
+    as a passed ray. A tile no probe ray enters goes to the node whose rectangle in
+    `fallback` holds its corner."""
     (gw, gh), t, nodes = spec.sample_grid, spec.plan.tile, spec.plan.nodes
     scale = max(1, max(gw, gh) // PROBE)
     cw, ch = max(1, gw // scale), max(1, gh // scale)
-    taker = owners(eye_rays(scene.view, ImageSpec(width=cw, height=ch)), *cells)
+    probe = eye_rays(scene.view, ImageSpec(width=cw, height=ch))
+    skip_empty(probe, *(np.asarray(b, float) for b in box), *occ,
+               np.zeros(N_COUNTERS, np.int64))  # fmt: skip
+    taker = owners(probe, *cells)
     ntx, nty = -(-gw // t), -(-gh // t)
     tile = ((np.arange(ch) * gh // ch // t)[:, None] * ntx
             + (np.arange(cw) * gw // cw // t)[None, :]).ravel()  # fmt: skip

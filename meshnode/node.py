@@ -309,6 +309,8 @@ class NodeCore:
         here with that copy instead, and so on until none are left for a copy."""
         todo = {self.node: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
+            rays = rays.copy()  # the maker's batch stays as made
+            self.engine.skip_empty(rays)  # from where its work starts (the map's first voxel)
             dest = self.takers(rays)
             here = (dest == self.node) | (dest < 0)  # < 0: enters no cell, ends here
             if not here.all():

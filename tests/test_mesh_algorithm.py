@@ -21,6 +21,8 @@ from host.partition import (
 from host.render import render
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.counters import N_COUNTERS
+from meshnode.engine.occupancy import occupancy_arrays, skip_empty
 from meshnode.node import NodeCore, per_cell
 from protocols.dtypes import DEPOSIT
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
@@ -82,14 +84,15 @@ def test_random_scene_on_every_mesh_equals_single_node(seed):
 
 
 def entry_cells(rays, part) -> np.ndarray:
-    """Reference: the cell where each ray enters the scene's box (slab method, the entry
-    nudged inside), -1 where it misses the box or the entry lies on a face two cells share."""
+    """Reference: the cell where each ray enters the scene's box, or holds its t_min when
+    that lies beyond (slab method, the point nudged inside), -1 where it misses the box or
+    the point lies on a face two cells share."""
     o, d = rays["o"], rays["d"]
     lo, hi = (np.asarray(b) for b in (part.scene_lo, part.scene_hi))
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.stack([(lo - o) / d, (hi - o) / d])
     enter, leave = np.nanmax(t.min(axis=0), axis=1), np.nanmin(t.max(axis=0), axis=1)
-    p = o + (np.maximum(enter, 0) + 1e-6 * (leave - enter))[:, None] * d
+    p = o + (np.maximum(enter, rays["t_min"]) + 1e-6 * (leave - enter))[:, None] * d
     c_lo, c_hi = part.cells
     holds = ((p[:, None] >= c_lo[None]) & (p[:, None] <= c_hi[None])).all(axis=2)
     clear = (enter < leave) & (leave > 0) & (holds.sum(axis=1) == 1)
@@ -117,9 +120,10 @@ def test_an_eye_ray_goes_to_the_cell_where_it_enters_the_scene(overlap):
 @pytest.mark.parametrize("name", ["teapot_s1.nff", "balls_s2.nff"])
 def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
     # Object space deals the image in tiles, each to the node whose cell most of its eye
-    # rays enter: with one rectangle a node (cut from the image at the scene's near face, or
-    # even, with cells cut on the work map) most eye rays entered another node's cell first
-    # (through the scene's top) and travelled there before any tracing.
+    # rays enter (from the first occupied voxel they meet): with one rectangle a node (cut
+    # from the image at the scene's near face, or even, with cells cut on the work map) most
+    # eye rays entered another node's cell first (through the scene's top) and travelled
+    # there before any tracing.
     from host.balance import balanced_cuts
 
     scene = read_nff(spd_scene(name))
@@ -130,7 +134,11 @@ def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
         made_away = entered = 0
         for rect, owner in zip(part.rects, part.owner, strict=True):
             x0, x1, y0, y1 = rect
-            cell = entry_cells(eye_rays(scene.view, spec.image, (y0, y1), (x0, x1)), part)
+            rays = eye_rays(scene.view, spec.image, (y0, y1), (x0, x1))
+            lo, hi = (np.asarray(b, float) for b in (part.scene_lo, part.scene_hi))
+            occ = occupancy_arrays(lo, hi, part.occ_res, part.occ_bits)
+            skip_empty(rays, lo, hi, *occ, np.zeros(N_COUNTERS, np.int64))  # as nodes route
+            cell = entry_cells(rays, part)
             made_away += int(((cell >= 0) & (cell != owner)).sum())
             entered += int((cell >= 0).sum())
         assert made_away < 0.1 * entered
@@ -366,3 +374,24 @@ def test_a_node_holds_every_object_reaching_the_space_it_traces():
     part2, keep = partition(scene, spec)
     assert np.array_equal(part2.boxes[0], los) and np.array_equal(part2.boxes[1], his)
     assert keep[0, 2] and keep[1, 2]
+
+
+@pytest.mark.parametrize("name", ["balls_s2.nff", "mount_s1.nff", "gears_s1.nff"])
+def test_eye_rays_skip_only_empty_space_before_their_first_hit(name):
+    """A node sends an eye ray on from the first occupied voxel of the scene's map it meets
+    (`skip_empty`): never beyond its first hit (brute force over every object), so no hit
+    is lost; and on mount, whose camera looks down across empty air, most rays move on."""
+    scene = read_nff(spd_scene(name))
+    spec = RenderSpec(ImageSpec(width=48, height=48).sized(scene.view), plan=MeshPlan(2, 2))
+    part, _ = partition(scene, spec)
+    rays = eye_rays(scene.view, spec.image)
+    before = rays["t_min"].copy()
+    lo, hi = (np.asarray(b, float) for b in (part.scene_lo, part.scene_hi))
+    skip_empty(rays, lo, hi, *occupancy_arrays(lo, hi, part.occ_res, part.occ_bits),
+               np.zeros(N_COUNTERS, np.int64))  # fmt: skip
+    t, _ = Engine(scene, brute=True).first_hits(rays["o"], rays["d"])
+    hit = np.isfinite(t)
+    assert (rays["t_min"] >= before).all()
+    assert (rays["t_min"][hit] < t[hit]).all()  # the first hit still lies ahead
+    if name == "mount_s1.nff":
+        assert (rays["t_min"] > before).mean() > 0.5

@@ -20,8 +20,8 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine.counters import OCC_STEPS
-from meshnode.engine.jit import leaf
-from meshnode.engine.traverse import _region_exit
+from meshnode.engine.jit import kernel, leaf
+from meshnode.engine.traverse import _region_exit, box_span
 from protocols.render import EVERYWHERE
 
 INF = math.inf
@@ -142,3 +142,26 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
             break
     counters[OCC_STEPS] += steps
     return found
+
+
+@kernel
+def skip_empty(rays, scene_lo, scene_hi, lo, cell, res, clear, counters):
+    """Move each ray's t_min on to the first occupied voxel it meets inside the scene's box
+    (where it misses the box or meets none, t_min stays): an eye ray then goes first to the
+    node whose cell holds the space where its work starts, not to the one whose cell it only
+    crosses on the way in (the same segments a node makes when it passes a segment on)."""
+    for i in range(rays.shape[0]):
+        r = rays[i]
+        ox, oy, oz = r.o[0], r.o[1], r.o[2]
+        dx, dy, dz = r.d[0], r.d[1], r.d[2]
+        rx = 1.0 / dx if dx != 0.0 else INF
+        ry = 1.0 / dy if dy != 0.0 else INF
+        rz = 1.0 / dz if dz != 0.0 else INF
+        s0, s1 = box_span(ox, oy, oz, rx, ry, rz, r.t_min, r.t_max, scene_lo[0], scene_lo[1],
+                          scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])  # fmt: skip
+        if s0 > s1:
+            continue
+        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear,
+                           counters)  # fmt: skip
+        if t < INF and t > r.t_min:
+            r.t_min = t

@@ -39,7 +39,6 @@ from host.partition import (
 from meshnode.simulator import simulate
 from protocols.camera import CameraSampling, Generation
 from protocols.render import ImageSpec, RenderSpec
-from protocols.topology import Torus
 
 COARSE = 64  # coarse samples along the longer image axis
 FINE = 12  # work map cells along each cut axis
@@ -114,10 +113,7 @@ def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:
     """Bytes of the largest node's engines with these cuts (`host.partition.engine_bytes`):
     its own, and under MeshPlan.copies its linked neighbours' too."""
     own = [engine_bytes(s) for s in _coarse_mesh(scene, spec, xs, ys, cells)[2]]
-    plan = spec.plan
-    torus = Torus(plan.rows, plan.cols)
-    links = [torus.links(n) if plan.copies else [] for n in range(plan.nodes)]
-    return max(own[n] + sum(own[m] for m in links[n]) for n in range(plan.nodes))
+    return max(sum(own[m] for m in spec.plan.held(n)) for n in range(spec.plan.nodes))
 
 
 def choose_holding(scene, spec: RenderSpec, xs, ys, cells, busiest: float,

@@ -29,7 +29,6 @@ from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from protocols.scene import SceneData
-from protocols.topology import Torus
 
 OBJECT_BATCH = 20000  # records per OBJECTS message
 
@@ -226,7 +225,6 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
     objects are in, and they must know the render by then), then its objects."""
     neighbours = {str(n): a for n, a in enumerate(addresses)}
     render, part = planned.spec.to_wire(), planned.partition.to_wire()
-    plan = planned.spec.plan
     render_id = secrets.token_bytes(RENDER_ID_BYTES)  # links of a given-up try cannot join
     n = 0
     try:
@@ -236,7 +234,7 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
                                  background=list(scene.background),
                                  render_id=render_id))  # fmt: skip
         for n, link in enumerate(links):
-            held = [n, *(Torus(plan.rows, plan.cols).links(n) if plan.copies else [])]
+            held = planned.spec.plan.held(n)
             await _download(link, {m: subset(scene, planned.holders[m]) for m in held})
     except LinkClosed as e:
         raise NodeLost(n, f"setting up the mesh: {describe(e)}") from e
@@ -388,13 +386,6 @@ def primary_rays(image: ImageSpec, camera) -> int | None:
     return gw * gh * (1 if image.corners() else image.spp)
 
 
-def _held(plan: MeshPlan, keep) -> list[int]:
-    """Objects each node's engines hold: its own, and its neighbours' under `copies`."""
-    torus, own = Torus(plan.rows, plan.cols), keep.sum(axis=1)
-    links = [torus.links(n) if plan.copies else [] for n in range(plan.nodes)]
-    return [int(own[n] + own[links[n]].sum()) for n in range(plan.nodes)]
-
-
 def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
     nodes = [stats[n] for n in range(plan.nodes)]
     totals: dict[str, int] = {}
@@ -402,6 +393,7 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         for k, v in s["rays"].items():
             totals[k] = totals.get(k, 0) + v
     busy = [s["busy_cpu_seconds"] for s in nodes]
+    own = keep.sum(axis=1)
     return {
         "mesh": plan.to_wire(),
         "rays": totals,
@@ -413,7 +405,8 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         # sum of node tracing CPU / (nodes x busiest): 1 when every node works as long
         "parallel_efficiency": sum(busy) / (len(busy) * max(busy)) if max(busy) > 0 else 1.0,
         "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,
-        "objects_per_node": keep.sum(axis=1).tolist(),
-        "objects_held_per_node": _held(plan, keep),  # with the neighbours' copies
+        "objects_per_node": own.tolist(),
+        # with the neighbours' copies (MeshPlan.copies)
+        "objects_held_per_node": [int(own[plan.held(n)].sum()) for n in range(plan.nodes)],
         "nodes": nodes,
     }

@@ -26,7 +26,6 @@ from meshnode.engine.tables import build_tables, segments
 from meshnode.engine.trace import owners
 from protocols.render import EVERYWHERE, MAX_OCC_SIDE, ImageSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
-from protocols.topology import Torus
 
 
 def splits(n: int, parts: int) -> list[int]:
@@ -361,8 +360,7 @@ def spread(takers: list[int], plan) -> list[int]:
     taking its eye rays on and that one's torus neighbours (each holds its engine, so any of
     them traces the tile without passing its rays), ties to the taker: the cells the eye
     rays enter (all at the scene's top, say) no longer decide which nodes start with work."""
-    torus = Torus(plan.rows, plan.cols)
-    near = {t: [t, *torus.links(t)] for t in set(takers)}
+    near = {t: plan.held(t) for t in set(takers)}
     count = [0] * plan.nodes
     owner = []
     for t in takers:  # once per tile, while planning

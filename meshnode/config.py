@@ -53,7 +53,7 @@ class Config:
     @property
     def copies(self) -> list[int]:
         """The neighbours whose engines this node also holds (MeshPlan.copies)."""
-        return self.torus.links(self.node) if self.render.plan.copies else []
+        return self.render.plan.held(self.node)[1:]
 
 
 class Objects:

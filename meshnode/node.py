@@ -25,7 +25,6 @@ from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
-from protocols.topology import Torus
 
 HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
@@ -203,13 +202,12 @@ class NodeCore:
         if not self.spec.plan.copies:
             return None
         plan, (gw, _) = self.spec.plan, self.spec.sample_grid
-        torus = Torus(plan.rows, plan.cols)
         taker = np.asarray(self.part.takers or self.part.owner, np.int64)
         index = RectIndex(self.part.rects, gw)
 
         def usable(thief: int, chunks: list) -> np.ndarray:
             c = np.asarray(chunks, np.int64)
-            held = np.array([thief, *torus.links(thief)])
+            held = np.array(plan.held(thief))
             tile = index(c[:, 2] * gw + c[:, 0])
             return (tile >= 0) & np.isin(taker[tile], held)
 

@@ -78,10 +78,8 @@ def simulate(scenes, spec: RenderSpec, part: Partition, seed: int = 0, delay=Non
     plan = spec.plan
     engines = EngineCache()
     cores = [NodeCore(n, scenes[n], spec, part, eye_batch, engines) for n in range(plan.nodes)]
-    if plan.copies:  # each node's neighbours' engines: the very ones they trace with
-        torus = Torus(plan.rows, plan.cols)
-        for n, core in enumerate(cores):
-            core.copies = {m: cores[m].engine for m in torus.links(n)}
+    for n, core in enumerate(cores):  # MeshPlan.copies: the very engines the others trace with
+        core.copies = {m: cores[m].engine for m in plan.held(n)[1:]}
     mesh = _Mesh(cores, spec, seed, delay, passed_min)
     return mesh.run()
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from protocols.camera import CameraSpec
 from protocols.spec import Spec, SpecError
+from protocols.topology import Torus
 
 SPD_SIZE = 512  # the SPD rules: 512x512 pixels from 513x513 corner rays ...
 SPD_DEPTH = 5  # ... traced to depth 5 (also the default depth of every render)
@@ -162,6 +163,11 @@ class MeshPlan(Spec):
     def nodes(self) -> int:
         return self.rows * self.cols
 
+    def held(self, node: int) -> list[int]:
+        """The nodes whose engines `node` holds: itself, and under `copies` its links."""
+        links = Torus(self.rows, self.cols).links(node) if self.copies else []
+        return [node, *links]
+
     @property
     def dynamic(self) -> bool:
         """Tiles dealt while the frame is traced, by the host."""
@@ -178,7 +184,8 @@ class Partition(Spec):
     the scene's box, with its occupancy map (`occ_res` voxels along x, y, z, and `occ_bits`,
     one bit per voxel packed as numpy's packbits does, x fastest: 1 where some object may
     lie; nodes end or skip segments with only empty voxels ahead; the default, one occupied
-    voxel, skips nothing)."""
+    voxel, skips nothing); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
+    eye rays on where its owner (a neighbour holding that node's engine) does not."""
 
     rects: tuple
     owner: tuple

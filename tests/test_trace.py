@@ -209,8 +209,14 @@ def test_rays_of_extreme_finite_numbers_end_on_every_kernel_path():
         engine = Engine(scene, brute=brute)
         rgb, counts = engine.trace(rays)
         assert counts["eye_rays"] + counts["reflected_rays"] + counts["refracted_rays"] >= 0
-        _, _, passed = engine.trace_node(rays)
+        # a node holding half the scene runs the mesh kernel (spans, passing); a node whose
+        # box is the scene's the one-node kernel, and passes nothing
+        lo, hi = engine.scene_lo, engine.scene_hi
+        half = Engine(scene, brute=brute, box=(lo, (lo + hi) / 2), scene_box=(lo, hi))
+        assert half.holds_scene is False and engine.holds_scene is True
+        _, _, passed = half.trace_node(rays)
         assert len(rgb) == n and passed is not None
+        assert len(engine.trace_node(rays)[2]) == 0
 
 
 def test_teapot_patches_render_without_isolated_dark_pixels():

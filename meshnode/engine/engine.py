@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine import kernelcache
+from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.bvh import Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
@@ -154,7 +155,11 @@ class Engine:
         # A box holding the whole scene (image space, one node) has no segment to pass on,
         # so `trace_node` traces with the one-node kernel: it skips the box and occupancy
         # spans every segment pays on an object-space node (tetra: 6-20% of its CPU).
-        self.holds_scene = bool(np.all(lo <= self.scene_lo) and np.all(hi >= self.scene_hi))
+        # (Neither box given: one node, all objects. A node's box: it holds the objects
+        # touching it, so all of them when it covers the scene's; the kernel's is it padded.)
+        whole = box is None and scene_box is None
+        covers = bool(np.all(lo <= self.scene_lo) and np.all(hi >= self.scene_hi))
+        self.holds_scene = whole or covers
         self.occupancy = (everywhere(self.scene_lo, self.scene_hi) if occupancy is None else
                           occupancy_arrays(self.scene_lo, self.scene_hi, *occupancy))  # fmt: skip
         # A batch's own rays walk a hierarchy in packets, on object-space nodes too: eye rays
@@ -178,6 +183,7 @@ class Engine:
             np.ascontiguousarray(tb.materials[:, MAT_TRANSMIT]) if tb.transmitters else None
         )
         self.geometry = tb.geometry()
+        self._trace_batch = Bound(trace_batch)  # this engine's tables: the same every call
         self.grid_arrays = self.grid.arrays()
         self.preprocess_seconds = time.perf_counter() - start
         self.stats = {
@@ -269,7 +275,7 @@ class Engine:
         none when this node's box holds the whole scene)."""
         if self.holds_scene:
             rgb, counts, _ = self._trace(rays, None, None)
-            return rgb, counts, rays[:0].copy()
+            return rgb, counts, rays[:0]
         return self._trace(rays, None, np.empty(max(16, len(rays) // 4), RAY))
 
     def _trace(self, rays, out_rgb, out):
@@ -278,13 +284,17 @@ class Engine:
         if out_rgb is None:
             out_rgb = np.zeros((len(rays), 3))
         counters = np.zeros(N_COUNTERS, np.int64)
-        out, n_out = trace_batch(
-            np.ascontiguousarray(rays), out_rgb, counters, self.brute, self.geometry,
+        rays = np.ascontiguousarray(rays)
+        key = (array_key(rays), array_key(out_rgb), out is None)  # counters, out: made here
+        out, n_out = self._trace_batch(
+            key, rays, out_rgb, counters, self.brute, self.geometry,
             self.grid_arrays, self.shading, self.transmit, self.tables.lights,
             # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
             # more arrays early in the list (code layout), so keep the hot ones first (tetra:
             # 2-4% slower with the shading table ahead of the geometry and grid)
             self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.packets, self.occupancy,
         )  # fmt: skip
-        passed = None if out is None else out[:n_out].copy()
+        # a view, not a copy: copying records costs ~10 us a call, and the buffer was made
+        # for this call alone (callers route the passed rays into new arrays at once)
+        passed = None if out is None else out[:n_out]
         return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=True)), passed

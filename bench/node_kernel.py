@@ -1,0 +1,138 @@
+"""Node kernel benchmark: what an image-space node's tracing costs with the mesh kernel (every
+segment clipped to the node's box and checked against the occupancy map, for rays to pass on)
+against the one-node kernel that `Engine.trace_node` uses when the node's box holds the whole
+scene, on the same tiles of the same engine, taking turns; and what one mesh-kernel call
+costs on a single ray (the fixed cost an object-space node pays per batch, many of which are a
+few dozen passed rays) through the engine's bound entry point (`meshnode.engine.bound`) and
+through numba's dispatcher.
+
+    python -m bench.node_kernel [--scenes DIR] [--only balls,tetra] [--size 1024] [--spp 4]
+                                [--tile 32] [--repeat 3] [--json FILE]
+
+Each scene's engine is built as an image-space node builds it (its box the partition's scene
+box); its eye rays are traced tile by tile (`--tile` pixels square, as the dynamic tiles deal
+them), once with each kernel per round, `--repeat` rounds; the figures are the best round's
+tracing CPU seconds (thread time around each call) and their ratio. Both kernels must give the
+same colours and ray counts.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
+COUNTS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
+
+
+def tiles(view, image, side: int):
+    """The image's eye-ray batches, one per `side` x `side` pixel tile, row by row."""
+    from meshnode.engine.camera import eye_rays
+
+    w, h = image.width, image.height
+    return [eye_rays(view, image, rows=(y, min(y + side, h)), cols=(x, min(x + side, w)))
+            for y in range(0, h, side) for x in range(0, w, side)]  # fmt: skip
+
+
+def timed(trace, batches):
+    """(tracing CPU seconds, colours, counts) of `trace` over every batch."""
+    import numpy as np
+
+    cpu, rgbs, counts = 0.0, [], {}
+    for rays in batches:
+        start = time.thread_time()
+        rgb, done = trace(rays)[:2]
+        cpu += time.thread_time() - start
+        rgbs.append(rgb)
+        for k in COUNTS:
+            counts[k] = counts.get(k, 0) + done[k]
+    return cpu, np.concatenate(rgbs), counts
+
+
+def per_call(engine, trace, rays, calls: int = 2000) -> tuple[float, float]:
+    """Microseconds of one `trace(rays)` call (a single ray: the fixed cost a call pays)
+    through `engine`'s bound entry point, and through numba's dispatcher."""
+    from meshnode.engine.trace import trace_batch
+
+    def each():
+        start = time.perf_counter()
+        for _ in range(calls):
+            trace(rays)
+        return 1e6 * (time.perf_counter() - start) / calls
+
+    bound = engine._trace_batch
+    fast = each()
+    engine._trace_batch = lambda key, *args: trace_batch(*args)
+    try:
+        typed = each()
+    finally:
+        engine._trace_batch = bound
+    return fast, typed
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.node_kernel", description=__doc__.split("\n\n")[0])
+    add_scenes_option(p)
+    p.add_argument("--only", default="balls,gears,rings,tetra,teapot,mount_s1")
+    p.add_argument("--size", type=int, default=1024)
+    p.add_argument("--spp", type=int, default=4)
+    p.add_argument("--tile", type=int, default=32, help="tile side in pixels")
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    import numpy as np
+
+    from host.nff import read_nff
+    from host.partition import scene_box
+    from meshnode.engine import Engine
+    from protocols.dtypes import RAY
+    from protocols.render import ImageSpec
+
+    print(f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread, "
+          f"best of {args.repeat} turns")  # fmt: skip
+    print(f"{'scene':>10} {'tiles':>6} {'mesh kernel s':>13} {'one-node kernel s':>17} "
+          f"{'mesh / one-node':>15} {'call us bound':>13} {'dispatched':>10}")  # fmt: skip
+    rows, bad = [], []
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        box = scene_box(scene)
+        engine = Engine(scene, box=box, scene_box=box)
+        engine.warmup()
+        image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
+        batches = tiles(scene.view, image, args.tile)
+
+        def mesh(rays, engine=engine):  # an object-space node's kernel: spans, passing
+            return engine._trace(rays, None, np.empty(max(16, len(rays) // 4), RAY))
+
+        best = {"mesh": None, "one": None}
+        for _ in range(args.repeat):
+            for label, trace in (("mesh", mesh), ("one", engine.trace_node)):
+                got = timed(trace, batches)
+                if best[label] is None or got[0] < best[label][0]:
+                    best[label] = got
+        (m_cpu, m_rgb, m_counts), (o_cpu, o_rgb, o_counts) = best["mesh"], best["one"]
+        if m_counts != o_counts or not np.allclose(m_rgb, o_rgb, rtol=0, atol=1e-12):
+            bad.append(name)
+        fast, typed = per_call(engine, mesh, batches[len(batches) // 2][:1])
+        rows.append({"scene": name, "tiles": len(batches), "mesh_kernel_cpu_seconds": m_cpu,
+                     "one_node_kernel_cpu_seconds": o_cpu, "ratio": m_cpu / o_cpu,
+                     "call_us_bound": fast, "call_us_dispatched": typed,
+                     "counts": o_counts})  # fmt: skip
+        print(f"{name:>10} {len(batches):>6} {m_cpu:>13.3f} {o_cpu:>17.3f} "
+              f"{m_cpu / o_cpu:>15.2f} {fast:>13.1f} {typed:>10.1f}")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    if bad:
+        print("MISMATCH (colours or counts) between the kernels: " + ", ".join(bad))
+        return 1
+    print("\nboth kernels gave the same colours and ray counts on every scene")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -5,7 +5,8 @@ process.
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
                          [--modes object,image] [--tiles static] [--tile 32]
                          [--size 512 --spp 1]
-                         [--min-trace 5] [--repeat 3] [--json FILE] [--plots DIR]
+                         [--min-trace 5] [--repeat 3] [--together 1] [--json FILE]
+                         [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
@@ -21,7 +22,12 @@ with `--min-trace S` at more samples for a scene that one node traces in less th
 seconds. Every row renders on one node (in this process) and on the mesh in turns, `--repeat
 N` times (the mesh's nodes keep running, so later renders reuse their engines), and compares
 the best of each (least tracing CPU; least busiest-node CPU): this machine's speed moves by
-up to 1.6x for minutes at a time, so both sides are measured over the same span.
+up to 1.6x for minutes at a time, so both sides are measured over the same span. Each
+core's speed also moves by up to 25% within seconds, each core on its own, so a reference
+taken a few seconds from the mesh still lands on other spells: `--together N` then measures
+one node and the mesh at once, N times (one node renders on a thread here while the mesh
+renders again and again until one node is done, so both share the same spells and the same
+load), and "at once" is the median of those windows' one-node CPU / busiest-node CPU.
 `--overlaps 2,auto` compares a fixed overlap with the one the cost pre-pass chooses
 (`--overlap auto`: the row shows `a:<chosen>`); `--node-threads 1,2` runs every row with
 nodes tracing on that many threads, side by side;
@@ -85,13 +91,15 @@ SIZE_MARGIN = 1.3
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False, repeat=1, tile=32, copies=False):  # fmt: skip
+            tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
     (engines kept). One node renders in this process before each mesh render, taking turns
     with it, and the best of those runs is the row's reference: this machine's speed moves
-    by up to 1.6x for minutes at a time, so the two sides are measured over the same span."""
+    by up to 1.6x for minutes at a time, so the two sides are measured over the same span.
+    Then `together` times both at once (`at_once`): the stats' `together` holds each
+    window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds."""
     from host.balance import OVERLAPS
     from host.localmesh import LocalMesh
     from host.meshclient import render_on_mesh
@@ -100,20 +108,51 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
     auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
     plan = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, balance, mode, tiles,
                     tile=tile, steal=steal, copies=copies)  # fmt: skip
-    runs, singles = [], []
+    runs, singles, windows = [], [], []
+
+    def mesh_render():
+        start = time.perf_counter()
+        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan,
+                                              overlaps=OVERLAPS if auto else ()))  # fmt: skip
+        return start, time.perf_counter(), stats
+
     with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
         for _ in range(repeat):
             singles.append(single(scene, image, warm=False))
-            start = time.perf_counter()
-            _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan,
-                                                  overlaps=OVERLAPS if auto else ()))  # fmt: skip
-            runs.append((time.perf_counter() - start, stats))
+            start, end, stats = mesh_render()
+            runs.append((end - start, stats))
+        for _ in range(together):
+            windows.append(at_once(lambda: single(scene, image, warm=False), mesh_render))
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
+    best["together"] = windows
     best["setup_reused_seconds"] = best["setup_seconds"]
     best["setup_seconds"] = runs[0][1]["setup_seconds"]
     best["paired_speedups"] = [one[1]["trace_cpu_seconds"] / run[1]["busiest_node_cpu_seconds"]
                                for one, run in zip(singles, runs, strict=True)]  # fmt: skip
     return wall, best, min(singles, key=lambda r: r[1]["trace_cpu_seconds"])
+
+
+def at_once(one_node, mesh_render) -> dict:
+    """One node and the mesh measured over the same seconds: one node renders on a thread of
+    this process while the mesh renders again and again, until one node is done; the mesh
+    renders that ended by then (at least the first) give the mean busiest-node CPU seconds.
+    This machine's cores change speed by up to 25% within seconds, each on its own, so one
+    node measured before or after the mesh can land on a fast spell and the mesh on a slow
+    one; at once, both share the same spells of both cores and the same load (every core
+    busy, the tracing threads time-shared)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        ref = pool.submit(lambda: (one_node(), time.perf_counter()))
+        renders = [mesh_render()]
+        while not ref.done():
+            renders.append(mesh_render())
+        (_, stats), ended = ref.result()
+    inside = [r for r in renders if r[1] <= ended] or renders[:1]
+    busiest = [r[2]["busiest_node_cpu_seconds"] for r in inside]
+    return {"one_node_cpu_seconds": stats["trace_cpu_seconds"],
+            "busiest_cpu_seconds": statistics.fmean(busiest),
+            "mesh_renders": len(inside)}  # fmt: skip
 
 
 def work(rays: dict) -> int:
@@ -174,6 +213,8 @@ def main(argv=None) -> int:
                         "traces at least this many CPU seconds")  # fmt: skip
     p.add_argument("--repeat", type=int, default=1,
                    help="best of N renders (least busiest-node CPU) for one node and each row")
+    p.add_argument("--together", type=int, default=1,
+                   help="windows in which one node and the mesh are measured at once")
     p.add_argument("--json", type=Path)
     p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
     args = p.parse_args(argv)
@@ -201,6 +242,7 @@ def main(argv=None) -> int:
               "taking turns with the mesh)")
         print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
               f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
+              f"{'at once':>7} "
               f"{'work':>5} {'wall':>5} "
               f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
               f"{'bytes/link mean':>15} {'max':>11}")  # fmt: skip
@@ -221,12 +263,14 @@ def main(argv=None) -> int:
                 if mode == "image":  # `cut` names the tiling and its tile side here
                     cut, side = cut
                     got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
-                                  repeat=args.repeat, tile=side)  # fmt: skip
+                                  repeat=args.repeat, tile=side,
+                                  together=args.together)  # fmt: skip
                     cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
 
                 else:
                     got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
-                                  steal=steal, repeat=args.repeat, copies=copy)  # fmt: skip
+                                  steal=steal, repeat=args.repeat, copies=copy,
+                                  together=args.together)  # fmt: skip
                     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
                 wall, st, (wall1, s1) = got
                 cpu1 = s1["trace_cpu_seconds"]
@@ -237,6 +281,9 @@ def main(argv=None) -> int:
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {cut} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
+                together = (statistics.median(w["one_node_cpu_seconds"] / w["busiest_cpu_seconds"]
+                                              for w in st["together"])
+                            if st["together"] else float("nan"))  # fmt: skip
                 mean, top = link_bytes(st)
                 used = st["mesh"]["overlap"]  # the pre-pass's choice under "auto"
                 shown = f"a:{used:g}" if overlap == "auto" else f"{overlap:g}"
@@ -246,6 +293,7 @@ def main(argv=None) -> int:
                        "tile": side,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
+                       "together": st["together"], "together_speedup": together,
                        "paired_speedups": st["paired_speedups"],
                        "work_speedup": work1 / work_busiest,
                        "parallel_efficiency": st["parallel_efficiency"],
@@ -260,7 +308,7 @@ def main(argv=None) -> int:
                 results.append(row)
                 print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
                       f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
-                      f"{statistics.median(st['paired_speedups']):>6.2f} "
+                      f"{statistics.median(st['paired_speedups']):>6.2f} {together:>7.2f} "
                       f"{row['work_speedup']:>5.2f} "
                       f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
                       f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "

@@ -32,7 +32,8 @@ load), and "at once" is the median of those windows' one-node CPU / busiest-node
 (`--overlap auto`: the row shows `a:<chosen>`); `--node-threads 1,2` runs every row with
 nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
-space tilings, and `--tile 32,64` their tile sides (samples). `--plots DIR` writes a
+space tilings, `--tile 32,64` their tile sides (samples) and `--orders centre,rows` the
+order dynamic tiles are dealt in. `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The
 machine has 2 cores, so meshes of 4 and more processes share them: wall time shows that;
 CPU seconds show the division of work.
@@ -91,7 +92,8 @@ SIZE_MARGIN = 1.3
 
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0):  # fmt: skip
+            tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0,
+            order="centre"):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
@@ -107,7 +109,7 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
 
     auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
     plan = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, balance, mode, tiles,
-                    tile=tile, steal=steal, copies=copies)  # fmt: skip
+                    tile=tile, steal=steal, copies=copies, order=order)  # fmt: skip
     runs, singles, windows = [], [], []
 
     def mesh_render():
@@ -202,6 +204,8 @@ def main(argv=None) -> int:
     p.add_argument("--tiles", default="static", help="image space tilings to compare: "
                    "static,dynamic")  # fmt: skip
     p.add_argument("--tile", default="32", help="image space tile sides (samples) to compare")
+    p.add_argument("--orders", default="centre", help="dynamic tiles' dealing orders to "
+                   "compare: centre,rows")  # fmt: skip
     p.add_argument("--steal", default="off", help="object space without and with stealing "
                    "to compare: off,on")  # fmt: skip
     p.add_argument("--copies", default="off", help="object space without and with the "
@@ -254,18 +258,20 @@ def main(argv=None) -> int:
         runs = [(m, o, t, c, lv) for m in args.modes.split(",") for t in threads
                 for o, c, lv in ([(o, c, lv) for o in overlaps for c in cuts for lv in levers]
                                  if m == "object" else
-                                 [(0.0, (t, int(side)), (False, False))
+                                 [(0.0, (t, int(side), order), (False, False))
                                   for t in args.tiles.split(",")
-                                  for side in args.tile.split(",")])]  # fmt: skip
+                                  for side in args.tile.split(",")
+                                  for order in args.orders.split(",")])]  # fmt: skip
         for rows, cols in meshes:
             for mode, overlap, thr, cut, (steal, copy) in runs:
-                side = None
-                if mode == "image":  # `cut` names the tiling and its tile side here
-                    cut, side = cut
+                side = order = None
+                if mode == "image":  # `cut` names the tiling, tile side and order here
+                    cut, side, order = cut
                     got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
-                                  repeat=args.repeat, tile=side,
-                                  together=args.together)  # fmt: skip
+                                  repeat=args.repeat, tile=side, together=args.together,
+                                  order=order)  # fmt: skip
                     cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
+                    cut += "" if len(args.orders.split(",")) == 1 else f"/{order}"
 
                 else:
                     got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
@@ -290,7 +296,7 @@ def main(argv=None) -> int:
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
                        "overlap_used": used,
                        "node_threads": thr, "cuts": cut, "steal": steal, "copies": copy,
-                       "tile": side,
+                       "tile": side, "order": order,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
                        "together": st["together"], "together_speedup": together,

@@ -27,6 +27,7 @@ from meshnode.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
 from protocols.render import (
     BALANCES,
+    ORDERS,
     STORAGES,
     STRUCTURES,
     TILINGS,
@@ -148,6 +149,9 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--tile", MeshPlan, "tile", "image-space tile side, or object-space chunk side "
            "with --steal, pixels", type=int)  # fmt: skip
     _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
+    _field(r, "--order", MeshPlan, "order", "dynamic tiles dealt from the image's centre "
+           "outward (the cheap border last: the nodes finish together) or row by row",
+           choices=ORDERS)  # fmt: skip
     _field(r, "--steal", MeshPlan, "steal", "object space: nodes trace their rectangles in "
            "--tile chunks spiralling out from the centre, and one that runs out takes "
            "unstarted chunks from a busy neighbour's outer end", action="store_true")

@@ -23,7 +23,7 @@ from host.framebuffer import Framebuffer
 from host.partition import subset
 from host.plan import Planned, choose_mode, plan_render, smallest_memory
 from meshnode.link import Link, LinkClosed, dial
-from meshnode.scheduler import TileDealer
+from meshnode.scheduler import TileDealer, deal_order
 from protocols.errors import ProtocolError, describe
 from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
@@ -165,8 +165,9 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
-    dealer = TileDealer(len(planned.partition.rects), plan.nodes, plan.buffer) \
-        if plan.dynamic else None  # fmt: skip
+    chosen = spec.plan
+    dealer = (TileDealer(deal_order(planned.partition.rects, chosen.order), chosen.nodes,
+                         chosen.buffer) if chosen.dynamic else None)  # fmt: skip
     collector = _Collector(fb, names, progress, silence, stall, dealer, watch, ready)
     if watch is not None:
         watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),

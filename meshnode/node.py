@@ -20,7 +20,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.trace import owners
-from meshnode.scheduler import ChunkFeed, Primaries, TileFeed
+from meshnode.scheduler import ChunkFeed, Primaries, TileFeed, spiral_order
 from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
@@ -81,14 +81,9 @@ def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
     walked round by angle. Traced from the front, stolen from the back (DESIGN.md 6)."""
     x0, x1, y0, y1 = rect
     xs, ys = list(range(x0, x1, side)), list(range(y0, y1, side))
-    cx, cy = (len(xs) - 1) / 2, (len(ys) - 1) / 2
-
-    def order(ij):
-        i, j = ij
-        return (max(abs(i - cx), abs(j - cy)), np.arctan2(j - cy, i - cx))
-
-    cells = sorted(((i, j) for j in range(len(ys)) for i in range(len(xs))), key=order)
-    return [(xs[i], min(xs[i] + side, x1), ys[j], min(ys[j] + side, y1)) for i, j in cells]
+    j, i = np.divmod(np.arange(len(xs) * len(ys)), len(xs))
+    return [(xs[i[c]], min(xs[i[c]] + side, x1), ys[j[c]], min(ys[j[c]] + side, y1))
+            for c in spiral_order(i, j)]  # fmt: skip
 
 
 def per_cell(deposits: np.ndarray, ids_per_cell: int) -> np.ndarray:

@@ -181,13 +181,37 @@ class TileFeed(Primaries):
         return self.open
 
 
+def spiral_order(i: np.ndarray, j: np.ndarray) -> list[int]:
+    """Indices of grid cells (column i, row j) from the middle outward: ring by ring (the
+    Chebyshev distance from the middle), each ring walked round by angle (DESIGN.md 6)."""
+    i, j = np.asarray(i, float), np.asarray(j, float)
+    if len(i) == 0:
+        return []
+    ci, cj = (i.min() + i.max()) / 2, (j.min() + j.max()) / 2
+    ring = np.maximum(np.abs(i - ci), np.abs(j - cj))
+    return np.lexsort((np.arctan2(j - cj, i - ci), ring)).tolist()
+
+
+def deal_order(rects, order: str) -> list[int]:
+    """The order dynamic tiles are dealt in (MeshPlan.order): "rows" as the partition lists
+    them (row by row), "centre" spiralling out from the image's middle tile, so the last
+    tiles dealt, whose costs decide how evenly the nodes finish, are the border's."""
+    if order == "rows" or len(rects) == 0:
+        return list(range(len(rects)))
+    x0 = np.array([r[0] for r in rects])
+    y0 = np.array([r[2] for r in rects])
+    return spiral_order(np.unique(x0, return_inverse=True)[1],
+                        np.unique(y0, return_inverse=True)[1])  # fmt: skip
+
+
 class TileDealer:
     """The host's side of dynamic image space: `buffer` tiles to every node at first, then
     one more whenever a node reports one finished, until none are left; then each node that
-    reports is told it gets no more. Pure: the host and the simulated mesh both drive it."""
+    reports is told it gets no more. `tiles`: the tile indices in the order they are dealt.
+    Pure: the host and the simulated mesh both drive it."""
 
-    def __init__(self, tiles: int, nodes: int, buffer: int):
-        self.left = deque(range(tiles))
+    def __init__(self, tiles, nodes: int, buffer: int):
+        self.left = deque(tiles)
         self.nodes, self.buffer = nodes, max(1, buffer)
         self.dealt: dict[int, int] = {}  # tile -> node
 

@@ -24,6 +24,7 @@ from meshnode.scheduler import (
     Steal,
     TileDealer,
     Trace,
+    deal_order,
 )
 from meshnode.stats import add_counts, work_units
 from meshnode.termination import State
@@ -99,7 +100,8 @@ class _Mesh:
         self.round = 0
         self.dealer = None
         if spec.plan.dynamic:  # the host deals tiles; its messages take a round each way
-            self.dealer = TileDealer(len(cores[0].part.rects), torus.size, spec.plan.buffer)
+            order = deal_order(cores[0].part.rects, spec.plan.order)
+            self.dealer = TileDealer(order, torus.size, spec.plan.buffer)
             for n, dealt in self.dealer.first().items():
                 self.transit.append((1, n, "tiles", dealt))
 

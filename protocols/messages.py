@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 5  # 5: OBJECTS name whose objects they are (MeshPlan.copies)
+PROTOCOL_VERSION = 6  # 6: MeshPlan.order (5: OBJECTS name whose objects they are)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 

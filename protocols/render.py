@@ -33,6 +33,7 @@ STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per
 BALANCES = ("even", "cost")
 MODES = ("object", "image")
 TILINGS = ("none", "static", "dynamic")
+ORDERS = ("centre", "rows")  # dynamic tiles: dealt from the image's centre out, or row by row
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,10 @@ class MeshPlan(Spec):
     mode "image" (DESIGN.md 6): every node holds the whole scene and traces whole pixel tiles,
     no rays passed; `tiles` "none" gives each node one band of rows, "static" deals near-square
     tiles of `tile` pixels round-robin, "dynamic" deals `buffer` tiles to each node at first
-    and one more whenever a node reports one finished (a node never waits on the network).
+    and one more whenever a node reports one finished (a node never waits on the network),
+    in `order`: "centre" from the image's centre outward (the last dealt, which decide how
+    evenly the nodes finish, are the border's: mostly background in a framed scene, so the
+    cheapest), "rows" row by row.
     `steal` (object space): a node traces its rectangle in chunks spiralling out from the
     centre, and one that has run out takes unstarted chunks from the outer end of a busy
     neighbour's spiral and makes their eye rays itself; under adaptive sampling in both
@@ -135,6 +139,7 @@ class MeshPlan(Spec):
     tiles: str = "static"
     tile: int = 32
     buffer: int = 2
+    order: str = "centre"
     steal: bool = False
     copies: bool = False
 
@@ -149,6 +154,7 @@ class MeshPlan(Spec):
         self.want_choice("tiles", TILINGS)
         self.want_int("tile", 1, MAX_SIDE)
         self.want_int("buffer", 1, 1024)
+        self.want_choice("order", ORDERS)
         if not isinstance(self.steal, bool):
             self.fail("steal", "must be true or false")
         if self.steal and self.mode != "object":

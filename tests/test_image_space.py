@@ -131,7 +131,7 @@ def test_the_dealer_deals_every_tile_once_and_closes_every_node():
     from meshnode.scheduler import TileDealer
 
     for count, nodes, buffer in ((20, 3, 2), (2, 4, 3), (0, 2, 1)):
-        dealer = TileDealer(count, nodes, buffer)
+        dealer = TileDealer(range(count), nodes, buffer)
         given, closed = [], set()
         pending = []
         for n, (first, last) in dealer.first().items():
@@ -147,6 +147,28 @@ def test_the_dealer_deals_every_tile_once_and_closes_every_node():
             if last:
                 closed.add(n)
         assert sorted(given) == list(range(count)) and closed == set(range(nodes))
+
+
+def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
+    # MeshPlan.order "centre": the first tile dealt holds the image's middle, each tile is
+    # no nearer the middle (in rings of tiles) than the one before, and the last are on the
+    # border; "rows" deals them as the partition lists them
+    from host.partition import tile_grid
+    from meshnode.scheduler import deal_order
+
+    for w, h, t in ((256, 256, 32), (300, 170, 32), (64, 40, 16), (32, 32, 32)):
+        rects = tile_grid(w, h, t)
+        order = deal_order(rects, "centre")
+        assert sorted(order) == list(range(len(rects)))
+        assert deal_order(rects, "rows") == list(range(len(rects)))
+        cols, rows = -(-w // t), -(-h // t)
+        ring = [max(abs(i % cols - (cols - 1) / 2), abs(i // cols - (rows - 1) / 2))
+                for i in order]
+        assert ring == sorted(ring)
+        x0, x1, y0, y1 = rects[order[0]]
+        assert abs((x0 + x1) / 2 - w / 2) <= t and abs((y0 + y1) / 2 - h / 2) <= t
+        x0, x1, y0, y1 = rects[order[-1]]
+        assert x0 == 0 or y0 == 0 or x1 == w or y1 == h
 
 
 def test_adaptive_sampling_with_dynamic_tiles_is_refused_by_name():

@@ -41,7 +41,6 @@ CPU seconds show the division of work.
 
 import argparse
 import asyncio
-import json
 import statistics
 import sys
 import time
@@ -50,7 +49,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
 
 COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
           "shadow_rays_blocked")  # fmt: skip
@@ -324,13 +323,8 @@ def main(argv=None) -> int:
                     load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "
                               f"{row['speedup']:.2f}, efficiency "
                               f"{st['parallel_efficiency']:.2f}", st)  # fmt: skip
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
-    if bad:
-        print("COUNT MISMATCH:\n" + "\n".join(bad))
-        return 1
-    print("\nray counts equal the single node's on every mesh and overlap")
-    return 0
+    return finish(results, args.json, bad, "COUNT MISMATCH:\n",
+                  "ray counts equal the single node's on every mesh and overlap")
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ load), and "at once" is the median of those windows' one-node CPU / busiest-node
 (`--overlap auto`: the row shows `a:<chosen>`); `--node-threads 1,2` runs every row with
 nodes tracing on that many threads, side by side;
 `--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
-space tilings, `--tile 32,64` their tile sides (samples) and `--orders centre,rows` the
+space tilings, `--tile 32,64` their tile sides (samples) and `--orders rows,centre` the
 order dynamic tiles are dealt in. `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The
 machine has 2 cores, so meshes of 4 and more processes share them: wall time shows that;
@@ -92,7 +92,7 @@ SIZE_MARGIN = 1.3
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
             tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0,
-            order="centre"):  # fmt: skip
+            order="rows"):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
@@ -203,8 +203,8 @@ def main(argv=None) -> int:
     p.add_argument("--tiles", default="static", help="image space tilings to compare: "
                    "static,dynamic")  # fmt: skip
     p.add_argument("--tile", default="32", help="image space tile sides (samples) to compare")
-    p.add_argument("--orders", default="centre", help="dynamic tiles' dealing orders to "
-                   "compare: centre,rows")  # fmt: skip
+    p.add_argument("--orders", default="rows", help="dynamic tiles' dealing orders to "
+                   "compare: rows,centre")  # fmt: skip
     p.add_argument("--steal", default="off", help="object space without and with stealing "
                    "to compare: off,on")  # fmt: skip
     p.add_argument("--copies", default="off", help="object space without and with the "

@@ -149,8 +149,8 @@ def _parser() -> argparse.ArgumentParser:
     _field(r, "--tile", MeshPlan, "tile", "image-space tile side, or object-space chunk side "
            "with --steal, pixels", type=int)  # fmt: skip
     _field(r, "--buffer", MeshPlan, "buffer", "dynamic tiles each node holds ahead", type=int)
-    _field(r, "--order", MeshPlan, "order", "dynamic tiles dealt from the image's centre "
-           "outward (the cheap border last: the nodes finish together) or row by row",
+    _field(r, "--order", MeshPlan, "order", "dynamic tiles dealt row by row, or from the "
+           "image's centre outward (the border last: even ends where it is background)",
            choices=ORDERS)  # fmt: skip
     _field(r, "--steal", MeshPlan, "steal", "object space: nodes trace their rectangles in "
            "--tile chunks spiralling out from the centre, and one that runs out takes "

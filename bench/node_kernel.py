@@ -30,12 +30,12 @@ COUNTS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 
 
 def tiles(view, image, side: int):
-    """The image's eye-ray batches, one per `side` x `side` pixel tile, row by row."""
+    """The image's eye-ray batches, one per tile of the partition's grid (`tile_grid`)."""
+    from host.partition import tile_grid
     from meshnode.engine.camera import eye_rays
 
-    w, h = image.width, image.height
-    return [eye_rays(view, image, rows=(y, min(y + side, h)), cols=(x, min(x + side, w)))
-            for y in range(0, h, side) for x in range(0, w, side)]  # fmt: skip
+    return [eye_rays(view, image, rows=(y0, y1), cols=(x0, x1))
+            for x0, x1, y0, y1 in tile_grid(image.width, image.height, side)]  # fmt: skip
 
 
 def timed(trace, batches):
@@ -89,7 +89,6 @@ def main(argv=None) -> int:
     from host.nff import read_nff
     from host.partition import scene_box
     from meshnode.engine import Engine
-    from protocols.dtypes import RAY
     from protocols.render import ImageSpec
 
     print(f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread, "
@@ -105,9 +104,7 @@ def main(argv=None) -> int:
         image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
         batches = tiles(scene.view, image, args.tile)
 
-        def mesh(rays, engine=engine):  # an object-space node's kernel: spans, passing
-            return engine._trace(rays, None, np.empty(max(16, len(rays) // 4), RAY))
-
+        mesh = engine.trace_passing  # an object-space node's kernel: spans, passing
         mesh(batches[0][:1])  # its entry point looked up (and loaded) before it is timed
         best = {"mesh": None, "one": None}
         for _ in range(args.repeat):

@@ -147,6 +147,10 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
 NODE_LOSS = ("replan", "fail")
 
 
+def tiles_message(dealer: TileDealer, tiles: list[int], last: bool) -> dict:
+    return make(Kind.TILES, tiles=tiles, last=last, owners=dealer.owners_with(last))
+
+
 def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
     """The plan on `nodes` nodes: the most nearly square rows x cols that uses them all."""
     rows = max(d for d in range(1, math.isqrt(nodes) + 1) if nodes % d == 0)
@@ -167,7 +171,7 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     chosen = spec.plan
     dealer = (TileDealer(deal_order(planned.partition.rects, chosen.order), chosen.nodes,
-                         chosen.buffer) if chosen.dynamic else None)  # fmt: skip
+                         chosen.buffer, spec.adaptive) if chosen.dynamic else None)  # fmt: skip
     collector = _Collector(fb, names, progress, silence, stall, dealer, watch, ready)
     if watch is not None:
         watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),
@@ -175,7 +179,7 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
-                await links[n].send(make(Kind.TILES, tiles=tiles, last=last))
+                await links[n].send(tiles_message(dealer, tiles, last))
         await collector.run(links)
     except LinkClosed as e:  # a TILES send to a node that is gone
         n = next(i for i, link in enumerate(links) if link.peer == e.peer)
@@ -192,8 +196,7 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     summary["balance"] = planned.balance
     summary["plan_seconds"] = planned.seconds
     if dealer is not None:
-        summary["tiles_per_node"] = np.bincount(list(dealer.dealt.values()),
-                                                minlength=plan.nodes).tolist()  # fmt: skip
+        summary["tiles_per_node"] = dealer.tiles_per_node()
     if planned.camera is not None:
         summary["camera"] = planned.camera
         if "refined_pixels" in summary["rays"]:
@@ -352,7 +355,7 @@ class _Collector:
                 for _ in f["tiles"]:  # one more tile for each finished, while any are left
                     tiles, last = self.dealer.finished(n)
                     if tiles or last:
-                        await link.send(make(Kind.TILES, tiles=tiles, last=last))
+                        await link.send(tiles_message(self.dealer, tiles, last))
                 if self.watch is not None:
                     self.watch.tiles(n, len(f["tiles"]))
             elif kind is Kind.STATS:

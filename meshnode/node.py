@@ -133,13 +133,18 @@ class NodeCore:
         # the very engines its other cores trace with.)
         self.copies = {m: engines.get(c, keep, **self._options(m))[0] for m, c in copies.items()}
         self.films: list[AdaptiveFilm] = []
-        if spec.camera is not None and spec.camera.adaptive:
-            w, h = spec.image.size
-            self.films = [AdaptiveFilm(spec.camera, rect, w, h, spec.image.seed)
-                          for rect in self.owned]  # fmt: skip
-            self.every_rect = RectIndex(part.rects, w)
-            self.own_rect = RectIndex(self.owned, w)
-            self.rect_owner = np.asarray(part.owner, np.int64)  # node of each rectangle
+        self.adaptive = spec.adaptive
+        if self.adaptive:
+            self.every_rect = RectIndex(part.rects, spec.image.size[0])
+            self.film_at = np.full(len(part.rects), -1, np.int64)  # rectangle -> own film
+            # rectangle -> node; under dynamic tiles -1 until the host says (`add_tiles`)
+            self.rect_owner = np.asarray(part.owner, np.int64)
+            if self.feed is not None:
+                self.rect_owner = np.full(len(part.rects), -1, np.int64)
+            self.held_out: list = []  # dynamic tiles: (deposits, idx, rect) traced here ...
+            self.held_in: list = []  # ... and received, for tiles of nodes not known yet
+            for t in np.flatnonzero(self.rect_owner == node).tolist():
+                self._add_film(t)
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine settings: its box, and what every node shares."""
@@ -152,7 +157,15 @@ class NodeCore:
     @property
     def keeps_pixels(self) -> bool:
         """Adaptive sampling: this node keeps the books of its own pixels."""
-        return bool(self.films)
+        return self.adaptive
+
+    def _add_film(self, tile: int) -> AdaptiveFilm:
+        """Books for an own rectangle (or a dealt tile) of the adaptive render."""
+        w, h = self.spec.image.size
+        film = AdaptiveFilm(self.spec.camera, self.part.rects[tile], w, h, self.spec.image.seed)
+        self.film_at[tile] = len(self.films)
+        self.films.append(film)
+        return film
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
@@ -172,7 +185,9 @@ class NodeCore:
         rest, where the corners differ) in REFINE; under dynamic tiles, the feed the host's
         tiles arrive in. Made one batch at a time."""
         w, h = self.spec.image.size
-        if self.films:
+        if state == State.TRACE and self.feed is not None:
+            return self.feed
+        if self.adaptive:
             if state not in (State.TRACE, State.REFINE):
                 return Primaries()
             if self.spec.plan.steal:
@@ -181,8 +196,6 @@ class NodeCore:
                              (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
         if state != State.TRACE:
             return Primaries()
-        if self.feed is not None:
-            return self.feed
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
@@ -248,7 +261,8 @@ class NodeCore:
     def _film_of(self, chunk) -> AdaptiveFilm | None:
         """The film of the own rectangle holding `chunk`, None for a neighbour's chunk."""
         x0, _, y0, _ = chunk
-        i = int(self.own_rect(np.array([y0 * self.spec.image.size[0] + x0]))[0])
+        t = int(self.every_rect(np.array([y0 * self.spec.image.size[0] + x0]))[0])
+        i = int(self.film_at[t]) if t >= 0 else -1
         return self.films[i] if i >= 0 else None
 
     def _film_batches(self, film: AdaptiveFilm, chunk, refine: bool):
@@ -275,15 +289,35 @@ class NodeCore:
         return camera_batches(camera, self.view, w, h, rect_pixels(rect, w), image.seed,
                               RAYS_PER_BATCH)  # fmt: skip
 
-    def add_tiles(self, tiles: list[int], last: bool) -> None:
+    def add_tiles(self, tiles: list[int], last: bool, owners=()) -> dict[int, np.ndarray]:
         """Dynamic image space: tiles the host dealt (indices of the partition's rectangles),
-        and whether it will deal no more."""
+        whether it will deal no more, and then under adaptive sampling every tile's node
+        (`owners`). Returns deposits to send on, by node (`keep`)."""
+        w, h = self.spec.image.size
         for t in tiles:
-            if not 0 <= t < len(self.part.rects):
-                raise ValueError(f"TILES: tile {t} is not one of the {len(self.part.rects)}")
-            self.feed.add(t, self.rect_batches(self.part.rects[t]))
+            if not 0 <= t < len(self.part.rects) or (self.adaptive and self.film_at[t] >= 0):
+                raise ValueError(f"TILES: tile {t} is not one of the {len(self.part.rects)}, "
+                                 "or was dealt here before")  # fmt: skip
+            if self.adaptive:
+                self.feed.add(t, self._add_film(t).pass1(self.view, w, h))
+            else:
+                self.feed.add(t, self.rect_batches(self.part.rects[t]))
+        if last and self.adaptive:
+            self._learn_owners(np.asarray(owners))
         if last:
             self.feed.close()
+        return self._release() if self.adaptive else {}
+
+    def _learn_owners(self, owners: np.ndarray) -> None:
+        """Every tile's node, from the host's last TILES: checked against the tiles dealt
+        here (all came before, on the same link)."""
+        n = len(self.part.rects)
+        if len(owners) != n or (n and (owners.min() < 0 or owners.max() >= len(self.los))):
+            raise ValueError(f"TILES.owners must give each of the {n} tiles a node of the "
+                             f"{len(self.los)}, got {len(owners)} entries")  # fmt: skip
+        if not np.array_equal(owners == self.node, self.film_at >= 0):
+            raise ValueError(f"TILES.owners disagrees with the tiles dealt to node {self.node}")
+        self.rect_owner = owners.astype(np.int64)
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect
@@ -338,20 +372,57 @@ class NodeCore:
         each deposit's pixel (and pass-1 ones to the owners of its side neighbours)."""
         if len(deposits) == 0:
             return {}
-        if not self.films:
+        if not self.adaptive:
             return {HOST: per_cell(deposits, self.spec.ids_per_cell)}
+        if self.feed is not None:  # tiles' nodes are learnt as the host deals: `keep` routes
+            return {self.node: deposits}
         idx, rect = self._routes(deposits, self.every_rect)
         node = self.rect_owner[rect]
         keep = np.unique(node * len(deposits) + idx)  # once per node, however many tiles
         return _group(deposits[keep % len(deposits)], keep // len(deposits))
 
-    def keep(self, deposits: np.ndarray) -> None:
+    def keep(self, deposits: np.ndarray, traced_here: bool = False) -> dict[int, np.ndarray]:
         """Deposits routed to this node under adaptive sampling: into the film of each own
-        rectangle that holds their pixel, or has it in its halo."""
-        idx, film = self._routes(deposits, self.own_rect)
+        rectangle that holds their pixel, or has it in its halo. Under dynamic tiles a batch
+        traced here comes whole (`pixel_routes`, on a pool thread, cannot know which tiles
+        are dealt here by the time it is kept): what it holds for other tiles goes on to
+        their nodes, returned by node, once the host has said which those are (`add_tiles`);
+        a received deposit for a tile not known to be this node's waits for that too.
+        Returns deposits to send on, by node."""
+        idx, rect = self._routes(deposits, self.every_rect)
+        film = self.film_at[rect]
+        mine = film >= 0
+        self._add(deposits, idx[mine], film[mine])
+        if self.feed is None or mine.all():
+            return {}
+        (self.held_out if traced_here else self.held_in).append((deposits, idx[~mine],
+                                                                  rect[~mine]))  # fmt: skip
+        return self._release()
+
+    def _add(self, deposits: np.ndarray, idx: np.ndarray, film: np.ndarray) -> None:
         for i in np.unique(film).tolist():
             mine = idx[film == i]
             self.films[i].add(deposits["pixel"][mine], deposits["rgb"][mine])
+
+    def _release(self) -> dict[int, np.ndarray]:
+        """Once every tile's node is known: held deposits kept for this node's tiles (tiles
+        dealt here after they were traced), the rest of those traced here sent on, each to
+        a node once however many of its tiles they touch (a received one for another node's
+        tile came to this node for a tile of its own; its tracer sent it there too)."""
+        if self.feed is None or self.feed.open or not (self.held_out or self.held_in):
+            return {}  # closed with every tile's node learnt (`_learn_owners`)
+        out: dict[int, list] = {}
+        for deposits, idx, rect in self.held_in + self.held_out:
+            film = self.film_at[rect]
+            self._add(deposits, idx[film >= 0], film[film >= 0])
+        for deposits, idx, rect in self.held_out:
+            away = self.film_at[rect] < 0
+            node = self.rect_owner[rect[away]]
+            keep = np.unique(node * len(deposits) + idx[away])
+            for n, d in _group(deposits[keep % len(deposits)], keep // len(deposits)).items():
+                out.setdefault(n, []).append(d)
+        self.held_in, self.held_out = [], []
+        return {n: np.concatenate(ds) for n, ds in out.items()}
 
     def _routes(self, deposits, index: RectIndex):
         f = self.films[0]

@@ -210,10 +210,12 @@ class TileDealer:
     reports is told it gets no more. `tiles`: the tile indices in the order they are dealt.
     Pure: the host and the simulated mesh both drive it."""
 
-    def __init__(self, tiles, nodes: int, buffer: int):
+    def __init__(self, tiles, nodes: int, buffer: int, share_owners: bool = False):
         self.left = deque(tiles)
         self.nodes, self.buffer = nodes, max(1, buffer)
-        self.dealt: dict[int, int] = {}  # tile -> node
+        self.share_owners = share_owners  # adaptive sampling: `last` comes with `owners()`
+        self.owner = np.full(len(self.left), -1, np.int64)  # tile -> node dealt it; -1: not yet
+        self.told: set[int] = set()  # nodes told they get no more
 
     def first(self) -> dict[int, tuple[list[int], bool]]:
         """Each node's first tiles, dealt round-robin, and whether that is all it gets (a
@@ -223,18 +225,40 @@ class TileDealer:
             for n in range(self.nodes):
                 if self.left:
                     out[n].append(self._deal(n))
-        return {n: (tiles, not tiles) for n, tiles in out.items()}
+        return {n: (tiles, self._last(n) if not tiles else False) for n, tiles in out.items()}
 
     def finished(self, node: int) -> tuple[list[int], bool]:
-        """A node finished a tile: (its next tiles, whether it gets no more after them)."""
+        """A node finished a tile: (its next tiles, whether it gets no more after them);
+        a node is told it gets no more once: ([], False) after that."""
         if self.left:
             return [self._deal(node)], False
-        return [], True
+        return [], self._last(node)
+
+    def _last(self, node: int) -> bool:
+        told = node in self.told
+        self.told.add(node)
+        return not told
 
     def _deal(self, node: int) -> int:
         tile = self.left.popleft()
-        self.dealt[tile] = node
+        self.owner[tile] = node
         return tile
+
+    def owners(self) -> np.ndarray:
+        """Every tile's node, once all are dealt (when a node is told it gets no more):
+        under adaptive sampling a node sends each pass-1 deposit on to the nodes whose tiles
+        have its pixel in their halo, and learns who they are from this."""
+        if self.left:
+            raise RuntimeError("tiles are still to be dealt: their nodes are not known")
+        return self.owner.copy()
+
+    def owners_with(self, last: bool) -> np.ndarray:
+        """What a TILES message carries as every tile's node: `owners()` with a node's last
+        tiles under adaptive sampling, else nothing."""
+        return self.owners() if last and self.share_owners else np.zeros(0, np.int64)
+
+    def tiles_per_node(self) -> list[int]:
+        return np.bincount(self.owner[self.owner >= 0], minlength=self.nodes).tolist()
 
 
 class Scheduler:

@@ -99,8 +99,8 @@ class Session:
                 log.info("node %d: compiling kernels for %s, first run only", self.node,
                          self.core.engine.variant())  # fmt: skip
             await loop.run_in_executor(self.service.pool, self.core.warmup)
-            for f in self.early_tiles:
-                self.core.add_tiles(f["tiles"], f["last"])
+            for f in self.early_tiles:  # nothing is traced yet, so no deposit is to send
+                self.core.add_tiles(f["tiles"], f["last"], f["owners"])
             for m in c.torus.links(self.node):
                 if self.node < m:  # the lower index dials, the higher accepts
                     self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
@@ -136,6 +136,11 @@ class Session:
             self.stats.pixel_packets += 1
         self.sched.message_out()
         self.outboxes[hop].post(message, records.nbytes)
+
+    def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
+        """Adaptive deposits the node's books send on, each toward its tile's node."""
+        for dest, deposits in routes.items():
+            self.post_data(dest, Kind.PIXELS, deposits)
 
     def to_host(self, deposits: np.ndarray) -> None:
         """Deposits toward the host: in object space straight from node 0, from others
@@ -209,7 +214,7 @@ class Session:
         if f["dest"] != self.node:
             self.post_data(f["dest"], Kind.PIXELS, deposits)
         elif self.core.keeps_pixels:
-            self.core.keep(deposits)
+            self.send_pixels(self.core.keep(deposits))
         else:
             self.to_host(deposits)
 
@@ -230,7 +235,7 @@ class Session:
         if self.core is None:
             self.early_tiles.append(f)
             return
-        self.core.add_tiles(f["tiles"], f["last"])
+        self.send_pixels(self.core.add_tiles(f["tiles"], f["last"], f["owners"]))
         self.wake.set()
 
     def on_state(self, f: dict) -> None:
@@ -351,7 +356,7 @@ class Session:
                 if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
                     self.flush()
             elif dest == self.node:
-                self.core.keep(deposits)
+                self.send_pixels(self.core.keep(deposits, traced_here=True))
             else:
                 self.post_data(dest, Kind.PIXELS, deposits)
         for dest, passed in batch.outgoing.items():

@@ -101,9 +101,10 @@ class _Mesh:
         self.dealer = None
         if spec.plan.dynamic:  # the host deals tiles; its messages take a round each way
             order = deal_order(cores[0].part.rects, spec.plan.order)
-            self.dealer = TileDealer(order, torus.size, spec.plan.buffer)
-            for n, dealt in self.dealer.first().items():
-                self.transit.append((1, n, "tiles", dealt))
+            self.dealer = TileDealer(order, torus.size, spec.plan.buffer, spec.adaptive)
+            for n, (tiles, last) in self.dealer.first().items():
+                owners = self.dealer.owners_with(last)
+                self.transit.append((1, n, "tiles", (tiles, last, owners)))
 
     def run(self) -> Outcome:
         while not all(s.done for s in self.scheds) or self.transit:
@@ -126,6 +127,11 @@ class _Mesh:
         if kind != "state":
             self.scheds[src].message_out()
 
+    def _pixels(self, src: int, routes: dict) -> None:
+        """Deposits a node's adaptive books send on (`NodeCore.keep`)."""
+        for dest, deposits in routes.items():
+            self._send(src, dest, "pixels", deposits)
+
     def _deliver(self) -> None:
         due = [m for m in self.transit if m[0] <= self.round]
         self.transit = [m for m in self.transit if m[0] > self.round]
@@ -136,9 +142,9 @@ class _Mesh:
                 sched.rays_in(payload)
             elif kind == "pixels":
                 sched.message_in()
-                self.cores[dst].keep(payload)
+                self._pixels(dst, self.cores[dst].keep(payload))
             elif kind == "tiles":
-                self.cores[dst].add_tiles(*payload)
+                self._pixels(dst, self.cores[dst].add_tiles(*payload))
             elif kind == "steal":
                 sched.steal_request(payload)
             elif kind == "give":
@@ -147,7 +153,9 @@ class _Mesh:
                 for _ in payload[1]:
                     tiles, last = self.dealer.finished(payload[0])
                     if tiles or last:
-                        self.transit.append((self.round + 1, payload[0], "tiles", (tiles, last)))
+                        owners = self.dealer.owners_with(last)
+                        self.transit.append((self.round + 1, payload[0], "tiles",
+                                             (tiles, last, owners)))  # fmt: skip
             else:
                 sched.packet_in(payload)
 
@@ -190,7 +198,7 @@ class _Mesh:
             if dest == HOST:
                 self.deposits.append(deposits)
             elif dest == n:
-                core.keep(deposits)
+                self._pixels(n, core.keep(deposits, traced_here=True))
             else:
                 self._send(n, dest, "pixels", deposits)
         for dest, passed in batch.outgoing.items():

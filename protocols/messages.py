@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 6  # 6: MeshPlan.order (5: OBJECTS name whose objects they are)
+PROTOCOL_VERSION = 7  # 7: TILES.owners (6: MeshPlan.order; 5: OBJECTS name whose objects)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 
@@ -68,7 +68,8 @@ FIELDS = {
                     "links": dtypes.LINK_TRAFFIC},  # fmt: skip
     Kind.AUTH: {"proof": bytes},
     Kind.WELCOME: {},
-    Kind.TILES: {"tiles": list, "last": bool},
+    # owners: every tile's node, with `last` under adaptive sampling (else empty)
+    Kind.TILES: {"tiles": list, "last": bool, "owners": np.dtype("<i8")},
     Kind.TILE_DONE: {"node": int, "tiles": list},
     Kind.ABORT: {"reason": str},
     Kind.ABORTED: {},

@@ -319,12 +319,14 @@ class RenderSpec(Spec):
                 self.fail(name, f"must be a {record.__name__}")
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
-        if self.plan.dynamic and self.camera is not None and self.camera.adaptive:
-            self.fail("plan", "adaptive sampling with dynamic tiles is not supported yet (its "
-                              "seams need every tile's owner up front): use static tiles")
         if self.camera is not None and self.image.spp != 1:
             self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, "
                                "not spp")  # fmt: skip
+
+    @property
+    def adaptive(self) -> bool:
+        """Adaptive sampling through the camera: nodes keep their pixels' books."""
+        return self.camera is not None and self.camera.adaptive
 
     @property
     def sample_grid(self) -> tuple[int, int]:

@@ -49,7 +49,7 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling):
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
-        for tiling in TILINGS[: 3 if sampling != "adaptive" else 2]:
+        for tiling in TILINGS:
             img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
                                             mode="image", **tiling)  # fmt: skip
             assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
@@ -80,10 +80,12 @@ def test_every_node_holds_the_whole_scene_and_box():
     assert (los == lo).all() and (his == hi).all()
 
 
-@pytest.mark.parametrize("sampling", [None, "adaptive"])
-def test_image_space_over_tcp_equals_one_node(sampling):
+@pytest.mark.parametrize("sampling,tiling", [(None, "static"), ("adaptive", "static"),
+                                             ("adaptive", "dynamic")])  # fmt: skip
+def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     # Real node processes: the whole scene downloaded to each, tiles dealt, no rays passed;
-    # adaptive seams travel as pixel packets between the tiles' owners.
+    # adaptive seams travel as pixel packets between the tiles' owners (under dynamic tiles
+    # once the host has said who those are).
     import asyncio
 
     from host.localmesh import LocalMesh
@@ -95,13 +97,15 @@ def test_image_space_over_tcp_equals_one_node(sampling):
         scene, image = dof_scene(), ImageSpec(width=30, height=24, seed=3)
         setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
     ref, counts = reference(scene, image, setup)
-    plan = MeshPlan(2, 2, mode="image", tile=8)
+    plan = MeshPlan(2, 2, mode="image", tiles=tiling, tile=8 if tiling == "static" else 5)
     with LocalMesh(plan.nodes) as addresses:
         coro = render_on_mesh(scene, image, addresses, plan, EngineSpec(threads=1), setup)
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == counts
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     assert stats["rays_passed"] == 0
+    if sampling == "adaptive":  # seams crossed between nodes
+        assert sum(n["pixel_packets"] for n in stats["nodes"]) > 0
     assert stats["objects_per_node"] == [stats["objects_per_node"][0]] * 4
 
 
@@ -132,13 +136,14 @@ def test_the_dealer_deals_every_tile_once_and_closes_every_node():
 
     for count, nodes, buffer in ((20, 3, 2), (2, 4, 3), (0, 2, 1)):
         dealer = TileDealer(range(count), nodes, buffer)
-        given, closed = [], set()
+        given, closed, told = [], set(), 0
         pending = []
         for n, (first, last) in dealer.first().items():
             given += first
             pending += [n] * len(first)
             if last:
                 closed.add(n)
+                told += 1
         while pending:  # nodes report their tiles finished, in turn
             n = pending.pop(0)
             more, last = dealer.finished(n)
@@ -146,7 +151,12 @@ def test_the_dealer_deals_every_tile_once_and_closes_every_node():
             pending += [n] * len(more)
             if last:
                 closed.add(n)
+                told += 1
         assert sorted(given) == list(range(count)) and closed == set(range(nodes))
+        assert told == nodes  # each node told once that it gets no more
+        owners = dealer.owners()
+        assert sorted(np.flatnonzero(owners >= 0).tolist()) == list(range(count))
+        assert dealer.tiles_per_node() == np.bincount(owners, minlength=nodes).tolist()
 
 
 def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
@@ -171,12 +181,29 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
         assert x0 == 0 or y0 == 0 or x1 == w or y1 == h
 
 
-def test_adaptive_sampling_with_dynamic_tiles_is_refused_by_name():
-    from protocols.spec import SpecError
+def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
+    # The host's last TILES names every tile's node; a node checks it against the tiles it
+    # was dealt before it sends any pass-1 deposit on by it.
+    from host.partition import partition
+    from meshnode.node import NodeCore
 
     scene = dof_scene()
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
-    image = ImageSpec(width=8, height=8).sized(scene.view)
-    spec, _ = setup.spec(scene, image, lambda: None)
-    with pytest.raises(SpecError, match=r"RenderSpec\.plan.*dynamic"):
-        RenderSpec(image, plan=MeshPlan(2, 2, mode="image", tiles="dynamic"), camera=spec)
+    image = ImageSpec(width=12, height=10).sized(scene.view)
+    camera, _ = setup.spec(scene, image, lambda: None)
+    spec = RenderSpec(image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5),
+                      camera=camera)  # fmt: skip
+    part, _ = partition(scene, spec)
+    n = len(part.rects)
+    core = NodeCore(1, scene, spec, part)
+    core.add_tiles([0, 2], False, np.zeros(0, np.int64))
+    wrong = np.zeros(n, np.int64)  # tiles 0 and 2 were dealt to node 1, not 0
+    with pytest.raises(ValueError, match="TILES.owners disagrees .* node 1"):
+        core.add_tiles([], True, wrong)
+    with pytest.raises(ValueError, match=f"each of the {n} tiles a node of the 2"):
+        core.add_tiles([], True, np.full(n, 5, np.int64))
+    with pytest.raises(ValueError, match="was dealt here before"):
+        core.add_tiles([2], False, np.zeros(0, np.int64))
+    right = np.zeros(n, np.int64)
+    right[[0, 2]] = 1
+    assert core.add_tiles([], True, right) == {}  # nothing traced yet: nothing to send on

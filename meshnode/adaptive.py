@@ -66,6 +66,18 @@ def deposit_routes(sample_ids, n, first, width, height, index: RectIndex):
     return key % len(pixels), key // len(pixels) - 1
 
 
+def pass_samples(spec: CameraSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The sample indices of pass 1 (a pixel's two corners) and of pass 2 (the rest)."""
+    first = first_pass(spec)
+    return first, np.setdiff1d(np.arange(spec.per_pixel), first)
+
+
+def split(idx: np.ndarray, per_pixel: int):
+    """`idx` in slices of at most RAYS_PER_BATCH rays at `per_pixel` rays a pixel."""
+    step = max(1, RAYS_PER_BATCH // max(per_pixel, 1))
+    return (idx[i : i + step] for i in range(0, len(idx), step))
+
+
 class AdaptiveFilm:
     """Colour sums and ray counts of a node's rectangle of pixels, and the pass-1 corner
     colours over the rectangle and a one-pixel halo around it (their deposits come from the
@@ -74,8 +86,7 @@ class AdaptiveFilm:
     def __init__(self, spec: CameraSpec, rect, width: int, height: int, seed: int = 0):
         self.spec, self.width, self.seed = spec, width, seed
         self.n = spec.per_pixel
-        self.first = first_pass(spec)
-        self.rest = np.setdiff1d(np.arange(self.n), self.first)  # pass 2's sample indices
+        self.first, self.rest = pass_samples(spec)
         x0, x1, y0, y1 = self.rect = tuple(int(v) for v in rect)
         self.pixels = rect_pixels(self.rect, width)
         self.halo = (max(x0 - 1, 0), min(x1 + 1, width), max(y0 - 1, 0), min(y1 + 1, height))
@@ -86,11 +97,6 @@ class AdaptiveFilm:
         self.corner_alive = np.zeros((p, 2), np.bool_)
         self.rays = np.zeros(p, np.int64)  # divisor: rays generated (or that left, "left")
         self.refined = np.zeros(p, np.bool_)
-
-    def split(self, idx: np.ndarray, per_pixel: int):
-        """`idx` in slices of at most RAYS_PER_BATCH rays at `per_pixel` rays a pixel."""
-        step = max(1, RAYS_PER_BATCH // max(per_pixel, 1))
-        return (idx[i : i + step] for i in range(0, len(idx), step))
 
     def make(self, idx: np.ndarray, refine: bool, view, width, height) -> np.ndarray:
         """The camera rays of own pixels `idx` (indices into `pixels`) for pass 1 (their two
@@ -108,7 +114,7 @@ class AdaptiveFilm:
 
     def pass1(self, view, width, height):
         """Batches of the two corner rays of every owned pixel."""
-        for idx in self.split(np.arange(len(self.pixels)), 2):
+        for idx in split(np.arange(len(self.pixels)), 2):
             yield self.make(idx, False, view, width, height)
 
     def decide(self) -> np.ndarray:
@@ -142,7 +148,7 @@ class AdaptiveFilm:
         """Batches of the remaining rays of the pixels `decide` picks (decided when the first
         batch is asked for)."""
         self.start_refine()
-        for idx in self.split(np.flatnonzero(self.refined), len(self.rest)):
+        for idx in split(np.flatnonzero(self.refined), len(self.rest)):
             yield self.make(idx, True, view, width, height)
 
     def index_of(self, rect) -> np.ndarray:

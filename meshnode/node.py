@@ -15,7 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.adaptive import RAYS_PER_BATCH, AdaptiveFilm, RectIndex, deposit_routes
+from meshnode.adaptive import (
+    RAYS_PER_BATCH,
+    AdaptiveFilm,
+    RectIndex,
+    deposit_routes,
+    pass_samples,
+    split,
+)
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
@@ -190,7 +197,7 @@ class NodeCore:
         if self.adaptive:
             if state not in (State.TRACE, State.REFINE):
                 return Primaries()
-            if self.spec.plan.steal:
+            if self.spec.steals:
                 return self._adaptive_chunks(state == State.REFINE)
             return Primaries(batch for f in self.films for batch in
                              (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
@@ -268,15 +275,14 @@ class NodeCore:
     def _film_batches(self, film: AdaptiveFilm, chunk, refine: bool):
         """An own chunk's rays for one adaptive pass, its books kept as they are made."""
         w, h = self.spec.image.size
-        for idx in film.split(film.index_of(chunk), len(film.rest if refine else film.first)):
+        for idx in split(film.index_of(chunk), len(film.rest if refine else film.first)):
             yield film.make(idx, refine, self.view, w, h)
 
     def _stolen_batches(self, chunk, refine: bool):
         """The rays of a chunk whose books its owner keeps, for one adaptive pass."""
         w, h = self.spec.image.size
-        f = self.films[0]
-        samples = f.rest if refine else f.first
-        for part in f.split(rect_pixels(chunk, w), len(samples)):
+        samples = pass_samples(self.spec.camera)[1 if refine else 0]
+        for part in split(rect_pixels(chunk, w), len(samples)):
             yield camera_rays(self.spec.camera, self.view, w, h, part, samples,
                               self.spec.image.seed)[0]  # fmt: skip
 

@@ -42,7 +42,7 @@ class Session:
         self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
                                threads, service.incoming_high,
                                neighbours=config.torus.links(self.node),
-                               steal=config.render.plan.steal)  # fmt: skip
+                               steal=config.render.steals)  # fmt: skip
         self.stats = NodeStats(self.node)
         self.objects = Objects([self.node, *config.copies])
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
@@ -221,7 +221,7 @@ class Session:
     def _chunks(self, chunks: list) -> list:
         """A neighbour's GIVE checked: chunks inside the image (the message kind checked
         their shape), and only when stealing was asked for."""
-        if not self.config.render.plan.steal:
+        if not self.config.render.steals:
             raise BadFrame("GIVE in a render without stealing")
         w, h = self.config.render.sample_grid
         if any(c[1] > w or c[3] > h for c in chunks):

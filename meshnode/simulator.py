@@ -90,7 +90,7 @@ class _Mesh:
         torus = Torus(spec.plan.rows, spec.plan.cols)
         self.cores = cores
         self.scheds = [Scheduler(n, torus.ring_next(n), torus.size, neighbours=torus.links(n),
-                                 steal=spec.plan.steal, passed_min=passed_min)
+                                 steal=spec.steals, passed_min=passed_min)
                        for n in range(torus.size)]  # fmt: skip
         self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
         self.rng = np.random.default_rng(seed)

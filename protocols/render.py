@@ -329,6 +329,14 @@ class RenderSpec(Spec):
         return self.camera is not None and self.camera.adaptive
 
     @property
+    def steals(self) -> bool:
+        """Whether nodes take unstarted chunks from their neighbours: object space's lever
+        (MeshPlan.steal), and adaptive sampling's second pass under dynamic tiles, whose
+        books stay with the node that traced a tile's first pass while how much a tile
+        refines is known only then."""
+        return self.plan.steal or (self.plan.dynamic and self.adaptive)
+
+    @property
     def sample_grid(self) -> tuple[int, int]:
         return self.image.sample_grid(self.camera is not None)
 

@@ -48,12 +48,20 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling):
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    refined_taken = 0
     for rows, cols in SHAPES:
         for tiling in TILINGS:
-            img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
-                                            mode="image", **tiling)  # fmt: skip
+            img, totals, nodes, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3,
+                                                camera=spec, mode="image", **tiling)  # fmt: skip
             assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
             np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+            if tiling["tiles"] == "dynamic" and sampling == "adaptive":
+                # pass 2 is stolen between neighbours (its books stay with the tile's node)
+                given = sum(n.given_in.get("REFINE", 0) for n in nodes)
+                assert given == sum(n.chunks_taken for n in nodes)
+                assert not any(n.given_in.get("TRACE", 0) for n in nodes)
+                refined_taken += given
+    assert refined_taken > 0 or sampling != "adaptive"
 
 
 def test_tiles_cover_every_pixel_exactly_once_and_are_dealt_round_robin():
@@ -106,6 +114,10 @@ def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     assert stats["rays_passed"] == 0
     if sampling == "adaptive":  # seams crossed between nodes
         assert sum(n["pixel_packets"] for n in stats["nodes"]) > 0
+    # under dynamic tiles pass 2's rows may be stolen: every chunk given was taken
+    given = sum(n["chunks_given"] for n in stats["nodes"])
+    assert given == sum(n["chunks_taken"] for n in stats["nodes"])
+    assert given == 0 or tiling == "dynamic"  # static tiles: nothing to steal
     assert stats["objects_per_node"] == [stats["objects_per_node"][0]] * 4
 
 

@@ -431,9 +431,9 @@ class NodeCore:
         return {n: np.concatenate(ds) for n, ds in out.items()}
 
     def _routes(self, deposits, index: RectIndex):
-        f = self.films[0]
-        w, h = self.spec.image.size
-        idx, rect = deposit_routes(deposits["pixel"], f.n, f.first, w, h, index)
+        camera, (w, h) = self.spec.camera, self.spec.image.size
+        first = pass_samples(camera)[0]  # a node dealt no tile has no film to ask
+        idx, rect = deposit_routes(deposits["pixel"], camera.per_pixel, first, w, h, index)
         return idx[rect >= 0], rect[rect >= 0]
 
     def takers(self, rays: np.ndarray) -> np.ndarray:

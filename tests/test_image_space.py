@@ -64,6 +64,21 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling):
     assert refined_taken > 0 or sampling != "adaptive"
 
 
+def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node():
+    # Six tiles on nine nodes: nodes 6-8 are dealt none and keep no books, but steal pass-2
+    # rows from their neighbours and send the deposits on to the tiles' nodes.
+    scene = dof_scene()
+    image = ImageSpec(width=30, height=24, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    ref, counts = reference(scene, image, setup)
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    img, totals, nodes, _ = render_mesh(scene, 3, 3, 0, 30, 24, seed=3, camera=spec,
+                                        mode="image", tiles="dynamic", tile=12, buffer=1)
+    assert {k: totals[k] for k in COUNTS} == counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    assert sum(n.chunks_taken for n in nodes[6:]) > 0
+
+
 def test_tiles_cover_every_pixel_exactly_once_and_are_dealt_round_robin():
     for w, h, tile, n in ((30, 26, 7, 4), (64, 64, 32, 9), (5, 3, 8, 4)):
         plan = MeshPlan(1, n, mode="image", tile=tile)

@@ -4,9 +4,9 @@ process.
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
                          [--modes object,image] [--tiles static] [--tile 32]
-                         [--size 512 --spp 1]
-                         [--min-trace 5] [--repeat 3] [--together 1] [--json FILE]
-                         [--plots DIR]
+                         [--size 512 --spp 1] [--camera FILE --lens-rays 16
+                         --sampling adaptive] [--min-trace 5] [--repeat 3] [--together 1]
+                         [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
@@ -19,7 +19,9 @@ seconds (until every node is built and linked), rays passed between nodes, and b
 (mean and max over directed links). Counts are checked against the single node's. Without
 --size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples, and
 with `--min-trace S` at more samples for a scene that one node traces in less than S CPU
-seconds. Every row renders on one node (in this process) and on the mesh in turns, `--repeat
+seconds (through `--camera`: at more lens rays per pixel, `--lens-rays` the first; the image
+takes the film's shape, SIZE wide). Every row renders on one node (in this process) and on
+the mesh in turns, `--repeat
 N` times (the mesh's nodes keep running, so later renders reuse their engines), and compares
 the best of each (least tracing CPU; least busiest-node CPU): this machine's speed moves by
 up to 1.6x for minutes at a time, so both sides are measured over the same span. Each
@@ -55,33 +57,54 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
           "shadow_rays_blocked")  # fmt: skip
 
 
-def single(scene, image, warm: bool = True):
+def single(scene, image, warm: bool = True, camera=None):
     """(wall seconds, stats) of one node in this process, one thread: the CPU-seconds
-    reference, after a warm run."""
+    reference, after a warm run; `camera`: a host.camerasetup.CameraSetup, or the pinhole."""
     from host.render import render
     from protocols.render import EngineSpec
 
     if warm:
-        render(scene, image, EngineSpec(threads=1))
+        render(scene, image, EngineSpec(threads=1), camera)
     start = time.perf_counter()
-    _, stats = render(scene, image, EngineSpec(threads=1))
+    _, stats = render(scene, image, EngineSpec(threads=1), camera)
     return time.perf_counter() - start, stats
 
 
-def sized(scene, image, min_trace: float):
-    """(image, single-node run) with the samples per pixel raised, in one step from a first
-    measurement, until one node traces at least `min_trace` CPU seconds: the issue's work size
-    for scenes that one node traces quickly (per-render costs then weigh as on a long render)."""
+def sized(scene, image, min_trace: float, camera=None):
+    """(image, camera, single-node run) with the samples per pixel (through a camera: its
+    lens rays) raised, in one step from a first measurement, until one node traces at least
+    `min_trace` CPU seconds: the issue's work size for scenes that one node traces quickly
+    (per-render costs then weigh as on a long render)."""
     import dataclasses
     import math
 
-    run = single(scene, image)
+    run = single(scene, image, camera=camera)
     cpu = run[1]["trace_cpu_seconds"]
     if not min_trace or cpu >= min_trace:
-        return image, run
-    spp = math.ceil(image.spp * min_trace * SIZE_MARGIN / cpu)
-    image = dataclasses.replace(image, spp=spp)
-    return image, single(scene, image)
+        return image, camera, run
+    scale = min_trace * SIZE_MARGIN / cpu
+    if camera is None:
+        image = dataclasses.replace(image, spp=math.ceil(image.spp * scale))
+    else:
+        rays = math.ceil(camera.sampling.rays * scale)
+        camera = dataclasses.replace(camera, sampling=dataclasses.replace(camera.sampling,
+                                                                          rays=rays))
+    return image, camera, single(scene, image, camera=camera)
+
+
+def camera_setup(path: Path, rays: int, sampling: str, width: int):
+    """(CameraSetup, its image: `width` wide, the film's shape) for `--camera`, focused on
+    the image centre (a probe pass)."""
+    from host.camera import read_camera
+    from host.camerasetup import CameraSetup, Focus
+    from protocols.camera import CameraSampling
+    from protocols.render import ImageSpec
+
+    camera = read_camera(path)
+    height = max(1, round(width * camera.film_height / camera.film_width))
+    setup = CameraSetup(camera, CameraSampling(rays=rays, sampling=sampling),
+                        Focus(distance="auto"))  # fmt: skip
+    return setup, ImageSpec(width=width, height=height)
 
 
 # Samples are raised for min_trace * SIZE_MARGIN seconds: one node's later runs in the rows
@@ -92,7 +115,7 @@ SIZE_MARGIN = 1.3
 
 def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
             tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0,
-            order="rows"):  # fmt: skip
+            order="rows", camera=None):  # fmt: skip
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
@@ -113,17 +136,18 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
 
     def mesh_render():
         start = time.perf_counter()
-        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan,
+        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan, camera=camera,
                                               overlaps=OVERLAPS if auto else ()))  # fmt: skip
         return start, time.perf_counter(), stats
 
     with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
         for _ in range(repeat):
-            singles.append(single(scene, image, warm=False))
+            singles.append(single(scene, image, warm=False, camera=camera))
             start, end, stats = mesh_render()
             runs.append((end - start, stats))
         for _ in range(together):
-            windows.append(at_once(lambda: single(scene, image, warm=False), mesh_render))
+            windows.append(at_once(lambda: single(scene, image, warm=False, camera=camera),
+                                   mesh_render))  # fmt: skip
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
     best["together"] = windows
     best["setup_reused_seconds"] = best["setup_seconds"]
@@ -211,6 +235,10 @@ def main(argv=None) -> int:
                    "neighbours' copies: off,on")
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
+    p.add_argument("--camera", type=Path, help="with --size: render through this camera file "
+                   "(.toml) or lens table, focused on the image centre")  # fmt: skip
+    p.add_argument("--lens-rays", type=int, default=16, help="rays per pixel with --camera")
+    p.add_argument("--sampling", default="adaptive", help="how --camera places a pixel's rays")
     p.add_argument("--min-trace", type=float, default=0.0,
                    help="with --size: raise a scene's samples per pixel until one node "
                         "traces at least this many CPU seconds")  # fmt: skip
@@ -224,10 +252,13 @@ def main(argv=None) -> int:
     from host.nff import read_nff
     from protocols.render import ImageSpec
 
-    if args.min_trace and not args.size:
-        p.error("--min-trace needs --size")
+    if (args.min_trace or args.camera) and not args.size:
+        p.error("--min-trace and --camera need --size")
     base = (ImageSpec(width=args.size, height=args.size, spp=args.spp) if args.size
             else ImageSpec(spd=True))  # fmt: skip
+    lens = None
+    if args.camera:
+        lens, base = camera_setup(args.camera, args.lens_rays, args.sampling, args.size)
     if args.plots:
         args.plots.mkdir(parents=True, exist_ok=True)
 
@@ -237,10 +268,12 @@ def main(argv=None) -> int:
     bad = []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        image, (wall1, s1) = sized(scene, base, args.min_trace)
+        image, camera, (wall1, s1) = sized(scene, base, args.min_trace, lens)
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
-        print(f"\n== {name}: {image.width}x{image.height} at {image.spp} spp, 1x1 in process  "
+        rate = (f"{image.spp} spp" if camera is None else
+                f"{camera.sampling.rays} {camera.sampling.sampling} lens rays")  # fmt: skip
+        print(f"\n== {name}: {image.width}x{image.height} at {rate}, 1x1 in process  "
               f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
               "taking turns with the mesh)")
         print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
@@ -268,14 +301,14 @@ def main(argv=None) -> int:
                     cut, side, order = cut
                     got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
                                   repeat=args.repeat, tile=side, together=args.together,
-                                  order=order)  # fmt: skip
+                                  order=order, camera=camera)  # fmt: skip
                     cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
                     cut += "" if len(args.orders.split(",")) == 1 else f"/{order}"
 
                 else:
                     got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
                                   steal=steal, repeat=args.repeat, copies=copy,
-                                  together=args.together)  # fmt: skip
+                                  together=args.together, camera=camera)  # fmt: skip
                     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
                 wall, st, (wall1, s1) = got
                 cpu1 = s1["trace_cpu_seconds"]
@@ -309,7 +342,8 @@ def main(argv=None) -> int:
                        "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
                        "node_batches": [n["batches"] for n in st["nodes"]],
                        "balance": st.get("balance"), "counts": counts,
-                       "image": image.to_wire()}  # fmt: skip
+                       "image": image.to_wire(),
+                       "camera": None if camera is None else camera.sampling.to_wire()}  # fmt: skip
                 results.append(row)
                 print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
                       f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "

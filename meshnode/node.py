@@ -206,7 +206,8 @@ class NodeCore:
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
-                             self.rect_batches, usable=self._usable())  # fmt: skip
+                             lambda chunks: self.rect_batches(chunks[0]),
+                             usable=self._usable())  # fmt: skip
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
 
     def _usable(self):
@@ -234,7 +235,9 @@ class NodeCore:
         (`AdaptiveFilm.refined_runs`). An own chunk's books are kept once, by this node,
         when it is traced here or given away (`AdaptiveFilm.make`), whichever comes first: a
         stolen chunk may be passed on, or even come back. The node that traces a chunk makes
-        its rays; their deposits go to the pixels' owner, as every deposit does."""
+        its rays; their deposits go to the pixels' owner, as every deposit does. Chunks are
+        started as many at a time as make RAYS_PER_BATCH rays (a refined run makes a few
+        hundred), own ones with books still to keep apart from the rest."""
         side = self.spec.plan.tile
         chunks = []
         for film in self.films:
@@ -254,16 +257,30 @@ class NodeCore:
 
         def give(chunk) -> None:
             if (film := own(chunk)) is not None:
-                for _ in self._film_batches(film, chunk, refine):
+                for _ in self._film_batches(film, [chunk], refine):
                     pass  # books kept; the thief makes these same rays
 
-        def batches(chunk):
-            film = own(chunk)
-            if film is None:
-                return self._stolen_batches(chunk, refine)
-            return self._film_batches(film, chunk, refine)
+        def batches(group):
+            mine: dict[int, tuple[AdaptiveFilm, list]] = {}
+            theirs = []
+            for chunk in group:  # once per chunk started, a few hundred rays each
+                film = own(chunk)
+                if film is None:
+                    theirs.append(chunk)
+                else:
+                    mine.setdefault(id(film), (film, []))[1].append(chunk)
+            for film, own_chunks in mine.values():
+                yield from self._film_batches(film, own_chunks, refine)
+            if theirs:
+                yield from self._stolen_batches(theirs, refine)
 
-        return ChunkFeed(chunks, batches, give)
+        per_pixel = len(pass_samples(self.spec.camera)[1 if refine else 0])
+
+        def rays(chunk) -> int:
+            x0, x1, y0, y1 = chunk
+            return (x1 - x0) * (y1 - y0) * per_pixel
+
+        return ChunkFeed(chunks, batches, give, rays=rays, budget=RAYS_PER_BATCH)
 
     def _film_of(self, chunk) -> AdaptiveFilm | None:
         """The film of the own rectangle holding `chunk`, None for a neighbour's chunk."""
@@ -272,17 +289,19 @@ class NodeCore:
         i = int(self.film_at[t]) if t >= 0 else -1
         return self.films[i] if i >= 0 else None
 
-    def _film_batches(self, film: AdaptiveFilm, chunk, refine: bool):
-        """An own chunk's rays for one adaptive pass, its books kept as they are made."""
+    def _film_batches(self, film: AdaptiveFilm, chunks: list, refine: bool):
+        """Own chunks' rays for one adaptive pass, their books kept as they are made."""
         w, h = self.spec.image.size
-        for idx in split(film.index_of(chunk), len(film.rest if refine else film.first)):
-            yield film.make(idx, refine, self.view, w, h)
+        idx = np.concatenate([film.index_of(c) for c in chunks])
+        for part in split(idx, len(film.rest if refine else film.first)):
+            yield film.make(part, refine, self.view, w, h)
 
-    def _stolen_batches(self, chunk, refine: bool):
-        """The rays of a chunk whose books its owner keeps, for one adaptive pass."""
+    def _stolen_batches(self, chunks: list, refine: bool):
+        """The rays of chunks whose books their owner keeps, for one adaptive pass."""
         w, h = self.spec.image.size
         samples = pass_samples(self.spec.camera)[1 if refine else 0]
-        for part in split(rect_pixels(chunk, w), len(samples)):
+        pixels = np.concatenate([rect_pixels(c, w) for c in chunks])
+        for part in split(pixels, len(samples)):
             yield camera_rays(self.spec.camera, self.view, w, h, part, samples,
                               self.spec.image.seed)[0]  # fmt: skip
 

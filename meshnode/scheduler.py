@@ -100,13 +100,17 @@ class ChunkFeed(Primaries):
     """Object space with stealing: chunks (x0, x1, y0, y1) of this node's rectangle in spiral
     order, centre first, traced from the front; `take` hands unstarted chunks from the back
     (the outer end of the spiral) to a neighbour that has run out, and `add` takes chunks a
-    neighbour gave. `batches(chunk)` makes a chunk's primary rays, one batch at a time. A
-    chunk is started (and can no longer be given) once its first batch is looked ahead.
-    `usable(thief, chunks)` (None: all) says which chunks a thief can trace itself."""
+    neighbour gave. `batches(chunks)` makes the primary rays of a list of chunks, one batch
+    at a time: one chunk, or with `rays(chunk)` (how many it makes) as many from the front
+    as make at most `budget` rays (adaptive sampling's refined runs make a few hundred each,
+    and every batch costs a kernel call and its messages). A chunk is started (and can no
+    longer be given) once its group's first batch is looked ahead. `usable(thief, chunks)`
+    (None: all) says which chunks a thief can trace itself."""
 
-    def __init__(self, chunks, batches, on_give=None, usable=None):
+    def __init__(self, chunks, batches, on_give=None, usable=None, rays=None,
+                 budget: int = 0):  # fmt: skip
         self.chunks, self.make, self.on_give = deque(chunks), batches, on_give
-        self.usable = usable
+        self.usable, self.rays, self.budget = usable, rays, budget
         self.current = iter(())
         super().__init__()
 
@@ -118,7 +122,17 @@ class ChunkFeed(Primaries):
             if self.next is None:
                 if not self.chunks:
                     return
-                self.current = iter(self.make(self.chunks.popleft()))
+                self.current = iter(self.make(self._group()))
+
+    def _group(self) -> list:
+        """The next chunks to start: one, or as many as fit the ray budget."""
+        group = [self.chunks.popleft()]
+        if self.rays is not None:
+            n = self.rays(group[0])
+            while self.chunks and n + (more := self.rays(self.chunks[0])) <= self.budget:
+                group.append(self.chunks.popleft())
+                n += more
+        return group
 
     def take(self, thief: int = -1) -> list:
         """Half of the unstarted chunks `thief` can use, from the outer end (none when one
@@ -429,7 +443,8 @@ class Scheduler:
         """Chunks of this node's feed for `thief` (none outside a chunked state), counted."""
         feed = self.primaries
         chunks = feed.take(thief) if isinstance(feed, ChunkFeed) else []
-        self.given_in[self.state.name] += len(chunks)
+        if chunks:
+            self.given_in[self.state.name] += len(chunks)
         return chunks
 
     def _steal_target(self) -> int | None:

@@ -46,8 +46,8 @@ def test_spiral_chunks_tile_the_rectangle_once_from_the_centre_out():
 def test_a_chunk_feed_gives_half_its_unstarted_chunks_from_the_outer_end():
     made = []
 
-    def batches(chunk):
-        made.append(chunk)
+    def batches(chunks):
+        made.extend(chunks)
         yield np.zeros(1, RAY)
 
     feed = ChunkFeed([(i, i + 1, 0, 1) for i in range(6)], batches)
@@ -59,6 +59,27 @@ def test_a_chunk_feed_gives_half_its_unstarted_chunks_from_the_outer_end():
         feed.pop()
     assert made == [(i, i + 1, 0, 1) for i in range(4)] + [(9, 10, 0, 1)]  # none twice
     assert feed.take() == []
+
+
+def test_a_chunk_feed_starts_as_many_chunks_as_fit_its_ray_budget():
+    made = []
+
+    def batches(chunks):
+        made.append(list(chunks))
+        yield np.zeros(1, RAY)
+
+    chunks = [(i, i + 1, 0, 1) for i in range(7)]
+    feed = ChunkFeed(chunks, batches, rays=lambda c: 3, budget=7)
+    assert made == [chunks[:2]]  # 3 + 3 rays fit 7, a third would not
+    assert feed.take() == [chunks[6], chunks[5]]  # unstarted ones only, outer first
+    while feed:
+        feed.pop()
+    assert made == [chunks[:2], chunks[2:4], chunks[4:5]]
+    made.clear()
+    feed = ChunkFeed(chunks[:2], batches, rays=lambda c: 10, budget=7)  # over: one each
+    while feed:
+        feed.pop()
+    assert made == [chunks[:1], chunks[1:2]]
 
 
 def test_a_node_out_of_work_steals_and_holds_the_packet_until_answered():
@@ -160,10 +181,12 @@ def adaptive_setup(width, height):
     return scene, image, setup, spec
 
 
-def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image():
+def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(monkeypatch):
     """Pass 1's chunks and pass 2's runs of refined pixels change hands; the owners keep
     the books, so every pixel is divided by the rays it got, exactly as on one node (passed
-    rays first as they come, so nodes fall behind and steal at this size: see above)."""
+    rays first as they come, so nodes fall behind and steal at this size: see above; chunks
+    start RAYS_PER_BATCH rays' worth at a time, and a small budget leaves some to steal)."""
+    monkeypatch.setattr("meshnode.node.RAYS_PER_BATCH", 64)
     scene, image, setup, spec = adaptive_setup(30, 24)
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     given = {"TRACE": 0, "REFINE": 0}

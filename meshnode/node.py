@@ -150,6 +150,9 @@ class NodeCore:
                 self.rect_owner = np.full(len(part.rects), -1, np.int64)
             self.held_out: list = []  # dynamic tiles: (deposits, idx, rect) traced here ...
             self.held_in: list = []  # ... and received, for tiles of nodes not known yet
+            # pass 1 routes a deposit to at most 5 tiles (its pixel's and the 4 sides')
+            self.held_bound = 5 * len(pass_samples(spec.camera)[0]) * int(np.prod(spec.image.size))
+            self.held_count = 0
             for t in np.flatnonzero(self.rect_owner == node).tolist():
                 self._add_film(t)
 
@@ -420,8 +423,12 @@ class NodeCore:
         self._add(deposits, idx[mine], film[mine])
         if self.feed is None or mine.all():
             return {}
-        (self.held_out if traced_here else self.held_in).append((deposits, idx[~mine],
-                                                                  rect[~mine]))  # fmt: skip
+        held = self.held_out if traced_here else self.held_in
+        held.append((deposits, idx[~mine], rect[~mine]))
+        self.held_count += int((~mine).sum())
+        if self.held_count > self.held_bound:
+            raise ValueError(f"node {self.node} holds more deposits for tiles of nodes not "
+                             f"known yet than the image's pass 1 makes ({self.held_bound})")
         return self._release()
 
     def _add(self, deposits: np.ndarray, idx: np.ndarray, film: np.ndarray) -> None:
@@ -446,7 +453,7 @@ class NodeCore:
             keep = np.unique(node * len(deposits) + idx[away])
             for n, d in _group(deposits[keep % len(deposits)], keep // len(deposits)).items():
                 out.setdefault(n, []).append(d)
-        self.held_in, self.held_out = [], []
+        self.held_in, self.held_out, self.held_count = [], [], 0
         return {n: np.concatenate(ds) for n, ds in out.items()}
 
     def _routes(self, deposits, index: RectIndex):

@@ -217,7 +217,9 @@ def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
     # The host's last TILES names every tile's node; a node checks it against the tiles it
     # was dealt before it sends any pass-1 deposit on by it.
     from host.partition import partition
+    from meshnode.adaptive import pass_samples
     from meshnode.node import NodeCore
+    from protocols.dtypes import DEPOSIT
 
     scene = dof_scene()
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
@@ -236,6 +238,11 @@ def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
         core.add_tiles([], True, np.full(n, 5, np.int64))
     with pytest.raises(ValueError, match="was dealt here before"):
         core.add_tiles([2], False, np.zeros(0, np.int64))
+    # A neighbour cannot make it hold more deposits for unknown tiles than pass 1 makes.
+    flood = np.zeros(core.held_bound + 1, DEPOSIT)
+    flood["pixel"] = 31 * camera.per_pixel + pass_samples(camera)[0][0]  # (7, 2): tile 1
+    with pytest.raises(ValueError, match="holds more deposits for tiles of nodes not known"):
+        core.keep(flood)
     right = np.zeros(n, np.int64)
     right[[0, 2]] = 1
     assert core.add_tiles([], True, right) == {}  # nothing traced yet: nothing to send on

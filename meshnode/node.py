@@ -494,6 +494,8 @@ class NodeCore:
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:
     """Records grouped by destination node (one sort, no loop per record)."""
+    if len(records) == 0:
+        return {}
     order = np.argsort(dest, kind="stable")
     nodes, starts = np.unique(dest[order], return_index=True)
     groups = np.split(records[order], starts[1:])

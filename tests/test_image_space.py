@@ -213,6 +213,36 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
         assert x0 == 0 or y0 == 0 or x1 == w or y1 == h
 
 
+def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_film():
+    # Pixel (4, 2) of tile 0 is in the halo of tile 1, whose node is not known when the
+    # pixel is traced here; tile 1 is dealt here next: the deposit goes into both films once,
+    # and nothing is sent on.
+    from host.partition import partition
+    from meshnode.adaptive import pass_samples
+    from meshnode.node import NodeCore
+    from protocols.dtypes import DEPOSIT
+
+    scene = dof_scene()
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    image = ImageSpec(width=12, height=10).sized(scene.view)
+    camera, _ = setup.spec(scene, image, lambda: None)
+    spec = RenderSpec(image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5),
+                      camera=camera)  # fmt: skip
+    part, _ = partition(scene, spec)
+    core = NodeCore(1, scene, spec, part)
+    core.add_tiles([0], False, np.zeros(0, np.int64))
+    d = np.zeros(1, DEPOSIT)
+    d["pixel"], d["rgb"] = 28 * camera.per_pixel + pass_samples(camera)[0][0], (1.0, 2.0, 3.0)
+    assert core.keep(d, traced_here=True) == {}  # tile 1's node is not known: held
+    owners = np.zeros(len(part.rects), np.int64)
+    owners[[0, 1]] = 1
+    assert core.add_tiles([1], True, owners) == {}  # tile 1 is this node's: kept here
+    film0, film1 = (core.films[core.film_at[t]] for t in (0, 1))
+    assert film0.corner[2, 4, 0].tolist() == [1.0, 2.0, 3.0]  # halo from (0, 0): once
+    assert film1.corner[2, 0, 0].tolist() == [1.0, 2.0, 3.0]  # halo from (4, 0)
+    assert film1.corner.sum() == film0.corner.sum() == 6.0
+
+
 def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
     # The host's last TILES names every tile's node; a node checks it against the tiles it
     # was dealt before it sends any pass-1 deposit on by it.

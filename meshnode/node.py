@@ -36,6 +36,11 @@ from protocols.scene import SceneData, View
 HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
 IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows at once
+# Stolen or stealable chunks (adaptive sampling's refined runs, a few hundred rays each) start
+# this many rays' worth at a time: one kernel call and one deposit message per run cost
+# dynamic tiles on balls 2x2 20% more CPU than static; 16384 left a 3x3's pass 2 too coarse
+# to steal evenly (bench.mesh --camera, balls 3x3 dynamic: work 6.81 against 7.74 at 4096).
+CHUNK_RAYS = 4096
 
 
 @dataclass
@@ -239,7 +244,7 @@ class NodeCore:
         when it is traced here or given away (`AdaptiveFilm.make`), whichever comes first: a
         stolen chunk may be passed on, or even come back. The node that traces a chunk makes
         its rays; their deposits go to the pixels' owner, as every deposit does. Chunks are
-        started as many at a time as make RAYS_PER_BATCH rays (a refined run makes a few
+        started as many at a time as make CHUNK_RAYS rays (a refined run makes a few
         hundred), own ones with books still to keep apart from the rest."""
         side = self.spec.plan.tile
         chunks = []
@@ -283,7 +288,7 @@ class NodeCore:
             x0, x1, y0, y1 = chunk
             return (x1 - x0) * (y1 - y0) * per_pixel
 
-        return ChunkFeed(chunks, batches, give, rays=rays, budget=RAYS_PER_BATCH)
+        return ChunkFeed(chunks, batches, give, rays=rays, budget=CHUNK_RAYS)
 
     def _film_of(self, chunk) -> AdaptiveFilm | None:
         """The film of the own rectangle holding `chunk`, None for a neighbour's chunk."""

@@ -43,9 +43,9 @@ def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
 
 @pytest.mark.parametrize("sampling", ["jittered", "adaptive"])
 def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling, monkeypatch):
-    # Chunks of pass 2 start RAYS_PER_BATCH rays' worth at a time: a small budget leaves
+    # Chunks of pass 2 start CHUNK_RAYS rays' worth at a time: a small budget leaves
     # some unstarted on this small image, for neighbours to steal.
-    monkeypatch.setattr("meshnode.node.RAYS_PER_BATCH", 64)
+    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
@@ -71,7 +71,7 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
     # Six tiles on nine nodes: nodes 6-8 are dealt none and keep no books, but steal pass-2
     # rows from their neighbours (a small batch budget leaves some unstarted) and send the
     # deposits on to the tiles' nodes.
-    monkeypatch.setattr("meshnode.node.RAYS_PER_BATCH", 64)
+    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))

@@ -185,8 +185,8 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
     """Pass 1's chunks and pass 2's runs of refined pixels change hands; the owners keep
     the books, so every pixel is divided by the rays it got, exactly as on one node (passed
     rays first as they come, so nodes fall behind and steal at this size: see above; chunks
-    start RAYS_PER_BATCH rays' worth at a time, and a small budget leaves some to steal)."""
-    monkeypatch.setattr("meshnode.node.RAYS_PER_BATCH", 64)
+    start CHUNK_RAYS rays' worth at a time, and a small budget leaves some to steal)."""
+    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)
     scene, image, setup, spec = adaptive_setup(30, 24)
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     given = {"TRACE": 0, "REFINE": 0}

@@ -148,6 +148,7 @@ NODE_LOSS = ("replan", "fail")
 
 
 def tiles_message(dealer: TileDealer, tiles: list[int], last: bool) -> dict:
+    """TILES for a node: under adaptive sampling its last carries every tile's node."""
     return make(Kind.TILES, tiles=tiles, last=last, owners=dealer.owners_with(last))
 
 

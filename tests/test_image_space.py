@@ -213,14 +213,11 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
         assert x0 == 0 or y0 == 0 or x1 == w or y1 == h
 
 
-def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_film():
-    # Pixel (4, 2) of tile 0 is in the halo of tile 1, whose node is not known when the
-    # pixel is traced here; tile 1 is dealt here next: the deposit goes into both films once,
-    # and nothing is sent on.
+def dynamic_adaptive_node():
+    """Node 1 of a 1x2 image-space mesh, adaptive through a thin lens, 12x10 pixels in
+    5-pixel tiles (row by row: 0-2 across the top); its `CameraSpec` and the partition."""
     from host.partition import partition
-    from meshnode.adaptive import pass_samples
     from meshnode.node import NodeCore
-    from protocols.dtypes import DEPOSIT
 
     scene = dof_scene()
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
@@ -229,10 +226,27 @@ def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_fi
     spec = RenderSpec(image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5),
                       camera=camera)  # fmt: skip
     part, _ = partition(scene, spec)
-    core = NodeCore(1, scene, spec, part)
+    return NodeCore(1, scene, spec, part), camera, part
+
+
+def pass1_deposit(camera, pixel: int, n: int = 1):
+    """`n` deposits of a pixel's first pass-1 corner ray."""
+    from meshnode.adaptive import pass_samples
+    from protocols.dtypes import DEPOSIT
+
+    d = np.zeros(n, DEPOSIT)
+    d["pixel"] = pixel * camera.per_pixel + pass_samples(camera)[0][0]
+    return d
+
+
+def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_film():
+    # Pixel (4, 2) of tile 0 is in the halo of tile 1, whose node is not known when the
+    # pixel is traced here; tile 1 is dealt here next: the deposit goes into both films once,
+    # and nothing is sent on.
+    core, camera, part = dynamic_adaptive_node()
     core.add_tiles([0], False, np.zeros(0, np.int64))
-    d = np.zeros(1, DEPOSIT)
-    d["pixel"], d["rgb"] = 28 * camera.per_pixel + pass_samples(camera)[0][0], (1.0, 2.0, 3.0)
+    d = pass1_deposit(camera, 28)
+    d["rgb"] = (1.0, 2.0, 3.0)
     assert core.keep(d, traced_here=True) == {}  # tile 1's node is not known: held
     owners = np.zeros(len(part.rects), np.int64)
     owners[[0, 1]] = 1
@@ -246,20 +260,8 @@ def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_fi
 def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
     # The host's last TILES names every tile's node; a node checks it against the tiles it
     # was dealt before it sends any pass-1 deposit on by it.
-    from host.partition import partition
-    from meshnode.adaptive import pass_samples
-    from meshnode.node import NodeCore
-    from protocols.dtypes import DEPOSIT
-
-    scene = dof_scene()
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
-    image = ImageSpec(width=12, height=10).sized(scene.view)
-    camera, _ = setup.spec(scene, image, lambda: None)
-    spec = RenderSpec(image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5),
-                      camera=camera)  # fmt: skip
-    part, _ = partition(scene, spec)
+    core, camera, part = dynamic_adaptive_node()
     n = len(part.rects)
-    core = NodeCore(1, scene, spec, part)
     core.add_tiles([0, 2], False, np.zeros(0, np.int64))
     wrong = np.zeros(n, np.int64)  # tiles 0 and 2 were dealt to node 1, not 0
     with pytest.raises(ValueError, match="TILES.owners disagrees .* node 1"):
@@ -269,8 +271,7 @@ def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
     with pytest.raises(ValueError, match="was dealt here before"):
         core.add_tiles([2], False, np.zeros(0, np.int64))
     # A neighbour cannot make it hold more deposits for unknown tiles than pass 1 makes.
-    flood = np.zeros(core.held_bound + 1, DEPOSIT)
-    flood["pixel"] = 31 * camera.per_pixel + pass_samples(camera)[0][0]  # (7, 2): tile 1
+    flood = pass1_deposit(camera, 31, core.held_bound + 1)  # pixel (7, 2): tile 1
     with pytest.raises(ValueError, match="holds more deposits for tiles of nodes not known"):
         core.keep(flood)
     right = np.zeros(n, np.int64)

@@ -138,6 +138,8 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
         start = time.perf_counter()
         _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan, camera=camera,
                                               overlaps=OVERLAPS if auto else ()))  # fmt: skip
+        if stats["lost_nodes"]:  # re-planned on fewer nodes: not the row's mesh
+            raise RuntimeError(f"{rows}x{cols}: nodes lost {stats['lost_nodes']}")
         return start, time.perf_counter(), stats
 
     with LocalMesh(rows * cols, threads=threads, once=False) as addresses:

@@ -7,6 +7,7 @@ waits for them. `shutdown()` closes every link and awaits every task the service
 """
 
 import asyncio
+import contextlib
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
@@ -21,6 +22,11 @@ from protocols.messages import Kind, make
 
 log = logging.getLogger("meshnode")
 MAX_CONNECTIONS = 64  # links open at once (a mesh node needs its host and four neighbours)
+# A host that renders again at once can reach a node still closing the last render's session
+# (its tasks cancelled and awaited, its links dropped): it waits this long for that, not
+# refused as "rendering for another host" (a bench's back-to-back renders lost node 0 so and
+# re-planned on the other 8 of a 3x3).
+CLOSING_WAIT = 10.0
 
 
 class NodeService:
@@ -41,6 +47,9 @@ class NodeService:
         self.incoming_high = incoming_high
         self.pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="trace")
         self.session: Session | None = None
+        self.leaving: Session | None = None  # the session whose host has gone, closing
+        self.free = asyncio.Event()  # no session: a host may start one
+        self.free.set()
         self.engines = EngineCache()  # the last render's engines, for the next of that scene
         # neighbour links that came before their session took them: node -> (render id, link)
         self.pending: dict[int, tuple[bytes, Link]] = {}
@@ -174,6 +183,9 @@ class NodeService:
         """CONFIG, then the objects, then wait for SHUTDOWN; one render at a time. ABORT ends
         the render without ending the link: the host re-plans on the nodes left and sends a
         new CONFIG on the same link (so `once` nodes stay for it)."""
+        if self.session is not None and self.session is self.leaving:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.free.wait(), CLOSING_WAIT)
         if self.session is not None:
             await self._refuse(link, "this node is rendering for another host")
             return
@@ -183,6 +195,7 @@ class NodeService:
                 kind, f = await link.recv()
                 if kind is Kind.CONFIG and session is None:
                     session = self.session = Session(self, link, Config(f))
+                    self.free.clear()
                 elif kind is Kind.OBJECTS and session is not None:
                     session.objects.add(f["node"], f["table"], f["records"])
                     if f["last"]:
@@ -203,6 +216,7 @@ class NodeService:
         except (ProtocolError, ValueError) as e:  # a bad CONFIG: tell the host what
             await self._refuse(link, describe(e))
         finally:
+            self.leaving = session
             await self._end(session)
             await link.close()
             if self.once:
@@ -215,6 +229,7 @@ class NodeService:
             await session.close()
         if self.session is session:
             self.session = None
+            self.free.set()
         for _, link in self.pending.values():
             self._spawn(link.close())
         self.pending.clear()

@@ -71,6 +71,36 @@ async def test_a_second_host_is_refused_while_one_renders():
         await asyncio.wait_for(service.shutdown(), 10)
 
 
+async def test_a_host_that_comes_while_the_last_render_closes_waits_instead_of_refused():
+    # The first host leaves; its session is still closing (held open here by a gate) when
+    # the next host comes, as a host rendering again at once does: the node waits for the
+    # close and takes the new render.
+    service = await started()
+    try:
+        first = await host_link(service.port)
+        await first.send(config())
+        await _heartbeat(first)
+        session, closing, gate = service.session, asyncio.Event(), asyncio.Event()
+        close = session.close
+
+        async def slow_close():
+            closing.set()
+            await gate.wait()
+            await close()
+
+        session.close = slow_close
+        await first.send(make(Kind.SHUTDOWN))
+        await asyncio.wait_for(closing.wait(), 10)
+        second = await host_link(service.port)
+        await second.send(config())
+        gate.set()
+        kind, f = await asyncio.wait_for(second.recv(), 10)
+        assert kind is Kind.PROGRESS  # the new session's heartbeat, no ERROR
+        assert service.session is not None and service.session is not session
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+
+
 async def test_shutdown_closes_every_link_and_awaits_every_task():
     service = await started()
     link = await host_link(service.port)

@@ -265,7 +265,7 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
     los, his = grown(*cells, plan.overlap)
     occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
-    if plan.nodes > 1 and not (spec.camera is not None and spec.camera.adaptive):
+    if plan.nodes > 1 and not spec.adaptive:
         rects, owner = taker_tiles(scene, spec, cells, rects, box,
                                    occupancy_arrays(*box, *occ))  # fmt: skip
         if plan.copies:

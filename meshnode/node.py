@@ -149,14 +149,14 @@ class NodeCore:
         if self.adaptive:
             self.every_rect = RectIndex(part.rects, spec.image.size[0])
             self.film_at = np.full(len(part.rects), -1, np.int64)  # rectangle -> own film
+            self.samples = pass_samples(spec.camera)  # (pass 1's, pass 2's sample indices)
             # rectangle -> node; under dynamic tiles -1 until the host says (`add_tiles`)
-            self.rect_owner = np.asarray(part.owner, np.int64)
-            if self.feed is not None:
-                self.rect_owner = np.full(len(part.rects), -1, np.int64)
+            self.rect_owner = (np.full(len(part.rects), -1, np.int64) if self.feed is not None
+                               else np.asarray(part.owner, np.int64))  # fmt: skip
             self.held_out: list = []  # dynamic tiles: (deposits, idx, rect) traced here ...
             self.held_in: list = []  # ... and received, for tiles of nodes not known yet
             # pass 1 routes a deposit to at most 5 tiles (its pixel's and the 4 sides')
-            self.held_bound = 5 * len(pass_samples(spec.camera)[0]) * int(np.prod(spec.image.size))
+            self.held_bound = 5 * len(self.samples[0]) * int(np.prod(spec.image.size))
             self.held_count = 0
             for t in np.flatnonzero(self.rect_owner == node).tolist():
                 self._add_film(t)
@@ -282,7 +282,7 @@ class NodeCore:
             if theirs:
                 yield from self._stolen_batches(theirs, refine)
 
-        per_pixel = len(pass_samples(self.spec.camera)[1 if refine else 0])
+        per_pixel = len(self.samples[1 if refine else 0])
 
         def rays(chunk) -> int:
             x0, x1, y0, y1 = chunk
@@ -307,7 +307,7 @@ class NodeCore:
     def _stolen_batches(self, chunks: list, refine: bool):
         """The rays of chunks whose books their owner keeps, for one adaptive pass."""
         w, h = self.spec.image.size
-        samples = pass_samples(self.spec.camera)[1 if refine else 0]
+        samples = self.samples[1 if refine else 0]
         pixels = np.concatenate([rect_pixels(c, w) for c in chunks])
         for part in split(pixels, len(samples)):
             yield camera_rays(self.spec.camera, self.view, w, h, part, samples,
@@ -410,9 +410,7 @@ class NodeCore:
         if self.feed is not None:  # tiles' nodes are learnt as the host deals: `keep` routes
             return {self.node: deposits}
         idx, rect = self._routes(deposits, self.every_rect)
-        node = self.rect_owner[rect]
-        keep = np.unique(node * len(deposits) + idx)  # once per node, however many tiles
-        return _group(deposits[keep % len(deposits)], keep // len(deposits))
+        return _once_per_node(deposits, idx, self.rect_owner[rect])
 
     def keep(self, deposits: np.ndarray, traced_here: bool = False) -> dict[int, np.ndarray]:
         """Deposits routed to this node under adaptive sampling: into the film of each own
@@ -454,17 +452,15 @@ class NodeCore:
             self._add(deposits, idx[film >= 0], film[film >= 0])
         for deposits, idx, rect in self.held_out:
             away = self.film_at[rect] < 0
-            node = self.rect_owner[rect[away]]
-            keep = np.unique(node * len(deposits) + idx[away])
-            for n, d in _group(deposits[keep % len(deposits)], keep // len(deposits)).items():
+            for n, d in _once_per_node(deposits, idx[away], self.rect_owner[rect[away]]).items():
                 out.setdefault(n, []).append(d)
         self.held_in, self.held_out, self.held_count = [], [], 0
         return {n: np.concatenate(ds) for n, ds in out.items()}
 
     def _routes(self, deposits, index: RectIndex):
         camera, (w, h) = self.spec.camera, self.spec.image.size
-        first = pass_samples(camera)[0]  # a node dealt no tile has no film to ask
-        idx, rect = deposit_routes(deposits["pixel"], camera.per_pixel, first, w, h, index)
+        idx, rect = deposit_routes(deposits["pixel"], camera.per_pixel, self.samples[0], w, h,
+                                   index)  # fmt: skip
         return idx[rect >= 0], rect[rect >= 0]
 
     def takers(self, rays: np.ndarray) -> np.ndarray:
@@ -495,6 +491,13 @@ class NodeCore:
     @property
     def refined_pixels(self) -> int:
         return sum(int(f.refined.sum()) for f in self.films)
+
+
+def _once_per_node(deposits: np.ndarray, idx: np.ndarray, node: np.ndarray) -> dict:
+    """Deposits `idx` by node `node` (pairs), each deposit once per node however many of
+    that node's tiles it touches."""
+    keep = np.unique(node * len(deposits) + idx)
+    return _group(deposits[keep % len(deposits)], keep // len(deposits))
 
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:

@@ -283,7 +283,7 @@ def main(argv=None) -> int:
               f"{'at once':>7} "
               f"{'work':>5} {'wall':>5} "
               f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
-              f"{'bytes/link mean':>15} {'max':>11}")  # fmt: skip
+              f"{'bytes/link mean':>15} {'max':>11} shared")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         steals = [s == "on" for s in args.steal.split(",")]
@@ -330,6 +330,7 @@ def main(argv=None) -> int:
                 row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
                        "overlap_used": used,
                        "node_threads": thr, "cuts": cut, "steal": steal, "copies": copy,
+                       "shared": list(st["mesh"].get("shared", ())),
                        "tile": side, "order": order,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
@@ -353,7 +354,8 @@ def main(argv=None) -> int:
                       f"{row['work_speedup']:>5.2f} "
                       f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
                       f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
-                      f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,}")  # fmt: skip
+                      f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,} "
+                      f"{','.join(map(str, row['shared'])) or '-'}")  # fmt: skip
                 if args.plots:
                     tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{shown}-t{thr}"
                     load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "

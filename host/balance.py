@@ -59,6 +59,7 @@ class Cuts(NamedTuple):
     cells: tuple | None = None
     occupancy: bool = True
     overlap: float = 1.0
+    shared: tuple = ()
 
 
 def _bands(inner, n: int) -> list[int]:
@@ -78,10 +79,12 @@ def _coarse(bounds: list, n: int, coarse_n: int) -> list:
 
 def coarse_spec(spec: RenderSpec) -> RenderSpec:
     """The render at COARSE samples across, pixel centres, one centre ray through a camera:
-    where work lies, at a fraction of the cost."""
+    where work lies, at a fraction of the cost; its tiles (stealing's chunks, the tiles
+    dealt under copies) scaled with it, so it deals as many as the render (at 32 samples
+    a tile, a 768-sample render's coarse pass had 4 tiles to spread over a 3x3)."""
     width, height = spec.sample_grid
     scale = COARSE / max(width, height)
-    plan = spec.plan
+    plan = replace(spec.plan, tile=max(1, round(spec.plan.tile * scale)))
     image = ImageSpec(width=max(plan.cols, round(width * scale)),
                       height=max(plan.rows, round(height * scale)), depth=spec.image.depth)
     camera = spec.camera
@@ -201,7 +204,7 @@ def work_map(scene, spec: RenderSpec, fine: int = FINE):
     axes = cell_axes(scene.view, *spec.image.size)
     ex, ey = (np.linspace(box[0][a], box[1][a], fine + 1) for a in axes)
     plan = replace(spec.plan, rows=fine, cols=fine, overlap=0.0, balance="even", steal=False,
-                   copies=False)
+                   copies=False, shared=())
     cells = cells_from_cuts(box, axes, ex, [ey] * fine)
     cost = node_costs(scene, replace(spec, plan=plan), None, None, cells)
     return axes, ex, ey, cost.reshape(fine, fine)
@@ -262,7 +265,8 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
     whose largest node's engine takes at most FITS of `memory` (a wider overlap keeps rays
     longer on a node at the price of objects held twice, and moves where the cuts are best:
     the teapot 3x3 simulated 3.51 at overlap 2 and 5.73 at 60, each on its own cuts); then,
-    on those cuts, whether the nodes get the occupancy map (`choose_holding`)."""
+    on those cuts, whether the nodes get the occupancy map (`choose_holding`) and under
+    copies which cells every node holds (`choose_shared`)."""
     plan = spec.plan
     work: dict = {}  # the work map, simulated once: it has no overlap
     found, too_big = {}, []
@@ -288,7 +292,72 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
     if overlaps:
         report["overlap"] = _overlap_report(overlap, {o: f[0][0] for o, f in found.items()},
                                             too_big, memory)  # fmt: skip
-    return Cuts(bx, by, report, cells, occupancy, overlap)
+    # the busiest node on these cuts with the map as chosen (`best` had the map)
+    busiest = best if occupancy else best * holding["simulated_busiest_without_map_vs_with"]
+    at = _at(spec, overlap)
+    shared, report["shared"] = choose_shared(scene, at, bx, by, cells, occupancy, busiest,
+                                             memory)  # fmt: skip
+    if report["shared"] and family != "even":  # shared cells may do better on even cuts
+        base = float(node_costs(scene, at, None, None, None, occupancy).max())
+        even, on_even = choose_shared(scene, at, None, None, None, occupancy, base, memory)
+        if even and _best(on_even) * base < _best(report["shared"]) * busiest:
+            bx = by = cells = None
+            shared, report["family"] = even, "even"
+            report["shared"] = {**on_even, "cuts": "even: they do better shared than "
+                                                   f"{family}'s"}  # fmt: skip
+    return Cuts(bx, by, report, cells, occupancy, overlap, shared)
+
+
+def _best(report: dict) -> float:
+    """The simulated busiest node with the shared cells chosen, against none shared."""
+    return report["simulated_busiest_vs_none"][",".join(map(str, report["chosen"])) or "none"]
+
+
+SHARE_TRIES = 4  # cells tried alone as the shared one (those taking most tiles' eye rays)
+SHARE_GAIN = 0.98  # a shared cell is kept when it lowers the simulated busiest node this much
+
+
+def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busiest: float,
+                  memory: int = 0) -> tuple[tuple, dict]:
+    """(MeshPlan.shared, report): under copies, the cells whose engines every node also
+    holds. Where the eye rays of most tiles enter one cell (a small scene under a wide
+    view, a teapot on a floor), only that cell's four neighbours hold its engine, so at most
+    five nodes share its work whatever is stolen. Each of the SHARE_TRIES cells taking the
+    most tiles is simulated shared on its own, the best kept if it lowers the busiest node
+    by SHARE_GAIN, and then the next ones added while each does so; never past FITS of
+    `memory` (0: not known) for the largest node's engines."""
+    plan = spec.plan
+    if not plan.copies or plan.nodes <= 2:  # 1x2: each node already holds the other
+        return (), {}
+    part, _ = partition(scene, spec, xs, ys, cells, occupancy)
+    taken = np.bincount(np.asarray(part.takers or part.owner, np.int64), minlength=plan.nodes)
+    order = [int(c) for c in np.argsort(-taken, kind="stable")[:SHARE_TRIES] if taken[c]]
+    tried, too_big = {(): float(busiest)}, []
+
+    def cost(shared: tuple) -> float | None:
+        at = replace(spec, plan=replace(plan, shared=shared))
+        if _too_big(scene, at, xs, ys, cells, memory, too_big):
+            return None
+        tried[shared] = float(node_costs(scene, at, xs, ys, cells, occupancy).max())
+        return tried[shared]
+
+    alone = {c: b for c in order if (b := cost((c,))) is not None}
+    chosen: tuple = ()
+    if alone and min(alone.values()) <= SHARE_GAIN * busiest:
+        first = min(alone, key=lambda c: (alone[c], c))
+        chosen = (first,)
+        for c in sorted(alone, key=lambda c: (alone[c], c)):
+            if c == first:
+                continue
+            b = cost((*chosen, c))
+            if b is None or b > SHARE_GAIN * tried[chosen]:
+                break
+            chosen = (*chosen, c)
+    report = {"chosen": list(chosen), "tiles_taken": taken.tolist(),
+              "simulated_busiest_vs_none": {",".join(map(str, k)) or "none": _ratio(v, busiest)
+                                            for k, v in tried.items()},
+              "too_big_for_memory": too_big}  # fmt: skip
+    return chosen, report
 
 
 def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[tuple]:

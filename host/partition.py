@@ -357,16 +357,18 @@ def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback, box,
 
 def spread(takers: list[int], plan) -> list[int]:
     """MeshPlan.copies: each tile to the node with the fewest tiles so far among the one
-    taking its eye rays on and that one's torus neighbours (each holds its engine, so any of
-    them traces the tile without passing its rays), ties to the taker: the cells the eye
-    rays enter (all at the scene's top, say) no longer decide which nodes start with work."""
-    near = {t: plan.held(t) for t in set(takers)}
+    taking its eye rays on and those holding its engine (its torus neighbours, and every
+    node for a shared cell: each traces the tile without passing its rays), ties to the
+    taker: the cells the eye rays enter (all at the scene's top, say) no longer decide
+    which nodes start with work. Tiles held by fewest nodes are dealt first, so a shared
+    cell's (held by all) fill whatever the others left uneven."""
+    near = {t: plan.holders(t) for t in set(takers)}
     count = [0] * plan.nodes
-    owner = []
-    for t in takers:  # once per tile, while planning
-        n = min(near[t], key=lambda m: (count[m], m != t))
-        count[n] += 1
-        owner.append(n)
+    owner = [0] * len(takers)
+    for i in sorted(range(len(takers)), key=lambda i: len(near[takers[i]])):  # once per tile
+        t = takers[i]
+        owner[i] = min(near[t], key=lambda m: (count[m], m != t))
+        count[owner[i]] += 1
     return owner
 
 

@@ -44,20 +44,20 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
                                                                            engine))  # fmt: skip
     spec = RenderSpec(image, engine, plan, camera_spec)
     xs = ys = cells = None
-    occupancy, overlap = True, plan.overlap
+    occupancy, overlap, shared = True, plan.overlap, plan.shared
     balance: dict = {"cuts": plan.balance}
     t0 = time.perf_counter()
     if plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
-        xs, ys, report, cells, occupancy, overlap = balanced_cuts(scene, spec, overlaps=overlaps,
-                                                                  memory=memory)  # fmt: skip
+        xs, ys, report, cells, occupancy, overlap, shared = balanced_cuts(
+            scene, spec, overlaps=overlaps, memory=memory)
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None).max()
         overlap, occupancy, report = choose_holding(scene, spec, None, None, None, even,
                                                     overlaps, memory)  # fmt: skip
         balance.update(report, seconds=time.perf_counter() - t0)
-    if plan.mode == "object" and overlap != plan.overlap:
-        spec = replace(spec, plan=replace(plan, overlap=overlap))
+    if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
+        spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
     part, keep = partition(scene, spec, xs, ys, cells, occupancy)
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 

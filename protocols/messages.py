@@ -12,7 +12,7 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 7  # 7: TILES.owners (6: MeshPlan.order; 5: OBJECTS name whose objects)
+PROTOCOL_VERSION = 8  # 8: MeshPlan.shared (7: TILES.owners; 6: MeshPlan.order; 5: OBJECTS name)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 

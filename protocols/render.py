@@ -129,7 +129,11 @@ class MeshPlan(Spec):
     `copies` (object space): each node also holds a copy of every linked neighbour's engine
     (the same objects in the same box, so the same segments) and traces there the rays that
     neighbour would take on, instead of passing them: stolen chunks then move their work,
-    not only their eye rays, at the price of holding up to five boxes' objects."""
+    not only their eye rays, at the price of holding up to five boxes' objects. `shared`
+    (with copies): cells whose engines every node holds besides (the cost pre-pass picks the
+    cells most of the work is traced in, within the nodes' memory): any node then makes and
+    traces the tiles whose eye rays those cells take on, so the work gathered in one cell
+    spreads over the whole mesh, not only over that cell's four neighbours."""
 
     rows: int = 1
     cols: int = 1
@@ -142,6 +146,7 @@ class MeshPlan(Spec):
     order: str = "rows"
     steal: bool = False
     copies: bool = False
+    shared: tuple = ()
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -162,6 +167,7 @@ class MeshPlan(Spec):
         self.want_bool("copies")
         if self.copies and self.mode != "object":
             self.fail("copies", "neighbours' copies are object space's (image space holds all)")
+        self._check_shared()
         if self.mode == "image" and self.balance != "even":
             self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 
@@ -169,10 +175,34 @@ class MeshPlan(Spec):
     def nodes(self) -> int:
         return self.rows * self.cols
 
+    def _check_shared(self) -> None:
+        shared = self.shared
+        if not isinstance(shared, tuple) or not all(
+                isinstance(c, int) and not isinstance(c, bool) for c in shared):  # fmt: skip
+            self.fail("shared", "must be a list of node numbers")
+        if shared and not self.copies:
+            self.fail("shared", "shared cells are copies too: they need 'copies'")
+        if any(not 0 <= c < self.rows * self.cols for c in shared) or len(set(shared)) < len(
+                shared):  # fmt: skip
+            self.fail("shared", f"must name distinct nodes from 0 to {self.rows * self.cols - 1}")
+
+    @classmethod
+    def decode(cls, values: dict) -> dict:
+        if isinstance(values.get("shared"), list):  # msgpack gives a list
+            values = {**values, "shared": tuple(values["shared"])}
+        return values
+
     def held(self, node: int) -> list[int]:
-        """The nodes whose engines `node` holds: itself, and under `copies` its links."""
-        links = Torus(self.rows, self.cols).links(node) if self.copies else []
-        return [node, *links]
+        """The nodes whose engines `node` holds: itself, and under `copies` its links and
+        the shared cells."""
+        if not self.copies:
+            return [node]
+        links = Torus(self.rows, self.cols).links(node)
+        return list(dict.fromkeys([node, *links, *self.shared]))
+
+    def holders(self, node: int) -> list[int]:
+        """The nodes that hold `node`'s engine: itself first, then the others in order."""
+        return [node, *(n for n in range(self.nodes) if n != node and node in self.held(n))]
 
     @property
     def dynamic(self) -> bool:

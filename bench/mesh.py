@@ -283,7 +283,7 @@ def main(argv=None) -> int:
               f"{'at once':>7} "
               f"{'work':>5} {'wall':>5} "
               f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
-              f"{'bytes/link mean':>15} {'max':>11} shared")  # fmt: skip
+              f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared")  # fmt: skip
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         steals = [s == "on" for s in args.steal.split(",")]
@@ -331,6 +331,7 @@ def main(argv=None) -> int:
                        "overlap_used": used,
                        "node_threads": thr, "cuts": cut, "steal": steal, "copies": copy,
                        "shared": list(st["mesh"].get("shared", ())),
+                       "objects_held_max_share": st["objects_held_max_share"],
                        "tile": side, "order": order,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
@@ -355,6 +356,7 @@ def main(argv=None) -> int:
                       f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
                       f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
                       f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,} "
+                      f"{st['objects_held_max_share']:>4.0%} "
                       f"{','.join(map(str, row['shared'])) or '-'}")  # fmt: skip
                 if args.plots:
                     tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{shown}-t{thr}"

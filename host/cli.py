@@ -157,7 +157,8 @@ def _parser() -> argparse.ArgumentParser:
            "unstarted chunks from a busy neighbour's outer end", action="store_true")
     _field(r, "--copies", MeshPlan, "copies", "object space: each node also holds its linked "
            "neighbours' objects and traces the rays they would take on (with --steal, a stolen "
-           "chunk's work moves too)", action="store_true")
+           "chunk's work moves too; with --balance cost, also the cells the pre-pass shares)",
+           action="store_true")
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
     _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))

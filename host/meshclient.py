@@ -413,5 +413,9 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "objects_per_node": own.tolist(),
         # with the neighbours' copies (MeshPlan.copies)
         "objects_held_per_node": [int(own[plan.held(n)].sum()) for n in range(plan.nodes)],
+        # the share of the scene's objects the node holding most holds, each counted once:
+        # what the object-space mesh saves against image space (where it is 1)
+        "objects_held_max_share": max(float(keep[plan.held(n)].any(axis=0).mean())
+                                      for n in range(plan.nodes)) if keep.shape[1] else 1.0,
         "nodes": nodes,
     }

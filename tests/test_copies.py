@@ -113,6 +113,9 @@ def test_copies_over_tcp_give_the_single_node_image_and_say_what_each_node_holds
         assert sorted(map(int, node["copies"])) == held
         assert stats["objects_held_per_node"][n] == own[n] + sum(own[m] for m in held)
     assert stats["mesh"]["copies"] is True and stats["mesh"]["shared"] == list(shared)
+    objects = len(scene.spheres) + len(scene.triangles) + len(scene.polygons) + len(scene.cones)
+    share = stats["objects_held_max_share"]
+    assert share == 1.0 if shared else max(own) / objects <= share <= 1.0  # 2x2: all held
 
 
 def test_a_node_takes_objects_only_of_itself_and_its_linked_neighbours():

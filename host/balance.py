@@ -296,10 +296,12 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
     busiest = best if occupancy else best * holding["simulated_busiest_without_map_vs_with"]
     at = _at(spec, overlap)
     shared, report["shared"] = choose_shared(scene, at, bx, by, cells, occupancy, busiest,
-                                             memory)  # fmt: skip
-    if report["shared"] and family != "even":  # shared cells may do better on even cuts
-        base = float(node_costs(scene, at, None, None, None, occupancy).max())
-        even, on_even = choose_shared(scene, at, None, None, None, occupancy, base, memory)
+                                             memory, _efficiency(cost))  # fmt: skip
+    if report["shared"].get("tried") and family != "even":  # maybe better on even cuts
+        even_cost = node_costs(scene, at, None, None, None, occupancy)
+        base = float(even_cost.max())
+        even, on_even = choose_shared(scene, at, None, None, None, occupancy, base, memory,
+                                      _efficiency(even_cost))  # fmt: skip
         if even and _best(on_even) * base < _best(report["shared"]) * busiest:
             bx = by = cells = None
             shared, report["family"] = even, "even"
@@ -313,22 +315,32 @@ def _best(report: dict) -> float:
     return report["simulated_busiest_vs_none"][",".join(map(str, report["chosen"])) or "none"]
 
 
+def _efficiency(cost: np.ndarray) -> float:
+    """Sum of node costs / (nodes x busiest): 1 when every node works as long."""
+    return float(cost.sum() / (len(cost) * cost.max())) if cost.max() > 0 else 1.0
+
+
 SHARE_TRIES = 4  # cells tried alone as the shared one (those taking most tiles' eye rays)
 SHARE_GAIN = 0.98  # a shared cell is kept when it lowers the simulated busiest node this much
+SHARE_BELOW = 0.9  # ... tried only below this simulated parallel efficiency (gears' coarse
+# pass takes seconds a try, and its cuts already even out its work)
 
 
 def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busiest: float,
-                  memory: int = 0) -> tuple[tuple, dict]:
+                  memory: int = 0, efficiency: float = 0.0) -> tuple[tuple, dict]:
     """(MeshPlan.shared, report): under copies, the cells whose engines every node also
     holds. Where the eye rays of most tiles enter one cell (a small scene under a wide
     view, a teapot on a floor), only that cell's four neighbours hold its engine, so at most
     five nodes share its work whatever is stolen. Each of the SHARE_TRIES cells taking the
     most tiles is simulated shared on its own, the best kept if it lowers the busiest node
     by SHARE_GAIN, and then the next ones added while each does so; never past FITS of
-    `memory` (0: not known) for the largest node's engines."""
+    `memory` (0: not known) for the largest node's engines; not tried where the cuts'
+    simulated `efficiency` is SHARE_BELOW or more already."""
     plan = spec.plan
     if not plan.copies or plan.nodes <= 2:  # 1x2: each node already holds the other
         return (), {}
+    if efficiency >= SHARE_BELOW:
+        return (), {"chosen": [], "tried": False, "simulated_efficiency": efficiency}
     part, _ = partition(scene, spec, xs, ys, cells, occupancy)
     taken = np.bincount(np.asarray(part.takers or part.owner, np.int64), minlength=plan.nodes)
     order = [int(c) for c in np.argsort(-taken, kind="stable")[:SHARE_TRIES] if taken[c]]
@@ -353,7 +365,8 @@ def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busie
             if b is None or b > SHARE_GAIN * tried[chosen]:
                 break
             chosen = (*chosen, c)
-    report = {"chosen": list(chosen), "tiles_taken": taken.tolist(),
+    report = {"chosen": list(chosen), "tried": True, "simulated_efficiency": efficiency,
+              "tiles_taken": taken.tolist(),
               "simulated_busiest_vs_none": {",".join(map(str, k)) or "none": _ratio(v, busiest)
                                             for k, v in tried.items()},
               "too_big_for_memory": too_big}  # fmt: skip

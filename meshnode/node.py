@@ -37,8 +37,9 @@ HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
 IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows at once
 # ... in object space under copies, where few are passed and a batch splits into a kernel
-# call per engine held: tetra 2x2, simulated in one process at 384x384 and 16 spp, traced
-# 1.13-1.43x one node's CPU at 16384 against 1.32-1.62x at 4096 (turns, three each)
+# call per engine held: tetra 2x2 simulated in one process (256x256 at 62 spp, four turns
+# each, /tmp script), the nodes' summed tracing CPU best / median: 4096 0.824 / 0.868 s,
+# 16384 0.653 / 0.782 s, 65536 0.713 / 0.764 s
 COPIES_EYE_BATCH = 16384
 # Stolen or stealable chunks (adaptive sampling's refined runs, a few hundred rays each) start
 # this many rays' worth at a time: one kernel call and one deposit message per run cost

@@ -322,7 +322,7 @@ def _efficiency(cost: np.ndarray) -> float:
 
 SHARE_TRIES = 4  # cells tried alone as the shared one (those taking most tiles' eye rays)
 SHARE_GAIN = 0.98  # a shared cell is kept when it lowers the simulated busiest node this much
-SHARE_BELOW = 0.9  # ... tried only below this simulated parallel efficiency (gears' coarse
+SHARE_BELOW = 0.95  # ... tried only below this simulated parallel efficiency (gears' coarse
 # pass takes seconds a try, and its cuts already even out its work)
 
 

@@ -160,7 +160,8 @@ def _too_big(scene, spec: RenderSpec, xs, ys, cells, memory: int, refused: list)
     held = largest_engine(scene, spec, xs, ys, cells)
     if held <= FITS * memory:
         return False
-    refused.append({"overlap": spec.plan.overlap, "largest_node_bytes": held})
+    refused.append({"overlap": spec.plan.overlap, "shared": list(spec.plan.shared),
+                    "largest_node_bytes": held})
     return True
 
 
@@ -304,7 +305,11 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
                                       _efficiency(even_cost))  # fmt: skip
         if even and _best(on_even) * base < _best(report["shared"]) * busiest:
             bx = by = cells = None
-            shared, report["family"] = even, "even"
+            report.update(columns=None, rows=None, family="even",
+                          simulated_busiest_vs_even=base / tried[0][0] if tried[0][0] else 1.0,
+                          simulated_imbalance=float((even_cost.max() - even_cost.min())
+                                                    / even_cost.max()) if base else 0.0)
+            shared = even
             report["shared"] = {**on_even, "cuts": "even: they do better shared than "
                                                    f"{family}'s"}  # fmt: skip
     return Cuts(bx, by, report, cells, occupancy, overlap, shared)
@@ -337,8 +342,9 @@ def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busie
     `memory` (0: not known) for the largest node's engines; not tried where the cuts'
     simulated `efficiency` is SHARE_BELOW or more already."""
     plan = spec.plan
-    if not plan.copies or plan.nodes <= 2:  # 1x2: each node already holds the other
-        return (), {}
+    if not plan.copies or spec.adaptive or all(len(plan.held(n)) == plan.nodes
+                                               for n in range(plan.nodes)):  # fmt: skip
+        return (), {}  # adaptive rectangles stay with their nodes; 1x2, 1x3: all held
     if efficiency >= SHARE_BELOW:
         return (), {"chosen": [], "tried": False, "simulated_efficiency": efficiency}
     part, _ = partition(scene, spec, xs, ys, cells, occupancy)

@@ -153,9 +153,10 @@ def tiles_message(dealer: TileDealer, tiles: list[int], last: bool) -> dict:
 
 
 def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
-    """The plan on `nodes` nodes: the most nearly square rows x cols that uses them all."""
+    """The plan on `nodes` nodes: the most nearly square rows x cols that uses them all
+    (shared cells were the old mesh's: the pre-pass chooses again on the new one)."""
     rows = max(d for d in range(1, math.isqrt(nodes) + 1) if nodes % d == 0)
-    return replace(plan, rows=rows, cols=nodes // rows)
+    return replace(plan, rows=rows, cols=nodes // rows, shared=())
 
 
 async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,

@@ -179,7 +179,7 @@ class MeshPlan(Spec):
         shared = self.shared
         if not isinstance(shared, tuple) or not all(
                 isinstance(c, int) and not isinstance(c, bool) for c in shared):  # fmt: skip
-            self.fail("shared", "must be a list of node numbers")
+            self.fail("shared", "must be a list of node numbers (a tuple in Python)")
         if shared and not self.copies:
             self.fail("shared", "shared cells are copies too: they need 'copies'")
         if any(not 0 <= c < self.rows * self.cols for c in shared) or len(set(shared)) < len(
@@ -221,7 +221,8 @@ class Partition(Spec):
     one bit per voxel packed as numpy's packbits does, x fastest: 1 where some object may
     lie; nodes end or skip segments with only empty voxels ahead; the default, one occupied
     voxel, skips nothing); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
-    eye rays on where its owner (a neighbour holding that node's engine) does not."""
+    eye rays on where its owner (a node holding that node's engine: a neighbour, or any
+    node for a shared cell) does not."""
 
     rects: tuple
     owner: tuple

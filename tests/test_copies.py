@@ -13,7 +13,7 @@ import pytest
 
 from host.camerasetup import CameraSetup
 from host.localmesh import LocalMesh
-from host.meshclient import render_on_mesh
+from host.meshclient import render_on_mesh, shrink
 from host.nff import read_nff
 from host.partition import partition
 from host.render import render
@@ -171,6 +171,8 @@ def test_shared_cells_are_checked_and_held_by_every_node():
             MeshPlan(3, 3, copies=True, shared=bad)
     with pytest.raises(SpecError, match="need 'copies'"):
         MeshPlan(3, 3, shared=(1,))
+    # a node lost: the re-plan on 8 nodes (2x4) chooses its own shared cells
+    assert shrink(plan, 8) == MeshPlan(2, 4, copies=True)
 
 
 def test_tiles_of_a_shared_cell_are_dealt_over_the_whole_mesh():

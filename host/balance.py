@@ -299,7 +299,8 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
     shared, report["shared"] = choose_shared(scene, at, bx, by, cells, occupancy, busiest,
                                              memory, _efficiency(cost))  # fmt: skip
     if report["shared"].get("tried") and family != "even":  # maybe better on even cuts
-        even_cost = node_costs(scene, at, None, None, None, occupancy)
+        even_cost = (tried[0][3] if occupancy else  # even cuts were simulated with the map
+                     node_costs(scene, at, None, None, None, occupancy))  # fmt: skip
         base = float(even_cost.max())
         even, on_even = choose_shared(scene, at, None, None, None, occupancy, base, memory,
                                       _efficiency(even_cost))  # fmt: skip

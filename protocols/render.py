@@ -182,9 +182,8 @@ class MeshPlan(Spec):
             self.fail("shared", "must be a list of node numbers (a tuple in Python)")
         if shared and not self.copies:
             self.fail("shared", "shared cells are copies too: they need 'copies'")
-        if any(not 0 <= c < self.rows * self.cols for c in shared) or len(set(shared)) < len(
-                shared):  # fmt: skip
-            self.fail("shared", f"must name distinct nodes from 0 to {self.rows * self.cols - 1}")
+        if any(not 0 <= c < self.nodes for c in shared) or len(set(shared)) < len(shared):
+            self.fail("shared", f"must name distinct nodes from 0 to {self.nodes - 1}")
 
     @classmethod
     def decode(cls, values: dict) -> dict:

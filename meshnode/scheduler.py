@@ -35,10 +35,12 @@ class Enter:
 
 @dataclass(frozen=True)
 class Trace:
-    """Trace this batch; call `batch_done` when it is."""
+    """Trace this batch (with the engine of node `taker`: this node's own when None, or a
+    copy it holds); call `batch_done` when it is."""
 
     rays: np.ndarray
     primary: bool
+    taker: int | None = None
 
 
 @dataclass(frozen=True)
@@ -313,12 +315,13 @@ class Scheduler:
         self.pending: deque = deque()  # decisions made, not yet handed out
 
     # ------------------------------------------------------------------ events
-    def rays_in(self, rays: np.ndarray, message: bool = True) -> bool:
-        """Rays to trace here (from a RAYS message, or passed from this node to itself);
-        True when the driver should stop reading until `may_read`."""
+    def rays_in(self, rays: np.ndarray, message: bool = True, taker: int | None = None) -> bool:
+        """Rays to trace here (from a RAYS message, or passed from this node to itself, for
+        the engine of node `taker`: a copy it holds, or its own when None); True when the
+        driver should stop reading until `may_read`."""
         if message:
             self.term.on_received()
-        self.incoming.append(rays)
+        self.incoming.append((taker, rays))
         self.incoming_rays += len(rays)
         return self.incoming_rays > self.incoming_high
 
@@ -351,17 +354,24 @@ class Scheduler:
         else:
             self.asked.add(giver)
 
-    def _passed_batch(self) -> np.ndarray:
-        """Queued incoming messages, in order, merged up to PASSED_BATCH rays: a message holds
-        the rays one batch of a neighbour sent here, often a few dozen, and every batch costs
-        a kernel call, its scratch and its routing whatever its size."""
-        parts = [self.incoming.popleft()]
-        n = len(parts[0])
-        while self.incoming and n + len(self.incoming[0]) <= PASSED_BATCH:
-            parts.append(self.incoming.popleft())
-            n += len(parts[-1])
+    def _passed_batch(self) -> Trace:
+        """The first queued part's taker's parts, merged up to PASSED_BATCH rays in order: a
+        message holds the rays one batch of a neighbour sent here, often a few dozen, and
+        every batch costs a kernel call, its scratch and its routing whatever its size."""
+        taker, first = self.incoming.popleft()
+        parts, rest, n = [first], deque(), len(first)
+        while self.incoming and n < PASSED_BATCH:
+            part = self.incoming.popleft()
+            if part[0] == taker and n + len(part[1]) <= PASSED_BATCH:
+                parts.append(part[1])
+                n += len(part[1])
+            else:
+                rest.append(part)
+        rest.extend(self.incoming)
+        self.incoming = rest
         self.incoming_rays -= n
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        self.in_flight += 1
+        return Trace(parts[0] if len(parts) == 1 else np.concatenate(parts), False, taker)
 
     def batch_done(self) -> None:
         self.in_flight -= 1
@@ -423,7 +433,7 @@ class Scheduler:
                 bool(self.primaries) or self.primaries.waiting)
             primary = tracing and free and room and bool(self.primaries)
             if self.incoming and free and (self.incoming_rays >= self.passed_min or not primary):
-                return self._trace(self._passed_batch(), primary=False)
+                return self._passed_batch()
             if primary:
                 return self._trace(self.primaries.pop(), primary=True)
             if (target := self._steal_target()) is not None:

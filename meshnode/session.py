@@ -270,7 +270,7 @@ class Session:
 
     def act(self, step) -> None:
         if isinstance(step, Trace):
-            self.start(step.rays, step.primary)
+            self.start(step)
             feed = self.core.feed
             if step.primary and feed is not None and feed.finished:
                 self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=feed.finished))
@@ -325,16 +325,18 @@ class Session:
     def queued_bytes(self) -> int:
         return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
 
-    def start(self, rays: np.ndarray, primary: bool) -> None:
+    def start(self, step: Trace) -> None:
         """Trace a batch on a pool thread; the work loop wakes when it is done."""
         if self.sched.in_flight == 1:  # the first batch in flight: the node turns busy
             self.stats.turn_busy()
-        self.spawn(self.trace(rays, primary))
+        self.spawn(self.trace(step))
 
-    async def trace(self, rays: np.ndarray, primary: bool) -> None:
+    async def trace(self, step: Trace) -> None:
+        rays, primary = step.rays, step.primary
         try:
             loop = asyncio.get_running_loop()
-            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays, primary)
+            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays,
+                                               primary, step.taker)  # fmt: skip
             self.stats.traced(batch.counts, len(rays) if primary else 0)
             self.deliver(batch)
             if primary:
@@ -360,10 +362,9 @@ class Session:
             else:
                 self.post_data(dest, Kind.PIXELS, deposits)
         for dest, passed in batch.outgoing.items():
-            if dest == self.node:
-                self.sched.rays_in(passed, message=False)
-            else:
-                self.post_data(dest, Kind.RAYS, passed)
+            self.post_data(dest, Kind.RAYS, passed)
+        for taker, rays in batch.held.items():
+            self.sched.rays_in(rays, message=False, taker=taker)
 
     async def close(self) -> None:
         """Cancel and await every task of this render, then drop its neighbour links: the

@@ -177,7 +177,7 @@ class _Mesh:
                 if step.primary and feed is not None and feed.finished:
                     self.transit.append((self.round + 1, -1, "done", (n, feed.finished)))
                     feed.finished = []
-                self._trace(n, step.rays, step.primary)
+                self._trace(n, step)
                 return
             elif not isinstance(step, Flush):
                 raise TypeError(f"unknown scheduler step {step!r}")
@@ -189,11 +189,11 @@ class _Mesh:
         elif state == State.FLUSH:
             self.deposits.extend(core.finished_pixels())
 
-    def _trace(self, n: int, rays, primary: bool) -> None:
+    def _trace(self, n: int, step: Trace) -> None:
         rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
-        batch = core.trace(rays, primary)
+        batch = core.trace(step.rays, step.primary, step.taker)
         rec.batches += 1
-        add_counts(rec.counts, batch.counts, len(rays) if primary else 0)
+        add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
         for dest, deposits in batch.deposits.items():
             if dest == HOST:
                 self.deposits.append(deposits)
@@ -202,10 +202,9 @@ class _Mesh:
             else:
                 self._send(n, dest, "pixels", deposits)
         for dest, passed in batch.outgoing.items():
-            if dest == n:
-                sched.rays_in(passed, message=False)
-            else:
-                rec.rays_sent += len(passed)
-                rec.sent_to[dest] += len(passed)
-                self._send(n, dest, "rays", passed)
+            rec.rays_sent += len(passed)
+            rec.sent_to[dest] += len(passed)
+            self._send(n, dest, "rays", passed)
+        for taker, rays in batch.held.items():
+            sched.rays_in(rays, message=False, taker=taker)
         sched.batch_done()

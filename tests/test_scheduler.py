@@ -132,11 +132,32 @@ def test_queued_incoming_messages_are_traced_together_in_order_up_to_a_batch():
         r["pixel"] = i
         s.rays_in(r)
     first = s.next()
-    assert isinstance(first, Trace) and not first.primary
-    assert first.rays["pixel"].tolist() == [0] * 30 + [1] * 50  # the third would not fit
+    assert isinstance(first, Trace) and not first.primary and first.taker is None
+    # the third would not fit; the fourth does
+    assert first.rays["pixel"].tolist() == [0] * 30 + [1] * 50 + [3] * 40
     s.batch_done()
     second = s.next()
-    assert second.rays["pixel"].tolist() == [2] * (scheduler.PASSED_BATCH - 50) + [3] * 40
+    assert second.rays["pixel"].tolist() == [2] * (scheduler.PASSED_BATCH - 50)
+    assert s.incoming_rays == 0 and not s.incoming
+
+
+def test_rays_queued_for_held_engines_are_merged_per_engine_and_traced_with_it():
+    # Under copies a batch hands back the segments that leave for engines held here: each
+    # engine's parts merge into one call, never into another engine's.
+    s = tracing(high=10 * scheduler.PASSED_BATCH)
+    s.passed_min = 0  # queued rays go before primaries however few
+    parts = [(None, 20), (3, 5), (None, 7), (4, 9), (3, 11)]
+    for i, (taker, n) in enumerate(parts):
+        r = rays(n)
+        r["pixel"] = i
+        s.rays_in(r, message=taker is None, taker=taker)
+    seen = []
+    while s.incoming and len(seen) < len(parts):
+        step = s.next()
+        assert isinstance(step, Trace) and not step.primary
+        seen.append((step.taker, step.rays["pixel"].tolist()))
+        s.batch_done()
+    assert seen == [(None, [0] * 20 + [2] * 7), (3, [1] * 5 + [4] * 11), (4, [3] * 9)]
     assert s.incoming_rays == 0 and not s.incoming
 
 

@@ -20,6 +20,7 @@ cost, so it predicts an upper bound of the CPU speedup.
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -28,6 +29,12 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
+# A message's flight under --clock work, as a share of one node's whole render: on loopback
+# taken as 60 us (an asyncio message between two local processes) against a render one node
+# traces in about 6 s (what bench.mesh --min-trace 5 measures).
+LATENCY_SHARE = 1e-5
+TILES_PER_NODE = 32  # a 4x4 mesh of bench.mesh's tiles has 36 a node
 
 MODES = {"object+steal": {"mode": "object", "steal": True},
          "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
@@ -38,9 +45,11 @@ MODES = {"object+steal": {"mode": "object", "steal": True},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
-def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float | str = 2):
-    """(busiest node's cost, total cost, rays passed, overlap) of a simulated render, planned
-    as `host render` plans it (`overlap` "auto": the pre-pass chooses, with no memory bound)."""
+def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float | str = 2,
+              clock: str = "rounds", latency: float = 0.0):
+    """(busiest node's cost, total cost, rays passed, overlap, makespan) of a simulated
+    render, planned as `host render` plans it (`overlap` "auto": the pre-pass chooses, with
+    no memory bound), on the simulator's `clock` (a message's `latency` in work units)."""
     from host.balance import OVERLAPS
     from host.partition import subset
     from host.plan import plan_render
@@ -48,14 +57,18 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
     image = ImageSpec(width=size, height=size)
-    tile = max(4, size // 32)
+    # tiles (and stealing's chunks) as bench.mesh's 32 px at 768 px (576 tiles), but at
+    # least TILES_PER_NODE a node: 1,024 tiles leave a 16x16 mesh 4 each, too few to deal out
+    tile = max(2, min(size // 24, int(size / math.sqrt(TILES_PER_NODE * rows * cols))))
     auto = overlap == "auto"
     mesh = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, tile=tile, **plan)
     planned = plan_render(scene, image, EngineSpec(), mesh, overlaps=OVERLAPS if auto else ())
     part, keep = planned.partition, planned.holders
-    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], planned.spec, part)
+    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], planned.spec, part,
+                   clock=clock, latency=latency)  # fmt: skip
     costs = [n.cost for n in out.nodes]
-    return max(costs), sum(costs), sum(n.rays_sent for n in out.nodes), planned.spec.plan.overlap
+    return (max(costs), sum(costs), sum(n.rays_sent for n in out.nodes),
+            planned.spec.plan.overlap, out.makespan)  # fmt: skip
 
 
 def measured_table(paths: list[Path]) -> dict:
@@ -94,6 +107,12 @@ def main(argv=None) -> int:
     p.add_argument("--modes", default=",".join(MODES), help=f"of {', '.join(MODES)}")
     p.add_argument("--overlaps", default="2", help="object space: box overlaps (percent; "
                    "auto: the pre-pass chooses, as `--overlap auto` does)")
+    p.add_argument("--clock", choices=("work", "rounds"), default="work",
+                   help="work: each node's clock moves by the work it does, so what stealing "
+                   "and dynamic tiles even out is seen; rounds: one batch a node a turn")
+    p.add_argument("--latency", type=float, default=LATENCY_SHARE,
+                   help="clock work: a message's flight as a share of one node's whole render "
+                   f"(default {LATENCY_SHARE:g}: 60 us of a 6 s render)")
     p.add_argument("--measured", type=Path, nargs="+", default=[],
                    help="bench.mesh --json outputs to compare with")
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
@@ -109,26 +128,34 @@ def main(argv=None) -> int:
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
         one, *_ = simulated(scene, 1, 1, args.size, {})
-        print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}")
-        print(f"{'mesh':>6} {'mode':>24} {'overlap':>7} {'predicted':>9} {'measured':>8} "
-              f"{'ratio':>5} {'work':>5} {'rays passed':>11} {'seconds':>7}")  # fmt: skip
+        latency = args.latency * one if args.clock == "work" else 0.0
+        print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}, "
+              f"clock {args.clock}" + (f", latency {latency:,.1f}" if latency else ""))
+        print(f"{'mesh':>6} {'mode':>24} {'overlap':>7} {'predicted':>9} {'wall':>5} "
+              f"{'measured':>8} {'ratio':>5} {'work':>5} {'rays passed':>11} "
+              f"{'seconds':>7}")  # fmt: skip
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
             for mode, overlap in runs(args.modes.split(","), overlaps):
                 start = time.perf_counter()
-                busiest, _, passed, used = simulated(scene, rows, cols, args.size,
-                                                     MODES[mode], overlap or 0)  # fmt: skip
+                busiest, _, passed, used, makespan = simulated(
+                    scene, rows, cols, args.size, MODES[mode], overlap or 0, args.clock,
+                    latency)  # fmt: skip
                 predicted = one / busiest
+                wall = f"{one / makespan:5.2f}" if makespan else f"{'-':>5}"
                 got, got_work = measured.get((name, mesh, mode, overlap), (None, None))
                 seen = f"{got:8.2f} {got / predicted:5.2f}" if got else f"{'-':>8} {'-':>5}"
                 seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
                 shown = "-" if overlap is None else f"{used:g}"
                 shown = f"auto:{shown}" if overlap == "auto" else shown
-                print(f"{mesh:>6} {mode:>24} {shown:>7} {predicted:>9.2f} {seen} {passed:>11,} "
+                print(f"{mesh:>6} {mode:>24} {shown:>7} {predicted:>9.2f} {wall} {seen} "
+                      f"{passed:>11,} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
                 table.append({"scene": name, "mesh": mesh, "mode": mode, "overlap": overlap,
                               "overlap_used": used if overlap is not None else None,
-                              "predicted": predicted, "measured": got,
+                              "predicted": predicted, "clock": args.clock,
+                              "predicted_wall": one / makespan if makespan else None,
+                              "measured": got,
                               "measured_work": got_work, "rays_passed": passed})  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(table, indent=2) + "\n")

@@ -1,0 +1,66 @@
+"""The simulator's work clock (`meshnode.simulator`, clock="work"): each node's clock moves
+by the work it does, so a node with cheap work runs ahead and takes more tiles or chunks,
+as on a real mesh. It must still give the single node's image and ray counts on every
+shape and mode, and it must show what rounds cannot: dynamic tiles evening out uneven work."""
+
+import numpy as np
+import pytest
+
+from host.camerasetup import CameraSetup
+from host.nff import read_nff
+from protocols.camera import CameraSampling
+from protocols.render import ImageSpec
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_image_space import COUNTS, SHAPES, reference
+from tests.test_sampling import dof_scene, thin_camera
+
+MODES = [dict(mode="image", tiles="dynamic", tile=5, buffer=2),
+         dict(mode="object", steal=True, tile=4),
+         dict(mode="object", steal=True, copies=True, tile=4)]  # fmt: skip
+
+
+@pytest.mark.parametrize("plan", MODES, ids=["image-dynamic", "object-steal", "copies"])
+def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan):
+    scene = read_nff(spd_scene("rings_s1.nff"))
+    ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=2))
+    for rows, cols in SHAPES:
+        outs = []
+        img, totals, nodes, _ = render_mesh(scene, rows, cols, 30, 30, 26, spp=2,
+                                            clock="work", outcome=outs, **plan)  # fmt: skip
+        assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+        # a node's clock is its work and its waits: the last one ends after the busiest
+        assert outs[0].makespan >= max(n.cost for n in nodes) > 0
+
+
+def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(monkeypatch):
+    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
+    scene = dof_scene()
+    image = ImageSpec(width=30, height=24, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    ref, counts = reference(scene, image, setup)
+    spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
+    for rows, cols in SHAPES:
+        img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
+                                        clock="work", **MODES[0])  # fmt: skip
+        assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+
+
+def test_on_the_work_clock_dynamic_tiles_even_out_what_rounds_cannot():
+    # Rounds give every node a tile a turn, so each takes as many tiles whatever they cost;
+    # on the work clock a node whose tiles are cheap asks for the next one sooner.
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    spread = {}
+    for clock in ("rounds", "work"):
+        outs = []
+        *_, nodes, _ = render_mesh(scene, 2, 2, 0, 64, 64, clock=clock, outcome=outs,
+                                   mode="image", tiles="dynamic", tile=8, buffer=1)  # fmt: skip
+        costs = np.array([n.cost for n in nodes], float)
+        spread[clock] = costs.max() / costs.mean()
+        batches = [n.batches for n in nodes]
+        if clock == "work":
+            assert len(set(batches)) > 1  # nodes took different numbers of tiles
+    assert spread["work"] < spread["rounds"]
+    assert spread["work"] < 1.05

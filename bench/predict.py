@@ -58,7 +58,8 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
 
     image = ImageSpec(width=size, height=size)
     # tiles (and stealing's chunks) as bench.mesh's 32 px at 768 px (576 tiles), but at
-    # least TILES_PER_NODE a node: 1,024 tiles leave a 16x16 mesh 4 each, too few to deal out
+    # least TILES_PER_NODE a node where 2 px tiles allow it (a 16x16 mesh of 128 px: 16 a
+    # node): 1,024 tiles left a 16x16 mesh 4 each, too few to deal out
     tile = max(2, min(size // 24, int(size / math.sqrt(TILES_PER_NODE * rows * cols))))
     auto = overlap == "auto"
     mesh = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, tile=tile, **plan)

@@ -305,7 +305,10 @@ class Scheduler:
         self.term = Termination(node)
         self.state = State.DOWNLOAD
         self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
-        self.incoming: deque = deque()
+        # Queued rays by the engine that takes them (None: this node's own), and the engines
+        # with rays queued, first come first: one batch traces one engine's parts.
+        self.queued: dict[int | None, deque] = {}
+        self.takers: deque = deque()
         self.incoming_rays = 0
         self.primaries = Primaries()
         self.in_flight = 0
@@ -321,7 +324,11 @@ class Scheduler:
         driver should stop reading until `may_read`."""
         if message:
             self.term.on_received()
-        self.incoming.append((taker, rays))
+        taker = None if taker == self.node else taker
+        if not self.queued.get(taker):
+            self.queued[taker] = deque()
+            self.takers.append(taker)
+        self.queued[taker].append(rays)
         self.incoming_rays += len(rays)
         return self.incoming_rays > self.incoming_high
 
@@ -354,21 +361,24 @@ class Scheduler:
         else:
             self.asked.add(giver)
 
+    @property
+    def incoming(self) -> bool:
+        """Rays are queued to trace here."""
+        return bool(self.takers)
+
     def _passed_batch(self) -> Trace:
-        """The first queued part's taker's parts, merged up to PASSED_BATCH rays in order: a
+        """The first queued engine's parts in order, merged up to PASSED_BATCH rays: a
         message holds the rays one batch of a neighbour sent here, often a few dozen, and
         every batch costs a kernel call, its scratch and its routing whatever its size."""
-        taker, first = self.incoming.popleft()
-        parts, rest, n = [first], deque(), len(first)
-        while self.incoming and n < PASSED_BATCH:
-            part = self.incoming.popleft()
-            if part[0] == taker and n + len(part[1]) <= PASSED_BATCH:
-                parts.append(part[1])
-                n += len(part[1])
-            else:
-                rest.append(part)
-        rest.extend(self.incoming)
-        self.incoming = rest
+        taker = self.takers.popleft()
+        queue = self.queued[taker]
+        parts = [queue.popleft()]
+        n = len(parts[0])
+        while queue and n + len(queue[0]) <= PASSED_BATCH:
+            parts.append(queue.popleft())
+            n += len(parts[-1])
+        if queue:
+            self.takers.append(taker)  # the rest after the others' turns
         self.incoming_rays -= n
         self.in_flight += 1
         return Trace(parts[0] if len(parts) == 1 else np.concatenate(parts), False, taker)

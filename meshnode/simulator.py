@@ -275,35 +275,37 @@ class _TimedMesh(_Mesh):
         self.clock[n] += units
 
     def run(self) -> Outcome:
-        turns = 0
-        while not all(s.done for s in self.scheds) or self.transit:
+        """Events in time order: every message that arrives no later than the earliest
+        awake node's clock is handed over first (it may wake a node with an earlier
+        clock), then that node acts."""
+        turns, limit = 0, MAX_ROUNDS * len(self.cores)
+        while self.awake or self.transit:
             turns += 1
-            if turns > MAX_ROUNDS:
+            if turns > limit:
                 states = [s.state.name for s in self.scheds]
-                raise RuntimeError(f"simulated mesh did not finish in {MAX_ROUNDS} turns "
+                raise RuntimeError(f"simulated mesh did not finish in {limit} turns "
                                    f"(node states {states})")  # fmt: skip
-            if self.awake:
-                t, _, n = heapq.heappop(self.awake)
-                self._deliver_by(t)
-                if self._act(n):
-                    heapq.heappush(self.awake, (self.clock[n], self.rank[n], n))
-                else:
-                    self.asleep.add(n)
-            elif self.transit:
-                self._deliver_by(self.transit[0][0])
+            if self.transit and (not self.awake or self.transit[0][0] <= self.awake[0][0]):
+                self._deliver_one()
+                continue
+            _, _, n = heapq.heappop(self.awake)
+            if self._act(n):
+                heapq.heappush(self.awake, (self.clock[n], self.rank[n], n))
             else:
-                raise RuntimeError("simulated mesh: every node waits and nothing is in flight")
+                self.asleep.add(n)
+        if not all(s.done for s in self.scheds):
+            states = [s.state.name for s in self.scheds]
+            raise RuntimeError(f"simulated mesh: every node waits and nothing is in flight "
+                               f"(node states {states})")  # fmt: skip
         self._finish()
         return Outcome(self.deposits, self.records, turns, float(self.clock.max()))
 
-    def _deliver_by(self, t: float) -> None:
-        """Hand over every message that has arrived by time t, in order of arrival, waking
-        the nodes they reach."""
-        while self.transit and self.transit[0][0] <= t:
-            message = heapq.heappop(self.transit)[2]
-            self.now, dst = message[0], message[1]
-            if dst in self.asleep:
-                self.asleep.discard(dst)
-                self.clock[dst] = max(self.clock[dst], self.now)
-                heapq.heappush(self.awake, (self.clock[dst], self.rank[dst], dst))
-            self._handle(*message)
+    def _deliver_one(self) -> None:
+        """Hand over the earliest message in flight, waking the node it reaches."""
+        message = heapq.heappop(self.transit)[2]
+        self.now, dst = message[0], message[1]
+        if dst in self.asleep:
+            self.asleep.discard(dst)
+            self.clock[dst] = max(self.clock[dst], self.now)
+            heapq.heappush(self.awake, (self.clock[dst], self.rank[dst], dst))
+        self._handle(*message)

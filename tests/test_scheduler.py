@@ -133,11 +133,10 @@ def test_queued_incoming_messages_are_traced_together_in_order_up_to_a_batch():
         s.rays_in(r)
     first = s.next()
     assert isinstance(first, Trace) and not first.primary and first.taker is None
-    # the third would not fit; the fourth does
-    assert first.rays["pixel"].tolist() == [0] * 30 + [1] * 50 + [3] * 40
+    assert first.rays["pixel"].tolist() == [0] * 30 + [1] * 50  # the third would not fit
     s.batch_done()
     second = s.next()
-    assert second.rays["pixel"].tolist() == [2] * (scheduler.PASSED_BATCH - 50)
+    assert second.rays["pixel"].tolist() == [2] * (scheduler.PASSED_BATCH - 50) + [3] * 40
     assert s.incoming_rays == 0 and not s.incoming
 
 
@@ -146,7 +145,8 @@ def test_rays_queued_for_held_engines_are_merged_per_engine_and_traced_with_it()
     # engine's parts merge into one call, never into another engine's.
     s = tracing(high=10 * scheduler.PASSED_BATCH)
     s.passed_min = 0  # queued rays go before primaries however few
-    parts = [(None, 20), (3, 5), (None, 7), (4, 9), (3, 11)]
+    # None: a neighbour's RAYS message; s.node: this node's own engine, handed back
+    parts = [(None, 20), (3, 5), (s.node, 7), (4, 9), (3, 11)]
     for i, (taker, n) in enumerate(parts):
         r = rays(n)
         r["pixel"] = i

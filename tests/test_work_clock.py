@@ -20,18 +20,31 @@ MODES = [dict(mode="image", tiles="dynamic", tile=5, buffer=2),
          dict(mode="object", steal=True, copies=True, tile=4)]  # fmt: skip
 
 
+@pytest.mark.parametrize("latency", [0, 10, 30_000])
 @pytest.mark.parametrize("plan", MODES, ids=["image-dynamic", "object-steal", "copies"])
-def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan):
+def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan, latency):
+    # latency 30,000 units: longer than any batch here, so rays, tiles and the state packet
+    # are in flight across several batches and overtake each other
     scene = read_nff(spd_scene("rings_s1.nff"))
     ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=2))
     for rows, cols in SHAPES:
         outs = []
-        img, totals, nodes, _ = render_mesh(scene, rows, cols, 30, 30, 26, spp=2,
-                                            clock="work", outcome=outs, **plan)  # fmt: skip
+        img, totals, _, _ = render_mesh(scene, rows, cols, 30, 30, 26, spp=2, clock="work",
+                                            latency=latency, outcome=outs, **plan)  # fmt: skip
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
-        # a node's clock is its work and its waits: the last one ends after the busiest
-        assert outs[0].makespan >= max(n.cost for n in nodes) > 0
+        # every message of the last state's ring took `latency`: the clock saw them
+        assert outs[0].makespan >= rows * cols * latency
+
+
+def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():
+    scene = read_nff(spd_scene("rings_s1.nff"))
+    ref, counts = reference(scene, ImageSpec(width=30, height=26))
+    for delay in [(0, 1, 50), (1, 0, 50)]:
+        img, totals, _, _ = render_mesh(scene, 2, 2, 30, 30, 26, clock="work", latency=100,
+                                        delay=delay, **MODES[1])  # fmt: skip
+        assert {k: totals[k] for k in COUNTS} == counts, delay
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
 
 
 def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(monkeypatch):

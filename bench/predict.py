@@ -42,6 +42,8 @@ MODES = {"object+steal": {"mode": "object", "steal": True},
          "object+steal+copies": {"mode": "object", "steal": True, "copies": True},
          "object+steal+cost+copies": {"mode": "object", "steal": True, "balance": "cost",
                                       "copies": True},
+         "image none": {"mode": "image", "tiles": "none"},
+         "image static": {"mode": "image", "tiles": "static"},
          "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
 
 
@@ -80,7 +82,7 @@ def measured_table(paths: list[Path]) -> dict:
     for r in rows:
         overlap = None
         if r["mode"] == "image":
-            mode = "image dynamic" if r["cuts"] == "dynamic" else None
+            mode = f"image {r['cuts']}" if f"image {r['cuts']}" in MODES else None
         else:
             mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost",
                     "cost": "object+cost", "even+steal+copies": "object+steal+copies",

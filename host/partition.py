@@ -374,12 +374,29 @@ def spread(takers: list[int], plan) -> list[int]:
 
 def tiles(width: int, height: int, plan) -> tuple[list, list]:
     """Image-space rectangles of a width x height sample grid and their nodes: "none", one
-    band of rows a node; "static", near-square tiles of `plan.tile` dealt round-robin."""
+    band of rows a node; "static", near-square tiles of `plan.tile` dealt round-robin
+    (`static_owners`)."""
     if plan.tiles == "none":
         ys = splits(height, plan.nodes)
         return [(0, width, ys[i], ys[i + 1]) for i in range(plan.nodes)], list(range(plan.nodes))
     rects = tile_grid(width, height, plan.tile)
-    return rects, [i % plan.nodes for i in range(len(rects))]
+    return rects, static_owners(-(-width // plan.tile), len(rects), plan.nodes)
+
+
+def static_owners(columns: int, count: int, nodes: int) -> list[int]:
+    """Tiles dealt round-robin in row order; where the tile columns divide the nodes, that
+    gives each node one column of the image (predicted 8x8 on 64 columns: 29-42 against
+    about 60 with dynamic tiles), so there they are dealt round-robin along the
+    anti-diagonals instead: as even a count, every node across the columns. (Where they
+    only share a factor, each node keeps several columns: the anti-diagonals predicted
+    worse there, 4x4 on 26 columns 12.8 against 14.0 on balls.)"""
+    if nodes % columns:
+        return [i % nodes for i in range(count)]
+    i = np.arange(count)
+    order = np.lexsort((i // columns, i // columns + i % columns))  # by diagonal, then row
+    owner = np.empty(count, np.int64)
+    owner[order] = np.arange(count) % nodes
+    return owner.tolist()
 
 
 def tile_grid(width: int, height: int, t: int) -> list[tuple[int, int, int, int]]:

@@ -98,6 +98,23 @@ def test_tiles_cover_every_pixel_exactly_once_and_are_dealt_round_robin():
         assert band_owner == list(range(n)) and sum(y1 - y0 for *_, y0, y1 in bands) == h
 
 
+def test_static_tiles_spread_each_node_over_the_columns_and_rows():
+    # Plain round-robin where the tile columns divide the nodes gave each node one column
+    # of the image; every node must take tiles of many columns, as many as any other +- 1.
+    for columns, rows, n in ((8, 8, 8), (8, 8, 16), (4, 6, 8), (3, 5, 9), (24, 24, 48)):
+        plan = MeshPlan(1, n, mode="image", tile=1)
+        rects, owner = tiles(columns, rows, plan)
+        owner = np.array(owner)
+        counts = np.bincount(owner, minlength=n)
+        assert counts.max() - counts.min() <= 1, (columns, n)
+        xs = np.array([r[0] for r in rects])
+        spread = [len(set(xs[owner == k].tolist())) for k in range(n)]
+        assert min(spread) >= min(columns, rows * columns // n) // 2, (columns, n, spread)
+    # where they do not divide the nodes, plain round-robin stays (each node keeps several)
+    _, owner = tiles(24, 24, MeshPlan(1, 16, mode="image", tile=1))
+    assert owner == [i % 16 for i in range(24 * 24)]
+
+
 def test_every_node_holds_the_whole_scene_and_box():
     scene = read_nff(spd_scene("balls_s1.nff"))
     spec = RenderSpec(ImageSpec(width=16, height=16), plan=MeshPlan(2, 2, mode="image"))

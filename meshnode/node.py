@@ -379,7 +379,8 @@ class NodeCore:
         here with that copy instead. Segments that leave for an engine held here come back
         in `Batch.held`, to be queued and merged with others for the same engine: traced at
         once, each batch's few dozen per engine cost a kernel call apiece (tetra 3x3
-        simulated: 6,854 of a node's 7,137 calls held under 8,192 rays, 60% of its CPU)."""
+        simulated, 384x384 at 32 spp: 593 engine calls, 310 of them under 8,192 rays; 508
+        merged)."""
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             rays = rays.copy()  # the maker's batch stays as made

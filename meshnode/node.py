@@ -32,6 +32,7 @@ from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import Partition, RenderSpec
 from protocols.scene import SceneData, View
+from protocols.topology import Torus
 
 HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
@@ -222,10 +223,24 @@ class NodeCore:
             return Primaries()
         if self.spec.plan.steal:
             side = self.spec.plan.tile
-            return ChunkFeed([c for rect in self.owned for c in spiral_chunks(rect, side)],
-                             lambda chunks: self.rect_batches(chunks[0]),
-                             usable=self._usable())  # fmt: skip
+            chunks = [c for rect in self.owned for c in spiral_chunks(rect, side)]
+            usable = self._usable()
+            return ChunkFeed(self._stealable_last(chunks, usable),
+                             lambda chunks: self.rect_batches(chunks[0]), usable=usable)
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
+
+    def _stealable_last(self, chunks: list, usable) -> list:
+        """Under MeshPlan.copies, the chunks fewest of this node's links could trace first
+        and those most could last (stable, so each kind keeps its spiral order): thieves
+        take from the back, and a node left at the end with chunks only one link holds the
+        engine for finished last while the others idled (tetra 3x3, simulated at 137 spp:
+        the centre node kept 10 of 11 unstarted chunks from its asking links; parallel
+        efficiency 0.948 -> 0.972)."""
+        if usable is None or not chunks:
+            return chunks
+        links = set(Torus(self.spec.plan.rows, self.spec.plan.cols).links(self.node))
+        reach = sum(usable(m, chunks).astype(np.int64) for m in links - {self.node})
+        return [chunks[i] for i in np.argsort(reach, kind="stable").tolist()]
 
     def _usable(self):
         """Under MeshPlan.copies, which chunks a thief can trace itself: those of tiles

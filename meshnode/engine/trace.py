@@ -41,7 +41,7 @@ from meshnode.engine.packet import (
 )
 from meshnode.engine.shade import normals, phong, refract
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
-from meshnode.engine.traverse import box_span, brute_force, walk
+from meshnode.engine.traverse import box_span, brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 
@@ -248,6 +248,9 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
     ghi0 = glo[0] + cell[0] * res[0]
     ghi1 = glo[1] + cell[1] * res[1]
     ghi2 = glo[2] + cell[2] * res[2]
+    glo0, glo1, glo2 = glo[0], glo[1], glo[2]  # the boxes in locals, read once
+    slo0, slo1, slo2 = scene_lo[0], scene_lo[1], scene_lo[2]
+    shi0, shi1, shi2 = scene_hi[0], scene_hi[1], scene_hi[2]
     for i in range(rays.shape[0]):
         r = rays[i]
         so[0, 0], so[0, 1], so[0, 2] = r.o[0], r.o[1], r.o[2]
@@ -275,10 +278,9 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 irx = 1.0 / dx if dx != 0.0 else math.inf
                 iry = 1.0 / dy if dy != 0.0 else math.inf
                 irz = 1.0 / dz if dz != 0.0 else math.inf
-                s0, s1 = box_span(ox, oy, oz, irx, iry, irz, t_lo, t_hi, scene_lo[0],
-                                  scene_lo[1], scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])
-                n0, n1 = box_span(ox, oy, oz, irx, iry, irz, t_lo, t_hi, glo[0], glo[1], glo[2],
-                                  ghi0, ghi1, ghi2)  # fmt: skip
+                s0, s1, n0, n1 = two_spans(ox, oy, oz, irx, iry, irz, t_lo, t_hi, slo0, slo1,
+                                           slo2, shi0, shi1, shi2, glo0, glo1, glo2, ghi0,
+                                           ghi1, ghi2)  # fmt: skip
                 resume = -1.0
                 if s0 > s1:
                     n1 = math.inf  # the segment misses the scene: it ends here, below,

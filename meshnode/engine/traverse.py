@@ -90,6 +90,16 @@ def box_span(ox, oy, oz, rx, ry, rz, t_lo, t_hi, lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @inline
+def _slab(o, r, lo, hi, t0, t1):
+    """[t0, t1] clipped to one axis's slab [lo, hi] (r: the finite reciprocal direction)."""
+    ta = (lo - o) * r
+    tb = (hi - o) * r
+    if ta > tb:
+        ta, tb = tb, ta
+    return max(t0, ta), min(t1, tb)
+
+
+@inline
 def two_spans(ox, oy, oz, rx, ry, rz, t_lo, t_hi, a_lo0, a_lo1, a_lo2, a_hi0, a_hi1, a_hi2,
               b_lo0, b_lo1, b_lo2, b_hi0, b_hi1, b_hi2):  # fmt: skip
     """`box_span` of one segment in two boxes a and b at once, exactly as two calls give
@@ -110,18 +120,8 @@ def two_spans(ox, oy, oz, rx, ry, rz, t_lo, t_hi, a_lo0, a_lo1, a_lo2, a_hi0, a_
             a_out = a_out or o < alo or o > ahi
             b_out = b_out or o < blo or o > bhi
             continue
-        ta = (alo - o) * r
-        tb = (ahi - o) * r
-        if ta > tb:
-            ta, tb = tb, ta
-        a0 = max(a0, ta)
-        a1 = min(a1, tb)
-        ta = (blo - o) * r
-        tb = (bhi - o) * r
-        if ta > tb:
-            ta, tb = tb, ta
-        b0 = max(b0, ta)
-        b1 = min(b1, tb)
+        a0, a1 = _slab(o, r, alo, ahi, a0, a1)
+        b0, b1 = _slab(o, r, blo, bhi, b0, b1)
     if a_out:
         a0, a1 = 1.0, 0.0
     if b_out:

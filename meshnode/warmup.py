@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from meshnode.engine.engine import Variant
+from meshnode.engine.engine import KERNELS, Variant
 from protocols import dtypes
 from protocols.scene import SceneData, View
 
@@ -47,10 +47,12 @@ def variant_scene(variant: Variant) -> SceneData:
     return scene
 
 
-def warmup(variants=(ALL_KINDS,), report=None, common: bool = True) -> float:
+def warmup(variants=(ALL_KINDS,), report=None, common: bool = True,
+           kernels=KERNELS) -> float:  # fmt: skip
     """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
     `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
-    returns the seconds. `report(i, n, name)` is called before each variant."""
+    returns the seconds. `kernels`: which of each variant's (`Engine.warmup`; a node can
+    need any). `report(i, n, name)` is called before each variant."""
     from meshnode.engine import Engine
 
     start = time.perf_counter()
@@ -61,7 +63,7 @@ def warmup(variants=(ALL_KINDS,), report=None, common: bool = True) -> float:
         # The grid's build kernels are typed by the variant too; the tracing kernels hold
         # both structures' code, and the hierarchy's build kernels are the same for all.
         scene = variant_scene(variant)
-        Engine(scene, structure="grid").warmup()
+        Engine(scene, structure="grid").warmup(kernels)
         if i == 0:
             Engine(scene, structure="bvh")
     if common:

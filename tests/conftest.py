@@ -51,10 +51,10 @@ WARM_SCENES = ("balls_s1.nff", "tetra_s1.nff", "teapot_s1.nff", "rings_s1.nff", 
                "gears_s1.nff", "mount_s1.nff")  # fmt: skip
 
 
-def example_variants() -> set:
-    """The kernel variants of the README example's engines: one node's, and each node's of
-    the 2x2 object-space mesh that subprocess tests (live view, Ctrl-C) render it on within
-    short deadlines; a node compiling its variant there would miss them."""
+def example_variants() -> tuple[set, set]:
+    """The kernel variants of the README example's engines: (one node's, those of the nodes
+    of the 2x2 object-space mesh that subprocess tests (live view, Ctrl-C) render it on
+    within short deadlines; a node compiling its variant there would miss them)."""
     from host.nff import read_nff
     from host.partition import partition, subset
     from meshnode.engine.engine import variant_of
@@ -62,30 +62,34 @@ def example_variants() -> set:
     from protocols.render import MeshPlan, RenderSpec
 
     scene = read_nff(EXAMPLE)
-    found = {variant_of(build_tables(scene))}
+    nodes = set()
     for size in ((40, 30), (None, None)):
         image = ImageSpec(width=size[0], height=size[1]).sized(scene.view)
         part, keep = partition(scene, RenderSpec(image, plan=MeshPlan(2, 2, mode="object")))
-        found |= {variant_of(build_tables(subset(scene, keep[n]))) for n in range(part.nodes)}
-    return found
+        nodes |= {variant_of(build_tables(subset(scene, keep[n]))) for n in range(part.nodes)}
+    return {variant_of(build_tables(scene))}, nodes
 
 
 def warm_jobs() -> list:
-    """What the session compiles up front, heaviest first: the all-kinds variant, the common
-    kernels (eye rays, routing, camera), then the SPD scenes' variants (when present) and
-    the README example's (`example_variants`)."""
+    """What the session compiles up front, heaviest first: the all-kinds variant's every
+    kernel, the common kernels (eye rays, routing, camera), then the one-node and mesh-node
+    kernels of the SPD scenes' variants (when present) and the README example's, and the
+    mesh-node kernel of its 2x2 nodes' (`example_variants`). The probe's kernel of other
+    variants compiles where a test focuses on them (`Engine.warmup`: kernels apiece)."""
     from meshnode.engine.engine import variant_of
     from meshnode.engine.tables import build_tables
     from meshnode.warmup import ALL_KINDS, warmup
 
     jobs = [lambda: warmup([ALL_KINDS], common=False), lambda: warmup([], common=True)]
-    found = example_variants()
+    whole, nodes = example_variants()
     if SCENES.exists():
         from host.nff import read_nff
 
-        found |= {variant_of(build_tables(read_nff(SCENES / n))) for n in WARM_SCENES
+        whole |= {variant_of(build_tables(read_nff(SCENES / n))) for n in WARM_SCENES
                   if (SCENES / n).exists()}  # fmt: skip
-    jobs += [lambda v=v: warmup([v], common=False) for v in sorted(found - {ALL_KINDS})]
+    kernels = {v: ("trace", "passing") for v in whole - {ALL_KINDS}}
+    kernels.update({v: ("passing",) for v in nodes - whole - {ALL_KINDS}})
+    jobs += [lambda v=v: warmup([v], common=False, kernels=kernels[v]) for v in sorted(kernels)]
     return jobs
 
 

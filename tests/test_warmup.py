@@ -70,3 +70,30 @@ def test_a_render_in_a_fresh_process_after_warmup_compiles_nothing():
                        timeout=600)  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert r.stdout.split()[-1] == "0", r.stdout
+
+
+def test_an_engine_warms_only_the_kernel_it_traces_with(monkeypatch):
+    """A node compiles its own tracing kernel, not the variant's three (tens of seconds each
+    on a cold cache): one node's where its box holds the scene, a mesh node's where it does
+    not, and the probe only the nearest-hit kernel."""
+    import pytest
+
+    from meshnode.engine import Engine
+    from meshnode.warmup import ALL_KINDS
+
+    scene = variant_scene(ALL_KINDS)
+    whole = Engine(scene)
+    part = Engine(scene, box=((-1, -1, -1), (0, 0, 0)), scene_box=((-5, -5, -5), (5, 5, 5)))
+    called = []
+    for engine, runs in ((whole, "trace"), (part, "trace_passing")):
+        called.clear()
+        for name in ("trace", "trace_passing", "first_hits"):
+            monkeypatch.setattr(engine, name, lambda *a, name=name: called.append(name))
+        engine.warmup()
+        assert called == [runs]
+        called.clear()
+        engine.warmup(["probe"])
+        assert called == ["first_hits"]
+        assert engine.compiled
+    with pytest.raises(ValueError, match="unknown kernels \\['bvh'\\]"):
+        whole.warmup(["bvh"])

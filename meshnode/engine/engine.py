@@ -32,6 +32,9 @@ from protocols.spec import default
 # Primitive kinds in local-id order, as `build_tables` names them in `Tables.kinds` (kept here:
 # a change in tables.py, which kernels import, empties everyone's kernel cache).
 KINDS = ("spheres", "triangles", "polygons", "cones")
+# What `Engine.warmup` compiles, one numba specialisation each: one node's tracing kernel, a
+# mesh node's (segments clipped to its box, those leaving it returned), the probe's nearest hits.
+KERNELS = ("trace", "passing", "probe")
 
 
 class Variant(NamedTuple):
@@ -220,25 +223,46 @@ class Engine:
         return f"{variant_of(self.tables).name}/{storage}"
 
     @property
-    def compiled(self) -> bool:
-        """Whether this variant's kernels are in the disk cache already (a warmup marked
-        them), so `warmup` loads instead of compiling: callers say so on a first run."""
-        return kernelcache.is_warm(variant_of(self.tables).name)
+    def runs(self) -> tuple[str, ...]:
+        """The one tracing kernel of `KERNELS` this engine runs (`trace_node` picks it): one
+        node's where its box holds the whole scene, else a mesh node's."""
+        return ("trace",) if self.holds_scene else ("passing",)
 
-    def warmup(self) -> float:
-        """Compile (or load from the disk cache) this variant's kernels, single-node and mesh
-        node, on a one-ray batch, so tracing time excludes compilation; returns the seconds."""
+    @property
+    def compiled(self) -> bool:
+        """Whether the kernels this engine runs are in the disk cache already (a warmup marked
+        them), so `warmup` loads instead of compiling: callers say so on a first run."""
+        return all(kernelcache.is_warm(self._mark(k)) for k in self.runs)
+
+    def _mark(self, kernel: str) -> str:
+        return f"{variant_of(self.tables).name}/{kernel}"
+
+    def warmup(self, kernels=None) -> float:
+        """Compile (or load from the disk cache) kernels of this variant on a one-ray batch, so
+        tracing time excludes compilation; returns the seconds. `kernels`: names from
+        `KERNELS`; default `runs`, the one this engine traces with. Each is a numba
+        specialisation of tens of seconds cold (a variant's three took 37 s, a mesh node
+        runs one), so a node, the probe and one node each compile only their own."""
         start = time.perf_counter()
+        kernels = self.runs if kernels is None else tuple(kernels)
+        unknown = set(kernels) - set(KERNELS)
+        if unknown:
+            raise ValueError(f"unknown kernels {sorted(unknown)}: choose from {KERNELS}")
         ray = np.zeros(1, RAY)
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = math.inf
         ray["origin"] = -1
         ray["depth"] = 1
-        self.trace(ray)
-        self.trace_node(ray)
-        self.skip_empty(ray)
-        self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
-        kernelcache.mark_warm(variant_of(self.tables).name)
+        if "trace" in kernels:
+            self.trace(ray)
+        if "passing" in kernels:
+            self.trace_passing(ray)
+        self.skip_empty(ray)  # one kernel for all variants: object-space eye rays call it
+        if "probe" in kernels:
+            self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+        kernelcache.mark_warm(variant_of(self.tables).name)  # its grid's kernels too
+        for k in kernels:
+            kernelcache.mark_warm(self._mark(k))
         self.stats["kernel_load_seconds"] = seconds = time.perf_counter() - start
         return seconds
 

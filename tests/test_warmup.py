@@ -97,3 +97,32 @@ def test_an_engine_warms_only_the_kernel_it_traces_with(monkeypatch):
         assert engine.compiled
     with pytest.raises(ValueError, match="unknown kernels \\['bvh'\\]"):
         whole.warmup(["bvh"])
+
+
+def test_one_process_at_a_time_compiles_a_variant():
+    """`kernelcache.compiling` holds the cache's lock for one name (others wait on it, then
+    load from disk) and none for another; probed without waiting (a non-blocking lock)."""
+    import fcntl
+
+    import pytest
+
+    from meshnode.engine import kernelcache
+
+    def held(name: str) -> bool:
+        with open(kernelcache.lock_path(name), "a") as probe:
+            try:
+                fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(probe, fcntl.LOCK_UN)
+            return False
+
+    with kernelcache.compiling("test-variant-a"):
+        assert held("test-variant-a")
+        with kernelcache.compiling("test-variant-b"):  # another name: not blocked
+            assert held("test-variant-b")
+    assert not held("test-variant-a") and not held("test-variant-b")
+    with pytest.raises(RuntimeError, match="compile failed"), \
+            kernelcache.compiling("test-variant-a"):  # fmt: skip
+        raise RuntimeError("compile failed")
+    assert not held("test-variant-a")  # released on an error too

@@ -3,9 +3,15 @@ seconds) from a later one (they load, about a second), and for checking that a w
 nothing to compile. The cache folder itself is chosen in `jit.py`; this module stays out of
 the hash that names it, so it can change without a recompile."""
 
+import contextlib
 import hashlib
 import sys
 from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; processes there may compile the same
+    fcntl = None
 
 import numba
 
@@ -33,6 +39,33 @@ def mark_warm(name: str) -> None:
         _marker(name).touch()
     except OSError:
         pass
+
+
+def lock_path(name: str) -> Path:
+    """The file `compiling(name)` locks, beside the warm markers."""
+    return _marker(name).parent.parent / "lock" / _marker(name).name
+
+
+@contextlib.contextmanager
+def compiling(name: str):
+    """Hold this cache folder's lock for the kernels named `name` while they compile:
+    processes sharing the cache that need the same variant (a local mesh's nodes, a machine's
+    test workers) compile it once and the others wait, then load it from disk; nine nodes of
+    a 3x3 mesh otherwise compile it nine times over on the same cores. Best effort: where
+    no lock can be taken (a read-only cache, no fcntl) each compiles its own."""
+    path = lock_path(name)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path, "a")  # held for the block: the lock goes with it
+    except OSError:
+        handle = None
+    try:
+        if handle is not None and fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)  # released on close, or when the holder dies
+        yield
+    finally:
+        if handle is not None:
+            handle.close()
 
 
 def kernels_compiled() -> int:

@@ -233,7 +233,11 @@ class Engine:
     def compiled(self) -> bool:
         """Whether the kernels this engine runs are in the disk cache already (a warmup marked
         them), so `warmup` loads instead of compiling: callers say so on a first run."""
-        return all(kernelcache.is_warm(self._mark(k)) for k in self.runs)
+        return self._warm(self.runs)
+
+    def _warm(self, kernels) -> bool:
+        """Whether each of `kernels` of this variant was marked warm in the disk cache."""
+        return all(kernelcache.is_warm(self._mark(k)) for k in kernels)
 
     def _mark(self, kernel: str) -> str:
         return f"{variant_of(self.tables).name}/{kernel}"
@@ -249,7 +253,7 @@ class Engine:
         unknown = set(kernels) - set(KERNELS)
         if unknown:
             raise ValueError(f"unknown kernels {sorted(unknown)}: choose from {KERNELS}")
-        cold = not all(kernelcache.is_warm(self._mark(k)) for k in kernels)
+        cold = not self._warm(kernels)
         with kernelcache.compiling(variant_of(self.tables).name) if cold else nullcontext():
             self._run_once(kernels)
         self.stats["kernel_load_seconds"] = seconds = time.perf_counter() - start

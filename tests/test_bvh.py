@@ -153,7 +153,9 @@ def test_packets_of_rays_find_exactly_what_single_rays_find(name):
 def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(name):
     """On a node holding half the scene, packets and single rays give the same colours,
     counts and rays passed on, to the bit: a packet's hit beyond the box is dropped as a
-    single walk's is, and rays starting outside the box go on before either is read."""
+    single walk's is, and rays starting outside the box go on before either is read. The
+    batch leads with eye rays whose directions have components exactly 0 (walked in packets,
+    whose reciprocals their spans reuse: inf there, as a division-free span must give)."""
     from host.partition import holders, subset
     from meshnode.engine.trace import owners
 
@@ -168,6 +170,12 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
     engine, single = Engine(held, **options), Engine(held, packets=False, **options)
     assert engine.stats["packet"] == 8 and single.stats["packet"] == 1
     rays = mixed_batch(scene, lo, hi, np.random.default_rng(3))
+    axial = rays[:96].copy()
+    axial["d"][:32, 0] = 0.0
+    axial["d"][32:64, 1] = 0.0
+    axial["d"][64:, :2] = 0.0
+    axial["d"] /= np.linalg.norm(axial["d"], axis=1)[:, None]
+    rays = np.concatenate([axial, rays])
     owners(rays, lo[None], box_hi[None])  # eye rays start where they enter the box, as made
     rgb_ref, counts_ref, passed_ref = single.trace_node(rays)
     rgb, counts, passed = engine.trace_node(rays)

@@ -1,0 +1,141 @@
+"""Object-space kernel benchmark: what an object-space mesh's tracing costs per unit of work
+against one node's, free of process and machine noise. A mesh is simulated in this process
+(`meshnode.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
+every engine call its nodes make is kept (engine and rays), and so are one node's calls for
+the same render; then both sets are traced again on this thread in turns, `--rounds` times.
+
+    python -m bench.object_kernel [--scenes DIR] [--only tetra] [--mesh 3x3] [--overlap 100]
+                                  [--size 768] [--spp 4] [--rounds 15] [--json FILE]
+
+Printed per scene: one node's and the mesh's tracing CPU seconds (best round), the mesh's
+work units over one node's (`meshnode.stats.work_units`: what the model counts), and the
+mesh's CPU over one node's (median over rounds, with quartiles: each round's two sides
+share the same spell of this machine's speed); then per engine its calls, rays, CPU
+seconds, and CPU nanoseconds per work unit beside one node's. A mesh CPU ratio above its
+work ratio is the cost the mesh kernel adds per unit (box spans, occupancy look-ups, rays
+written out). Run pinned to one core (`taskset -c 1`) for steadier figures.
+"""
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
+
+# Counted once where they happen, on one node and on a mesh alike.
+ONCE = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_rays")
+
+
+def captured(scene, rows: int, cols: int, size: int, spp: int, overlap: float, plan: dict):
+    """(engine, rays, mesh kernel?) of every engine call of a simulated render."""
+    from host.partition import subset
+    from host.plan import plan_render
+    from meshnode.engine import engine as engine_module
+    from meshnode.simulator import simulate
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    calls = []
+    trace = engine_module.Engine._trace
+
+    def keep(engine, rays, out_rgb, out):
+        calls.append((engine, rays.copy(), out is not None))
+        return trace(engine, rays, out_rgb, out)
+
+    image = ImageSpec(width=size, height=size, spp=spp)
+    mesh = MeshPlan(rows, cols, overlap, tile=max(2, size // 24), **plan)
+    planned = plan_render(scene, image, EngineSpec(), mesh)
+    engine_module.Engine._trace = keep
+    try:
+        simulate([subset(scene, k) for k in planned.holders], planned.spec, planned.partition)
+    finally:
+        engine_module.Engine._trace = trace
+    return calls
+
+
+def replay(calls, per_engine: dict | None = None):
+    """(tracing CPU seconds, work units, counts) of tracing every call again; with
+    `per_engine`, each engine's [CPU, units] added there."""
+    from collections import Counter
+
+    from meshnode.stats import work_units
+
+    cpu, units, counts = 0.0, 0, Counter()
+    for engine, rays, passing in calls:
+        start = time.thread_time()
+        done = (engine.trace_passing(rays) if passing else engine.trace_node(rays))[1]
+        spent = time.thread_time() - start
+        cpu += spent
+        units += work_units(done)
+        counts.update({k: done[k] for k in ONCE})
+        if per_engine is not None:
+            row = per_engine.setdefault(id(engine), [engine, 0, 0, 0.0, 0])
+            row[1] += 1
+            row[2] += len(rays)
+            row[3] += spent
+            row[4] += work_units(done)
+    return cpu, units, counts
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.object_kernel", description=__doc__.split("\n\n")[0])
+    add_scenes_option(p)
+    p.add_argument("--only", default="tetra")
+    p.add_argument("--mesh", default="3x3", help="rows x cols")
+    p.add_argument("--overlap", type=float, default=100.0)
+    p.add_argument("--size", type=int, default=768)
+    p.add_argument("--spp", type=int, default=4)
+    p.add_argument("--rounds", type=int, default=15)
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    from host.nff import read_nff
+
+    rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
+    plan = {"mode": "object", "steal": True, "balance": "cost", "copies": True}
+    print(f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
+          f"{args.overlap:g} (cost cuts, stealing, copies), simulated; {args.rounds} rounds "
+          f"in turns on one thread")  # fmt: skip
+    rows, bad = [], []
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        one = captured(scene, 1, 1, args.size, args.spp, args.overlap, {})
+        mesh = captured(scene, rows_, cols, args.size, args.spp, args.overlap, plan)
+        ratios, best_one, best_mesh = [], None, None
+        for _ in range(args.rounds):
+            c1, w1, n1 = replay(one)
+            cm, wm, nm = replay(mesh)
+            ratios.append(cm / c1)
+            best_one = c1 if best_one is None else min(best_one, c1)
+            best_mesh = cm if best_mesh is None else min(best_mesh, cm)
+        if n1 != nm:
+            bad.append(f"{name}: one node {dict(n1)}, mesh {dict(nm)}")
+        q1, median, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+        per_engine: dict = {}
+        replay(mesh, per_engine)
+        print(f"\n== {name}: one node {best_one:.3f} s, mesh {best_mesh:.3f} s (best rounds); "
+              f"work mesh / one {wm / w1:.3f}; CPU mesh / one median {median:.3f} "
+              f"(quartiles {q1:.3f}-{q3:.3f})")  # fmt: skip
+        print(f"{'engine':>8} {'kernel':>7} {'calls':>6} {'rays':>9} {'CPU s':>7} {'ns/unit':>8}")
+        engines = []
+        for i, (engine, calls, n_rays, cpu, units) in enumerate(per_engine.values()):
+            kernel = "one" if engine.holds_scene else "mesh"
+            ns = 1e9 * cpu / max(units, 1)
+            engines.append({"kernel": kernel, "calls": calls, "rays": n_rays, "cpu_seconds": cpu,
+                            "work_units": units})  # fmt: skip
+            print(f"{i:>8} {kernel:>7} {calls:>6} {n_rays:>9} {cpu:>7.3f} {ns:>8.2f}")
+        print(f"{'one node':>8} {'one':>7} {len(one):>6} {sum(len(c[1]) for c in one):>9} "
+              f"{c1:>7.3f} {1e9 * c1 / w1:>8.2f}")  # fmt: skip
+        rows.append({"scene": name, "mesh": args.mesh, "one_cpu_seconds": best_one,
+                     "mesh_cpu_seconds": best_mesh, "work_ratio": wm / w1,
+                     "cpu_ratio_median": median, "cpu_ratio_quartiles": [q1, q3],
+                     "engines": engines})  # fmt: skip
+    return finish(rows, args.json, bad, "MISMATCH (ray counts) between the mesh and one node:\n",
+                  "the mesh's calls counted the same hits, escapes and shadow rays as one node's")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

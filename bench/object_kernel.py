@@ -69,15 +69,16 @@ def replay(calls, per_engine: dict | None = None):
         start = time.thread_time()
         done = (engine.trace_passing(rays) if passing else engine.trace_node(rays))[1]
         spent = time.thread_time() - start
+        done_units = work_units(done)
         cpu += spent
-        units += work_units(done)
+        units += done_units
         counts.update({k: done[k] for k in ONCE})
         if per_engine is not None:
             row = per_engine.setdefault(id(engine), [engine, 0, 0, 0.0, 0])
             row[1] += 1
             row[2] += len(rays)
             row[3] += spent
-            row[4] += work_units(done)
+            row[4] += done_units
     return cpu, units, counts
 
 

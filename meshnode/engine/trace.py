@@ -287,11 +287,13 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             t_lo, t_hi = st[sp, 0], st[sp, 1]
             kind, depth, origin, light = sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3]
             shadow = kind == SHADOW
+            # the batch's ray itself, walked in a packet: its hit and reciprocals are known
+            in_packet = packets and root and not shadow and first_u[i] > -2
             ray_id += 1
             counters[SEGMENTS] += 1
             clear = False
             if out is not None:
-                if packets and root and not shadow and first_u[i] > -2:
+                if in_packet:
                     irx = _span_reciprocal(dx, first_r[i, 0])  # divided in the packet
                     iry = _span_reciprocal(dy, first_r[i, 1])
                     irz = _span_reciprocal(dz, first_r[i, 2])
@@ -321,8 +323,8 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     continue
             if clear:
                 t, u = math.inf, -1  # only empty voxels lie ahead
-            elif packets and root and not shadow and first_u[i] > -2:
-                t, u = first_t[i], first_u[i]  # the batch's ray itself: walked in a packet
+            elif in_packet:
+                t, u = first_t[i], first_u[i]
             elif brute:
                 t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
                                    gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip

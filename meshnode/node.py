@@ -26,7 +26,6 @@ from meshnode.adaptive import (
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
-from meshnode.engine.trace import owners
 from meshnode.scheduler import ChunkFeed, Primaries, TileFeed, spiral_order
 from meshnode.termination import State
 from protocols.dtypes import DEPOSIT, RAY
@@ -199,7 +198,7 @@ class NodeCore:
         ray = np.zeros(1, RAY)
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
-        owners(ray, *self.cells)
+        self.engine.routed(ray, self.cells, True, self.node)
         if self.spec.camera is not None:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
             camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
@@ -386,8 +385,8 @@ class NodeCore:
     def trace(self, rays: np.ndarray, primary: bool = False, taker: int | None = None) -> Batch:
         """Trace a batch here, with the engine of node `taker` (this node's own when None, or
         a copy it holds: MeshPlan.copies); in object space a batch of primary rays first
-        sends each ray to the node whose cell holds its start (`takers`), as every passed
-        segment goes: a ray's segments then do not depend on the node that made it (a
+        sends each ray to the node whose cell holds its start (`Engine.routed`), as every
+        passed segment goes: a ray's segments then do not depend on the node that made it (a
         stolen chunk's eye rays were traced from the thief's box where they started in both,
         and round-off at box edges then changed a few trees in millions: 11 rays on a
         mount_s1 2x2 at 10 spp). Rays for a neighbour whose copy this node holds are traced
@@ -398,16 +397,11 @@ class NodeCore:
         merged)."""
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
-            rays = rays.copy()  # the maker's batch stays as made
-            self.engine.skip_empty(rays)  # from where its work starts (the map's first voxel)
-            dest = self.takers(rays)
-            here = (dest == self.node) | (dest < 0)  # < 0: enters no cell, ends here
-            if not here.all():
-                # grouped by this dest: owners() moves t_min in a sliver between boxes, so a
-                # second call (route) could give another box
-                todo = _group(rays[~here], dest[~here])
-                if here.any():
-                    todo[self.node] = rays[here]
+            # from where each ray's work starts (the map's first occupied voxel); a ray that
+            # enters no cell ends here. Grouped in this one call: owners() moves t_min in a
+            # sliver between boxes, so a second call could give another box.
+            out, starts, _ = self.engine.routed(rays, self.cells, True, self.node)
+            todo = _runs(out, starts, last=self.node)
         outgoing = {d: [g] for d, g in todo.items() if d != self.node and d not in self.copies}
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))
         held: dict[int, list] = {}
@@ -495,20 +489,16 @@ class NodeCore:
                                    index)  # fmt: skip
         return idx[rect >= 0], rect[rect >= 0]
 
-    def takers(self, rays: np.ndarray) -> np.ndarray:
-        """The node that takes each ray on from its t_min: the one whose cell holds it there
-        (or, from outside the scene, where it enters), not any box that holds it: boxes
-        overlap, cells tile the scene (`owners` moves t_min to that entry; -1: none ahead)."""
-        return owners(rays, *self.cells)
-
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
-        """Rays grouped by the node that takes them on."""
+        """Rays grouped by the node that takes each on from its t_min: the one whose cell
+        holds it there (or, from outside the scene, where it enters), not any box that holds
+        it: boxes overlap, cells tile the scene (`owners`, which moves t_min to that entry)."""
         if len(rays) == 0:
             return {}
-        dest = self.takers(rays)
-        if (dest < 0).any():
-            raise RuntimeError(f"node {self.node}: {int((dest < 0).sum())} rays have no owner box")
-        return _group(rays, dest)
+        out, starts, lost = self.engine.routed(rays, self.cells, False)
+        if lost:
+            raise RuntimeError(f"node {self.node}: {lost} rays have no owner box")
+        return _runs(out, starts)
 
     def finished_pixels(self):
         """Adaptive sampling, once every deposit is in: DEPOSIT batches of this node's
@@ -535,6 +525,16 @@ def _once_per_node(deposits: np.ndarray, idx: np.ndarray, node: np.ndarray) -> d
 def _joined(parts: dict[int, list]) -> dict[int, np.ndarray]:
     """Each node's list of record arrays as one array."""
     return {n: g[0] if len(g) == 1 else np.concatenate(g) for n, g in parts.items()}
+
+
+def _runs(rays: np.ndarray, starts: np.ndarray, last: int | None = None) -> dict:
+    """The non-empty runs of `Engine.routed` (views) by node, in node order with `last` at
+    the end: a primary batch's own rays are traced after those it sends on, as before."""
+    bounds = starts.tolist()
+    nodes = [n for n in range(len(bounds) - 1) if bounds[n + 1] > bounds[n] and n != last]
+    if last is not None and bounds[last + 1] > bounds[last]:
+        nodes.append(last)
+    return {n: rays[bounds[n] : bounds[n + 1]] for n in nodes}
 
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:

@@ -23,6 +23,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.occupancy import occupancy_arrays, skip_empty
+from meshnode.engine.trace import owners
 from meshnode.node import NodeCore, per_cell
 from protocols.dtypes import DEPOSIT
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
@@ -113,8 +114,38 @@ def test_an_eye_ray_goes_to_the_cell_where_it_enters_the_scene(overlap):
     expected = entry_cells(rays, part)
     clear = expected >= 0
     assert clear.sum() > 0.9 * len(rays)
-    assert np.array_equal(core.takers(rays)[clear], expected[clear])
+    out, starts, lost = core.engine.routed(rays, core.cells, False)
+    taker = np.repeat(np.arange(4), np.diff(starts))[np.argsort(out["pixel"])]
+    assert lost <= (~clear).sum() and np.array_equal(taker[clear], expected[clear])
     assert np.bincount(expected[clear], minlength=4).min() > 0.05 * clear.sum()
+
+
+@pytest.mark.parametrize("name", ["teapot_s1.nff", "tetra.nff"])
+def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(name):
+    """`Engine.routed` does in one pass what a node did in five (copy, `skip_empty`,
+    `owners`, a stable sort by node, a split): the same records, the same t_min, each
+    node's run in the order the rays came; rays no cell takes join the fallback's run; the
+    batch itself is left as it was."""
+    scene = read_nff(spd_scene(name))
+    spec = RenderSpec(ImageSpec(width=64, height=48, spp=2).sized(scene.view),
+                      plan=MeshPlan(3, 3, 100))  # fmt: skip
+    part, keep = partition(scene, spec)
+    core = NodeCore(4, subset(scene, keep[4]), spec, part)
+    rays = eye_rays(scene.view, spec.image)
+    rays["t_max"][::7] = rays["t_min"][::7]  # ends before any cell: taken by none
+    made = rays.copy()
+    expected = rays.copy()
+    core.engine.skip_empty(expected)
+    dest = owners(expected, *core.cells)
+    none = dest < 0
+    assert none[::7].all() and len(np.unique(dest[~none])) > 3
+    dest[none] = 7
+    order = np.argsort(dest, kind="stable")
+    out, starts, lost = core.engine.routed(rays, core.cells, True, 7)
+    assert out.tobytes() == expected[order].tobytes()
+    assert np.array_equal(starts, np.concatenate(([0], np.cumsum(np.bincount(dest, minlength=9)))))
+    assert lost == none.sum() and rays.tobytes() == made.tobytes()
+    assert core.engine.routed(rays, core.cells, False)[2] == lost  # refused by `route`
 
 
 @pytest.mark.parametrize("name", ["teapot_s1.nff", "balls_s2.nff"])

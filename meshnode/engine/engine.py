@@ -23,7 +23,7 @@ from meshnode.engine.grid import box_only, build_grid
 from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
 from meshnode.engine.packet import PACKET
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
-from meshnode.engine.trace import first_hits, trace_batch
+from meshnode.engine.trace import first_hits, routed, trace_batch
 from meshnode.heap import keep_freed_memory
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
@@ -276,6 +276,13 @@ class Engine:
         kernelcache.mark_warm(variant_of(self.tables).name)  # its grid's kernels too
         for k in kernels:
             kernelcache.mark_warm(self._mark(k))
+
+    def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1):
+        """(rays regrouped by the cell that takes each on, runs' starts, rays no cell takes)
+        for `cells` = (los, his), with `skip` from where each ray's work starts on the
+        scene's occupancy map (`meshnode.engine.trace.routed`); `rays` stay as they were."""
+        return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy,
+                      *cells)  # fmt: skip
 
     def skip_empty(self, rays: np.ndarray) -> None:
         """Move each RAY record's t_min on to the first occupied voxel of the scene's

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine.counters import OCC_STEPS
-from meshnode.engine.jit import kernel, leaf
+from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.traverse import _region_exit, box_span
 from protocols.render import EVERYWHERE
 
@@ -153,12 +153,26 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
     return found
 
 
+@inline
+def work_start(ox, oy, oz, dx, dy, dz, rx, ry, rz, t_min, t_max, scene_lo, scene_hi, lo, cell,
+               res, clear, counters):  # fmt: skip
+    """t_min moved on to the first occupied voxel the ray meets inside the scene's box (t_min
+    itself where it misses the box or meets none); rx, ry, rz: 1 / direction (inf for 0)."""
+    s0, s1 = box_span(ox, oy, oz, rx, ry, rz, t_min, t_max, scene_lo[0], scene_lo[1],
+                      scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])  # fmt: skip
+    if s0 > s1:
+        return t_min
+    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear,
+                       counters)  # fmt: skip
+    return t if t < INF and t > t_min else t_min
+
+
 @kernel
 def skip_empty(rays, scene_lo, scene_hi, lo, cell, res, clear, counters):
     """Move each ray's t_min on to the first occupied voxel it meets inside the scene's box
-    (where it misses the box or meets none, t_min stays): an eye ray then goes first to the
-    node whose cell holds the space where its work starts, not to the one whose cell it only
-    crosses on the way in (the same segments a node makes when it passes a segment on)."""
+    (`work_start`): an eye ray then goes first to the node whose cell holds the space where
+    its work starts, not to the one whose cell it only crosses on the way in (the same
+    segments a node makes when it passes a segment on)."""
     for i in range(rays.shape[0]):
         r = rays[i]
         ox, oy, oz = r.o[0], r.o[1], r.o[2]
@@ -166,11 +180,5 @@ def skip_empty(rays, scene_lo, scene_hi, lo, cell, res, clear, counters):
         rx = 1.0 / dx if dx != 0.0 else INF
         ry = 1.0 / dy if dy != 0.0 else INF
         rz = 1.0 / dz if dz != 0.0 else INF
-        s0, s1 = box_span(ox, oy, oz, rx, ry, rz, r.t_min, r.t_max, scene_lo[0], scene_lo[1],
-                          scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])  # fmt: skip
-        if s0 > s1:
-            continue
-        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear,
-                           counters)  # fmt: skip
-        if t < INF and t > r.t_min:
-            r.t_min = t
+        r.t_min = work_start(ox, oy, oz, dx, dy, dz, rx, ry, rz, r.t_min, r.t_max, scene_lo,
+                             scene_hi, lo, cell, res, clear, counters)  # fmt: skip

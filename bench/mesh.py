@@ -13,7 +13,9 @@ node's CPU seconds / busiest node's (the best of each; "median": the median over
 of one node's CPU / the busiest node's in the mesh render that followed; "work": the same
 in the engine's work units (`meshnode.stats.work_units`: tests, hierarchy and occupancy
 map steps, segments and segments sent on, each weighted by its fitted cost), which no
-machine noise moves; and for wall time), parallel efficiency (sum of
+machine noise moves; "batch": one node's tracing CPU over the busiest node's CPU for its
+whole batches (routing each ray to the node that takes it on, and its deposits, around the
+kernels: `NodeCore.trace`), in turns; and for wall time), parallel efficiency (sum of
 node CPU / nodes x busiest), imbalance (Tmax - Tmin) / Tmax over node CPU seconds, setup
 seconds (until every node is built and linked), rays passed between nodes, and bytes per link
 (mean and max over directed links). Counts are checked against the single node's. Without
@@ -280,7 +282,7 @@ def main(argv=None) -> int:
               "taking turns with the mesh)")
         print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
               f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
-              f"{'at once':>7} "
+              f"{'at once':>7} {'batch':>5} "
               f"{'work':>5} {'wall':>5} "
               f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
               f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared")  # fmt: skip
@@ -321,6 +323,7 @@ def main(argv=None) -> int:
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {cut} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
+                batch = cpu1 / max(st["busiest_node_batch_cpu_seconds"], 1e-9)
                 together = (statistics.median(w["one_node_cpu_seconds"] / w["busiest_cpu_seconds"]
                                               for w in st["together"])
                             if st["together"] else float("nan"))  # fmt: skip
@@ -335,6 +338,8 @@ def main(argv=None) -> int:
                        "tile": side, "order": order,
                        "wall_seconds": wall, "busiest_cpu_seconds": busiest,
                        "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
+                       "batch_speedup": batch,
+                       "node_batch_cpu_seconds": [n["batch_cpu_seconds"] for n in st["nodes"]],
                        "together": st["together"], "together_speedup": together,
                        "paired_speedups": st["paired_speedups"],
                        "work_speedup": work1 / work_busiest,
@@ -352,6 +357,7 @@ def main(argv=None) -> int:
                 print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
                       f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
                       f"{statistics.median(st['paired_speedups']):>6.2f} {together:>7.2f} "
+                      f"{batch:>5.2f} "
                       f"{row['work_speedup']:>5.2f} "
                       f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
                       f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "

@@ -408,6 +408,8 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "setup_seconds": setup,  # planned, configured, every engine built and link up
         "wall_seconds": wall,
         "busiest_node_cpu_seconds": max(busy),
+        # with routing rays and deposits around the kernels: what a node's batches cost
+        "busiest_node_batch_cpu_seconds": max(s.get("batch_cpu_seconds", 0.0) for s in nodes),
         # sum of node tracing CPU / (nodes x busiest): 1 when every node works as long
         "parallel_efficiency": sum(busy) / (len(busy) * max(busy)) if max(busy) > 0 else 1.0,
         "imbalance": (max(busy) - min(busy)) / max(busy) if max(busy) > 0 else 0.0,

@@ -25,6 +25,7 @@ from meshnode.adaptive import (
 )
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.scheduler import ChunkFeed, Primaries, TileFeed, spiral_order
 from meshnode.termination import State
@@ -106,27 +107,20 @@ def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
 
 
 def per_cell(deposits: np.ndarray, ids_per_cell: int) -> np.ndarray:
-    """A batch's deposits summed per framebuffer cell, under the cell's first id: a pixel's
-    samples travel as one deposit instead of `spp`. Each cell's deposits are summed in the
-    order they came, from zero, as the host's framebuffer sums them (`np.bincount` adds in
-    order), so the image is the same to the bit."""
+    """A batch's deposits summed per framebuffer cell, under the cell's first id
+    (`deposits.cell_sums`: in the order they came, as the host adds them, so the image is
+    the same to the bit); the deposits themselves where no cell has two."""
     if len(deposits) < 2:
         return deposits
-    cells = deposits["pixel"] // ids_per_cell
-    step = cells[1:] != cells[:-1]
-    if bool((cells[1:] >= cells[:-1]).all()):  # eye rays in order: cells in runs
-        first = cells[np.concatenate(([True], step))]
-        inverse = np.concatenate(([0], np.cumsum(step)))
-    else:  # passed and secondary rays: any order
-        first, inverse = np.unique(cells, return_inverse=True)
-    if len(first) == len(cells):
-        return deposits
-    out = np.empty(len(first), DEPOSIT)
-    out["pixel"] = first * ids_per_cell
-    for c in range(3):
-        out["rgb"][:, c] = np.bincount(inverse, weights=deposits["rgb"][:, c],
-                                       minlength=len(first))  # fmt: skip
-    return out
+    out = np.empty(len(deposits), DEPOSIT)
+    n = cell_sums(deposits, ids_per_cell, out)
+    return deposits if n == len(deposits) else out[:n]
+
+
+def lit_deposits(rays: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """DEPOSIT records of the rays that brought any colour (`deposits.lit`)."""
+    out = np.empty(len(rays), DEPOSIT)
+    return out[: lit(rays, rgb, out)]
 
 
 class NodeCore:
@@ -199,6 +193,7 @@ class NodeCore:
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
         self.engine.routed(ray, self.cells, True, self.node)
+        per_cell(lit_deposits(ray, np.ones((1, 3))).repeat(2), 1)
         if self.spec.camera is not None:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
             camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
@@ -395,6 +390,7 @@ class NodeCore:
         once, each batch's few dozen per engine cost a kernel call apiece (tetra 3x3
         simulated, 384x384 at 32 spp: 593 engine calls, 310 of them under 8,192 rays; 508
         merged)."""
+        began = time.thread_time()
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
@@ -414,17 +410,16 @@ class NodeCore:
             rgb, done, passed = engine.trace_node(batch)
             cpu += time.thread_time()
             counts.update(done)
-            lit = np.any(rgb != 0.0, axis=1)
-            d = np.zeros(int(lit.sum()), DEPOSIT)
-            d["pixel"], d["rgb"] = batch["pixel"][lit], rgb[lit]
-            deposits.append(d)
+            deposits.append(lit_deposits(batch, rgb))
             for dest, sent in self.route(passed).items():
                 into = held if dest == self.node or dest in self.copies else outgoing
                 into.setdefault(dest, []).append(sent)
         counts["cpu_seconds"] = cpu
         deposits = (deposits[0] if len(deposits) == 1 else
                     np.concatenate(deposits) if deposits else np.zeros(0, DEPOSIT))  # fmt: skip
-        return Batch(self.pixel_routes(deposits), _joined(outgoing), dict(counts), _joined(held))
+        routes = self.pixel_routes(deposits)
+        counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
+        return Batch(routes, _joined(outgoing), dict(counts), _joined(held))
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning

@@ -40,7 +40,8 @@ class NodeStats:
         self.rays_out: dict[int, int] = defaultdict(int)  # next hop -> rays sent to it
         self.pixel_packets = 0
         self.batches = 0
-        self.cpu = 0.0
+        self.cpu = 0.0  # in the engine's kernels: what one node's tracing CPU compares with
+        self.batch_cpu = 0.0  # ... and routing rays and deposits around them (`NodeCore.trace`)
         self.busy = 0.0
         self.busy_since = 0.0
         self.busy_ended = 0.0
@@ -50,6 +51,7 @@ class NodeStats:
         """A batch finished: its counters, and the primary rays it started here."""
         self.batches += 1
         self.cpu += counts.pop("cpu_seconds")
+        self.batch_cpu += counts.pop("batch_cpu_seconds", 0.0)
         add_counts(self.counts, counts, primaries)
 
     def turn_busy(self) -> None:
@@ -87,6 +89,7 @@ class NodeStats:
             "batches": self.batches,
             "busy_seconds": self.busy,
             "busy_cpu_seconds": self.cpu,
+            "batch_cpu_seconds": self.batch_cpu,
             "idle_seconds": max(elapsed - self.busy, 0.0),
             "links": per_link,
             "peak_rss_bytes": peak_rss(),
@@ -97,7 +100,7 @@ def add_counts(into: dict, counts: dict, primaries: int) -> None:
     """Add one batch's counters (CPU seconds taken out) to a node's, with `primaries` new eye
     rays: eye rays are counted where they are made, not again where they are passed on."""
     for k, v in counts.items():
-        if k not in ("eye_rays", "cpu_seconds"):
+        if k not in ("eye_rays", "cpu_seconds", "batch_cpu_seconds"):
             into[k] += v
     into["eye_rays"] += primaries
 

@@ -72,9 +72,10 @@ def warmup(variants=(ALL_KINDS,), report=None, common: bool = True,
 
 
 def _common_warmup() -> None:
-    """The kernels every variant shares: pinhole eye rays, ray routing between boxes, and
-    the camera rays (elements, sampling, records) on a one-pixel batch."""
+    """The kernels every variant shares: pinhole eye rays, ray routing between boxes,
+    deposits, and the camera rays (elements, sampling, records) on a one-pixel batch."""
     from meshnode.engine.camera import eye_rays
+    from meshnode.engine.deposits import cell_sums, lit
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.trace import owners
     from protocols.camera import CameraSpec
@@ -83,6 +84,9 @@ def _common_warmup() -> None:
     view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
     rays = eye_rays(view, ImageSpec(width=1, height=1))
     owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
+    deposits = np.zeros(2, dtypes.DEPOSIT)
+    cell_sums(deposits, 1, deposits.copy())
+    lit(rays, np.ones((1, 3)), deposits)
     lens = np.zeros(1, dtypes.ELEMENT)
     lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
     spec = CameraSpec(lens, 0.036, 0.024, -0.051)

@@ -24,8 +24,8 @@ from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.occupancy import occupancy_arrays, skip_empty
 from meshnode.engine.trace import owners
-from meshnode.node import NodeCore, per_cell
-from protocols.dtypes import DEPOSIT
+from meshnode.node import NodeCore, lit_deposits, per_cell
+from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
@@ -378,6 +378,22 @@ def test_deposits_summed_per_cell_give_the_same_frame_to_the_bit(spp, raw, batch
         assert len(sums) == len(np.unique(part["pixel"] // spp))
         summed.add(sums["pixel"], sums["rgb"])
     assert np.array_equal(every.sums, summed.sums)
+
+
+def test_a_batch_deposits_the_colour_of_every_ray_that_brought_any():
+    # `lit_deposits` (one kernel pass) keeps, in order, each ray whose colour has a component
+    # other than zero (NaN included: a bad colour reaches the frame, where it shows).
+    rng = np.random.default_rng(3)
+    rays = np.zeros(500, RAY)
+    rays["pixel"] = rng.permutation(10_000)[:500]
+    rgb = rng.random((500, 3)) * (rng.random((500, 3)) < 0.3)
+    rgb[7] = (0.0, np.nan, 0.0)
+    rgb[8] = (-0.0, 0.0, -1e-300)
+    keep = np.any(rgb != 0.0, axis=1)
+    d = lit_deposits(rays, rgb)
+    assert 100 < len(d) < 400 and keep[7] and keep[8]
+    assert np.array_equal(d["pixel"], rays["pixel"][keep])
+    assert d["rgb"].tobytes() == rgb[keep].tobytes()
 
 
 def test_a_node_holds_every_object_reaching_the_space_it_traces():

@@ -89,4 +89,7 @@ def test_a_running_cluster_reuses_the_engine_of_an_unchanged_scene():
         assert all(n["setup_seconds"] > 0 for n in stats["nodes"])
         assert 0 < stats["connect_seconds"] and 0 < stats["setup_seconds"] < stats["wall_seconds"]
         assert 0 < stats["parallel_efficiency"] <= 1
+        # a node's batches cost their kernels and the routing around them
+        assert all(0 < n["busy_cpu_seconds"] <= n["batch_cpu_seconds"] for n in stats["nodes"])
+        assert stats["busiest_node_batch_cpu_seconds"] >= stats["busiest_node_cpu_seconds"]
         assert run(tetra, 1)[0] == [False, False]

@@ -396,8 +396,7 @@ class NodeCore:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
             # enters no cell ends here. Grouped in this one call: owners() moves t_min in a
             # sliver between boxes, so a second call could give another box.
-            out, starts, _ = self.engine.routed(rays, self.cells, True, self.node,
-                                                self.spec.ids_per_cell)  # fmt: skip
+            out, starts, _ = self.engine.routed(rays, self.cells, True, self.node)
             todo = _runs(out, starts, last=self.node)
         outgoing = {d: [g] for d, g in todo.items() if d != self.node and d not in self.copies}
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))

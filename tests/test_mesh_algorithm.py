@@ -123,14 +123,11 @@ def test_an_eye_ray_goes_to_the_cell_where_it_enters_the_scene(overlap):
 @pytest.mark.parametrize("name", ["teapot_s1.nff", "tetra.nff"])
 def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(name):
     """`Engine.routed` does in one pass what a node did in five (copy, `skip_empty`,
-    `owners`, a stable sort by node, a split). Ray by ray (each sample its own pixel cell):
-    the same records, the same t_min; each node's run in the order the rays came; rays no
-    cell takes join the fallback's run; the batch itself is left as it was. A pixel's
-    samples walk the map once (`_beam_start`): no ray then starts beyond where its own
-    walk would, or past any object (brute force), each goes to the cell `owners` gives
-    from there, and most of what single walks skip is still skipped."""
+    `owners`, a stable sort by node, a split): the same records, the same t_min, each
+    node's run in the order the rays came; rays no cell takes join the fallback's run; the
+    batch itself is left as it was."""
     scene = read_nff(spd_scene(name))
-    spec = RenderSpec(ImageSpec(width=64, height=48, spp=4).sized(scene.view),
+    spec = RenderSpec(ImageSpec(width=64, height=48, spp=2).sized(scene.view),
                       plan=MeshPlan(3, 3, 100))  # fmt: skip
     part, keep = partition(scene, spec)
     core = NodeCore(4, subset(scene, keep[4]), spec, part)
@@ -139,7 +136,6 @@ def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(
     made = rays.copy()
     expected = rays.copy()
     core.engine.skip_empty(expected)
-    own = expected["t_min"] - rays["t_min"]  # > 0: its walk met an occupied voxel there
     dest = owners(expected, *core.cells)
     none = dest < 0
     assert none[::7].all() and len(np.unique(dest[~none])) > 3
@@ -150,20 +146,6 @@ def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(
     assert np.array_equal(starts, np.concatenate(([0], np.cumsum(np.bincount(dest, minlength=9)))))
     assert lost == none.sum() and rays.tobytes() == made.tobytes()
     assert core.engine.routed(rays, core.cells, False)[2] == lost  # refused by `route`
-
-    beams, starts, _ = core.engine.routed(rays, core.cells, True, 7, spec.ids_per_cell)
-    assert rays.tobytes() == made.tobytes()
-    at = np.argsort(beams["pixel"], kind="stable")  # eye rays: pixel ids in order
-    taker = np.repeat(np.arange(9), np.diff(starts))[at]
-    beams = beams[at]
-    assert np.array_equal(beams["pixel"], rays["pixel"])
-    skipped = beams["t_min"] - rays["t_min"]
-    assert (skipped >= 0).all() and (skipped[own > 0] <= own[own > 0]).all()
-    t_hit, _ = Engine(scene, brute=True).first_hits(rays["o"], rays["d"])
-    assert (beams["t_min"] < t_hit).all()  # (a ray that meets no voxel may move, hitting none)
-    again = owners(beams.copy(), *core.cells)  # the cell each goes to from its new t_min
-    assert np.array_equal(np.where(again < 0, 7, again), taker)
-    assert skipped[own > 0].sum() > 0.6 * own.sum() > 0
 
 
 @pytest.mark.parametrize("name", ["teapot_s1.nff", "balls_s2.nff"])

@@ -58,7 +58,7 @@ def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
     for (ox, oy, oz), (dx, dy, dz), th in zip(origins, dirs, t_hit, strict=True):
         rx, ry, rz = (1.0 / v if v != 0.0 else math.inf for v in (dx, dy, dz))
         t0, t1 = box_span(ox, oy, oz, rx, ry, rz, 0.0, math.inf, *lo, *hi)
-        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, *occ, 0, counters)
+        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, *occ, counters)
         assert t <= th, (name, (ox, oy, oz), (dx, dy, dz), t, th)
         clear += t == math.inf
         early += t0 < t < math.inf

@@ -277,14 +277,12 @@ class Engine:
         for k in kernels:
             kernelcache.mark_warm(self._mark(k))
 
-    def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1,
-               cell_ids: int = 1):  # fmt: skip
+    def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1):
         """(rays regrouped by the cell that takes each on, runs' starts, rays no cell takes)
         for `cells` = (los, his), with `skip` from where each ray's work starts on the
-        scene's occupancy map, one walk for the samples of a pixel (`cell_ids` sample ids
-        each) from one origin (`meshnode.engine.trace.routed`); `rays` stay as they were."""
-        return routed(rays, skip, fallback, cell_ids, self.scene_lo, self.scene_hi,
-                      self.occupancy, *cells)  # fmt: skip
+        scene's occupancy map (`meshnode.engine.trace.routed`); `rays` stay as they were."""
+        return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy,
+                      *cells)  # fmt: skip
 
     def skip_empty(self, rays: np.ndarray) -> None:
         """Move each RAY record's t_min on to the first occupied voxel of the scene's

@@ -96,14 +96,11 @@ def _index(o, d, t, lo, inv, i0, i1):
 
 
 @leaf
-def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, clear, margin,
-                   counters):  # fmt: skip
+def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, clear, counters):
     """t where the ray enters the first occupied voxel between t0 and t1 (t0 itself when it
     starts in one), inf when every voxel it crosses there is empty. rx, ry, rz are the
     reciprocal direction; each step (out of one voxel, or of the empty cube around it)
-    counts as an occupancy step. With `margin` m > 0 a voxel counts as occupied when one
-    lies within m voxels of it: the t found then holds for every point that stays within m
-    voxels of the ray's (`beam_margin`)."""
+    counts as an occupancy step."""
     nx, ny, nz = res[0], res[1], res[2]
     lx, ly, lz = lo[0], lo[1], lo[2]
     cx, cy, cz = cell[0], cell[1], cell[2]
@@ -119,10 +116,10 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
     for _ in range(nx + ny + nz + 3):
         steps += 1
         k = clear[ix + nx * (iy + ny * iz)]
-        if k <= margin:
+        if k == 0:
             found = t
             break
-        r = k - 1 - margin
+        r = k - 1
         x0, x1 = max(ix - r, 0), min(ix + r, nx - 1)
         y0, y1 = max(iy - r, 0), min(iy + r, ny - 1)
         z0, z1 = max(iz - r, 0), min(iz + r, nz - 1)
@@ -165,18 +162,9 @@ def work_start(ox, oy, oz, dx, dy, dz, rx, ry, rz, t_min, t_max, scene_lo, scene
                       scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])  # fmt: skip
     if s0 > s1:
         return t_min
-    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear, 0,
+    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear,
                        counters)  # fmt: skip
     return t if t < INF and t > t_min else t_min
-
-
-@inline
-def beam_margin(reach, cell):
-    """The `first_occupied` margin for points up to `reach` (scene units) from the walked
-    ray's point at the same t: a coordinate that far apart is at most reach / side + 1
-    voxels away on that axis (so many voxel walls crossed, and the voxel itself)."""
-    v = reach / min(cell[0], min(cell[1], cell[2]))
-    return int(math.ceil(v)) + 1 if v < 1e6 else 1 << 20
 
 
 @kernel

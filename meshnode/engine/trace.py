@@ -27,7 +27,7 @@ from meshnode.engine.counters import (
     SHADOW_RAYS,
 )
 from meshnode.engine.jit import inline, kernel
-from meshnode.engine.occupancy import beam_margin, first_occupied, work_start
+from meshnode.engine.occupancy import first_occupied, work_start
 from meshnode.engine.packet import (
     P_BEST,
     P_BOUND,
@@ -312,8 +312,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 elif n0 > s0 or n1 <= s0:
                     resume = s0  # not in this box where its part inside the scene starts
                     if first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, s0, s1, occ_lo,
-                                      occ_cell, occ_res, occ_clear, 0,
-                                      counters) == math.inf:  # fmt: skip
+                                      occ_cell, occ_res, occ_clear, counters) == math.inf:
                         resume = -1.0  # nothing lies ahead: it ends here, below
                         n1 = math.inf
                         clear = True
@@ -348,8 +347,7 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     # Leaves this box inside the scene: continue on the node owning the first
                     # occupied voxel ahead; with none ahead it ends here, below.
                     t_on = first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, n1, s1, occ_lo,
-                                          occ_cell, occ_res, occ_clear, 0,
-                                          counters)  # fmt: skip
+                                          occ_cell, occ_res, occ_clear, counters)  # fmt: skip
                     if t_on < math.inf:
                         buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb,
                                         max(n1, t_on), t_hi, r.pixel, origin, depth, kind,
@@ -504,100 +502,35 @@ def owners(rays, los, his):
     return out
 
 
-@inline
-def _run_end(rays, i, cell_ids):
-    """End of the run of rays from ray i on that share its pixel (pixel // cell_ids) and its
-    origin: a pinhole's samples of one pixel, always made together in one batch."""
-    r = rays[i]
-    cell, ox, oy, oz = r.pixel // cell_ids, r.o[0], r.o[1], r.o[2]
-    j = i + 1
-    while j < rays.shape[0]:
-        q = rays[j]
-        if q.pixel // cell_ids != cell or q.o[0] != ox or q.o[1] != oy or q.o[2] != oz:
-            break
-        j += 1
-    return j
-
-
-@inline
-def _beam_start(rays, i, j, t_min, s_lo, s_hi, scene_lo, scene_hi, lo, cell, res, clear,
-                counters):  # fmt: skip
-    """`occupancy.work_start` for the run of rays i..j-1 (one origin) at the cost of one walk:
-    ray i's, with the margin of the run's spread (`beam_margin`: every ray's point at the
-    same t lies within t * |d_k - d_i|), from the first entry into the scene's box to the
-    last exit. A ray's t_min moves to the t found where that lies on its own span in the
-    box: the same conditions as its own walk's, at a t no later than its own walk finds."""
-    r0 = rays[i]
-    ox, oy, oz, dx, dy, dz = r0.o[0], r0.o[1], r0.o[2], r0.d[0], r0.d[1], r0.d[2]
-    t0, t1, spread = math.inf, -math.inf, 0.0
-    for k in range(i, j):
-        r = rays[k]
-        kx, ky, kz = r.d[0], r.d[1], r.d[2]
-        s_lo[k], s_hi[k] = box_span(ox, oy, oz, 1.0 / kx if kx != 0.0 else math.inf,
-                                    1.0 / ky if ky != 0.0 else math.inf,
-                                    1.0 / kz if kz != 0.0 else math.inf, r.t_min, r.t_max,
-                                    scene_lo[0], scene_lo[1], scene_lo[2], scene_hi[0],
-                                    scene_hi[1], scene_hi[2])  # fmt: skip
-        if s_lo[k] <= s_hi[k]:
-            t0, t1 = min(t0, s_lo[k]), max(t1, s_hi[k])
-        spread = max(spread, math.sqrt((kx - dx) ** 2 + (ky - dy) ** 2 + (kz - dz) ** 2))
-    if t0 > t1:
-        return  # no ray of the run enters the scene's box
-    t = first_occupied(ox, oy, oz, dx, dy, dz, 1.0 / dx if dx != 0.0 else math.inf,
-                       1.0 / dy if dy != 0.0 else math.inf, 1.0 / dz if dz != 0.0 else math.inf,
-                       t0, t1, lo, cell, res, clear, beam_margin(t1 * spread, cell),
-                       counters)  # fmt: skip
-    for k in range(i, j):
-        if s_lo[k] <= s_hi[k] and t_min[k] < t <= s_hi[k]:
-            t_min[k] = t
-
-
 @kernel
-def routed(rays, skip, fallback, cell_ids, scene_lo, scene_hi, occ, los, his):
+def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
-    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; for a
-    pixel's samples from one origin, one walk for them all: `_beam_start`), as (a new array,
-    the runs' starts): box b's run is out[starts[b]:starts[b + 1]], in the order the rays
-    came. A ray no box takes joins box `fallback`'s run, or with fallback -1 is counted (the
-    third value) for the caller to refuse. `rays` is left as it was; `cell_ids`: sample ids
-    per pixel (`RenderSpec.ids_per_cell`).
+    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ), as
+    (a new array, the runs' starts): box b's run is out[starts[b]:starts[b + 1]], in the
+    order the rays came. A ray no box takes joins box `fallback`'s run, or with fallback -1
+    is counted (the third value) for the caller to refuse. `rays` is left as it was.
 
     One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort
-    and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU, and one walk
-    per ray on the occupancy map 80 ns of a tetra eye ray's 240."""
+    and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
     occ_lo, occ_cell, occ_res, occ_clear = occ
     n, boxes = rays.shape[0], los.shape[0]
     dest = np.empty(n, np.int64)
     t_min = np.empty(n)
-    for i in range(n):
-        t_min[i] = rays[i].t_min
     starts = np.zeros(boxes + 1, np.int64)
     counters = np.zeros(N_COUNTERS, np.int64)  # occupancy steps here are not a trace's
-    if skip:
-        s_lo, s_hi = np.empty(n), np.empty(n)
-        i = 0
-        while i < n:
-            j = _run_end(rays, i, cell_ids)
-            if j - i > 1:
-                _beam_start(rays, i, j, t_min, s_lo, s_hi, scene_lo, scene_hi, occ_lo, occ_cell,
-                            occ_res, occ_clear, counters)  # fmt: skip
-            else:
-                r = rays[i]
-                dx, dy, dz = r.d[0], r.d[1], r.d[2]
-                t_min[i] = work_start(r.o[0], r.o[1], r.o[2], dx, dy, dz,
-                                      1.0 / dx if dx != 0.0 else math.inf,
-                                      1.0 / dy if dy != 0.0 else math.inf,
-                                      1.0 / dz if dz != 0.0 else math.inf, r.t_min, r.t_max,
-                                      scene_lo, scene_hi, occ_lo, occ_cell, occ_res, occ_clear,
-                                      counters)  # fmt: skip
-            i = j
     lost = 0
     for i in range(n):
         r = rays[i]
-        irx = 1.0 / r.d[0] if r.d[0] != 0.0 else math.inf
-        iry = 1.0 / r.d[1] if r.d[1] != 0.0 else math.inf
-        irz = 1.0 / r.d[2] if r.d[2] != 0.0 else math.inf
-        b, t = _owner(r.o[0], r.o[1], r.o[2], irx, iry, irz, t_min[i], r.t_max, los, his)
+        ox, oy, oz = r.o[0], r.o[1], r.o[2]
+        dx, dy, dz = r.d[0], r.d[1], r.d[2]
+        irx = 1.0 / dx if dx != 0.0 else math.inf
+        iry = 1.0 / dy if dy != 0.0 else math.inf
+        irz = 1.0 / dz if dz != 0.0 else math.inf
+        t = r.t_min
+        if skip:
+            t = work_start(ox, oy, oz, dx, dy, dz, irx, iry, irz, t, r.t_max, scene_lo,
+                           scene_hi, occ_lo, occ_cell, occ_res, occ_clear, counters)  # fmt: skip
+        b, t = _owner(ox, oy, oz, irx, iry, irz, t, r.t_max, los, his)
         if b < 0:
             lost += 1
             b = max(fallback, 0)

@@ -13,6 +13,19 @@ def add_scenes_option(parser) -> None:
                         help="folder of SPD *.nff scenes (default: $MESHTRACE_SCENES)")
 
 
+def add_simulated_mesh_options(parser, only: str, size: int, spp: int) -> None:
+    """The options of a benchmark that simulates one object-space mesh in this process:
+    scenes (`--scenes`, `--only`), `--mesh` rows x cols, `--overlap`, image `--size` and
+    `--spp`, and `--json` for its rows."""
+    add_scenes_option(parser)
+    parser.add_argument("--only", default=only)
+    parser.add_argument("--mesh", default="3x3", help="rows x cols")
+    parser.add_argument("--overlap", type=float, default=100.0)
+    parser.add_argument("--size", type=int, default=size)
+    parser.add_argument("--spp", type=int, default=spp)
+    parser.add_argument("--json", type=Path)
+
+
 def finish(rows: list, path: Path | None, bad: list[str], failure: str, success: str) -> int:
     """A benchmark's end: its rows as JSON to `path` (if given), then `failure` and the rows
     that broke an exactness check (exit 1), or `success` (exit 0)."""

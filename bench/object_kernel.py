@@ -25,7 +25,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
+from bench import add_simulated_mesh_options, finish  # noqa: E402 (after the path is set)
 
 # Counted once where they happen, on one node and on a mesh alike.
 ONCE = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_rays")
@@ -84,14 +84,8 @@ def replay(calls, per_engine: dict | None = None):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.object_kernel", description=__doc__.split("\n\n")[0])
-    add_scenes_option(p)
-    p.add_argument("--only", default="tetra")
-    p.add_argument("--mesh", default="3x3", help="rows x cols")
-    p.add_argument("--overlap", type=float, default=100.0)
-    p.add_argument("--size", type=int, default=768)
-    p.add_argument("--spp", type=int, default=4)
+    add_simulated_mesh_options(p, only="tetra", size=768, spp=4)
     p.add_argument("--rounds", type=int, default=15)
-    p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
     from host.nff import read_nff
 

@@ -1,0 +1,111 @@
+"""Where an object-space node's CPU for its batches goes: the tracing kernels, routing rays to
+the nodes that take them on (`Engine.routed`: where each eye ray's work starts on the
+occupancy map, the cell that takes it, grouped by node), deposits (`lit_deposits`,
+`per_cell`) and the rest of `NodeCore.trace` (Python). A mesh is simulated in this process
+(`meshnode.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
+once to compile and load, then timed on this thread.
+
+    python -m bench.batch_cpu [--scenes DIR] [--only tetra,balls] [--mesh 3x3] [--overlap 100]
+                              [--size 384] [--spp 32] [--json FILE]
+
+Printed per scene: the nodes' summed CPU seconds in each part, each part's share, and the
+whole batches' CPU over the kernels' (what `bench.mesh`'s "batch" column divides out: the
+speedup counted on the kernels alone, as one node's is, over that counted on whole
+batches). The mesh's hits, escapes and shadow rays are checked against one node's.
+"""
+
+import argparse
+import sys
+import time
+from collections import Counter
+from functools import partial
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import add_simulated_mesh_options, finish  # noqa: E402 (after the path is set)
+
+ONCE = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_rays")
+PARTS = ("kernels", "routing", "deposits")
+
+
+def timed_parts(run):
+    """CPU seconds of `run()` on this thread in each part of a node's batches, and the whole
+    of `NodeCore.trace`, by wrapping the functions each part calls."""
+    from meshnode import node
+    from meshnode.engine import engine
+
+    spent: Counter = Counter()
+    hooks = [(engine.Engine, "trace_node", "kernels"), (engine.Engine, "routed", "routing"),
+             (node, "lit_deposits", "deposits"), (node, "per_cell", "deposits"),
+             (node.NodeCore, "trace", "batches")]  # fmt: skip
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in hooks]
+
+    def wrap(f, part):
+        def timed(*args, **kwargs):
+            start = time.thread_time()
+            try:
+                return f(*args, **kwargs)
+            finally:
+                spent[part] += time.thread_time() - start
+
+        return timed
+
+    for (owner, name, part), (_, _, f) in zip(hooks, saved, strict=True):
+        setattr(owner, name, wrap(f, part))
+    try:
+        result = run()
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    return spent, result
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.batch_cpu", description=__doc__.split("\n\n")[0])
+    add_simulated_mesh_options(p, only="tetra,balls", size=384, spp=32)
+    args = p.parse_args(argv)
+    from host.nff import read_nff
+    from host.partition import subset
+    from host.plan import plan_render
+    from host.render import render
+    from meshnode.simulator import simulate
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
+    image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
+    plan = MeshPlan(rows_, cols, args.overlap, balance="cost", mode="object", steal=True,
+                    copies=True, tile=max(2, args.size // 24))  # fmt: skip
+    print(f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
+          f"{args.overlap:g} (cost cuts, stealing, copies), simulated on one thread")
+    print(f"{'scene':>10} {'batches s':>9} " + " ".join(f"{p:>15}" for p in PARTS)
+          + f" {'rest':>15} {'batch/kernels':>13}")  # fmt: skip
+    rows, bad = [], []
+    for name in args.only.split(","):
+        scene = read_nff(args.scenes / f"{name}.nff")
+        planned = plan_render(scene, image, EngineSpec(), plan)
+        scenes = [subset(scene, k) for k in planned.holders]
+
+        run = partial(simulate, scenes, planned.spec, planned.partition, clock="work")
+        run()  # kernels compiled or loaded, engines built
+        spent, outcome = timed_parts(run)
+        counts = outcome.totals()
+        _, one = render(scene, image, EngineSpec(threads=1))
+        if any(counts[k] != one["rays"][k] for k in ONCE):
+            bad.append(f"{name}: mesh {[counts[k] for k in ONCE]}, one node "
+                       f"{[one['rays'][k] for k in ONCE]}")  # fmt: skip
+        total = spent["batches"]
+        rest = total - sum(spent[p] for p in PARTS)
+        cells = " ".join(f"{spent[p]:>7.3f} ({spent[p] / total:>4.0%})" for p in PARTS)
+        print(f"{name:>10} {total:>9.3f} {cells} {rest:>7.3f} ({rest / total:>4.0%}) "
+              f"{total / spent['kernels']:>13.2f}")  # fmt: skip
+        rows.append({"scene": name, "mesh": args.mesh, "batch_cpu_seconds": total,
+                     **{f"{p}_cpu_seconds": spent[p] for p in PARTS}, "rest_cpu_seconds": rest,
+                     "batch_over_kernels": total / spent["kernels"]})  # fmt: skip
+    return finish(rows, args.json, bad, "MISMATCH (ray counts) between the mesh and one node:\n",
+                  "the mesh counted the same hits, escapes and shadow rays as one node")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

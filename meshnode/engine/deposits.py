@@ -2,7 +2,8 @@
 brought any, then summed per framebuffer cell, so a pixel's samples travel as one deposit.
 
 Both are one pass over the batch in a kernel: in numpy they were five passes a batch and a
-sort (tetra 3x3 simulated: a sixth of a node's CPU outside its tracing kernels)."""
+sort (tetra 3x3 simulated, 384x384 at 32 spp: 0.36 s of the 0.97 s its nodes spent outside
+their tracing kernels; 0.08 s in these kernels, `bench.batch_cpu`)."""
 
 import numpy as np
 

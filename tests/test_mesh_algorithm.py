@@ -380,6 +380,41 @@ def test_deposits_summed_per_cell_give_the_same_frame_to_the_bit(spp, raw, batch
     assert np.array_equal(every.sums, summed.sums)
 
 
+@pytest.mark.parametrize("shape", [(2, 2), (3, 3), (2, 3)])
+def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
+    """`routed` without the map (a batch's passed rays) gives each ray the cell and t_min
+    `owners` gives, for rays from inside, outside and on the cells' faces, some with zero
+    direction components; rays no cell takes are counted."""
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    spec = RenderSpec(ImageSpec(width=40, height=30), plan=MeshPlan(*shape, 24))
+    part, keep = partition(scene, spec)
+    core = NodeCore(0, subset(scene, keep[0]), spec, part)
+    los, his = core.cells
+    rng = np.random.default_rng(5)
+    n = 6000
+    lo, hi = los.min(axis=0), his.max(axis=0)
+    rays = np.zeros(n, RAY)
+    rays["o"] = lo - 0.2 * (hi - lo) + 1.4 * (hi - lo) * rng.random((n, 3))
+    faces = np.concatenate([los, his])  # origins on cell faces, one axis at a time
+    on = rng.random(n) < 0.3
+    axis = rng.integers(3, size=n)
+    rays["o"][on, axis[on]] = faces[rng.integers(len(faces), size=on.sum()), axis[on]]
+    d = rng.normal(size=(n, 3))
+    d[rng.random((n, 3)) < 0.15] = 0.0
+    d[(d == 0).all(axis=1), 2] = 1.0
+    rays["d"] = d / np.linalg.norm(d, axis=1, keepdims=True)
+    rays["t_max"] = np.inf
+    rays["pixel"] = np.arange(n)
+    expected = rays.copy()
+    dest = owners(expected, los, his)
+    out, starts, lost = core.engine.routed(rays, core.cells, False)
+    order = np.argsort(out["pixel"])
+    taker = np.repeat(np.arange(len(los)), np.diff(starts))[order]
+    assert lost == (dest < 0).sum() and 0 < lost < 0.7 * n
+    assert np.array_equal(taker[dest >= 0], dest[dest >= 0])
+    assert out[order].tobytes() == expected.tobytes()
+
+
 def test_a_batch_deposits_the_colour_of_every_ray_that_brought_any():
     # `lit_deposits` (one kernel pass) keeps, in order, each ray whose colour has a component
     # other than zero (NaN included: a bad colour reaches the frame, where it shows).

@@ -526,11 +526,17 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
         irx = 1.0 / dx if dx != 0.0 else math.inf
         iry = 1.0 / dy if dy != 0.0 else math.inf
         irz = 1.0 / dz if dz != 0.0 else math.inf
-        t = r.t_min
+        t, past = r.t_min, -math.inf
         if skip:
-            t = work_start(ox, oy, oz, dx, dy, dz, irx, iry, irz, t, r.t_max, scene_lo,
-                           scene_hi, occ_lo, occ_cell, occ_res, occ_clear, counters)  # fmt: skip
+            t, past = work_start(ox, oy, oz, dx, dy, dz, irx, iry, irz, t, r.t_max, scene_lo,
+                                 scene_hi, occ_lo, occ_cell, occ_res, occ_clear,
+                                 counters)  # fmt: skip
         b, t = _owner(ox, oy, oz, irx, iry, irz, t, r.t_max, los, his)
+        if past > -math.inf:
+            # Only empty voxels ahead: the cell it enters takes it as before, but from past
+            # the scene, so that node ends it at once (tetra: 30% of its eye rays, each a
+            # hierarchy walk and an occupancy walk there to find nothing).
+            t = past
         if b < 0:
             lost += 1
             b = max(fallback, 0)

@@ -75,15 +75,21 @@ def _common_warmup() -> None:
     """The kernels every variant shares: pinhole eye rays, ray routing between boxes,
     deposits, and the camera rays (elements, sampling, records) on a one-pixel batch."""
     from meshnode.engine.camera import eye_rays
+    from meshnode.engine.counters import N_COUNTERS
     from meshnode.engine.deposits import cell_sums, lit
     from meshnode.engine.lenscamera import camera_rays
-    from meshnode.engine.trace import owners
+    from meshnode.engine.occupancy import everywhere, skip_empty
+    from meshnode.engine.trace import owners, routed
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
 
     view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
     rays = eye_rays(view, ImageSpec(width=1, height=1))
-    owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
+    box = (np.zeros(3), np.ones(3))
+    owners(rays, box[0][None], box[1][None])
+    occ = everywhere(*box)
+    skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
+    routed(rays, True, 0, *box, occ, box[0][None], box[1][None])  # a node's batches
     deposits = np.zeros(2, dtypes.DEPOSIT)
     cell_sums(deposits, 1, deposits.copy())
     lit(rays, np.ones((1, 3)), deposits)

@@ -137,7 +137,8 @@ def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(
     rays["t_max"][::7] = rays["t_min"][::7]  # ends before any cell: taken by none
     made = rays.copy()
     expected = rays.copy()
-    core.engine.skip_empty(expected)
+    e = core.engine
+    skip_empty(expected, e.scene_lo, e.scene_hi, *e.occupancy, np.zeros(N_COUNTERS, np.int64))
     dest = owners(expected, *core.cells)
     out, starts, lost = core.engine.routed(rays, core.cells, True, 7)
     assert rays.tobytes() == made.tobytes()

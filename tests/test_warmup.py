@@ -56,6 +56,7 @@ engine = Engine(scene, storage="hash")
 rays = eye_rays(scene.view, ImageSpec(width=4, height=4))
 engine.trace_node(rays)
 owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
+engine.routed(rays, (np.zeros((1, 3)), np.ones((1, 3))), True, 0)
 print(kernels_compiled())
 """
 

@@ -20,7 +20,7 @@ from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.bvh import Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
-from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
+from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, routed, trace_batch
@@ -270,7 +270,6 @@ class Engine:
             self.trace(ray)
         if "passing" in kernels:
             self.trace_passing(ray)
-        self.skip_empty(ray)  # one kernel for all variants: object-space eye rays call it
         if "probe" in kernels:
             self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
         kernelcache.mark_warm(variant_of(self.tables).name)  # its grid's kernels too
@@ -283,13 +282,6 @@ class Engine:
         scene's occupancy map (`meshnode.engine.trace.routed`); `rays` stay as they were."""
         return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy,
                       *cells)  # fmt: skip
-
-    def skip_empty(self, rays: np.ndarray) -> None:
-        """Move each RAY record's t_min on to the first occupied voxel of the scene's
-        occupancy map it meets (`meshnode.engine.occupancy.skip_empty`), in place."""
-        o = self.occupancy
-        skip_empty(rays, self.scene_lo, self.scene_hi, o.lo, o.cell, o.res, o.clear,
-                   np.zeros(N_COUNTERS, np.int64))  # fmt: skip
 
     def first_hits(self, origins, directions, t_min: float = 0.0):
         """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).

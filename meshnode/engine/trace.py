@@ -505,9 +505,10 @@ def owners(rays, los, his):
 @kernel
 def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
-    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ), as
-    (a new array, the runs' starts): box b's run is out[starts[b]:starts[b + 1]], in the
-    order the rays came. A ray no box takes joins box `fallback`'s run, or with fallback -1
+    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; a ray
+    with only empty voxels ahead goes to the box it enters but resumes past the scene's
+    box), as (a new array, the runs' starts): box b's run is out[starts[b]:starts[b + 1]],
+    in the order the rays came. A ray no box takes joins box `fallback`'s run, or with fallback -1
     is counted (the third value) for the caller to refuse. `rays` is left as it was.
 
     One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort

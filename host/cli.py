@@ -163,7 +163,7 @@ def _parser() -> argparse.ArgumentParser:
     _sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
     _camera_options(r.add_argument_group("camera (with --camera)"))
     k = sub.add_parser("cluster-file", help="the cluster file of a Kubernetes StatefulSet of "
-                       "nodes (pod i is node i // COLS, i % COLS)")  # fmt: skip
+                       "nodes (pod i is node i // COLS, i %% COLS)")  # fmt: skip
     k.add_argument("--statefulset", required=True, help="the nodes' StatefulSet name")
     k.add_argument("--service", required=True, help="its headless Service (pod DNS names)")
     k.add_argument("--rows", type=int, required=True, help="mesh rows")

@@ -9,7 +9,8 @@ from meshnode.scheduler import INCOMING_HIGH
 from meshnode.tls import NO_TLS, TlsFiles, add_tls_options
 
 
-def parse(argv=None) -> argparse.Namespace:
+def parser() -> argparse.ArgumentParser:
+    """Every `meshnode` command and its options (also walked by the help test)."""
     p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
     sub = p.add_subparsers(dest="command", required=True)
     w = sub.add_parser("warmup", help="compile every tracing kernel variant into the disk "
@@ -33,7 +34,11 @@ def parse(argv=None) -> argparse.Namespace:
     s.add_argument("--incoming-high", type=int, default=INCOMING_HIGH,
                    help="queued incoming rays at which the node stops reading from its "
                         f"neighbours (default {INCOMING_HIGH}, about 100 MB)")  # fmt: skip
-    return p.parse_args(argv)
+    return p
+
+
+def parse(argv=None) -> argparse.Namespace:
+    return parser().parse_args(argv)
 
 
 def main(argv=None) -> int:

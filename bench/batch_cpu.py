@@ -2,7 +2,7 @@
 the nodes that take them on (`Engine.routed`: where each eye ray's work starts on the
 occupancy map, the cell that takes it, grouped by node), deposits (`lit_deposits`,
 `per_cell`) and the rest of `NodeCore.trace` (Python). A mesh is simulated in this process
-(`meshnode.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
+(`meshnode.mesh.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
 once to compile and load, then timed on this thread.
 
     python -m bench.batch_cpu [--scenes DIR] [--only tetra,balls] [--mesh 3x3] [--overlap 100]
@@ -33,8 +33,8 @@ PARTS = ("kernels", "routing", "deposits")
 def timed_parts(run):
     """CPU seconds of `run()` on this thread in each part of a node's batches, and the whole
     of `NodeCore.trace`, by wrapping the functions each part calls."""
-    from meshnode import node
     from meshnode.engine import engine
+    from meshnode.mesh import node
 
     spent: Counter = Counter()
     hooks = [(engine.Engine, "trace_node", "kernels"), (engine.Engine, "routed", "routing"),
@@ -66,11 +66,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.batch_cpu", description=__doc__.split("\n\n")[0])
     add_simulated_mesh_options(p, only="tetra,balls", size=384, spp=32)
     args = p.parse_args(argv)
-    from host.nff import read_nff
-    from host.partition import subset
-    from host.plan import plan_render
-    from host.render import render
-    from meshnode.simulator import simulate
+    from host.planning.plan import plan_render
+    from host.run.oneprocess import render
+    from host.scene.nff import read_nff
+    from host.scene.subset import subset
+    from meshnode.mesh.simulator import simulate
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))

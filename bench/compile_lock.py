@@ -22,7 +22,7 @@ NODE = """
 import contextlib, sys
 from meshnode.engine import Engine, kernelcache
 from meshnode.engine.engine import Variant
-from meshnode.warmup import variant_scene
+from meshnode.service.warmup import variant_scene
 if sys.argv[1] == "own":
     kernelcache.compiling = lambda name: contextlib.nullcontext()
 scene = variant_scene(Variant(("spheres", "polygons"), False, True, False))
@@ -35,7 +35,7 @@ def cold_start(mode: str, processes: int) -> tuple[float, float]:
     from an empty cache."""
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
-        common = "from meshnode.warmup import _common_warmup; _common_warmup()"
+        common = "from meshnode.service.warmup import _common_warmup; _common_warmup()"
         subprocess.run([sys.executable, "-c", common], env=env, check=True)
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()

@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     import numba
 
     from bench.generate import tetra_triangles
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
     from protocols.scene import View
 
     numba.set_num_threads(1)

@@ -3,9 +3,9 @@ or refused within a timeout, the node alive and serving at the end.
 
     python -m bench.fuzz_node [--cases 100000] [--seconds 600] [--seed 0] [--lanes 6]
 
-Starts `python -m meshnode.cli serve --listen 127.0.0.1:0 --threads 1` with MESHTRACE_SECRET in
-its environment (stderr to a temporary file, address from its `listening HOST:PORT` line) and
-sends it cases from several lanes at once:
+Starts `python -m meshnode.service.cli serve --listen 127.0.0.1:0 --threads 1` with
+MESHTRACE_SECRET in its environment (stderr to a temporary file, address from its
+`listening HOST:PORT` line) and sends it cases from several lanes at once:
 
     garbage     noise on a fresh connection, then end of file: the node must hang up too
     oversized   a length prefix over the handshake limit: refused without our end of file
@@ -30,7 +30,7 @@ every 0.5 s and its liveness checked; a node that dies is a crash, its last 200 
 and the node restarted. A node that still sends heartbeats but never finishes a render or a
 build is wedged (its one tracing thread is stuck): it gets SIGABRT, so faulthandler writes
 every thread's stack to its stderr, its last inputs are pickled, and it is restarted. At the
-end one real 8x8 render runs through host.meshclient.render_on_mesh.
+end one real 8x8 render runs through host.run.meshclient.render_on_mesh.
 
 Printed: cases sent (and per kind, with outcomes), the node's refusal reasons, crashes, wedges,
 tracebacks in the node's stderr (with their last lines), hangs (cases past their timeout),
@@ -61,10 +61,10 @@ if __package__ in (None, ""):
 
 import numpy as np  # noqa: E402
 
-from host.meshclient import render_on_mesh  # noqa: E402
-from host.partition import subset  # noqa: E402
-from host.plan import plan_render  # noqa: E402
-from meshnode.cli import _all_kinds_scene  # noqa: E402
+from host.planning.plan import plan_render  # noqa: E402
+from host.run.meshclient import render_on_mesh  # noqa: E402
+from host.scene.subset import subset  # noqa: E402
+from meshnode.service.cli import _all_kinds_scene  # noqa: E402
 from protocols import dtypes  # noqa: E402
 from protocols.errors import ProtocolError  # noqa: E402
 from protocols.framing import HEADER, MAX_FRAME, FrameDecoder, encode  # noqa: E402
@@ -79,7 +79,7 @@ BUILD_TIMEOUT = 90.0  # s: a render's engine build may compile a new kernel vari
 EOF_SECONDS = 2.0  # s: after our end of file, the node closes its side within this
 EOF_WAITERS = 48  # connections waiting for the node's close at once
 SPIN_SECONDS = 40.0  # s of CPU in one tracing thread within ~60 s: stuck, not rendering 8x8
-HANDSHAKE_LIMIT = 4096  # meshnode.link.HANDSHAKE_FRAME
+HANDSHAKE_LIMIT = 4096  # meshnode.transport.link.HANDSHAKE_FRAME
 ODD_NUMBERS = [0, 1, -1, 2, 3, 7, 255, 256, 65535, 65536, 2**31 - 1, 2**31, -(2**31) - 1,
                2**63 - 1, -(2**63), 2**64 - 1, 0.5, -0.0, 5e-324, 1e-300, 1e300, 1e308, -1e308,
                math.inf, -math.inf, math.nan, True, False]  # fmt: skip
@@ -236,7 +236,7 @@ class Node:
 
         with open(self.stderr_path, "ab") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-X", "faulthandler", "-m", "meshnode.cli", "serve",
+                [sys.executable, "-X", "faulthandler", "-m", "meshnode.service.cli", "serve",
                  "--listen", "127.0.0.1:0", "--threads", "1"], stdout=subprocess.PIPE,
                 stderr=err, text=True, env=env,
                 preexec_fn=cap if self.memory_mb else None)  # fmt: skip
@@ -411,7 +411,7 @@ class Fuzzer:
         self.eof_close: dict = collections.defaultdict(list)  # kind -> s until the node hung up
 
     def _session(self, plan: MeshPlan, n: int, image: ImageSpec):
-        """A real CONFIG for node n and its objects, as host.meshclient makes them."""
+        """A real CONFIG for node n and its objects, as host.run.meshclient makes them."""
         planned = plan_render(self.scene, image, EngineSpec(), plan)
         neighbours = {str(m): "127.0.0.1:9" for m in range(plan.nodes)}
         config = make(Kind.CONFIG, node=n, neighbours=neighbours, render=planned.spec.to_wire(),

@@ -5,7 +5,7 @@ benchmark needs larger ones, and arrays make a million objects in seconds withou
 parsing the ~65 MB of NFF text they would be. Geometry, order, view, lights and materials follow
 the SPD generators, so a generated scene equals `read_nff` of the SPD file of the same size
 (tests/test_generate.py checks it against the files that exist). Records are built with
-`host.polygons`, as the NFF reader builds them.
+`host.scene.polygons`, as the NFF reader builds them.
 
     tetra(n): recursive tetrahedron, 4^n triangles (tetra.nff is n = 6: 4,096)
     balls(n): sphereflake, 1 + 9 + ... + 9^n spheres and a floor (balls.nff is n = 4: 7,381)
@@ -13,7 +13,7 @@ the SPD generators, so a generated scene equals `read_nff` of the SPD file of th
 
 import numpy as np
 
-from host import polygons
+from host.scene import polygons
 from protocols import dtypes
 from protocols.scene import SceneData, View
 

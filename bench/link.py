@@ -30,7 +30,7 @@ def _loop_run(coro):
 
 def receiver(mode: str) -> None:
     """Child process: accept one connection, consume everything, print rays and seconds."""
-    from meshnode.link import Link, LinkClosed
+    from meshnode.transport.link import Link, LinkClosed
     from protocols.messages import Kind
 
     if mode == "raw":
@@ -84,7 +84,7 @@ def _spawn(mode):
 
 def run_link(batch: np.ndarray, batches: int) -> float:
     """Rays per second through Link: the sender encodes every batch afresh."""
-    from meshnode.link import Link
+    from meshnode.transport.link import Link
     from protocols.messages import Kind, make
 
     proc, port = _spawn("link")

@@ -11,7 +11,7 @@ process.
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
 of one node's CPU / the busiest node's in the mesh render that followed; "work": the same
-in the engine's work units (`meshnode.stats.work_units`: tests, hierarchy and occupancy
+in the engine's work units (`meshnode.mesh.stats.work_units`: tests, hierarchy and occupancy
 map steps, segments and segments sent on, each weighted by its fitted cost), which no
 machine noise moves; "batch": one node's tracing CPU over the busiest node's CPU for its
 whole batches (routing each ray to the node that takes it on, and its deposits, around the
@@ -61,8 +61,8 @@ COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_ra
 
 def single(scene, image, warm: bool = True, camera=None):
     """(wall seconds, stats) of one node in this process, one thread: the CPU-seconds
-    reference, after a warm run; `camera`: a host.camerasetup.CameraSetup, or the pinhole."""
-    from host.render import render
+    reference, after a warm run; `camera`: a host.camera.setup.CameraSetup, or the pinhole."""
+    from host.run.oneprocess import render
     from protocols.render import EngineSpec
 
     if warm:
@@ -97,8 +97,8 @@ def sized(scene, image, min_trace: float, camera=None):
 def camera_setup(path: Path, rays: int, sampling: str, width: int):
     """(CameraSetup, its image: `width` wide, the film's shape) for `--camera`, focused on
     the image centre (a probe pass)."""
-    from host.camera import read_camera
-    from host.camerasetup import CameraSetup, Focus
+    from host.camera.lens import read_camera
+    from host.camera.setup import CameraSetup, Focus
     from protocols.camera import CameraSampling
     from protocols.render import ImageSpec
 
@@ -126,9 +126,9 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
     by up to 1.6x for minutes at a time, so the two sides are measured over the same span.
     Then `together` times both at once (`at_once`): the stats' `together` holds each
     window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds."""
-    from host.balance import OVERLAPS
-    from host.localmesh import LocalMesh
-    from host.meshclient import render_on_mesh
+    from host.planning.balance import OVERLAPS
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
     auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
@@ -186,8 +186,8 @@ def at_once(one_node, mesh_render) -> dict:
 
 def work(rays: dict) -> int:
     """Work in the engine's own units, as the simulated mesh counts it
-    (`meshnode.stats.work_units`): the same on any machine, at any load."""
-    from meshnode.stats import work_units
+    (`meshnode.mesh.stats.work_units`): the same on any machine, at any load."""
+    from meshnode.mesh.stats import work_units
 
     return work_units(rays)
 
@@ -253,7 +253,7 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path)
     p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
     args = p.parse_args(argv)
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
     from protocols.render import ImageSpec
 
     if (args.min_trace or args.camera) and not args.size:

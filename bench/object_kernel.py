@@ -1,6 +1,6 @@
 """Object-space kernel benchmark: what an object-space mesh's tracing costs per unit of work
 against one node's, free of process and machine noise. A mesh is simulated in this process
-(`meshnode.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
+(`meshnode.mesh.simulator`, planned as `host render` plans it: cost cuts, stealing, copies),
 every engine call its nodes make is kept (engine and rays), and so are one node's calls for
 the same render; then both sets are traced again on this thread in turns, `--rounds` times.
 
@@ -8,7 +8,7 @@ the same render; then both sets are traced again on this thread in turns, `--rou
                                   [--size 768] [--spp 4] [--rounds 15] [--json FILE]
 
 Printed per scene: one node's and the mesh's tracing CPU seconds (best round), the mesh's
-work units over one node's (`meshnode.stats.work_units`: what the model counts), and the
+work units over one node's (`meshnode.mesh.stats.work_units`: what the model counts), and the
 mesh's CPU over one node's (median over rounds, with quartiles: each round's two sides
 share the same spell of this machine's speed); then per engine its calls, rays, CPU
 seconds, and CPU nanoseconds per work unit beside one node's. A mesh CPU ratio above its
@@ -33,10 +33,10 @@ ONCE = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_
 
 def captured(scene, rows: int, cols: int, size: int, spp: int, overlap: float, plan: dict):
     """(engine, rays, mesh kernel?) of every engine call of a simulated render."""
-    from host.partition import subset
-    from host.plan import plan_render
+    from host.planning.plan import plan_render
+    from host.scene.subset import subset
     from meshnode.engine import engine as engine_module
-    from meshnode.simulator import simulate
+    from meshnode.mesh.simulator import simulate
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
     calls = []
@@ -62,7 +62,7 @@ def replay(calls, per_engine: dict | None = None):
     `per_engine`, each engine's [CPU, units] added there."""
     from collections import Counter
 
-    from meshnode.stats import work_units
+    from meshnode.mesh.stats import work_units
 
     cpu, units, counts = 0.0, 0, Counter()
     for engine, rays, passing in calls:
@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     add_simulated_mesh_options(p, only="tetra", size=768, spp=4)
     p.add_argument("--rounds", type=int, default=15)
     args = p.parse_args(argv)
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     plan = {"mode": "object", "steal": True, "balance": "cost", "copies": True}

@@ -1,7 +1,7 @@
-"""Predicted mesh speedups from the simulated mesh (meshnode.simulator: every node's NodeCore
+"""Predicted mesh speedups from the simulated mesh (meshnode.mesh.simulator: every node's NodeCore
 and Scheduler in one process, work counted in the engine's own units: intersection tests,
 hierarchy and occupancy map steps, segments and segments sent on, each weighted by its
-fitted cost: `meshnode.stats.work_units`), for
+fitted cost: `meshnode.mesh.stats.work_units`), for
 meshes larger than this machine can run, next to measured ones.
 
     python -m bench.predict [--scenes DIR] [--only balls,gears] [--meshes 2x2,3x3,4x4,8x8,16x16]
@@ -52,10 +52,10 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
     """(busiest node's cost, total cost, rays passed, overlap, makespan) of a simulated
     render, planned as `host render` plans it (`overlap` "auto": the pre-pass chooses, with
     no memory bound), on the simulator's `clock` (a message's `latency` in work units)."""
-    from host.balance import OVERLAPS
-    from host.partition import subset
-    from host.plan import plan_render
-    from meshnode.simulator import simulate
+    from host.planning.balance import OVERLAPS
+    from host.planning.plan import plan_render
+    from host.scene.subset import subset
+    from meshnode.mesh.simulator import simulate
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
     image = ImageSpec(width=size, height=size)
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     unknown = set(args.modes.split(",")) - set(MODES)
     if unknown:
         p.error(f"unknown modes {', '.join(sorted(unknown))}: choose from {', '.join(MODES)}")
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
 
     measured = measured_table(args.measured)
     overlaps = [v if v == "auto" else float(v) for v in args.overlaps.split(",")]

@@ -98,8 +98,8 @@ class Bench:
     kernel loading), the camera and the options shared by every render."""
 
     def __init__(self, args: argparse.Namespace):
-        from host.camera import read_camera
-        from host.nff import read_nff
+        from host.camera.lens import read_camera
+        from host.scene.nff import read_nff
         from meshnode.engine import Engine
 
         self.args = args
@@ -112,7 +112,7 @@ class Bench:
     def settings(self, sampling: str, rays: int, seed: int, threshold: float = 0.05):
         """Render settings: the camera's lens (or the pinhole's pixel areas) sampled with
         `rays` rays per pixel."""
-        from host.camerasetup import CameraSetup, Focus, PinholeSetup
+        from host.camera.setup import CameraSetup, Focus, PinholeSetup
         from protocols.camera import CameraSampling
         from protocols.render import EngineSpec, ImageSpec
 
@@ -129,7 +129,7 @@ class Bench:
 
     def render(self, settings, repeat: int = 1):
         """(image, stats, best tracing seconds of `repeat` identical renders)."""
-        from host.render import render
+        from host.run.oneprocess import render
 
         best, image, stats = math.inf, None, None
         for _ in range(repeat):
@@ -337,7 +337,7 @@ def _legend(draw, ax: LogAxes, methods: list[str]) -> None:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from host.framebuffer import write_png
+    from host.run.framebuffer import write_png
 
     start = time.perf_counter()
     bench = Bench(args)

@@ -196,7 +196,7 @@ def run_config(scene, structure: str, storage: str, density: float, repeats: int
     """Render `repeats` times with one configuration; keep the best tracing time.
     `built`: that configuration's engine, reused (a big scene's structure is built once);
     `size`: image side under the SPD rules (default 512)."""
-    from host.render import render
+    from host.run.oneprocess import render
     from protocols.render import EngineSpec, ImageSpec
 
     image = ImageSpec(spd=True, width=size, height=size)
@@ -248,7 +248,7 @@ def check_counts(name: str, configs: list[dict]) -> tuple[str | None, list[str]]
 def bench_scene(path: Path, plan: list[tuple[str, str, float]], repeats: int) -> dict:
     """Every configuration of `plan` on one scene, best of `repeats` each; the last is the
     default (structure auto, storage auto, default density)."""
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
     from meshnode.engine.counters import spd_counts
 
     scene = read_nff(path)
@@ -511,7 +511,7 @@ def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
 def default_runner(path: Path):
     """A function tracing `path` once with the default engine (built here, once) and returning
     its trace seconds: our turns between POV-Ray's."""
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
 
     scene = read_nff(path)
     storage, density = default_storage(), default_density()

@@ -49,7 +49,7 @@ def vm_hwm(pid: int) -> int:
 
 async def faulted_render(scene, image, engine, mesh, addresses, silence: float) -> tuple:
     """The mesh render with the two faults; returns (image, stats, peaks by node)."""
-    from host.meshclient import render_on_mesh
+    from host.run.meshclient import render_on_mesh
     from protocols.render import MeshPlan
 
     n = len(addresses)
@@ -105,8 +105,8 @@ def main(argv=None) -> int:
 
     import numpy as np
 
-    from host.nff import read_nff
-    from host.render import render
+    from host.run.oneprocess import render
+    from host.scene.nff import read_nff
     from protocols.render import EngineSpec, ImageSpec
     from tests import netns
 

@@ -1,7 +1,7 @@
 """`host` command line: argument parsing and wiring only.
 
 Every render option is one field of a record of `protocols.render` (or `protocols.camera`,
-`host.camerasetup`); the option's default and its checks are the field's, shown in --help.
+`host.camera.setup`); the option's default and its checks are the field's, shown in --help.
 """
 
 import argparse
@@ -14,16 +14,16 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from host.balance import OVERLAPS
-from host.camerasetup import CameraSetup, Focus, PinholeSetup
-from host.cluster import parse_mesh, read_cluster, statefulset_cluster
-from host.framebuffer import exr_missing, write_exr, write_pfm, write_png
-from host.localmesh import LocalMesh
-from host.meshclient import NODE_LOSS, MeshError, primary_rays, render_on_mesh
-from host.plan import PLAN_MODES
-from host.render import render
-from host.scenefile import FORMATS, SceneError, read_scene
-from meshnode.tls import TlsFiles, add_tls_options
+from host.camera.setup import CameraSetup, Focus, PinholeSetup
+from host.planning.balance import OVERLAPS
+from host.planning.plan import PLAN_MODES
+from host.run.cluster import parse_mesh, read_cluster, statefulset_cluster
+from host.run.framebuffer import exr_missing, write_exr, write_pfm, write_png
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import NODE_LOSS, MeshError, primary_rays, render_on_mesh
+from host.run.oneprocess import render
+from host.scene.formats import FORMATS, SceneError, read_scene
+from meshnode.transport.tls import TlsFiles, add_tls_options
 from protocols.camera import ADAPTATIONS, FILM_AREAS, SAMPLINGS, CameraSampling
 from protocols.render import (
     BALANCES,
@@ -279,7 +279,7 @@ def main(argv=None) -> int:
 
 
 def _camera(args) -> int:
-    from host.camera import CameraError, describe, read_camera, with_f_number
+    from host.camera.lens import CameraError, describe, read_camera, with_f_number
 
     try:
         cam = read_camera(args.camera, args.film_size)
@@ -482,7 +482,7 @@ def _records(args):
         pinhole = _pinhole(args, image, sampling)
         return (image, engine, None) if pinhole is None else (replace(image, spp=1), engine,
                                                               pinhole)  # fmt: skip
-    from host.camera import read_camera
+    from host.camera.lens import read_camera
 
     if image.spp != 1:
         raise ValueError("--spp is for the pinhole; through a camera, rays per pixel are "

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from host.camerasetup import CameraSetup, Focus
+from host.camera.setup import CameraSetup, Focus
 from protocols import dtypes
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec
@@ -55,8 +55,9 @@ def example_variants() -> tuple[set, set]:
     """The kernel variants of the README example's engines: (one node's, those of the nodes
     of the 2x2 object-space mesh that subprocess tests (live view, Ctrl-C) render it on
     within short deadlines; a node compiling its variant there would miss them)."""
-    from host.nff import read_nff
-    from host.partition import partition, subset
+    from host.planning.partition import partition
+    from host.scene.nff import read_nff
+    from host.scene.subset import subset
     from meshnode.engine.engine import variant_of
     from meshnode.engine.tables import build_tables
     from protocols.render import MeshPlan, RenderSpec
@@ -78,12 +79,12 @@ def warm_jobs() -> list:
     variants compiles where a test focuses on them (`Engine.warmup`: kernels apiece)."""
     from meshnode.engine.engine import variant_of
     from meshnode.engine.tables import build_tables
-    from meshnode.warmup import ALL_KINDS, warmup
+    from meshnode.service.warmup import ALL_KINDS, warmup
 
     jobs = [lambda: warmup([ALL_KINDS], common=False), lambda: warmup([], common=True)]
     whole, nodes = example_variants()
     if SCENES.exists():
-        from host.nff import read_nff
+        from host.scene.nff import read_nff
 
         whole |= {variant_of(build_tables(read_nff(SCENES / n))) for n in WARM_SCENES
                   if (SCENES / n).exists()}  # fmt: skip

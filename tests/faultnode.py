@@ -8,8 +8,8 @@ this module's SlowLink in place of the real link, and everything else is the pro
 import asyncio
 import sys
 
-from meshnode import cli
-from meshnode.service import NodeService
+from meshnode.service import cli
+from meshnode.service.server import NodeService
 from protocols.messages import Kind
 
 

@@ -1,4 +1,4 @@
-"""The mesh simulated in this process for tests: `meshnode.simulator` (every node's NodeCore
+"""The mesh simulated in this process for tests: `meshnode.mesh.simulator` (every node's NodeCore
 driven by its own Scheduler, messages queued instead of sent, a seeded random order and
 optional delays on one link), with the host's partition and framebuffer around it.
 
@@ -7,10 +7,11 @@ deposits, counts, termination) against the single-node image; the asyncio servic
 same NodeCore and the same Scheduler.
 """
 
-from host.framebuffer import Framebuffer
-from host.partition import partition, subset
-from meshnode.scheduler import PASSED_MIN
-from meshnode.simulator import simulate
+from host.planning.partition import partition
+from host.run.framebuffer import Framebuffer
+from host.scene.subset import subset
+from meshnode.mesh.scheduler import PASSED_MIN
+from meshnode.mesh.simulator import simulate
 from protocols.render import ImageSpec, MeshPlan, RenderSpec
 
 
@@ -21,8 +22,8 @@ def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1,
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
     `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `cuts`:
-    (xs, ys) as `host.partition.rectangles` takes them (default even); `cells`: (los, his) of
-    the nodes' cells (default: cut to match the rectangles); `passed_min`: the nodes'
+    (xs, ys) as `host.planning.partition.rectangles` takes them (default even); `cells`: (los,
+    his) of the nodes' cells (default: cut to match the rectangles); `passed_min`: the nodes'
     Scheduler's; `clock`: the simulator's ("rounds" or "work", a message's `latency` in work
     units); `outcome`: a list the simulator's Outcome is appended to; `plan`: more MeshPlan
     fields (mode, tiles, tile)."""

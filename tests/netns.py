@@ -10,7 +10,7 @@ import secrets
 import subprocess
 from contextlib import contextmanager
 
-from host.localmesh import LocalMesh
+from host.run.localmesh import LocalMesh
 
 
 def _ip(*args: str) -> None:

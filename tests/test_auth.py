@@ -9,9 +9,9 @@ import struct
 import numpy as np
 import pytest
 
-from meshnode import cli
-from meshnode.link import HANDSHAKE_FRAME, LinkClosed, dial
-from meshnode.service import NodeService
+from meshnode.service import cli
+from meshnode.service.server import NodeService
+from meshnode.transport.link import HANDSHAKE_FRAME, LinkClosed, dial
 from protocols.errors import AuthFailed
 from protocols.framing import FrameDecoder
 from protocols.handshake import auth, check_auth, hello, nonce, read_secret
@@ -133,7 +133,7 @@ async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node
     # An authenticated host names a neighbour address where a stranger listens: the node
     # dials it, the stranger cannot prove the secret, the render fails naming that address,
     # and the node takes the next render (ABORT, then a new CONFIG on the same link).
-    from meshnode.warmup import ALL_KINDS, variant_scene
+    from meshnode.service.warmup import ALL_KINDS, variant_scene
     from protocols.messages import OBJECT_TABLES
     from protocols.render import MeshPlan
 
@@ -205,7 +205,7 @@ def test_a_local_mesh_renders_with_its_own_secret(tmp_path):
     # The CLI's local mesh makes a secret, gives it to its nodes in their environment and
     # proves it itself: the image equals one node's.
     from host.cli import main
-    from host.framebuffer import read_pfm
+    from host.run.framebuffer import read_pfm
     from tests.conftest import spd_scene
 
     scene = spd_scene("tetra_s1.nff")

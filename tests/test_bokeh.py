@@ -19,8 +19,8 @@ import math
 import numpy as np
 import pytest
 
-from host.camera import Camera
-from host.render import render
+from host.camera.lens import Camera
+from host.run.oneprocess import render
 from protocols import dtypes
 from protocols.scene import View
 from tests.conftest import make_scene, records

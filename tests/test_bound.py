@@ -33,7 +33,7 @@ def test_each_key_gets_its_own_overload_and_the_dispatchers_result():
 def test_an_engine_traces_network_bytes_and_its_own_arrays_alike():
     # rays decoded from a message are read-only views of its bytes: another numba type, so
     # another key; the colours, counts and rays passed on must not depend on which
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
     from meshnode.engine import Engine
     from meshnode.engine.camera import eye_rays
     from protocols.render import ImageSpec

@@ -5,7 +5,7 @@ the engine's choice between it and the grid."""
 import numpy as np
 import pytest
 
-from host.nff import read_nff
+from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS
 from meshnode.engine.camera import eye_rays
@@ -156,7 +156,8 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
     single walk's is, and rays starting outside the box go on before either is read. The
     batch leads with eye rays whose directions have components exactly 0 (walked in packets,
     whose reciprocals their spans reuse: inf there, as a division-free span must give)."""
-    from host.partition import holders, subset
+    from host.planning.partition import holders
+    from host.scene.subset import subset
     from meshnode.engine.trace import owners
 
     scene = read_nff(spd_scene(name))

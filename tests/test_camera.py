@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.camera import CameraError, describe, read_camera, read_table, read_toml
+from host.camera.lens import CameraError, describe, read_camera, read_table, read_toml
 from host.cli import main
 from protocols import dtypes
 
@@ -98,7 +98,7 @@ def _empty_scene():
 def _lens_with_stop(shape: str, stop_r: float, lens_r: float = 0.01):
     """A thin lens with a diaphragm in its own plane: the generation area is the lens rim, so
     a pixel sees the stop's share of it."""
-    from host.camera import Camera
+    from host.camera.lens import Camera
     from tests.test_optics import stack
 
     elements = stack(
@@ -118,7 +118,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
     """Under adaptation "all" a ray weighs the area it was drawn from over the area passing
     from the film's centre: however the rays are aimed, the centre of a uniform background is
     the background, and the share of rays stopped is the stop's share of the aimed area."""
-    from host.render import render
+    from host.run.oneprocess import render
     from tests.conftest import records
 
     scene = _empty_scene()
@@ -141,7 +141,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
 
 def test_camera_image_is_upright_and_not_mirrored():
     # An off-axis sphere lands in the same quadrant through the lens as through the pinhole.
-    from host.render import render
+    from host.run.oneprocess import render
     from protocols.scene import View
     from tests.conftest import make_scene, records
 
@@ -177,7 +177,7 @@ def test_wide_angle_example_has_visible_barrel_distortion():
     # Chief rays (through the stop's centre) from field angles theta land at h(theta) on the
     # film focused at infinity; a distortion-free lens puts them at EFL tan(theta). The wide
     # lens agrees paraxially and bows inward further out (barrel): -1% at 10 deg, < -2% at 20.
-    from host.focus import cardinal, film_for_distance
+    from host.camera.focus import cardinal, film_for_distance
     from meshnode.engine.optics import trace
 
     el = read_camera(CAMERAS / "wide.txt").elements

@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from host.cli import main
-from host.framebuffer import Framebuffer, read_pfm, to_srgb8, write_pfm
+from host.run.framebuffer import Framebuffer, read_pfm, to_srgb8, write_pfm
 from tests.conftest import spd_scene
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
@@ -240,7 +240,7 @@ def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
 
 
 def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys):
-    from host.balance import OVERLAPS
+    from host.planning.balance import OVERLAPS
 
     stats = tmp_path / "s.json"
     assert main(["render", str(EXAMPLE), "--mesh", "1x2", "--mode", "object", "--overlap",

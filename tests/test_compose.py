@@ -16,8 +16,8 @@ import pytest
 import yaml
 
 from host.cli import _parser
-from host.cluster import read_cluster
-from meshnode.cli import parse as parse_node
+from host.run.cluster import read_cluster
+from meshnode.service.cli import parse as parse_node
 
 ROOT = Path(__file__).resolve().parents[1]
 

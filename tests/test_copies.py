@@ -11,14 +11,14 @@ import asyncio
 import numpy as np
 import pytest
 
-from host.camerasetup import CameraSetup
-from host.localmesh import LocalMesh
-from host.meshclient import render_on_mesh, shrink
-from host.nff import read_nff
-from host.partition import partition
-from host.render import render
-from meshnode.config import Config, Objects
-from meshnode.node import EngineCache
+from host.camera.setup import CameraSetup
+from host.planning.partition import partition
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import render_on_mesh, shrink
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
+from meshnode.mesh.node import EngineCache
+from meshnode.service.config import Config, Objects
 from protocols.camera import CameraSampling
 from protocols.errors import BadFrame
 from protocols.messages import OBJECT_TABLES
@@ -197,7 +197,7 @@ def test_the_pre_pass_shares_the_cell_the_work_gathers_in_within_memory():
     """mount_s1 under even cuts on 3x3: all its objects lie in one cell, so only that cell
     and its four links work. The pre-pass shares a cell, which spreads the simulated work
     over more nodes and lowers the busiest; a memory too small for it shares none."""
-    from host.balance import SHARE_GAIN, choose_shared, node_costs
+    from host.planning.balance import SHARE_GAIN, choose_shared, node_costs
 
     scene = read_nff(spd_scene("mount_s1.nff"))
     image = ImageSpec(width=48, height=48).sized(scene.view)

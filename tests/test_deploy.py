@@ -12,8 +12,8 @@ import yaml
 from kubernetes_validate.utils import latest_version
 
 from host.cli import _parser, main
-from host.cluster import read_cluster
-from meshnode.cli import parse as parse_node
+from host.run.cluster import read_cluster
+from meshnode.service.cli import parse as parse_node
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY = ROOT / "deploy"

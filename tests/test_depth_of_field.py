@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from host.camera import Camera, CameraError, entrance_pupil_radius, focused, with_f_number
+from host.camera.focus import circle_of_confusion, dof_from_near_far
+from host.camera.lens import Camera, CameraError, entrance_pupil_radius, focused, with_f_number
 from host.cli import main
-from host.focus import circle_of_confusion, dof_from_near_far
-from host.render import render
+from host.run.oneprocess import render
 from meshnode.engine.optics import trace
 from protocols import dtypes
 from protocols.scene import View
@@ -119,8 +119,8 @@ def test_host_render_depth_of_field_options(tmp_path, capsys):
 def test_mesh_autofocus_probes_only_the_objects_in_its_cone(name):
     # The host focuses a mesh render with an engine over the objects inside the probe's cone:
     # the same depth as a whole-scene engine (a probe ray can hit nothing else), fewer objects.
-    from host.autofocus import autofocus_distance, in_probe_cone, probe_engine
-    from host.nff import read_nff
+    from host.camera.autofocus import autofocus_distance, in_probe_cone, probe_engine
+    from host.scene.nff import read_nff
     from meshnode.engine import Engine
     from tests.conftest import spd_scene
 

@@ -25,9 +25,9 @@ import pytest
 from hypothesis import HealthCheck, given, note, settings
 from hypothesis import strategies as st
 
-from host.camera import Camera, CameraError, read_camera, read_table, read_toml
-from host.nff import SceneError, parse_nff
-from meshnode.config import Config
+from host.camera.lens import Camera, CameraError, read_camera, read_table, read_toml
+from host.scene.nff import SceneError, parse_nff
+from meshnode.service.config import Config
 from protocols import dtypes
 from protocols.camera import CameraSpec
 from protocols.dtypes import WIRE_DTYPES

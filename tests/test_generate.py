@@ -6,7 +6,7 @@ import pytest
 
 from bench.generate import balls, balls_count, tetra, tetra_count
 from bench.spd import parse_scaling
-from host.nff import read_nff
+from host.scene.nff import read_nff
 from tests.conftest import spd_scene
 
 TOL = 1e-4  # the SPD files print six significant digits

@@ -5,7 +5,7 @@ through voxel corners, grazing rays)."""
 import numpy as np
 import pytest
 
-from host.nff import read_nff
+from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.grid import build_grid, choose_resolution

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from host.cli import _parser as host_parser
-from meshnode.cli import parser as node_parser
+from meshnode.service.cli import parser as node_parser
 
 
 def _commands(parser: argparse.ArgumentParser, path=()):
@@ -51,7 +51,7 @@ def test_the_subcommands_are_all_walked():
     assert {"", "serve", "warmup"} <= node
 
 
-@pytest.mark.parametrize("module", ["host.cli", "meshnode.cli"])
+@pytest.mark.parametrize("module", ["host.cli", "meshnode.service.cli"])
 def test_the_commands_print_help_in_a_fresh_process(module):
     r = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True,
                        timeout=60)  # fmt: skip

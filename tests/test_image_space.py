@@ -6,10 +6,10 @@ seams decide as on one node; every pixel is finished exactly once."""
 import numpy as np
 import pytest
 
-from host.camerasetup import CameraSetup
-from host.nff import read_nff
-from host.partition import partition, tiles
-from host.render import render
+from host.camera.setup import CameraSetup
+from host.planning.partition import partition, tiles
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
@@ -45,7 +45,7 @@ def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
 def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling, monkeypatch):
     # Chunks of pass 2 start CHUNK_RAYS rays' worth at a time: a small budget leaves
     # some unstarted on this small image, for neighbours to steal.
-    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)
+    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
@@ -71,7 +71,7 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
     # Six tiles on nine nodes: nodes 6-8 are dealt none and keep no books, but steal pass-2
     # rows from their neighbours (a small batch budget leaves some unstarted) and send the
     # deposits on to the tiles' nodes.
-    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)
+    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
@@ -133,8 +133,8 @@ def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     # once the host has said who those are).
     import asyncio
 
-    from host.localmesh import LocalMesh
-    from host.meshclient import render_on_mesh
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
 
     if sampling is None:
         scene, image, setup = read_nff(spd_scene("gears_s1.nff")), ImageSpec(40, 40), None
@@ -161,8 +161,8 @@ def test_image_space_over_tcp_equals_one_node(sampling, tiling):
 def test_dynamic_tiles_over_tcp_finish_every_tile_once_and_equal_one_node():
     import asyncio
 
-    from host.localmesh import LocalMesh
-    from host.meshclient import render_on_mesh
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
 
     scene, image = read_nff(spd_scene("balls_s1.nff")), ImageSpec(48, 40, spp=2)
     ref, counts = reference(scene, image)
@@ -181,7 +181,7 @@ def test_dynamic_tiles_over_tcp_finish_every_tile_once_and_equal_one_node():
 
 
 def test_the_dealer_deals_every_tile_once_and_closes_every_node():
-    from meshnode.scheduler import TileDealer
+    from meshnode.mesh.scheduler import TileDealer
 
     for count, nodes, buffer in ((20, 3, 2), (2, 4, 3), (0, 2, 1)):
         dealer = TileDealer(range(count), nodes, buffer)
@@ -212,8 +212,8 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
     # MeshPlan.order "centre": the first tile dealt holds the image's middle, each tile is
     # no nearer the middle (in rings of tiles) than the one before, and the last are on the
     # border; "rows" deals them as the partition lists them
-    from host.partition import tile_grid
-    from meshnode.scheduler import deal_order
+    from host.planning.partition import tile_grid
+    from meshnode.mesh.scheduler import deal_order
 
     for w, h, t in ((256, 256, 32), (300, 170, 32), (64, 40, 16), (32, 32, 32)):
         rects = tile_grid(w, h, t)
@@ -233,8 +233,8 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
 def dynamic_adaptive_node():
     """Node 1 of a 1x2 image-space mesh, adaptive through a thin lens, 12x10 pixels in
     5-pixel tiles (row by row: 0-2 across the top); its `CameraSpec` and the partition."""
-    from host.partition import partition
-    from meshnode.node import NodeCore
+    from host.planning.partition import partition
+    from meshnode.mesh.node import NodeCore
 
     scene = dof_scene()
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
@@ -248,7 +248,7 @@ def dynamic_adaptive_node():
 
 def pass1_deposit(camera, pixel: int, n: int = 1):
     """`n` deposits of a pixel's first pass-1 corner ray."""
-    from meshnode.adaptive import pass_samples
+    from meshnode.mesh.adaptive import pass_samples
     from protocols.dtypes import DEPOSIT
 
     d = np.zeros(n, DEPOSIT)

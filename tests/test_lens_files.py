@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.camera import Camera, CameraError, describe, read_camera, read_toml
-from host.camerasetup import CameraSetup, PinholeSetup
+from host.camera.lens import Camera, CameraError, describe, read_camera, read_toml
+from host.camera.setup import CameraSetup, PinholeSetup
 from host.cli import main
-from host.render import render
+from host.run.oneprocess import render
 from meshnode.engine.optics import trace
 from protocols import dtypes
 from protocols.camera import CameraSampling
@@ -291,7 +291,7 @@ def test_adaptive_pinhole_from_the_command_line(tmp_path, capsys):
 
 
 def test_adaptive_pinhole_is_closer_to_the_many_ray_image_than_one_ray():
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
 
     scene = read_nff(ROOT / "bench" / "scenes" / "dof.nff")
     image = ImageSpec(width=40, height=30)

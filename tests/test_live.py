@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from host.framebuffer import Framebuffer, to_srgb8
 from host.live.monitor import RAY_KINDS, Monitor
 from host.live.server import LiveServer, parse_address
+from host.run.framebuffer import Framebuffer, to_srgb8
 from protocols.dtypes import LINK_TRAFFIC
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -261,9 +261,9 @@ class Recording(Monitor):
 def test_nodes_report_state_busy_objects_and_link_traffic():
     """Real nodes' PROGRESS, as the page gets it: counters only grow, and end no higher than
     the STATS the node sends last."""
-    from host.localmesh import LocalMesh
-    from host.meshclient import render_on_mesh
-    from host.nff import read_nff
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
+    from host.scene.nff import read_nff
     from protocols.render import ImageSpec, MeshPlan
 
     watch = Recording()

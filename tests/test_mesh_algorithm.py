@@ -6,9 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from host.framebuffer import Framebuffer
-from host.nff import read_nff
-from host.partition import (
+from host.planning.partition import (
     column_rows,
     grown,
     holders,
@@ -18,13 +16,15 @@ from host.partition import (
     scene_box,
     subset,
 )
-from host.render import render
+from host.run.framebuffer import Framebuffer
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.occupancy import occupancy_arrays, skip_empty
 from meshnode.engine.trace import owners
-from meshnode.node import NodeCore, lit_deposits, per_cell
+from meshnode.mesh.node import NodeCore, lit_deposits, per_cell
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import make_scene, spd_scene
@@ -170,7 +170,7 @@ def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
     # from the image at the scene's near face, or even, with cells cut on the work map) most
     # eye rays entered another node's cell first (through the scene's top) and travelled
     # there before any tracing.
-    from host.balance import balanced_cuts
+    from host.planning.balance import balanced_cuts
 
     scene = read_nff(spd_scene(name))
     spec = RenderSpec(ImageSpec(width=128, height=128).sized(scene.view),
@@ -294,8 +294,8 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     # Spheres crowded into the left third of the view: even cuts give the left column of nodes
     # nearly all the work. The pre-pass moves the cuts so the simulated busiest node carries
     # much less; the cuts stay ordered with every band non-empty.
-    from host.balance import balanced_cuts, node_costs
-    from host.partition import splits
+    from host.planning.balance import balanced_cuts, node_costs
+    from host.planning.partition import splits
 
     rng = np.random.default_rng(3)
     centres = np.column_stack([rng.uniform(-4, -1.5, 200), rng.uniform(-3, 3, 200),
@@ -319,7 +319,7 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     # teapot with nearly all the work (the floor reaches far beyond it); cells cut where the
     # work map puts the work share it out, and the mesh cut so still gives the single node's
     # image and counts.
-    from host.balance import balanced_cuts, node_costs
+    from host.planning.balance import balanced_cuts, node_costs
 
     scene = read_nff(spd_scene("teapot_s1.nff"))
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE).sized(scene.view),
@@ -344,8 +344,8 @@ def test_each_column_cut_where_its_work_lies():
     # shared by every column leave each cluster in one node; each column cutting its own
     # rows shares them out (the pre-pass tries both and keeps the better, and says so), and
     # the mesh cut that way still gives the single node's image and counts.
-    from host.balance import balanced_cuts, node_costs
-    from host.partition import splits
+    from host.planning.balance import balanced_cuts, node_costs
+    from host.planning.partition import splits
 
     rng = np.random.default_rng(5)
     centres = np.concatenate([
@@ -451,7 +451,7 @@ def test_a_node_holds_every_object_reaching_the_space_it_traces():
     # padded box's exit and sends a ray on from there, so an object in the padding alone
     # must be held, or a ray passing it goes on beyond it (balls 2x2 at 1024x1024: four
     # shadow rays in 33 M were lit that one node found blocked).
-    from host.partition import traced
+    from host.planning.partition import traced
 
     big = [((-3.0, -3.0, 0.0), 1.0, 0), ((3.0, 3.0, 0.0), 1.0, 0)]
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(1, 2, 0.0))

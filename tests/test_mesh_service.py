@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from host.cli import main
-from host.cluster import parse_mesh, read_cluster
-from host.framebuffer import read_pfm
-from host.localmesh import LocalMesh
-from host.meshclient import MeshError, render_on_mesh
-from host.nff import read_nff
-from host.render import render
+from host.run.cluster import parse_mesh, read_cluster
+from host.run.framebuffer import read_pfm
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import MeshError, render_on_mesh
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 
@@ -206,7 +206,7 @@ def test_mesh_and_cluster_arguments(tmp_path):
 def test_an_outbox_wakes_the_work_loop_when_it_sends():
     # A node paused on full outboxes waits for this: without it, a node whose rays bring
     # nothing back would sleep forever once its outboxes drained.
-    from meshnode.link import Outbox
+    from meshnode.transport.link import Outbox
 
     class Sink:
         sent: list = []
@@ -245,10 +245,11 @@ def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family,
     # sizes, or cells cut on the work map (sent to the nodes in the partition, eye rays sent
     # on to the cell they enter), same image and counts (correctness never depends on the
     # cuts; which family wins on a scene is the pre-pass's choice, tested in simulation).
-    import host.plan
-    from host.balance import balanced_cuts
+    import host.planning.plan
+    from host.planning.balance import balanced_cuts
 
-    monkeypatch.setattr(host.plan, "balanced_cuts", partial(balanced_cuts, families=(family,)))
+    families = partial(balanced_cuts, families=(family,))
+    monkeypatch.setattr(host.planning.plan, "balanced_cuts", families)
     scene = read_nff(spd_scene(name))
     rs = records(width=60, height=60, threads=1)
     ref, ref_stats = render(scene, *rs)

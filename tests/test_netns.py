@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from host.meshclient import MeshError, render_on_mesh
-from host.nff import read_nff
-from host.render import render
+from host.run.meshclient import MeshError, render_on_mesh
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from protocols.render import MeshPlan
 from tests import netns
 from tests.conftest import records, spd_scene

@@ -5,7 +5,7 @@ import pickle
 import numpy as np
 import pytest
 
-from host.nff import SceneError, parse_nff, read_nff
+from host.scene.nff import SceneError, parse_nff, read_nff
 from protocols import dtypes
 from protocols.scene import View
 from tests.conftest import spd_scene

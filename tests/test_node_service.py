@@ -7,8 +7,8 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from meshnode.link import Link, LinkClosed, dial
-from meshnode.service import NodeService
+from meshnode.service.server import NodeService
+from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.messages import Kind, make
 from protocols.render import ImageSpec, MeshPlan, Partition, RenderSpec
 from protocols.scene import View
@@ -131,7 +131,7 @@ async def _heartbeat(link: Link) -> None:
 async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, change, what):
     # Found by bench/fuzz_node.py: a bad material index read outside an array in a kernel
     # (a segfault), a NaN kept a ray walking forever, a huge polygon count asked for 16 GiB.
-    from meshnode.warmup import ALL_KINDS, variant_scene
+    from meshnode.service.warmup import ALL_KINDS, variant_scene
     from protocols.messages import OBJECT_TABLES
 
     scene = variant_scene(ALL_KINDS)

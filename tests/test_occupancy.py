@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-import host.partition
-from host.nff import read_nff
-from host.partition import occupancy_map, scene_box
+import host.planning.partition
+from host.planning.partition import occupancy_map, scene_box
+from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.counters import N_COUNTERS, OCC_STEPS, STEPS
 from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
@@ -87,7 +87,7 @@ def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch)
     runs = {}
     for skip in (True, False):
         if not skip:  # one occupied voxel: every segment goes on as it did before the map
-            monkeypatch.setattr(host.partition, "occupancy_map",
+            monkeypatch.setattr(host.planning.partition, "occupancy_map",
                                 lambda *_: EVERYWHERE)  # fmt: skip
         runs[skip] = render_mesh(scene, 2, 2, 2, 32, 32, spp=2)
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
@@ -103,7 +103,7 @@ def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
     # Walking the map costs (a fractal leaves many small empty cubes to step through) and
     # saves passes; on the cuts it chose, the pre-pass simulates the mesh with and without
     # the map and keeps whichever leaves the busiest node less work, and says so.
-    from host.balance import balanced_cuts, node_costs
+    from host.planning.balance import balanced_cuts, node_costs
 
     scene = read_nff(spd_scene(name))
     spec = RenderSpec(ImageSpec(width=48, height=48).sized(scene.view),

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from host.focus import cardinal, film_for_distance
+from host.camera.focus import cardinal, film_for_distance
 from meshnode.engine.optics import inside_rim, trace
 from protocols import dtypes
 

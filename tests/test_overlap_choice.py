@@ -6,13 +6,14 @@ node's image with the same counts."""
 import numpy as np
 import pytest
 
-from host.balance import FITS, OVERLAPS, largest_engine, node_costs
-from host.framebuffer import Framebuffer
-from host.nff import read_nff
-from host.partition import engine_bytes, subset
-from host.plan import plan_render
-from host.render import render
-from meshnode.simulator import simulate
+from host.planning.balance import FITS, OVERLAPS, largest_engine, node_costs
+from host.planning.partition import engine_bytes
+from host.planning.plan import plan_render
+from host.run.framebuffer import Framebuffer
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
+from host.scene.subset import subset
+from meshnode.mesh.simulator import simulate
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
 

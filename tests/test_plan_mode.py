@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from host.cli import main
-from host.localmesh import LocalMesh
-from host.meshclient import render_on_mesh
-from host.nff import read_nff
-from host.plan import FITS, choose_mode, engine_bytes
-from host.render import render
+from host.planning.plan import FITS, choose_mode, engine_bytes
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import render_on_mesh
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from host.camerasetup import Focus
+from host.camera.setup import Focus
 from host.cli import _parser
 from protocols import dtypes
 from protocols.camera import CameraSampling, CameraSpec

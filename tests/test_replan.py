@@ -10,9 +10,9 @@ import signal
 import numpy as np
 import pytest
 
-from host.meshclient import render_on_mesh, shrink
-from host.nff import read_nff
-from host.render import render
+from host.run.meshclient import render_on_mesh, shrink
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 from tests.test_mesh_service import COUNTS, slow_mesh

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from host.camera import Camera
-from host.localmesh import LocalMesh
-from host.meshclient import render_on_mesh
-from host.render import render
+from host.camera.lens import Camera
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import render_on_mesh
+from host.run.oneprocess import render
 from meshnode.engine.lenscamera import first_pass, to_area, unit_points
 from protocols import dtypes
 from protocols.camera import CameraSampling, CameraSpec
@@ -152,7 +152,7 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     # the pixel and its four side neighbours are refined (their corner means differ by 1),
     # nothing else. Split into two rectangles with deposits routed to owners and halos, the
     # two nodes decide exactly as one node does.
-    from meshnode.adaptive import AdaptiveFilm, RectIndex, deposit_routes
+    from meshnode.mesh.adaptive import AdaptiveFilm, RectIndex, deposit_routes
 
     spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05,
                       CameraSampling(rays=4, sampling="adaptive"))
@@ -235,7 +235,7 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
 def test_rect_index_finds_the_rectangle_of_every_pixel():
     # Mesh rectangles with uneven cuts and image tiles with a ragged last row and column:
     # the index agrees with a test of every rectangle, and pixels outside all are -1.
-    from meshnode.adaptive import RectIndex
+    from meshnode.mesh.adaptive import RectIndex
 
     width, height = 37, 23
     meshes = [[(0, 10, 0, 8), (10, 37, 0, 8), (0, 10, 8, 23), (10, 37, 8, 23)],

@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from host.cli import main
-from host.inventor import CAP_SIDES, parse_inventor
-from host.nff import parse_nff
-from host.render import render
-from host.scenefile import SceneError, read_scene
-from host.settings import Settings
+from host.run.oneprocess import render
+from host.scene.formats import SceneError, read_scene
+from host.scene.inventor import CAP_SIDES, parse_inventor
+from host.scene.nff import parse_nff
+from host.scene.settings import Settings
 from protocols.render import EngineSpec, ImageSpec
 from tests.meshsim import render_mesh
 

@@ -3,10 +3,11 @@ back, when it passes the state packet, and that a ring of one walks every state 
 
 import numpy as np
 
-from meshnode import scheduler
-from meshnode.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
-from meshnode.termination import Packet, State
+from meshnode.mesh import scheduler
+from meshnode.mesh.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.mesh.termination import Packet
 from protocols.dtypes import RAY
+from protocols.state import State
 
 
 def rays(n: int) -> np.ndarray:

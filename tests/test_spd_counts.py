@@ -5,8 +5,8 @@ independent reference for the whole tracer (camera, intersections, shading rules
 import pytest
 
 from bench.spd import PUBLISHED_TOLERANCE, TOLERANCE, read_published
-from host.nff import read_nff
-from host.render import render
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from meshnode.engine.counters import spd_counts
 from protocols.render import EngineSpec, ImageSpec
 from tests.conftest import SCENES, spd_scene

@@ -4,7 +4,8 @@ simulated ring of nodes passing messages with random delays, checked at every ad
 import numpy as np
 import pytest
 
-from meshnode.termination import Packet, State, Termination
+from meshnode.mesh.termination import Packet, Termination
+from protocols.state import State
 from protocols.topology import Torus
 
 

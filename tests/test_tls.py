@@ -1,7 +1,7 @@
-"""TLS on every link (meshnode.tls): a 1x2 cluster whose nodes listen with certificates from
-one CA and demand client certificates renders the single node's image over TLS, node to node
-and host to node; a plain host, a host that trusts another CA and a host without a client
-certificate are each refused with the reason, and the nodes go on serving."""
+"""TLS on every link (meshnode.transport.tls): a 1x2 cluster whose nodes listen with
+certificates from one CA and demand client certificates renders the single node's image over
+TLS, node to node and host to node; a plain host, a host that trusts another CA and a host
+without a client certificate are each refused with the reason, and the nodes go on serving."""
 
 import asyncio
 
@@ -10,11 +10,11 @@ import pytest
 import trustme
 
 from host.cli import main
-from host.localmesh import LocalMesh
-from host.meshclient import MeshError, render_on_mesh
-from host.nff import read_nff
-from host.render import render
-from meshnode.tls import TlsFiles
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import MeshError, render_on_mesh
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
+from meshnode.transport.tls import TlsFiles
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 

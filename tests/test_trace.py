@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from host.nff import read_nff
-from host.render import render
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from protocols import dtypes
 from protocols.scene import View

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from meshnode.engine.engine import all_variants, variant_of
 from meshnode.engine.tables import build_tables
-from meshnode.warmup import variant_scene
+from meshnode.service.warmup import variant_scene
 from tests.conftest import make_scene
 
 
@@ -41,12 +41,12 @@ def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights
 
 FRESH_RENDER = """
 import numpy as np
-from host.render import render
+from host.run.oneprocess import render
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import kernels_compiled
 from meshnode.engine.trace import owners
-from meshnode.warmup import ALL_KINDS, variant_scene
+from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec
 
 scene = variant_scene(ALL_KINDS)
@@ -62,7 +62,7 @@ print(kernels_compiled())
 
 
 def test_a_render_in_a_fresh_process_after_warmup_compiles_nothing():
-    from meshnode.warmup import warmup
+    from meshnode.service.warmup import warmup
 
     # The session's workers share the warmup out: make sure it is all in this cache (a load
     # from disk when another worker compiled it already).
@@ -80,7 +80,7 @@ def test_an_engine_warms_only_the_kernel_it_traces_with(monkeypatch):
     import pytest
 
     from meshnode.engine import Engine
-    from meshnode.warmup import ALL_KINDS
+    from meshnode.service.warmup import ALL_KINDS
 
     scene = variant_scene(ALL_KINDS)
     whole = Engine(scene)

@@ -1,4 +1,4 @@
-"""The simulator's work clock (`meshnode.simulator`, clock="work"): each node's clock moves
+"""The simulator's work clock (`meshnode.mesh.simulator`, clock="work"): each node's clock moves
 by the work it does, so a node with cheap work runs ahead and takes more tiles or chunks,
 as on a real mesh. It must still give the single node's image and ray counts on every
 shape and mode, and it must show what rounds cannot: dynamic tiles evening out uneven work."""
@@ -6,8 +6,8 @@ shape and mode, and it must show what rounds cannot: dynamic tiles evening out u
 import numpy as np
 import pytest
 
-from host.camerasetup import CameraSetup
-from host.nff import read_nff
+from host.camera.setup import CameraSetup
+from host.scene.nff import read_nff
 from protocols.camera import CameraSampling
 from protocols.render import ImageSpec
 from tests.conftest import spd_scene
@@ -48,7 +48,7 @@ def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():
 
 
 def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(monkeypatch):
-    monkeypatch.setattr("meshnode.node.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
+    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))

@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from host.framebuffer import Framebuffer, to_srgb8
-from meshnode.scheduler import State
+from host.run.framebuffer import Framebuffer, to_srgb8
+from protocols.state import State
 
 STATES = [s.name.lower() for s in State]  # a node's state by its number in PROGRESS
 RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")

@@ -7,7 +7,7 @@ reflected: the transmitted share joins the reflected ray (no ray is created for 
 SPD author's counter counts such an event as a refracted ray (`spd_counts`).
 `voxel_steps` counts steps of a walk through the node's own structure (grid voxels or
 hierarchy nodes), `occupancy_steps` steps through the scene's occupancy map (an object-space
-node's segments leaving its box): the two cost differently (`meshnode.stats.work_units`).
+node's segments leaving its box): the two cost differently (`meshnode.mesh.stats.work_units`).
 """
 
 EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)

@@ -1,6 +1,6 @@
 """The Python-facing engine: holds one node's tables and grid, checks inputs, calls kernels.
 
-    from host.nff import read_nff
+    from host.scene.nff import read_nff
     from meshnode.engine import Engine
     engine = Engine(read_nff("scene.nff"))
     t, gid = engine.first_hits(origins, directions)      # nearest hit per ray
@@ -20,11 +20,11 @@ from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.bvh import Bvh, empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only, build_grid
+from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
 from meshnode.engine.trace import first_hits, routed, trace_batch
-from meshnode.heap import keep_freed_memory
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
 from protocols.scene import SceneData

@@ -1,0 +1,112 @@
+"""A render planned for a mesh: the spec every node receives, the image cuts (even, or from
+the simulated cost pre-pass), every node's rectangle and box, and which objects it holds.
+
+Everything here happens in the host before any node is configured, so a plan that cannot
+work (a bad camera, too many nodes for the image) fails before any connection is made.
+"""
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from host.camera.setup import CameraSetup
+from host.planning.balance import FITS, balanced_cuts, choose_holding, node_costs
+from host.planning.partition import engine_bytes, partition
+from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, Partition, RenderSpec
+from protocols.scene import SceneData
+
+
+@dataclass
+class Planned:
+    spec: RenderSpec
+    partition: Partition
+    holders: np.ndarray  # (nodes, objects) bool
+    camera: dict | None  # what the statistics say of the camera
+    balance: dict  # how the cuts were chosen
+    seconds: float  # planning time (autofocus probe and cost pre-pass included)
+
+
+def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: MeshPlan,
+                camera: CameraSetup | None = None, overlaps=(),
+                memory: int = 0) -> Planned:  # fmt: skip
+    """The render planned: `overlaps` (object space) are overlaps for the pre-pass to choose
+    among, the smallest first (`host.planning.balance.balanced_cuts` searches cuts at each; on even
+    cuts `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not
+    known. Without them the plan's own overlap is kept."""
+    start = time.perf_counter()
+    if overlaps and plan.mode == "object":
+        plan = replace(plan, overlap=min(overlaps))
+    image = image.sized(scene.view)
+    camera_spec = info = None
+    if camera is not None:  # autofocus probes the scene here, before any node is configured
+        camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image,
+                                                                           engine))  # fmt: skip
+    spec = RenderSpec(image, engine, plan, camera_spec)
+    xs = ys = cells = None
+    occupancy, overlap, shared = True, plan.overlap, plan.shared
+    balance: dict = {"cuts": plan.balance}
+    t0 = time.perf_counter()
+    if plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
+        xs, ys, report, cells, occupancy, overlap, shared = balanced_cuts(
+            scene, spec, overlaps=overlaps, memory=memory)
+        balance.update(report, seconds=time.perf_counter() - t0)
+    elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
+        even = node_costs(scene, spec, None, None).max()
+        overlap, occupancy, report = choose_holding(scene, spec, None, None, None, even,
+                                                    overlaps, memory)  # fmt: skip
+        balance.update(report, seconds=time.perf_counter() - t0)
+    if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
+        spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
+    part, keep = partition(scene, spec, xs, ys, cells, occupancy)
+    return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
+
+
+def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
+    from host.camera.autofocus import probe_engine
+
+    width, height = image.size
+    return probe_engine(scene, width, height, density=engine.density, storage=engine.storage,
+                        structure=engine.structure, max_depth=1)  # fmt: skip
+
+
+PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES
+
+
+def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: str = "auto",
+                override: int | None = None) -> tuple[MeshPlan, str]:  # fmt: skip
+    """The mode the nodes run, and why: what was asked, or (auto) image space when the
+    whole scene's engine fits comfortably in the smallest node's memory (each node reports
+    its memory at the handshake; `override` replaces the reports), object space when not or
+    when the image cuts are cost-balanced (an object-space lever)."""
+    if asked != "auto":
+        return replace(plan, mode=asked), f"asked for with --mode {asked}"
+    need = engine_bytes(scene)
+    memory = smallest_memory(memories, override)
+    size = f"the whole scene's engine (about {_size(need)})"
+    if plan.balance != "even":
+        return replace(plan, mode="object"), f"--balance {plan.balance} cuts object space"
+    if plan.steal or plan.copies:
+        lever = "--steal" if plan.steal else "--copies"
+        return replace(plan, mode="object"), f"{lever} is object space's lever"
+    if memory == 0:
+        return replace(plan, mode="object"), "the nodes did not report their memory"
+    where = "--node-memory" if override is not None else "the smallest node's free memory"
+    if need <= FITS * memory:
+        return replace(plan, mode="image"), (f"{size} fits in {where} ({_size(memory)}) "
+                                             "many times over: no rays cross the network")
+    return replace(plan, mode="object"), (f"{size} would take over {FITS:.0%} of {where} "
+                                          f"({_size(memory)}): each node holds its box")
+
+
+def smallest_memory(memories: list[int], override: int | None = None) -> int:
+    """The memory to plan for: `override` (--node-memory), else the least any node reported
+    at the handshake (0: none did)."""
+    return override if override is not None else min((m for m in memories if m > 0), default=0)
+
+
+def _size(n: int) -> str:
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} bytes"

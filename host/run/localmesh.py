@@ -1,0 +1,115 @@
+"""The embedded default: `meshnode serve` processes on loopback, started and always stopped.
+
+Each node prints `listening HOST:PORT` once bound; the host reads that line, so ports are
+chosen by the OS. Processes are killed on any exit path (errors, Ctrl-C) by the context
+manager, so no orphan is left behind. Nodes start with SIGINT ignored: a Ctrl-C at the
+terminal (sent to the whole process group) reaches the host alone, which stops them all at
+once (SIGTERM: they die without a word) before it winds down, instead of every node printing
+its own traceback or reporting its neighbours gone; they stay in the terminal's group, so a
+hang-up or Ctrl-Z still reaches them.
+"""
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+
+
+class LocalMesh:
+    """`with LocalMesh(n) as addresses:` n node processes on 127.0.0.1, each tracing on
+    `threads` threads (one: the default mesh has a node per core). `listen` (one
+    HOST:PORT per node) and `wrap` (a command prefix per node, such as `ip netns exec NS`)
+    place nodes elsewhere on this machine, for tests over real network devices; `module`
+    (a `meshnode.service.cli` look-alike), `options` (more `serve` options) and `env` start them
+    differently, for tests that inject faults; `secret`: the cluster secret the nodes get
+    (in their environment, never on a command line other users can read); `once`: nodes
+    serve one render (False: until stopped, for several renders on one mesh)."""
+
+    def __init__(self, n: int, cluster: str = "meshtrace", start_timeout: float = 60.0,
+                 listen: list[str] | None = None, wrap=None, threads: int = 1,
+                 module: str = "meshnode.service.cli", options=(), env=None,
+                 secret: bytes | None = None, once: bool = True):  # fmt: skip
+        self.n, self.cluster, self.timeout, self.threads = n, cluster, start_timeout, threads
+        self.secret = secret
+        self.once = once
+        self.module, self.options, self.env = module, list(options), env
+        self.listen = listen or ["127.0.0.1:0"] * n
+        self.wrap = wrap or (lambda i: [])
+        self.procs: list[subprocess.Popen] = []
+        self._sigint = None  # the SIGINT handler to restore on exit
+
+    def __enter__(self) -> list[str]:
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # fmt: skip
+            self._sigint = signal.signal(signal.SIGINT, self._interrupted)
+        try:
+            with _sigint_ignored():
+                for i in range(self.n):
+                    self.procs.append(subprocess.Popen(
+                        [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
+                         self.listen[i], "--cluster", self.cluster, *(["--once"] * self.once),
+                         "--threads", str(self.threads), *self.options],
+                        stdout=subprocess.PIPE, text=True, env=self._environment(),
+                    ))  # fmt: skip
+            return [self._address(p) for p in self.procs]
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+
+    def _environment(self) -> dict:
+        env = {**os.environ, **(self.env or {})}
+        env.pop("MESHTRACE_SECRET", None)
+        if self.secret is not None:
+            env["MESHTRACE_SECRET"] = self.secret.decode()
+        return env
+
+    def _address(self, proc: subprocess.Popen) -> str:
+        """The address a node prints once bound; waiting at most `timeout` seconds for it."""
+        ready, _, _ = select.select([proc.stdout], [], [], self.timeout)
+        line = proc.stdout.readline() if ready else ""
+        if not line.startswith("listening "):
+            raise RuntimeError(f"meshnode did not start (pid {proc.pid}): {line!r}")
+        return line.split()[1]
+
+    def _stop(self) -> None:
+        """SIGTERM to every node still running."""
+        for p in self.procs:
+            if p.poll() is None:
+                p.terminate()
+
+    def _interrupted(self, signum, frame):
+        """Ctrl-C: stop every node first, so none sees its neighbours vanish (and logs it)
+        while the host winds down, then interrupt the host as Python does."""
+        self._stop()
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc) -> None:
+        if self._sigint is not None:
+            signal.signal(signal.SIGINT, self._sigint)
+            self._sigint = None
+        self._stop()
+        for p in self.procs:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            if p.stdout:
+                p.stdout.close()
+
+
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while children start, so they inherit it ignored (Python and asyncio
+    then leave it so); only the main thread may change signal handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -1,0 +1,190 @@
+"""Single-node rendering in this process: eye rays in row bands, traced on a thread pool.
+
+The kernels release the GIL, so threads give real parallelism; each band is one kernel call with
+its own mailbox and stack, and counters are summed at the end.
+"""
+
+import os
+import sys
+import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+from host.camera.setup import CameraSetup
+from host.run.framebuffer import Framebuffer
+from meshnode.engine import Engine
+from meshnode.engine.camera import eye_rays
+from meshnode.engine.counters import WALK_COUNTS
+from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
+from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
+from protocols.render import EngineSpec, ImageSpec
+from protocols.scene import SceneData
+
+BAND_ROWS = 16  # sample rows per pinhole job: many jobs per thread, each one kernel call
+# ... and at most this many rays (whole rows, else parts of one): 16 rows of tetra at 768
+# wide and 78 spp were 958K rays, 100 MB of records a job; one-row jobs traced it in 0.92x
+# the CPU (best of 5 pinned turns), as a mesh node's 65536-ray batches do.
+BAND_RAYS = 65536
+
+
+def render(scene: SceneData, image: ImageSpec = ImageSpec(),
+           engine: EngineSpec = EngineSpec(), camera: CameraSetup | None = None, *,
+           progress: bool = False, built: Engine | None = None, watch=None):  # fmt: skip
+    """Render `scene` on one node; returns (linear float image, statistics dict).
+    `built`: an engine already built for this scene and `engine` (benchmarks reuse one);
+    `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
+    image = image.sized(scene.view)
+    tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
+                             structure=engine.structure, max_depth=image.depth, brute=engine.brute,
+                             announce=_compiling if progress else None)  # fmt: skip
+    tracer.warmup()
+    eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed
+    job = _Job(scene, image, engine, tracer, progress, watch)
+    if camera is not None:
+        return _render_camera(job, camera)
+    width, height = image.size
+    corners = image.corners()
+    fb = Framebuffer(width, height, corners=corners, spp=image.spp)
+    bands = pinhole_bands(*image.sample_grid(), image.spp)
+
+    def trace_band(band):
+        rows, cols = band
+        return _traced(tracer, eye_rays(scene.view, image, rows=rows, cols=cols))
+
+    return _run_batches(job, fb, [(bands, fb)], trace_band, len(bands))
+
+
+def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple]]:
+    """(rows, cols) of each pinhole job: BAND_ROWS sample rows, fewer where they would make
+    more than BAND_RAYS rays, and a row in parts where one alone would."""
+    per_row = grid_w * spp
+    rows = max(1, min(BAND_ROWS, BAND_RAYS // max(per_row, 1)))
+    cols = grid_w if per_row <= BAND_RAYS else max(1, BAND_RAYS // spp)
+    return [((y, min(y + rows, grid_h)), (x, min(x + cols, grid_w)))
+            for y in range(0, grid_h, rows) for x in range(0, grid_w, cols)]  # fmt: skip
+
+
+def _compiling(variant: str) -> None:
+    """A first run compiles for tens of seconds before any progress: say why."""
+    print(f"host: compiling kernels for {variant}, first run only", file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class _Job:
+    """What a single-node render's helpers share."""
+
+    scene: SceneData
+    image: ImageSpec  # sized
+    engine: EngineSpec
+    tracer: Engine
+    progress: bool
+    watch: object = None  # host.live.monitor.Monitor, or None
+
+
+def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
+    """Trace jobs on the thread pool: `passes` are (jobs, sink) pairs taken one after the
+    other (adaptive sampling's second pass is made only once the first is traced), each job's
+    deposits added to its sink (the framebuffer, or an adaptive film); `total` jobs or None."""
+    threads = job.engine.threads or os.cpu_count() or 1
+    totals: dict[str, int] = {}
+    cpu = 0.0
+    start = time.perf_counter()
+    bar = _progress(total, job.progress)
+    watch, done = job.watch, 0
+    if watch is not None:
+        watch.start(fb, 1, 1, [job.tracer.stats["objects"]], total, unit="batches")
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for jobs, sink in passes:
+            for rays, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
+                sink.add(rays["pixel"], rgb)
+                counts["eye_rays"] = len(rays)
+                cpu += counts.pop("cpu_seconds")
+                for k, v in counts.items():
+                    totals[k] = totals.get(k, 0) + v
+                bar.update(1)
+                done += 1
+                if watch is not None:
+                    watch.local(done, totals, cpu, threads)
+    bar.close()
+    stats = _stats(job, totals, time.perf_counter() - start, threads)
+    stats["trace_cpu_seconds"] = cpu
+    if camera is not None:
+        stats["camera"] = camera
+    return fb.image(), stats
+
+
+def _render_camera(job: _Job, camera: CameraSetup):
+    """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
+    view, (width, height), seed = job.scene.view, job.image.size, job.image.seed
+    spec, info = camera.spec(job.scene, job.image, lambda: job.tracer)
+    fb = Framebuffer(width, height, corners=False, spp=1)
+    pixels = rect_pixels((0, width, 0, height), width)
+    camera_rays(spec, view, width, height, pixels[:1])  # compiled here, not while timed
+
+    def trace_batch(rays):
+        return _traced(job.tracer, rays)
+
+    if not spec.adaptive:  # batches made as the pool takes them: memory stays bounded
+        batches = camera_batches(spec, view, width, height, pixels, seed, RAYS_PER_BATCH)
+        count = -(-len(pixels) // max(1, RAYS_PER_BATCH // spec.per_pixel))
+        return _run_batches(job, fb, [(batches, fb)], trace_batch, count, info)
+    film = AdaptiveFilm(spec, (0, width, 0, height), width, height, seed)
+    passes = ((make(view, width, height), film) for make in (film.pass1, film.pass2))
+    _, stats = _run_batches(job, fb, passes, trace_batch, None, info)
+    ids, rgb = film.finish()
+    fb.add(ids, rgb)
+    stats["camera"]["refined_pixels"] = int(film.refined.sum())
+    stats["camera"]["rays_per_pixel_traced"] = stats["rays"]["eye_rays"] / len(pixels)
+    return fb.image(), stats
+
+
+def _traced(tracer: Engine, rays):
+    """(rays, colour, counts) of one job, counts with the tracing thread's CPU seconds (the
+    figure a mesh node's busiest CPU time compares with, on a loaded machine too)."""
+    cpu = time.thread_time()
+    rgb, counts = tracer.trace(rays)
+    counts["cpu_seconds"] = time.thread_time() - cpu
+    return rays, rgb, counts
+
+
+def _bounded_map(pool, fn, jobs, inflight: int):
+    """pool.map in order, with at most `inflight` jobs submitted: jobs may be generators of
+    big ray batches, which pool.map would all make up front."""
+    pending: deque = deque()
+    for job in jobs:
+        pending.append(pool.submit(fn, job))
+        if len(pending) >= inflight:
+            yield pending.popleft().result()
+    while pending:
+        yield pending.popleft().result()
+
+
+def _progress(total, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="band", desc="tracing", file=sys.stderr,
+                disable=not enabled, leave=False)  # fmt: skip
+
+
+def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
+    rays = sum(totals[k] for k in ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays"))
+    segments = max(totals["ray_segments"], 1)
+    tracer = job.tracer
+    return {
+        "scene": tracer.scene.source,
+        "image": job.image.to_wire(),
+        "engine_spec": job.engine.to_wire(),
+        "max_depth": job.image.depth,
+        "threads": threads,
+        "rays": {k: v for k, v in totals.items() if k not in WALK_COUNTS},
+        "total_rays": rays,
+        "intersection_tests": totals["intersection_tests"],
+        "voxel_steps": totals["voxel_steps"],
+        "tests_per_ray": totals["intersection_tests"] / segments,
+        "steps_per_ray": totals["voxel_steps"] / segments,
+        "engine": tracer.stats,
+        "preprocess_seconds": tracer.preprocess_seconds,
+        "trace_seconds": trace_seconds,
+        "rays_per_second": rays / trace_seconds if trace_seconds > 0 else None,
+    }

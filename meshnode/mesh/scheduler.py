@@ -1,0 +1,510 @@
+"""What a node does next: a pure state machine, no sockets and no clock (DESIGN.md 5 and 6).
+
+The asyncio service and the simulated mesh (the host's cost pre-pass, the tests) drive it
+alike, so a simulated mesh decides exactly as a real one. The driver reports events (rays
+arrived, a pixel message arrived, messages sent, the state packet arrived, a batch finished)
+and asks `next()` what to do: enter a new state, trace a batch (rays from other nodes first
+once PASSED_MIN of them wait, or whenever no primary batch can start: they are partly
+traced, and finishing them keeps queues short and cannot deadlock full links; then this
+node's primary rays, while its links have room), flush buffered output
+once idle, send the state packet on, or wait for the next event (None).
+"""
+
+from collections import Counter, deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshnode.mesh.termination import Packet, Termination
+from protocols.state import State
+
+INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
+PASSED_BATCH = 4096  # queued incoming messages merged into one batch of up to this many rays
+# Passed rays wait for a primary batch until this many are queued: a neighbour's batch
+# sends a few dozen rays here, and traced one message at a time each paid a kernel call
+# (~30 us) for a few microseconds of tracing.
+PASSED_MIN = 1024
+
+
+@dataclass(frozen=True)
+class Enter:
+    """The ring moved to `state`: the driver sets up its primaries (`Scheduler.primaries`),
+    flushes finished pixels or reports statistics."""
+
+    state: State
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Trace this batch (with the engine of node `taker`: this node's own when None, or a
+    copy it holds); call `batch_done` when it is."""
+
+    rays: np.ndarray
+    primary: bool
+    taker: int | None = None
+
+
+@dataclass(frozen=True)
+class Flush:
+    """Nothing is being traced: send buffered output (deposits) now."""
+
+
+@dataclass(frozen=True)
+class Steal:
+    """Ask neighbour `to` for unstarted chunks (this node has run out of primary rays)."""
+
+    to: int
+
+
+@dataclass(frozen=True)
+class Give:
+    """Answer neighbour `to`'s STEAL with these chunks (maybe none)."""
+
+    to: int
+    chunks: list
+
+
+@dataclass(frozen=True)
+class SendPacket:
+    """Send the state packet to node `to` (the next on the ring)."""
+
+    packet: Packet
+    to: int
+
+
+class Primaries:
+    """Batches of primary rays made one at a time (memory stays bounded at any number of
+    rays per pixel), with a look ahead so the scheduler can tell whether any are left."""
+
+    def __init__(self, batches=()):
+        self.batches, self.next = iter(batches), None
+        self._advance()
+
+    def _advance(self) -> None:
+        self.next = next(self.batches, None)
+        while self.next is not None and len(self.next) == 0:
+            self.next = next(self.batches, None)
+
+    def __bool__(self) -> bool:
+        return self.next is not None
+
+    def pop(self) -> np.ndarray:
+        rays = self.next
+        self._advance()
+        return rays
+
+    @property
+    def waiting(self) -> bool:
+        """More batches may still come (a tile feed the host has not closed)."""
+        return False
+
+
+class ChunkFeed(Primaries):
+    """Object space with stealing: chunks (x0, x1, y0, y1) of this node's rectangle in spiral
+    order, centre first, traced from the front; `take` hands unstarted chunks from the back
+    (the outer end of the spiral) to a neighbour that has run out, and `add` takes chunks a
+    neighbour gave. `batches(chunks)` makes the primary rays of a list of chunks, one batch
+    at a time: one chunk, or with `rays(chunk)` (how many it makes) as many from the front
+    as make at most `budget` rays (adaptive sampling's refined runs make a few hundred each,
+    and every batch costs a kernel call and its messages). A chunk is started (and can no
+    longer be given) once its group's first batch is looked ahead. `usable(thief, chunks)`
+    (None: all) says which chunks a thief can trace itself."""
+
+    def __init__(self, chunks, batches, on_give=None, usable=None, rays=None,
+                 budget: int = 0):  # fmt: skip
+        self.chunks, self.make, self.on_give = deque(chunks), batches, on_give
+        self.usable, self.rays, self.budget = usable, rays, budget
+        self.current = iter(())
+        super().__init__()
+
+    def _advance(self) -> None:
+        while True:
+            self.next = next(self.current, None)
+            if self.next is not None and len(self.next):
+                return
+            if self.next is None:
+                if not self.chunks:
+                    return
+                self.current = iter(self.make(self._group()))
+
+    def _group(self) -> list:
+        """The next chunks to start: one, or as many as fit the ray budget."""
+        group = [self.chunks.popleft()]
+        if self.rays is not None:
+            n = self.rays(group[0])
+            while self.chunks and n + (more := self.rays(self.chunks[0])) <= self.budget:
+                group.append(self.chunks.popleft())
+                n += more
+        return group
+
+    def take(self, thief: int = -1) -> list:
+        """Half of the unstarted chunks `thief` can use, from the outer end (none when one
+        or none is left: this node will start it sooner than a message could carry it);
+        `on_give(chunk)` is told of each (adaptive sampling keeps its books as it gives)."""
+        chunks = list(self.chunks)
+        if self.usable is None or not chunks:
+            ok = np.arange(len(chunks))
+        else:
+            ok = np.flatnonzero(self.usable(thief, chunks))
+        picked = ok[len(ok) - len(ok) // 2 :][::-1].tolist()  # outermost first
+        given = [chunks[i] for i in picked]
+        if given:
+            gone = set(picked)
+            self.chunks = deque(c for i, c in enumerate(chunks) if i not in gone)
+        if self.on_give is not None:
+            for chunk in given:
+                self.on_give(chunk)
+        return given
+
+    def add(self, chunks) -> None:
+        self.chunks.extend(tuple(c) for c in chunks)
+        if self.next is None:
+            self._advance()
+
+
+class TileFeed(Primaries):
+    """Primary batches of tiles the host deals while the frame is traced (dynamic image
+    space): tiles are added as they arrive, `finished` lists the tiles whose last batch has
+    been handed out (the node reports them, and gets new ones), and until the host closes
+    the feed an empty one means "wait", not "done"."""
+
+    def __init__(self):
+        self.tiles: deque = deque()  # (tile index, batches)
+        self.finished: list[int] = []
+        self.open = True
+        super().__init__()
+
+    def add(self, tile: int, batches) -> None:
+        self.tiles.append((tile, iter(batches)))
+        if self.next is None:
+            self._advance()
+
+    def close(self) -> None:
+        self.open = False
+
+    def _advance(self) -> None:
+        self.next = None
+        while self.next is None and self.tiles:
+            tile, batches = self.tiles[0]
+            self.next = next(batches, None)
+            while self.next is not None and len(self.next) == 0:
+                self.next = next(batches, None)
+            if self.next is None:
+                self.tiles.popleft()
+                self.finished.append(tile)
+
+    @property
+    def waiting(self) -> bool:
+        return self.open
+
+
+def spiral_order(i: np.ndarray, j: np.ndarray) -> list[int]:
+    """Indices of grid cells (column i, row j) from the middle outward: ring by ring (the
+    Chebyshev distance from the middle), each ring walked round by angle (DESIGN.md 6)."""
+    i, j = np.asarray(i, float), np.asarray(j, float)
+    if len(i) == 0:
+        return []
+    ci, cj = (i.min() + i.max()) / 2, (j.min() + j.max()) / 2
+    ring = np.maximum(np.abs(i - ci), np.abs(j - cj))
+    return np.lexsort((np.arctan2(j - cj, i - ci), ring)).tolist()
+
+
+def deal_order(rects, order: str) -> list[int]:
+    """The order dynamic tiles are dealt in (MeshPlan.order): "rows" as the partition lists
+    them (row by row), "centre" spiralling out from the image's middle tile, so the last
+    tiles dealt, whose costs decide how evenly the nodes finish, are the border's."""
+    if order == "rows" or len(rects) == 0:
+        return list(range(len(rects)))
+    x0 = np.array([r[0] for r in rects])
+    y0 = np.array([r[2] for r in rects])
+    return spiral_order(np.unique(x0, return_inverse=True)[1],
+                        np.unique(y0, return_inverse=True)[1])  # fmt: skip
+
+
+class TileDealer:
+    """The host's side of dynamic image space: `buffer` tiles to every node at first, then
+    one more whenever a node reports one finished, until none are left; then each node that
+    reports is told it gets no more. `tiles`: the tile indices in the order they are dealt.
+    Pure: the host and the simulated mesh both drive it."""
+
+    def __init__(self, tiles, nodes: int, buffer: int, share_owners: bool = False):
+        self.left = deque(tiles)
+        self.nodes, self.buffer = nodes, max(1, buffer)
+        self.share_owners = share_owners  # adaptive sampling: `last` comes with `owners()`
+        self.owner = np.full(len(self.left), -1, np.int64)  # tile -> node dealt it; -1: not yet
+        self.told: set[int] = set()  # nodes told they get no more
+
+    def first(self) -> dict[int, tuple[list[int], bool]]:
+        """Each node's first tiles, dealt round-robin, and whether that is all it gets (a
+        node dealt none when there are fewer tiles than nodes)."""
+        out: dict[int, list[int]] = {n: [] for n in range(self.nodes)}
+        for _ in range(self.buffer):
+            for n in range(self.nodes):
+                if self.left:
+                    out[n].append(self._deal(n))
+        return {n: (tiles, self._last(n) if not tiles else False) for n, tiles in out.items()}
+
+    def finished(self, node: int) -> tuple[list[int], bool]:
+        """A node finished a tile: (its next tiles, whether it gets no more after them);
+        a node is told it gets no more once: ([], False) after that."""
+        if self.left:
+            return [self._deal(node)], False
+        return [], self._last(node)
+
+    def _last(self, node: int) -> bool:
+        told = node in self.told
+        self.told.add(node)
+        return not told
+
+    def _deal(self, node: int) -> int:
+        tile = self.left.popleft()
+        self.owner[tile] = node
+        return tile
+
+    def owners(self) -> np.ndarray:
+        """Every tile's node, once all are dealt (when a node is told it gets no more):
+        under adaptive sampling a node sends each pass-1 deposit on to the nodes whose tiles
+        have its pixel in their halo, and learns who they are from this."""
+        if self.left:
+            raise RuntimeError("tiles are still to be dealt: their nodes are not known")
+        return self.owner.copy()
+
+    def owners_with(self, last: bool) -> np.ndarray:
+        """What a TILES message carries as every tile's node: `owners()` with a node's last
+        tiles under adaptive sampling, else nothing."""
+        return self.owners() if last and self.share_owners else np.zeros(0, np.int64)
+
+    def tiles_per_node(self) -> list[int]:
+        return np.bincount(self.owner[self.owner >= 0], minlength=self.nodes).tolist()
+
+
+class Scheduler:
+    """One node's decisions. `ring_next`: the node after this one on the packet's ring;
+    `threads`: batches traced at once; `incoming_high`: queued incoming rays above which the
+    driver stops reading (it resumes once `may_read`, at a quarter of that); `passed_min`:
+    queued incoming rays that go before a primary batch (PASSED_MIN)."""
+
+    def __init__(self, node: int, ring_next: int, nodes: int, threads: int = 1,
+                 incoming_high: int = INCOMING_HIGH, neighbours=(),
+                 steal: bool = False, passed_min: int = PASSED_MIN):  # fmt: skip
+        self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
+        # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
+        # one that had nothing is not asked again in this state, but remembers who asked
+        # (`hungry`) and gives to them unasked once it holds chunks to spare (a neighbour's
+        # it stole): else a node whose neighbours had run out when it asked idled to the
+        # end while its diagonal neighbour, which it cannot ask, still had work.
+        self.steal, self.neighbours = steal, list(neighbours)
+        self.asked: set[int] = set()
+        self.steal_from: int | None = None  # the neighbour whose answer is awaited
+        self.thieves: deque = deque()  # neighbours waiting for an answer from this node
+        self.hungry: deque = deque()  # neighbours this node had nothing for
+        self.spare = False  # chunks came in since `hungry` was last offered some
+        self.chunks_taken = 0
+        self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
+        self.incoming_high = max(1, incoming_high)
+        self.passed_min = passed_min
+        self.term = Termination(node)
+        self.state = State.DOWNLOAD
+        self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
+        # Queued rays by the engine that takes them (None: this node's own), and the engines
+        # with rays queued, first come first: one batch traces one engine's parts.
+        self.queued: dict[int | None, deque] = {}
+        self.takers: deque = deque()
+        self.incoming_rays = 0
+        self.primaries = Primaries()
+        self.in_flight = 0
+        self.unflushed = False
+        self.done_passed = False
+        self.forward = False  # a state with primaries just came: pass the packet on first
+        self.pending: deque = deque()  # decisions made, not yet handed out
+
+    # ------------------------------------------------------------------ events
+    def rays_in(self, rays: np.ndarray, message: bool = True, taker: int | None = None) -> bool:
+        """Rays to trace here (from a RAYS message, or passed from this node to itself, for
+        the engine of node `taker`: a copy it holds, or its own when None); True when the
+        driver should stop reading until `may_read`."""
+        if message:
+            self.term.on_received()
+        taker = None if taker == self.node else taker
+        if not self.queued.get(taker):
+            self.queued[taker] = deque()
+            self.takers.append(taker)
+        self.queued[taker].append(rays)
+        self.incoming_rays += len(rays)
+        return self.incoming_rays > self.incoming_high
+
+    def message_in(self) -> None:
+        """A counted data message (PIXELS) arrived and was handled."""
+        self.term.on_received()
+
+    def message_out(self, messages: int = 1) -> None:
+        """Counted data messages (RAYS, PIXELS) left toward other nodes."""
+        self.term.on_sent(messages)
+
+    def packet_in(self, packet: Packet) -> None:
+        self.packet = packet
+
+    def steal_request(self, thief: int) -> None:
+        """A neighbour asked for chunks (a counted message): answered by the next `next()`."""
+        self.term.on_received()
+        self.thieves.append(thief)
+
+    def given(self, giver: int, chunks: list) -> None:
+        """A neighbour's answer (a counted message): chunks to trace here, or none; or its
+        unasked gift, once it had chunks to spare after having none when asked."""
+        self.term.on_received()
+        if giver == self.steal_from:
+            self.steal_from = None
+        if chunks and isinstance(self.primaries, ChunkFeed):
+            self.primaries.add(chunks)
+            self.chunks_taken += len(chunks)
+            self.spare = bool(self.hungry)
+        else:
+            self.asked.add(giver)
+
+    @property
+    def incoming(self) -> bool:
+        """Rays are queued to trace here."""
+        return bool(self.takers)
+
+    def _passed_batch(self) -> Trace:
+        """The first queued engine's parts in order, merged up to PASSED_BATCH rays: a
+        message holds the rays one batch of a neighbour sent here, often a few dozen, and
+        every batch costs a kernel call, its scratch and its routing whatever its size."""
+        taker = self.takers.popleft()
+        queue = self.queued[taker]
+        parts = [queue.popleft()]
+        n = len(parts[0])
+        while queue and n + len(queue[0]) <= PASSED_BATCH:
+            parts.append(queue.popleft())
+            n += len(parts[-1])
+        if queue:
+            self.takers.append(taker)  # the rest after the others' turns
+        self.incoming_rays -= n
+        self.in_flight += 1
+        return Trace(parts[0] if len(parts) == 1 else np.concatenate(parts), False, taker)
+
+    def batch_done(self) -> None:
+        self.in_flight -= 1
+        self.term.on_work()
+        self.unflushed = True
+
+    @property
+    def chunks_given(self) -> int:
+        """Chunks of this node's rectangle neighbours took (MeshPlan.steal)."""
+        return sum(self.given_in.values())
+
+    @property
+    def may_read(self) -> bool:
+        return self.incoming_rays <= self.incoming_high // 4
+
+    @property
+    def done(self) -> bool:
+        return self.state == State.DONE and self.packet is None and not self.pending
+
+    # ------------------------------------------------------------------ decisions
+    def next(self, room: bool = True):
+        """The next thing to do (None: wait for an event). `room`: the links can take more
+        output, so new primary rays may start."""
+        while True:
+            if self.pending:
+                return self.pending.popleft()
+            if self.packet is not None and self.packet.state > self.state:
+                self.forward = self.packet.state in (State.TRACE, State.REFINE)
+                return self._enter(State(self.packet.state))
+            if self.thieves:
+                thief = self.thieves.popleft()
+                chunks = self._take(thief)
+                if not chunks and thief not in self.hungry:
+                    self.hungry.append(thief)
+                return Give(thief, chunks)
+            if self.spare:  # chunks came in: those who found none here may use some
+                self.spare = False
+                for thief in list(self.hungry):
+                    if chunks := self._take(thief):
+                        self.hungry.remove(thief)
+                        self.pending.append(Give(thief, chunks))
+                continue
+            if self.forward and self.packet is not None:
+                # The packet brought a state with primary rays: hand it on at once, so the
+                # nodes after this one start theirs now, not when this one has finished
+                # (Safra: passing it busy marks this node last busy; it stays dirty). Marked
+                # before it goes: else the node that advanced the state, idle with no
+                # primaries of its own, saw the packet back unmarked and ended the state
+                # while this one still had primaries to trace.
+                self.forward = False
+                busy = self.state in (State.TRACE, State.REFINE) and bool(self.primaries)
+                if busy:
+                    self.term.on_work()
+                if self._pass_packet():
+                    self.term.on_work()
+                    continue
+            free = self.in_flight < self.threads
+            tracing = self.state in (State.TRACE, State.REFINE) and (
+                bool(self.primaries) or self.primaries.waiting)
+            primary = tracing and free and room and bool(self.primaries)
+            if self.incoming and free and (self.incoming_rays >= self.passed_min or not primary):
+                return self._passed_batch()
+            if primary:
+                return self._trace(self.primaries.pop(), primary=True)
+            if (target := self._steal_target()) is not None:
+                self.steal_from = target
+                return Steal(target)
+            if self.in_flight:
+                return None
+            if self.unflushed:
+                self.unflushed = False
+                return Flush()
+            if self.packet is None or tracing or self.incoming or self.steal_from is not None:
+                return None
+            if not self._pass_packet():
+                return None
+
+    def _take(self, thief: int) -> list:
+        """Chunks of this node's feed for `thief` (none outside a chunked state), counted."""
+        feed = self.primaries
+        chunks = feed.take(thief) if isinstance(feed, ChunkFeed) else []
+        if chunks:
+            self.given_in[self.state.name] += len(chunks)
+        return chunks
+
+    def _steal_target(self) -> int | None:
+        """The neighbour to ask for chunks when out of chunked primaries (TRACE, or adaptive
+        sampling's REFINE) with no answer awaited: the first not yet found empty in this
+        state (None: nobody to ask)."""
+        if not self.steal or self.state not in (State.TRACE, State.REFINE) or \
+                not isinstance(self.primaries, ChunkFeed) or self.primaries or \
+                self.steal_from is not None:  # fmt: skip
+            return None
+        return next((m for m in self.neighbours if m not in self.asked), None)
+
+    def _enter(self, state: State) -> Enter:
+        self.state = state
+        self.asked = set()
+        self.hungry = deque()
+        self.spare = False
+        self.primaries = Primaries()
+        return Enter(state)
+
+    def _trace(self, rays: np.ndarray, primary: bool) -> Trace:
+        self.in_flight += 1
+        return Trace(rays, primary)
+
+    def _pass_packet(self) -> bool:
+        """Record counters, maybe advance the state, hand the packet to the next ring node;
+        a DONE packet goes round once and is dropped where it has been before. False when
+        there is nothing more to decide now."""
+        packet, self.packet = self.packet, None
+        if self.state == State.DONE and self.done_passed:
+            return False
+        if self.state != State.DONE:
+            before = packet.state
+            packet = self.term.pass_on(packet)
+            if packet.state != before:
+                self.pending.append(self._enter(State(packet.state)))
+        self.done_passed = self.state == State.DONE
+        if self.ring_next != self.node:
+            self.pending.append(SendPacket(packet, self.ring_next))
+        elif not self.done_passed:
+            self.packet = packet  # a ring of one: the packet comes straight back
+        return True

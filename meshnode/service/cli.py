@@ -1,0 +1,131 @@
+"""`meshnode` command line. `warmup` compiles every kernel variant the engine can choose into
+the disk cache, so a node (or a container image) starts tracing without paying numba's compile
+time."""
+
+import argparse
+import sys
+
+from meshnode.mesh.scheduler import INCOMING_HIGH
+from meshnode.transport.tls import NO_TLS, TlsFiles, add_tls_options
+
+
+def parser() -> argparse.ArgumentParser:
+    """Every `meshnode` command and its options (also walked by the help test)."""
+    p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
+    sub = p.add_subparsers(dest="command", required=True)
+    w = sub.add_parser("warmup", help="compile every tracing kernel variant into the disk "
+                       "cache (a first run: many minutes; later: seconds)")  # fmt: skip
+    w.add_argument("--common", action="store_true",
+                   help="only the variant with every primitive kind, lights and refraction")
+    s = sub.add_parser("serve", help="serve as a mesh node")
+    s.add_argument("--listen", default="127.0.0.1:7700",
+                   help="HOST:PORT (default 127.0.0.1:7700; port 0: any free); another "
+                        "address than loopback needs a cluster secret")  # fmt: skip
+    s.add_argument("--secret-file", help="the cluster secret (default: $MESHTRACE_SECRET); "
+                   "every host and node of the cluster must prove it holds the same one")
+    s.add_argument("--insecure", action="store_true",
+                   help="listen beyond loopback without a secret: anyone who reaches the port "
+                        "can use the node")  # fmt: skip
+    add_tls_options(s, "this node's")
+    s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
+    s.add_argument("--once", action="store_true", help="exit after one render")
+    s.add_argument("--threads", type=int, default=0,
+                   help="tracing threads (default 0: one per core)")
+    s.add_argument("--incoming-high", type=int, default=INCOMING_HIGH,
+                   help="queued incoming rays at which the node stops reading from its "
+                        f"neighbours (default {INCOMING_HIGH}, about 100 MB)")  # fmt: skip
+    return p
+
+
+def parse(argv=None) -> argparse.Namespace:
+    return parser().parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    if args.command == "warmup":
+        return _warmup(args.common)
+    try:
+        secret = serving_secret(args)
+        tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca)
+        if tls.ca is not None and tls.cert is None:
+            raise ValueError("--tls-ca needs --tls-cert and --tls-key: a node listening with "
+                             "TLS needs its own certificate")  # fmt: skip
+        tls.server()
+    except (ValueError, OSError) as e:
+        print(f"meshnode: {e}", file=sys.stderr)
+        return 2
+    return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
+                 secret=secret, tls=tls)  # fmt: skip
+
+
+def _warmup(common: bool) -> int:
+    from meshnode.engine.engine import all_variants
+    from meshnode.service.warmup import ALL_KINDS, warmup
+
+    def report(i, n, name):
+        print(f"meshnode: kernels {i + 1}/{n}: {name}", file=sys.stderr, flush=True)
+
+    seconds = warmup([ALL_KINDS] if common else all_variants(), report)
+    print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
+    return 0
+
+
+def serving_secret(args) -> bytes | None:
+    """The cluster secret, and the rule that only loopback may go without one."""
+    import ipaddress
+
+    from protocols.handshake import read_secret
+
+    secret = read_secret(args.secret_file)
+    host = args.listen.rsplit(":", 1)[0].strip("[]")
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = host == "localhost"
+    if secret is None and not loopback and not args.insecure:
+        raise ValueError(f"--listen {args.listen} reaches beyond this machine: give a cluster "
+                         "secret (MESHTRACE_SECRET or --secret-file), or --insecure")
+    return secret
+
+
+def serve(listen: str, cluster: str, once: bool, threads: int = 0,
+          incoming_high: int = INCOMING_HIGH, service_class=None,
+          secret: bytes | None = None, tls: TlsFiles = NO_TLS) -> int:  # fmt: skip
+    """Run the node service (uvloop when installed) until stopped."""
+    import asyncio
+    import logging
+    import os
+
+    from meshnode.service.server import NodeService
+
+    service_class = service_class or NodeService
+
+    logging.basicConfig(level=logging.INFO, format="meshnode %(levelname)s %(message)s")
+    host, port = listen.rsplit(":", 1)
+
+    async def main():
+        service = service_class(host, int(port), cluster, once, threads or os.cpu_count() or 1,
+                                incoming_high, secret, tls)  # fmt: skip
+        try:
+            bound = await service.start()
+        except OSError as e:
+            print(f"meshnode: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
+            return 2
+        print(f"listening {host}:{bound}", flush=True)
+        await service.run()
+
+    try:
+        import uvloop
+
+        runner = uvloop.run
+    except ImportError:
+        runner = asyncio.run
+    try:
+        return runner(main()) or 0
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

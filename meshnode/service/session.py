@@ -1,0 +1,384 @@
+"""One render on one node, from CONFIG to DONE: the application layer of the node service.
+
+The session reads its configuration and objects, builds its NodeCore off the event loop, links
+to its neighbours, and then lets the Scheduler decide: it traces the batches it is told to on
+the service's thread pool (kernels release the GIL, so links keep flowing), posts rays and
+deposits toward the nodes that take them, and forwards the state packet. Every send goes
+through a per-link Outbox; new primary rays start only while the outboxes are below a
+high-water mark, which bounds the rays in flight (and so the memory).
+"""
+
+import asyncio
+import logging
+import time
+
+import numpy as np
+
+from meshnode.mesh.node import HOST, NodeCore
+from meshnode.mesh.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, Trace
+from meshnode.mesh.stats import NodeStats
+from meshnode.mesh.termination import Packet
+from meshnode.service.config import Config, Objects
+from meshnode.transport.link import Link, LinkClosed, Outbox
+from protocols.errors import BadFrame, ProtocolError, describe
+from protocols.messages import Kind, make
+from protocols.state import State
+from protocols.topology import Router
+
+log = logging.getLogger("meshnode")
+OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
+DEPOSIT_BATCH = 32768  # deposits per pixel packet
+HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
+
+
+class Session:
+    """One render on this node; `service` gives the thread pool, the cluster id, the number
+    of tracing threads and the links neighbours opened to this node."""
+
+    def __init__(self, service, host: Link, config: Config):
+        self.service, self.host, self.config = service, host, config
+        self.node = config.node
+        self.router = Router(config.torus, self.node)
+        threads = min(service.threads, config.render.engine.threads or service.threads)
+        self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
+                               threads, service.incoming_high,
+                               neighbours=config.torus.links(self.node),
+                               steal=config.render.steals)  # fmt: skip
+        self.stats = NodeStats(self.node)
+        self.objects = Objects([self.node, *config.copies])
+        self.early_tiles: list[dict] = []  # TILES that came before the engine was built
+        self.core: NodeCore | None = None
+        self.outboxes: dict[int, Outbox] = {}
+        self.wake = asyncio.Event()
+        self.drained = asyncio.Event()
+        self.host_out = Outbox(host, self.fail, self.wake)
+        self.deposits: list = []
+        self.error: Exception | None = None
+        self.ready = False  # engine built and every neighbour linked
+        self.created = time.perf_counter()
+        self.setup_seconds = 0.0
+        self.tasks: set[asyncio.Task] = set()
+        self.spawn(self.heartbeat())
+
+    def spawn(self, coro) -> asyncio.Task:
+        """A task of this session: tracked, so `close` can cancel and await it."""
+        task = asyncio.create_task(coro)
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+        return task
+
+    async def heartbeat(self) -> None:
+        """Tell the host every second that this node lives (a PROGRESS of no rays, saying
+        whether it is ready), so it can name a node that stops, hangs or is cut off within
+        seconds, and tell a node still building from a stuck one."""
+        while True:
+            await asyncio.sleep(HEARTBEAT)
+            self.progress(0)
+
+    def progress(self, rays: int) -> None:
+        """Primary rays just traced, and what the host's live view shows of this node."""
+        links = {m: o.link.stats for m, o in self.outboxes.items()}
+        objects = self.core.engine.stats["objects"] if self.core is not None else 0
+        self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=rays,
+                                work=self.stats.batches, ready=self.ready,
+                                state=int(self.sched.state), objects=objects,
+                                **self.stats.live(links)))  # fmt: skip
+
+    # ------------------------------------------------------------------ setup
+    async def build(self) -> None:
+        """Build the engine off the loop, link to the neighbours, then start working."""
+        try:
+            loop = asyncio.get_running_loop()
+            c = self.config
+            scene = self.objects.scene(self.node, c.view, c.background)
+            copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
+            self.core = await loop.run_in_executor(
+                self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition,
+                                                    engines=self.service.engines,
+                                                    copies=copies))  # fmt: skip
+            if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
+                log.info("node %d: compiling kernels for %s, first run only", self.node,
+                         self.core.engine.variant())  # fmt: skip
+            await loop.run_in_executor(self.service.pool, self.core.warmup)
+            for f in self.early_tiles:  # nothing is traced yet, so no deposit is to send
+                self.core.add_tiles(f["tiles"], f["last"], f["owners"])
+            for m in c.torus.links(self.node):
+                if self.node < m:  # the lower index dials, the higher accepts
+                    self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
+            await self.service.wait_links(self)
+            self.setup_seconds = time.perf_counter() - self.created
+            self.ready = True
+            self.progress(0)
+            self.spawn(self.work())
+        except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
+            self.fail(e)
+
+    def attach(self, m: int, link: Link) -> None:
+        self.outboxes[m] = Outbox(link, self.fail, self.wake)
+        self.spawn(self.read(m, link))
+
+    # ------------------------------------------------------------------ messages
+    def fail(self, error: Exception) -> None:
+        """Report the first failure to the host (named, never empty) and stop working."""
+        if self.error is None:
+            self.error = error
+            log.error("node %d: %s", self.node, describe(error))
+            self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {describe(error)}"))
+            self.wake.set()
+
+    def post_data(self, dest: int, kind: Kind, records: np.ndarray) -> None:
+        """A RAYS or PIXELS message toward node `dest`, counted as sent."""
+        hop = self.router.next_hop(dest)
+        if kind is Kind.RAYS:
+            message = make(Kind.RAYS, rays=records, dest=dest)
+            self.stats.rays_out[hop] += len(records)
+        else:
+            message = make(Kind.PIXELS, deposits=records, dest=dest)
+            self.stats.pixel_packets += 1
+        self.sched.message_out()
+        self.outboxes[hop].post(message, records.nbytes)
+
+    def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
+        """Adaptive deposits the node's books send on, each toward its tile's node."""
+        for dest, deposits in routes.items():
+            self.post_data(dest, Kind.PIXELS, deposits)
+
+    def to_host(self, deposits: np.ndarray) -> None:
+        """Deposits toward the host: in object space straight from node 0, from others
+        through node 0 over the torus; in image space, where nothing else travels the torus,
+        straight from every node (through node 0 its pixels left node 0's row no time to
+        trace: 0.01-0.05 s of tracing CPU against 1.1 s on a 3x3)."""
+        if self.node == 0 or self.config.render.plan.mode == "image":
+            self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
+        else:
+            self.post_data(0, Kind.PIXELS, deposits)
+
+    async def read(self, m: int, link: Link) -> None:
+        try:
+            while True:
+                kind, f = await link.recv()
+                if kind is Kind.RAYS:
+                    self.on_rays(m, f)
+                    if self.sched.incoming_rays > self.sched.incoming_high:
+                        # Stop reading: TCP pushes back on the sender, whose work loop goes
+                        # on (its sends are queued), so this cannot deadlock.
+                        self.drained.clear()
+                        self.wake.set()
+                        await self.drained.wait()
+                elif kind is Kind.PIXELS:
+                    self.on_pixels(f)
+                elif kind is Kind.STATE:
+                    self.on_state(f)
+                elif kind is Kind.STEAL:
+                    self.sched.steal_request(m)
+                elif kind is Kind.GIVE:
+                    self.sched.given(m, self._chunks(f["chunks"]))
+                else:
+                    raise BadFrame(f"unexpected {kind.name} from a neighbour")
+                self.wake.set()
+        except LinkClosed as e:
+            if self.sched.state != State.DONE:
+                self.fail(e)
+        except ProtocolError as e:  # a bad message: named, no traceback
+            self.fail(LinkClosed(f"node {m}", describe(e)))
+        except Exception as e:  # noqa: BLE001 - a bad message must not silently stop reading
+            log.exception("node %d: reading from node %d failed", self.node, m)
+            self.fail(LinkClosed(f"node {m}", describe(e)))
+
+    def _dest(self, f: dict, kind: str) -> int:
+        """A message's destination node, checked: a neighbour cannot route outside the mesh."""
+        dest = f["dest"]
+        if not 0 <= dest < self.config.torus.size:
+            raise BadFrame(f"{kind}.dest = {dest}: no such node")
+        return dest
+
+    def on_rays(self, m: int, f: dict) -> None:
+        self._dest(f, "RAYS")
+        r = f["rays"]
+        finite = np.isfinite(r["o"]).all() and np.isfinite(r["d"]).all() and np.isfinite(
+            r["w"]).all() and np.isfinite(r["t_min"]).all() and not np.isnan(r["t_max"]).any()
+        if not finite or (len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3)):
+            raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
+        self.stats.rays_in[m] += len(f["rays"])
+        if f["dest"] == self.node:
+            self.sched.rays_in(np.array(f["rays"]))
+        else:
+            self.sched.message_in()
+            self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+
+    def on_pixels(self, f: dict) -> None:
+        self._dest(f, "PIXELS")
+        if not np.isfinite(f["deposits"]["rgb"]).all():
+            raise BadFrame("PIXELS: colours must be finite")
+        self.sched.message_in()
+        deposits = np.array(f["deposits"])
+        if f["dest"] != self.node:
+            self.post_data(f["dest"], Kind.PIXELS, deposits)
+        elif self.core.keeps_pixels:
+            self.send_pixels(self.core.keep(deposits))
+        else:
+            self.to_host(deposits)
+
+    def _chunks(self, chunks: list) -> list:
+        """A neighbour's GIVE checked: chunks inside the image (the message kind checked
+        their shape), and only when stealing was asked for."""
+        if not self.config.render.steals:
+            raise BadFrame("GIVE in a render without stealing")
+        w, h = self.config.render.sample_grid
+        if any(c[1] > w or c[3] > h for c in chunks):
+            raise BadFrame(f"GIVE: a chunk reaches beyond the {w}x{h} sample grid")
+        return chunks
+
+    def on_tiles(self, f: dict) -> None:
+        """Tiles the host dealt (dynamic image space); kept until the engine is built."""
+        if not self.config.render.plan.dynamic:
+            raise BadFrame("TILES for a render without dynamic tiles")
+        if self.core is None:
+            self.early_tiles.append(f)
+            return
+        self.send_pixels(self.core.add_tiles(f["tiles"], f["last"], f["owners"]))
+        self.wake.set()
+
+    def on_state(self, f: dict) -> None:
+        self._dest(f, "STATE")
+        n = self.config.torus.size
+        if not 0 <= f["state"] <= State.DONE or not 0 <= f["last_busy"] < n or len(
+                f["sent"]) != n or len(f["received"]) != n:  # fmt: skip
+            raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
+        if f["dest"] != self.node:
+            self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
+            return
+        sent, received = np.array(f["sent"]), np.array(f["received"])
+        self.sched.packet_in(Packet(f["state"], f["last_busy"], f["round"], sent, received))
+
+    # ------------------------------------------------------------------ work
+    async def work(self) -> None:
+        """Do what the scheduler says until the render ends or fails; any failure is
+        reported to the host, never swallowed."""
+        try:
+            while self.error is None:
+                self.wake.clear()
+                room = self.queued_bytes() < OUTBOX_HIGH
+                while (step := self.sched.next(room)) is not None:
+                    self.act(step)
+                    room = self.queued_bytes() < OUTBOX_HIGH
+                if self.sched.may_read:
+                    self.drained.set()
+                await self.wake.wait()
+        except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
+            log.exception("node %d: work loop failed", self.node)
+            self.fail(e)
+
+    def act(self, step) -> None:
+        if isinstance(step, Trace):
+            self.start(step)
+            feed = self.core.feed
+            if step.primary and feed is not None and feed.finished:
+                self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=feed.finished))
+                feed.finished = []
+        elif isinstance(step, Enter):
+            self.enter(step.state)
+        elif isinstance(step, Flush):
+            self.flush()
+        elif isinstance(step, Steal):
+            self.outboxes[step.to].post(make(Kind.STEAL, node=self.node))
+            self.sched.message_out()
+        elif isinstance(step, Give):
+            chunks = [list(map(int, c)) for c in step.chunks]
+            self.outboxes[step.to].post(make(Kind.GIVE, chunks=chunks))
+            self.sched.message_out()
+        elif isinstance(step, SendPacket):
+            p = step.packet
+            message = make(Kind.STATE, state=p.state, last_busy=p.last_busy, round=p.round,
+                           sent=p.sent, received=p.received, dest=step.to)  # fmt: skip
+            self.outboxes[self.router.next_hop(step.to)].post(message)
+        else:
+            raise TypeError(f"unknown scheduler step {step!r}")
+
+    def enter(self, state: State) -> None:
+        """Act on a state the packet brought."""
+        if state in (State.TRACE, State.REFINE):
+            self.sched.primaries = self.core.primaries(state)
+        elif state == State.FLUSH and self.core.keeps_pixels:
+            for d in self.core.finished_pixels():
+                self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
+            self.stats.counts["refined_pixels"] = self.core.refined_pixels
+        elif state == State.DONE:
+            links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
+            report = self.stats.report(self.core.engine.stats, links)
+            report["packet_visits"] = self.sched.term.visits
+            report["engine_reused"] = self.core.engine_reused
+            report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
+            report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
+            report["chunks_taken"] = self.sched.chunks_taken
+            report["chunks_given_by_state"] = dict(self.sched.given_in)
+            report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
+            self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
+
+    def flush(self) -> None:
+        """Buffered deposits toward the host, in packets of DEPOSIT_BATCH."""
+        if self.deposits:
+            allp = np.concatenate(self.deposits)
+            self.deposits = []
+            for i in range(0, len(allp), DEPOSIT_BATCH):
+                self.to_host(allp[i : i + DEPOSIT_BATCH])
+
+    def queued_bytes(self) -> int:
+        return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
+
+    def start(self, step: Trace) -> None:
+        """Trace a batch on a pool thread; the work loop wakes when it is done."""
+        if self.sched.in_flight == 1:  # the first batch in flight: the node turns busy
+            self.stats.turn_busy()
+        self.spawn(self.trace(step))
+
+    async def trace(self, step: Trace) -> None:
+        rays, primary = step.rays, step.primary
+        try:
+            loop = asyncio.get_running_loop()
+            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays,
+                                               primary, step.taker)  # fmt: skip
+            self.stats.traced(batch.counts, len(rays) if primary else 0)
+            self.deliver(batch)
+            if primary:
+                self.progress(len(rays))
+        except Exception as e:  # noqa: BLE001 - the host must hear of it
+            log.exception("node %d: tracing a batch failed", self.node)
+            self.fail(e)
+        finally:
+            self.sched.batch_done()
+            if self.sched.in_flight == 0:
+                self.stats.turn_idle()
+            self.wake.set()
+
+    def deliver(self, batch) -> None:
+        """A traced batch's deposits and leaving rays, each toward the node that takes it."""
+        for dest, deposits in batch.deposits.items():
+            if dest == HOST:
+                self.deposits.append(deposits)
+                if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
+                    self.flush()
+            elif dest == self.node:
+                self.send_pixels(self.core.keep(deposits, traced_here=True))
+            else:
+                self.post_data(dest, Kind.PIXELS, deposits)
+        for dest, passed in batch.outgoing.items():
+            self.post_data(dest, Kind.RAYS, passed)
+        for taker, rays in batch.held.items():
+            self.sched.rays_in(rays, message=False, taker=taker)
+
+    async def close(self) -> None:
+        """Cancel and await every task of this render, then drop its neighbour links: the
+        render is over (every node sent its STATS) or given up, so nothing queued on them
+        matters, and a neighbour that stopped reading must not hold this node up."""
+        tasks = list(self.tasks)
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        for o in self.outboxes.values():
+            o.task.cancel()
+        await asyncio.gather(*(o.task for o in self.outboxes.values()), return_exceptions=True)
+        for o in self.outboxes.values():
+            o.link.abort()
+        self.host_out.task.cancel()
+        await asyncio.gather(self.host_out.task, return_exceptions=True)

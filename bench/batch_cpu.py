@@ -37,9 +37,13 @@ def timed_parts(run):
     from meshnode.mesh import node
 
     spent: Counter = Counter()
-    hooks = [(engine.Engine, "trace_node", "kernels"), (engine.Engine, "routed", "routing"),
-             (node, "lit_deposits", "deposits"), (node, "per_cell", "deposits"),
-             (node.NodeCore, "trace", "batches")]  # fmt: skip
+    hooks = [
+        (engine.Engine, "trace_node", "kernels"),
+        (engine.Engine, "routed", "routing"),
+        (node, "lit_deposits", "deposits"),
+        (node, "per_cell", "deposits"),
+        (node.NodeCore, "trace", "batches"),
+    ]
     saved = [(owner, name, getattr(owner, name)) for owner, name, _ in hooks]
 
     def wrap(f, part):
@@ -75,12 +79,25 @@ def main(argv=None) -> int:
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
-    plan = MeshPlan(rows_, cols, args.overlap, balance="cost", mode="object", steal=True,
-                    copies=True, tile=max(2, args.size // 24))  # fmt: skip
-    print(f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
-          f"{args.overlap:g} (cost cuts, stealing, copies), simulated on one thread")
-    print(f"{'scene':>10} {'batches s':>9} " + " ".join(f"{p:>15}" for p in PARTS)
-          + f" {'rest':>15} {'batch/kernels':>13}")  # fmt: skip
+    plan = MeshPlan(
+        rows_,
+        cols,
+        args.overlap,
+        balance="cost",
+        mode="object",
+        steal=True,
+        copies=True,
+        tile=max(2, args.size // 24),
+    )
+    print(
+        f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
+        f"{args.overlap:g} (cost cuts, stealing, copies), simulated on one thread"
+    )
+    print(
+        f"{'scene':>10} {'batches s':>9} "
+        + " ".join(f"{p:>15}" for p in PARTS)
+        + f" {'rest':>15} {'batch/kernels':>13}"
+    )
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
@@ -93,18 +110,34 @@ def main(argv=None) -> int:
         counts = outcome.totals()
         _, one = render(scene, image, EngineSpec(threads=1))
         if any(counts[k] != one["rays"][k] for k in ONCE):
-            bad.append(f"{name}: mesh {[counts[k] for k in ONCE]}, one node "
-                       f"{[one['rays'][k] for k in ONCE]}")  # fmt: skip
+            bad.append(
+                f"{name}: mesh {[counts[k] for k in ONCE]}, one node "
+                f"{[one['rays'][k] for k in ONCE]}"
+            )
         total = spent["batches"]
         rest = total - sum(spent[p] for p in PARTS)
         cells = " ".join(f"{spent[p]:>7.3f} ({spent[p] / total:>4.0%})" for p in PARTS)
-        print(f"{name:>10} {total:>9.3f} {cells} {rest:>7.3f} ({rest / total:>4.0%}) "
-              f"{total / spent['kernels']:>13.2f}")  # fmt: skip
-        rows.append({"scene": name, "mesh": args.mesh, "batch_cpu_seconds": total,
-                     **{f"{p}_cpu_seconds": spent[p] for p in PARTS}, "rest_cpu_seconds": rest,
-                     "batch_over_kernels": total / spent["kernels"]})  # fmt: skip
-    return finish(rows, args.json, bad, "MISMATCH (ray counts) between the mesh and one node:\n",
-                  "the mesh counted the same hits, escapes and shadow rays as one node")
+        print(
+            f"{name:>10} {total:>9.3f} {cells} {rest:>7.3f} ({rest / total:>4.0%}) "
+            f"{total / spent['kernels']:>13.2f}"
+        )
+        rows.append(
+            {
+                "scene": name,
+                "mesh": args.mesh,
+                "batch_cpu_seconds": total,
+                **{f"{p}_cpu_seconds": spent[p] for p in PARTS},
+                "rest_cpu_seconds": rest,
+                "batch_over_kernels": total / spent["kernels"],
+            }
+        )
+    return finish(
+        rows,
+        args.json,
+        bad,
+        "MISMATCH (ray counts) between the mesh and one node:\n",
+        "the mesh counted the same hits, escapes and shadow rays as one node",
+    )
 
 
 if __name__ == "__main__":

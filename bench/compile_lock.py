@@ -39,8 +39,9 @@ def cold_start(mode: str, processes: int) -> tuple[float, float]:
         subprocess.run([sys.executable, "-c", common], env=env, check=True)
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()
-        procs = [subprocess.Popen([sys.executable, "-c", NODE, mode], env=env)
-                 for _ in range(processes)]  # fmt: skip
+        procs = [
+            subprocess.Popen([sys.executable, "-c", NODE, mode], env=env) for _ in range(processes)
+        ]
         if any(p.wait() for p in procs):
             raise RuntimeError(f"a node failed to warm up ({mode})")
         wall = time.perf_counter() - start

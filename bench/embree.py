@@ -94,8 +94,9 @@ def ours(scene, o, d, structure: str, repeat: int) -> dict:
     return {"build_s": build, "seconds": seconds, "t": t, "chosen": engine.structure}
 
 
-def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
-            structures: list[str], native=None) -> list[dict]:  # fmt: skip
+def compare(
+    name: str, view, tris: np.ndarray, size: int, repeat: int, structures: list[str], native=None
+) -> list[dict]:
     """One row per structure (and per surface form: `native`, the scene's own polygons, if
     given, then Embree's triangles) of ours against Embree on identical rays."""
     from embreex import rtcore_scene
@@ -118,7 +119,8 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
     t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
     rows = []
     forms = ([("native", native)] if native is not None else []) + [
-        ("triangles", flat_scene(view, tris))]  # fmt: skip
+        ("triangles", flat_scene(view, tris))
+    ]
     for (form, scene), structure in ((f, s) for f in forms for s in structures):
         run = ours(scene, o, d, structure, repeat)
         t_ours = run["t"]
@@ -126,18 +128,30 @@ def compare(name: str, view, tris: np.ndarray, size: int, repeat: int,
         both = ours_hit & emb_hit
         rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
         pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
-        row = {"scene": name, "form": form, "structure": structure, "chosen": run["chosen"],
-               "triangles": len(tris), "rays": len(o),
-               "ours_build_s": run["build_s"], "embree_build_s": embree_build,
-               "ours_rays_per_s": len(o) / run["seconds"], "embree_rays_per_s": len(o) / embree_s,
-               "mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
+        row = {
+            "scene": name,
+            "form": form,
+            "structure": structure,
+            "chosen": run["chosen"],
+            "triangles": len(tris),
+            "rays": len(o),
+            "ours_build_s": run["build_s"],
+            "embree_build_s": embree_build,
+            "ours_rays_per_s": len(o) / run["seconds"],
+            "embree_rays_per_s": len(o) / embree_s,
+            "mismatches": int((ours_hit != emb_hit).sum()),
+            "rel_t_p50_p99_max": pct.tolist(),
+        }
         row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
         label = f"auto={run['chosen']}" if structure == "auto" else structure
-        print(f"{name:>16} {form:>9} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} "
-              f"{embree_build:>8.2f} "
-              f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
-              f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
-              f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}", flush=True)  # fmt: skip
+        print(
+            f"{name:>16} {form:>9} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} "
+            f"{embree_build:>8.2f} "
+            f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
+            f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
+            f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}",
+            flush=True,
+        )
         rows.append(row)
     return rows
 
@@ -149,8 +163,11 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--levels", type=int, default=9, help="generated tetrahedron's recursion")
     p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--structures", default="grid,bvh,auto",
-                   help="our engine's structures to time, side by side (default grid,bvh,auto)")
+    p.add_argument(
+        "--structures",
+        default="grid,bvh,auto",
+        help="our engine's structures to time, side by side (default grid,bvh,auto)",
+    )
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
     try:
@@ -165,16 +182,25 @@ def main(argv=None) -> int:
     from protocols.scene import View
 
     numba.set_num_threads(1)
-    print(f"{'scene':>16} {'ours on':>9} {'structure':>9} {'triangles':>10} {'build s':>8} "
-          f"{'embree':>8} "
-          f"{'ours rays/s':>11} {'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} "
-          f"{'p99':>9} {'max':>9}")  # fmt: skip
+    print(
+        f"{'scene':>16} {'ours on':>9} {'structure':>9} {'triangles':>10} {'build s':>8} "
+        f"{'embree':>8} "
+        f"{'ours rays/s':>11} {'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} "
+        f"{'p99':>9} {'max':>9}"
+    )
     structures = args.structures.split(",")
     rows = []
     for name in args.only.split(",") if args.only else []:
         scene = read_nff(args.scenes / f"{name}.nff")
-        rows += compare(name, scene.view, triangles_of(scene), args.size, args.repeat,
-                        structures, native=surfaces_of(scene))  # fmt: skip
+        rows += compare(
+            name,
+            scene.view,
+            triangles_of(scene),
+            args.size,
+            args.repeat,
+            structures,
+            native=surfaces_of(scene),
+        )
     if args.levels > 0:
         view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
         tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels

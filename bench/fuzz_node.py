@@ -80,12 +80,40 @@ EOF_SECONDS = 2.0  # s: after our end of file, the node closes its side within t
 EOF_WAITERS = 48  # connections waiting for the node's close at once
 SPIN_SECONDS = 40.0  # s of CPU in one tracing thread within ~60 s: stuck, not rendering 8x8
 HANDSHAKE_LIMIT = 4096  # meshnode.transport.link.HANDSHAKE_FRAME
-ODD_NUMBERS = [0, 1, -1, 2, 3, 7, 255, 256, 65535, 65536, 2**31 - 1, 2**31, -(2**31) - 1,
-               2**63 - 1, -(2**63), 2**64 - 1, 0.5, -0.0, 5e-324, 1e-300, 1e300, 1e308, -1e308,
-               math.inf, -math.inf, math.nan, True, False]  # fmt: skip
+ODD_NUMBERS = [
+    0,
+    1,
+    -1,
+    2,
+    3,
+    7,
+    255,
+    256,
+    65535,
+    65536,
+    2**31 - 1,
+    2**31,
+    -(2**31) - 1,
+    2**63 - 1,
+    -(2**63),
+    2**64 - 1,
+    0.5,
+    -0.0,
+    5e-324,
+    1e-300,
+    1e300,
+    1e308,
+    -1e308,
+    math.inf,
+    -math.inf,
+    math.nan,
+    True,
+    False,
+]
 
 
 RENDER_ID = b"r" * 16  # the render id of the CONFIGs sent here
+
 
 class Hang(Exception):
     """A case got neither an answer nor a refusal within its timeout."""
@@ -164,8 +192,10 @@ def mutate_tree(rng: random.Random, tree, changes: int = 3):
     for _ in range(rng.randint(1, changes)):
         parent, key, node = None, None, tree
         while isinstance(node, dict | list) and node and (parent is None or rng.random() < 0.7):
-            parent, key = node, rng.choice(list(node) if isinstance(node, dict)
-                                           else range(len(node)))  # fmt: skip
+            parent, key = (
+                node,
+                rng.choice(list(node) if isinstance(node, dict) else range(len(node))),
+            )
             node = parent[key]
         if parent is None:
             return tree
@@ -203,8 +233,11 @@ def mutate_records(rng: random.Random, records: np.ndarray, tame: bool = False) 
         name = rng.choice(out.dtype.names)
         kind = out.dtype[name].base.kind
         if kind == "f":
-            value = rng.choice([0.0, -1.0, 1e-300, 1e6, -1e6, 0.5] if tame else [
-                math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300])
+            value = rng.choice(
+                [0.0, -1.0, 1e-300, 1e6, -1e6, 0.5]
+                if tame
+                else [math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300]
+            )
         else:
             info = np.iinfo(out.dtype[name].base)
             value = rng.choice([info.min, info.max, -1, 0, 1, 2, 3, 7, 1000, 2**31 - 1])
@@ -236,10 +269,24 @@ class Node:
 
         with open(self.stderr_path, "ab") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-X", "faulthandler", "-m", "meshnode.service.cli", "serve",
-                 "--listen", "127.0.0.1:0", "--threads", "1"], stdout=subprocess.PIPE,
-                stderr=err, text=True, env=env,
-                preexec_fn=cap if self.memory_mb else None)  # fmt: skip
+                [
+                    sys.executable,
+                    "-X",
+                    "faulthandler",
+                    "-m",
+                    "meshnode.service.cli",
+                    "serve",
+                    "--listen",
+                    "127.0.0.1:0",
+                    "--threads",
+                    "1",
+                ],
+                stdout=subprocess.PIPE,
+                stderr=err,
+                text=True,
+                env=env,
+                preexec_fn=cap if self.memory_mb else None,
+            )
         ready, _, _ = select.select([self.proc.stdout], [], [], 120)
         line = self.proc.stdout.readline() if ready else ""
         if not line.startswith("listening "):
@@ -299,8 +346,9 @@ class Conn:
 
     @classmethod
     async def open(cls, port: int) -> "Conn":
-        reader, writer = await asyncio.wait_for(asyncio.open_connection("127.0.0.1", port),
-                                                CASE_TIMEOUT)  # fmt: skip
+        reader, writer = await asyncio.wait_for(
+            asyncio.open_connection("127.0.0.1", port), CASE_TIMEOUT
+        )
         return cls(reader, writer)
 
     def send(self, data: bytes) -> bool:
@@ -364,8 +412,9 @@ class Conn:
             raise ConnectionError("the node closed the connection")
         return m
 
-    async def handshake(self, role: str = "host", node: int = -1, secret: bytes = SECRET,
-                        render: bytes = b""):  # fmt: skip
+    async def handshake(
+        self, role: str = "host", node: int = -1, secret: bytes = SECRET, render: bytes = b""
+    ):
         """The dialler's side of protocols.handshake; returns the node's HELLO fields."""
         mine = parse(hello(CLUSTER, role, node, nonce(), render))[1]
         self.send(encode(make(Kind.HELLO, **mine)))
@@ -414,13 +463,26 @@ class Fuzzer:
         """A real CONFIG for node n and its objects, as host.run.meshclient makes them."""
         planned = plan_render(self.scene, image, EngineSpec(), plan)
         neighbours = {str(m): "127.0.0.1:9" for m in range(plan.nodes)}
-        config = make(Kind.CONFIG, node=n, neighbours=neighbours, render=planned.spec.to_wire(),
-                      partition=planned.partition.to_wire(), view=asdict(self.scene.view),
-                      background=list(self.scene.background), render_id=RENDER_ID)  # fmt: skip
+        config = make(
+            Kind.CONFIG,
+            node=n,
+            neighbours=neighbours,
+            render=planned.spec.to_wire(),
+            partition=planned.partition.to_wire(),
+            view=asdict(self.scene.view),
+            background=list(self.scene.background),
+            render_id=RENDER_ID,
+        )
         scene = subset(self.scene, np.ones_like(planned.holders[n]))  # every object: one variant
-        tables = {"materials": scene.materials, "lights": scene.lights, "spheres": scene.spheres,
-                  "triangles": scene.triangles, "polygons": scene.polygons,
-                  "vertices": scene.vertices.reshape(-1), "cones": scene.cones}  # fmt: skip
+        tables = {
+            "materials": scene.materials,
+            "lights": scene.lights,
+            "spheres": scene.spheres,
+            "triangles": scene.triangles,
+            "polygons": scene.polygons,
+            "vertices": scene.vertices.reshape(-1),
+            "cones": scene.cones,
+        }
         return encode(config), tables
 
     def more(self) -> bool:
@@ -508,8 +570,15 @@ class Fuzzer:
 
     async def oversized(self) -> None:
         c = await Conn.open(self.node.port)
-        size = self.rng.choice([HANDSHAKE_LIMIT + 1, MAX_FRAME, MAX_FRAME + 1, 2**32 - 1,
-                                self.rng.randint(HANDSHAKE_LIMIT + 1, 2**32 - 1)])  # fmt: skip
+        size = self.rng.choice(
+            [
+                HANDSHAKE_LIMIT + 1,
+                MAX_FRAME,
+                MAX_FRAME + 1,
+                2**32 - 1,
+                self.rng.randint(HANDSHAKE_LIMIT + 1, 2**32 - 1),
+            ]
+        )
         data = HEADER.pack(size) + self.rng.randbytes(self.rng.randint(0, 64))
         c.send(data)
         msgs = await c.until_closed()  # no end of file from us: the node must hang up
@@ -527,8 +596,12 @@ class Fuzzer:
 
     async def hello(self) -> None:
         c = await Conn.open(self.node.port)
-        base = hello(self.rng.choice([CLUSTER, CLUSTER, "other"]),
-                     self.rng.choice(["host", "node"]), self.rng.randint(-2, 3), nonce())
+        base = hello(
+            self.rng.choice([CLUSTER, CLUSTER, "other"]),
+            self.rng.choice(["host", "node"]),
+            self.rng.randint(-2, 3),
+            nonce(),
+        )
         message = mutate_message(self.rng, base)
         data = _frame(message)
         if data is None:
@@ -547,15 +620,17 @@ class Fuzzer:
         await c.expect()  # the node's AUTH
         how = self.rng.choice(["secret", "speaker", "mutate", "other"])
         if how == "secret":
-            message = auth(self.rng.randbytes(self.rng.randint(0, 20)), "dialler", mine,
-                           theirs["nonce"])  # fmt: skip
+            message = auth(
+                self.rng.randbytes(self.rng.randint(0, 20)), "dialler", mine, theirs["nonce"]
+            )
         elif how == "speaker":
             message = auth(SECRET, "listener", mine, theirs["nonce"])
         elif how == "mutate":
             message = mutate_message(self.rng, auth(SECRET, "dialler", mine, theirs["nonce"]))
         else:
-            message = mutate_message(self.rng, {"k": int(Kind.CONFIG), **parse(
-                FrameDecoder().feed(self.one[0])[0])[1]})  # fmt: skip
+            message = mutate_message(
+                self.rng, {"k": int(Kind.CONFIG), **parse(FrameDecoder().feed(self.one[0])[0])[1]}
+            )
         data = _frame(message)
         if data is None:
             await c.close()
@@ -624,11 +699,17 @@ class Fuzzer:
             table = self.rng.choice(sorted(OBJECT_TABLES))
             records = self.one[1][table]
             if self.rng.random() < 0.7:
-                message = make(Kind.OBJECTS, node=0, table=table, records=mutate_records(
-                    self.rng, records), last=False)  # fmt: skip
+                message = make(
+                    Kind.OBJECTS,
+                    node=0,
+                    table=table,
+                    records=mutate_records(self.rng, records),
+                    last=False,
+                )
             else:
-                message = mutate_message(self.rng, make(Kind.OBJECTS, node=0, table=table,
-                                                        records=records, last=False))
+                message = mutate_message(
+                    self.rng, make(Kind.OBJECTS, node=0, table=table, records=records, last=False)
+                )
                 if _kind(message) in (Kind.CONFIG, Kind.SHUTDOWN):
                     message["k"] = int(Kind.OBJECTS)
                 if message.get("last") is True:
@@ -653,8 +734,9 @@ class Fuzzer:
         await c.handshake()
         config = FrameDecoder().feed(self.one[0])[0]
         if self.rng.random() < 0.2:
-            config["background"] = self.rng.choice([[], [0.5], [1, 2, 3, 4], [math.nan] * 3,
-                                                    ["x", 0, 0], [[1, 2, 3]]])  # fmt: skip
+            config["background"] = self.rng.choice(
+                [[], [0.5], [1, 2, 3, 4], [math.nan] * 3, ["x", 0, 0], [[1, 2, 3]]]
+            )
         c.send(encode(config))
         inputs = [config]
         tables = list(self.one[1].items())
@@ -665,9 +747,17 @@ class Fuzzer:
                 records = np.array(records)
                 records["count"][:1] = 2**31 - 1  # one record asking for a huge vertex range
             inputs.append((table, records))
-            c.send(encode(make(Kind.OBJECTS, node=0, table=table,
-                               records=np.ascontiguousarray(records),
-                               last=i == len(tables) - 1)))  # fmt: skip
+            c.send(
+                encode(
+                    make(
+                        Kind.OBJECTS,
+                        node=0,
+                        table=table,
+                        records=np.ascontiguousarray(records),
+                        last=i == len(tables) - 1,
+                    )
+                )
+            )
         self.recent.append(("render", inputs))
         outcome = "wedged"
         deadline = time.monotonic() + BUILD_TIMEOUT
@@ -697,8 +787,17 @@ class Fuzzer:
         host.send(self.two[0])
         tables = list(self.two[1].items())
         for i, (table, records) in enumerate(tables):
-            host.send(encode(make(Kind.OBJECTS, node=1, table=table, records=records,
-                                  last=i == len(tables) - 1)))  # fmt: skip
+            host.send(
+                encode(
+                    make(
+                        Kind.OBJECTS,
+                        node=1,
+                        table=table,
+                        records=records,
+                        last=i == len(tables) - 1,
+                    )
+                )
+            )
         first = await host.recv()
         if first is None or first.get("k") == Kind.ERROR:
             self.refusal(first)
@@ -782,10 +881,15 @@ class Fuzzer:
             return make(Kind.PIXELS, deposits=deposits, dest=rng.choice([0, 1, 2, -1]))
         if r < 0.8:
             n = rng.choice([2, 2, 0, 1, 3, 1000])
-            return make(Kind.STATE, state=rng.choice([0, 1, 2, 3, 4, 5, 9, -1, 2**40]),
-                        last_busy=rng.choice([0, 1, -1, 5]), round=rng.choice([0, 1, 2, -1]),
-                        sent=np.zeros(n, "<i8") + rng.choice([0, 1, -1]),
-                        received=np.zeros(n, "<i8"), dest=rng.choice([1, 0, 7]))  # fmt: skip
+            return make(
+                Kind.STATE,
+                state=rng.choice([0, 1, 2, 3, 4, 5, 9, -1, 2**40]),
+                last_busy=rng.choice([0, 1, -1, 5]),
+                round=rng.choice([0, 1, 2, -1]),
+                sent=np.zeros(n, "<i8") + rng.choice([0, 1, -1]),
+                received=np.zeros(n, "<i8"),
+                dest=rng.choice([1, 0, 7]),
+            )
         return mutate_message(rng, _valid(rng.choice(list(Kind)), rng))
 
     async def burst(self, n: int = 80) -> None:
@@ -819,8 +923,9 @@ class Fuzzer:
         path = self.save / f"wedge-{len(self.node.wedges)}.pickle"
         path.write_bytes(pickle.dumps(list(self.recent)))
         self.node.wedges.append({"kind": kind, "inputs": str(path), "after_cases": self.sent})
-        print(f"node wedged ({kind}) after {self.sent} cases; last inputs in {path}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"node wedged ({kind}) after {self.sent} cases; last inputs in {path}", file=sys.stderr
+        )
         self.node.proc.send_signal(signal.SIGABRT)
         try:
             self.node.proc.wait(10)
@@ -830,9 +935,12 @@ class Fuzzer:
         self.node.start()
         if not self.tame:
             self.tame = True
-            print("from now on RAYS keep finite origins and directions and render records keep "
-                  "finite floats within 1e6 (known wedges: a ray with a NaN direction, a light "
-                  "at NaN, never finish tracing)", file=sys.stderr)
+            print(
+                "from now on RAYS keep finite origins and directions and render records keep "
+                "finite floats within 1e6 (known wedges: a ray with a NaN direction, a light "
+                "at NaN, never finish tracing)",
+                file=sys.stderr,
+            )
 
     async def watch(self) -> None:
         """Sample RSS; a dead node is a crash: keep its last inputs and start another. A
@@ -857,10 +965,13 @@ class Fuzzer:
             import pickle
 
             path.write_bytes(pickle.dumps(list(self.recent)))
-            self.node.crashes.append({"returncode": code, "inputs": str(path),
-                                      "after_cases": self.sent})  # fmt: skip
-            print(f"node died (exit {code}) after {self.sent} cases; last inputs in {path}",
-                  file=sys.stderr)  # fmt: skip
+            self.node.crashes.append(
+                {"returncode": code, "inputs": str(path), "after_cases": self.sent}
+            )
+            print(
+                f"node died (exit {code}) after {self.sent} cases; last inputs in {path}",
+                file=sys.stderr,
+            )
             self.node.stop()
             self.node.start()
 
@@ -888,16 +999,27 @@ def _valid(kind: Kind, rng: random.Random) -> dict:
         return hello(CLUSTER, "host", -1, nonce())
     if kind is Kind.OBJECTS:
         table = rng.choice(sorted(OBJECT_TABLES))
-        return make(kind, node=0, table=table, records=np.zeros(n, OBJECT_TABLES[table]),
-                    last=False)
-    plain = {int: n, str: "boom", bytes: b"\2" * 32, bool: False, dict: {"a": n},
-             list: list(range(n))}  # fmt: skip
-    return make(kind, **{name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]
-                         for name, want in FIELDS[kind].items()})  # fmt: skip
+        return make(
+            kind, node=0, table=table, records=np.zeros(n, OBJECT_TABLES[table]), last=False
+        )
+    plain = {
+        int: n,
+        str: "boom",
+        bytes: b"\2" * 32,
+        bool: False,
+        dict: {"a": n},
+        list: list(range(n)),
+    }
+    return make(
+        kind,
+        **{
+            name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]
+            for name, want in FIELDS[kind].items()
+        },
+    )
 
 
-CONNECTION_KINDS = {"garbage": 3, "oversized": 1, "truncated": 1, "hello": 3, "auth": 2,
-                    "frame": 4}  # fmt: skip
+CONNECTION_KINDS = {"garbage": 3, "oversized": 1, "truncated": 1, "hello": 3, "auth": 2, "frame": 4}
 SESSION_KINDS = {"config": 6, "render": 1, "neighbour": 3}
 SESSION_SHARE = 0.02  # of all cases, left to the session lane alone at the end (its cases
 # build engines and render: a few a second, against thousands for the other lanes)
@@ -906,8 +1028,11 @@ SESSION_SHARE = 0.02  # of all cases, left to the session lane alone at the end 
 async def fuzz(args, node: Node, save: Path) -> Fuzzer:
     f = Fuzzer(node, random.Random(args.seed), args.cases, args.seconds, save)
     watcher = asyncio.create_task(f.watch())
-    kinds = set(args.kinds.split(",")) if args.kinds else set(CONNECTION_KINDS) | set(
-        SESSION_KINDS) | {"burst"}  # fmt: skip
+    kinds = (
+        set(args.kinds.split(","))
+        if args.kinds
+        else set(CONNECTION_KINDS) | set(SESSION_KINDS) | {"burst"}
+    )
     if "burst" in kinds:
         await f.burst()
     mine = {k: w for k, w in CONNECTION_KINDS.items() if k in kinds}
@@ -933,9 +1058,16 @@ async def final_render(port: int) -> str:
     scene.spheres = np.array([(0, 0, (0.0, 0.0, 0.0), 2.0)], dtypes.SPHERE)
     scene.lights = np.array([((0.0, 5.0, -5.0), (1.0, 1.0, 1.0))], dtypes.LIGHT)
     try:
-        image, _ = await asyncio.wait_for(render_on_mesh(
-            scene, ImageSpec(width=8, height=8), [f"127.0.0.1:{port}"], MeshPlan(1, 1),
-            secret=SECRET), 60)  # fmt: skip
+        image, _ = await asyncio.wait_for(
+            render_on_mesh(
+                scene,
+                ImageSpec(width=8, height=8),
+                [f"127.0.0.1:{port}"],
+                MeshPlan(1, 1),
+                secret=SECRET,
+            ),
+            60,
+        )
     except Exception as e:  # noqa: BLE001 - whatever failed is the figure to print
         return f"{type(e).__name__}: {e}"
     if image.shape[:2] != (8, 8) or not np.all(np.isfinite(image)) or not image.any():
@@ -965,8 +1097,12 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lanes", type=int, default=6, help="concurrent connections (default 6)")
     p.add_argument("--kinds", help="only these case kinds (comma-separated; default all)")
-    p.add_argument("--memory-mb", type=int, default=8192,
-                   help="the node's address-space limit (RLIMIT_AS; 0: none; default 8192)")
+    p.add_argument(
+        "--memory-mb",
+        type=int,
+        default=8192,
+        help="the node's address-space limit (RLIMIT_AS; 0: none; default 8192)",
+    )
     args = p.parse_args(argv)
 
     save = Path(tempfile.mkdtemp(prefix="fuzz_node-"))
@@ -995,8 +1131,10 @@ def main(argv=None) -> int:
     count, ends = tracebacks(node.stderr_path)
     crashes = len(node.crashes)
 
-    print(f"cases sent: {f.sent} in {elapsed:.0f} s ({f.sent / max(elapsed, 1e-9):.0f}/s), "
-          f"seed {args.seed}")  # fmt: skip
+    print(
+        f"cases sent: {f.sent} in {elapsed:.0f} s ({f.sent / max(elapsed, 1e-9):.0f}/s), "
+        f"seed {args.seed}"
+    )
     for kind, n in sorted(f.kinds.items(), key=lambda kv: -kv[1]):
         how = ", ".join(f"{o} {c}" for (k, o), c in sorted(f.outcomes.items()) if k == kind)
         print(f"  {kind:10s} {n:7d}  ({how})")
@@ -1009,20 +1147,25 @@ def main(argv=None) -> int:
     print(f"crashes (node deaths): {crashes}")
     for c in node.crashes:
         print(f"  {c}")
-    print(f"wedges (node alive, tracing thread stuck; restarted): {len(node.wedges)}"
-          + ("; after the first, RAYS and render records kept finite" if f.tame else ""))
+    print(
+        f"wedges (node alive, tracing thread stuck; restarted): {len(node.wedges)}"
+        + ("; after the first, RAYS and render records kept finite" if f.tame else "")
+    )
     for w in node.wedges:
         print(f"  {w}")
     print(f"tracebacks in node stderr: {count}")
     for line, c in ends.most_common(10):
         print(f"  {c:7d}  {line}")
-    print(f"connections left open by the node {EOF_SECONDS:g} s after our end of file: "
-          f"{f.left_open}")
+    print(
+        f"connections left open by the node {EOF_SECONDS:g} s after our end of file: {f.left_open}"
+    )
     for kind, waits in sorted(f.eof_close.items()):
         w = np.array(waits)
-        print(f"  {kind}: the node hung up {np.median(w) * 1e3:.0f} ms (median), "
-              f"{np.percentile(w, 99) * 1e3:.0f} ms (99th), {w.max() * 1e3:.0f} ms (max) "
-              f"after our end of file; {np.mean(w > 0.1) * 100:.0f}% took over 100 ms")
+        print(
+            f"  {kind}: the node hung up {np.median(w) * 1e3:.0f} ms (median), "
+            f"{np.percentile(w, 99) * 1e3:.0f} ms (99th), {w.max() * 1e3:.0f} ms (max) "
+            f"after our end of file; {np.mean(w > 0.1) * 100:.0f}% took over 100 ms"
+        )
     print(f"hangs (cases past {CASE_TIMEOUT:g} s): {len(f.hangs)}")
     for h in f.hangs[:10]:
         print(f"  {h}")

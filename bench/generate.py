@@ -19,20 +19,28 @@ from protocols.scene import SceneData, View
 
 SPD_BACKGROUND = (0.078, 0.361, 0.753)
 
-TETRA_VIEW = View(eye=(1.02285, -3.17715, -2.17451), at=(-0.004103, -0.004103, 0.216539),
-                  up=(-0.816497, -0.816497, 0.816497), angle=45.0, hither=1.0)  # fmt: skip
+TETRA_VIEW = View(
+    eye=(1.02285, -3.17715, -2.17451),
+    at=(-0.004103, -0.004103, 0.216539),
+    up=(-0.816497, -0.816497, 0.816497),
+    angle=45.0,
+    hither=1.0,
+)
 TETRA_LIGHTS = ((2.0, -18.0, -5.0),)
 TETRA_MATERIAL = ((1.0, 0.2, 0.2), 1.0, 0.0, 100000.0, 0.0, 0.0)  # rgb kd ks shine t ior
 # The corners of the SPD tetrahedron and its faces, in the generator's output order.
 TETRA_CORNERS = np.array([[-1, -1, 1], [-1, 1, -1], [1, -1, -1], [1, 1, 1]], float)
 TETRA_FACES = np.array([[0, 1, 2], [3, 2, 1], [2, 3, 0], [1, 0, 3]])
 
-BALLS_VIEW = View(eye=(2.1, 1.3, 1.7), at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), angle=45.0,
-                  hither=0.01)  # fmt: skip
+BALLS_VIEW = View(
+    eye=(2.1, 1.3, 1.7), at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), angle=45.0, hither=0.01
+)
 BALLS_LIGHTS = ((4.0, 3.0, 2.0), (1.0, -4.0, 4.0), (-3.0, 1.0, 5.0))
 BALLS_FLOOR = np.array([[12, 12, -0.5], [-12, 12, -0.5], [-12, -12, -0.5], [12, -12, -0.5]], float)
-BALLS_MATERIALS = (((1.0, 0.75, 0.33), 0.8, 0.0, 100000.0, 0.0, 1.0),  # floor
-                   ((1.0, 0.9, 0.7), 0.5, 0.5, 3.0827, 0.0, 1.0))  # spheres  # fmt: skip
+BALLS_MATERIALS = (
+    ((1.0, 0.75, 0.33), 0.8, 0.0, 100000.0, 0.0, 1.0),  # floor
+    ((1.0, 0.9, 0.7), 0.5, 0.5, 3.0827, 0.0, 1.0),
+)  # spheres
 
 
 def tetra_count(n: int) -> int:
@@ -82,8 +90,11 @@ def _z_to(d: np.ndarray) -> np.ndarray:
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
     cross -= cross.transpose(0, 2, 1)
     outer = k[:, :, None] * k[:, None, :]
-    return (cos[:, None, None] * np.eye(3) + sin[:, None, None] * cross
-            + (1 - cos)[:, None, None] * outer)  # fmt: skip
+    return (
+        cos[:, None, None] * np.eye(3)
+        + sin[:, None, None] * cross
+        + (1 - cos)[:, None, None] * outer
+    )
 
 
 def sphereflake(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -111,8 +122,9 @@ def _records(view, lights, materials, source: str) -> SceneData:
     light = np.zeros(len(lights), dtypes.LIGHT)
     light["pos"], light["rgb"] = lights, 1.0
     mats = np.array(list(materials), dtypes.MATERIAL)
-    return SceneData(view=view, background=SPD_BACKGROUND, lights=light, materials=mats,
-                     source=source)  # fmt: skip
+    return SceneData(
+        view=view, background=SPD_BACKGROUND, lights=light, materials=mats, source=source
+    )
 
 
 def _polygon_records(pts: np.ndarray, counts: np.ndarray, first_gid: int, mat: int):

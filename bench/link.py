@@ -76,9 +76,12 @@ def receiver(mode: str) -> None:
 
 
 def _spawn(mode):
-    p = subprocess.Popen([sys.executable, "-m", "bench.link", "--role", mode],
-                         stdout=subprocess.PIPE, text=True,
-                         cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+    p = subprocess.Popen(
+        [sys.executable, "-m", "bench.link", "--role", mode],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     return p, int(p.stdout.readline())
 
 
@@ -135,8 +138,10 @@ def main(argv=None) -> int:
     link = run_link(batch, args.batches)
     raw = run_raw(frame, args.batches, args.rays_per_batch)
     mb = len(frame) * args.batches / 1e6
-    print(f"{args.batches} batches of {args.rays_per_batch} rays ({len(frame):,} bytes a frame, "
-          f"{mb:,.0f} MB in all)")  # fmt: skip
+    print(
+        f"{args.batches} batches of {args.rays_per_batch} rays ({len(frame):,} bytes a frame, "
+        f"{mb:,.0f} MB in all)"
+    )
     print(f"meshnode link (encode, send, receive, decode): {link / 1e6:6.2f} M rays/s")
     print(f"raw socket copy of the same bytes:             {raw / 1e6:6.2f} M rays/s")
     print(f"link / raw = {link / raw:.2f}; goal 5 M rays/s: {'met' if link >= 5e6 else 'NOT met'}")

@@ -20,8 +20,10 @@ from PIL import Image
 from tests.test_live import stderr_lines, wait_for_line
 from tests.test_live_browser import DONE, EXAMPLE, chromium, wait_for
 
-MID = ("return live.status !== null && live.status.progress.fraction >= {:f} && "
-       "live.frames > 1 && !live.status.final;")  # fmt: skip
+MID = (
+    "return live.status !== null && live.status.progress.fraction >= {:f} && "
+    "live.frames > 1 && !live.status.final;"
+)
 
 
 def shoot(browser, path: Path) -> None:
@@ -30,7 +32,8 @@ def shoot(browser, path: Path) -> None:
     browser.save_screenshot(str(raw))
     image = Image.open(raw).convert("RGB")
     image.quantize(colors=256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(
-        path, optimize=True)
+        path, optimize=True
+    )
     raw.unlink()
     print(f"{path}: {image.width}x{image.height}, {path.stat().st_size / 1000:.0f} kB")
 
@@ -47,10 +50,30 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         browser = chromium(Path(tmp) / "profile")
         proc = subprocess.Popen(
-            [sys.executable, "-m", "host.cli", "render", str(EXAMPLE), "-o",
-             str(Path(tmp) / "a.png"), "--quiet", "--serve", "0", "--mesh", args.mesh,
-             "--spp", args.spp, "--width", args.size, "--height", args.size],
-            stderr=subprocess.PIPE, text=True, env=os.environ)  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "host.cli",
+                "render",
+                str(EXAMPLE),
+                "-o",
+                str(Path(tmp) / "a.png"),
+                "--quiet",
+                "--serve",
+                "0",
+                "--mesh",
+                args.mesh,
+                "--spp",
+                args.spp,
+                "--width",
+                args.size,
+                "--height",
+                args.size,
+            ],
+            stderr=subprocess.PIPE,
+            text=True,
+            env=os.environ,
+        )
         try:
             lines = stderr_lines(proc)
             url = wait_for_line(lines, "live view at ").split("live view at ")[1].strip()

@@ -55,8 +55,14 @@ if __package__ in (None, ""):
 
 from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
 
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 
 
 def single(scene, image, warm: bool = True, camera=None):
@@ -89,8 +95,9 @@ def sized(scene, image, min_trace: float, camera=None):
         image = dataclasses.replace(image, spp=math.ceil(image.spp * scale))
     else:
         rays = math.ceil(camera.sampling.rays * scale)
-        camera = dataclasses.replace(camera, sampling=dataclasses.replace(camera.sampling,
-                                                                          rays=rays))
+        camera = dataclasses.replace(
+            camera, sampling=dataclasses.replace(camera.sampling, rays=rays)
+        )
     return image, camera, single(scene, image, camera=camera)
 
 
@@ -104,8 +111,9 @@ def camera_setup(path: Path, rays: int, sampling: str, width: int):
 
     camera = read_camera(path)
     height = max(1, round(width * camera.film_height / camera.film_width))
-    setup = CameraSetup(camera, CameraSampling(rays=rays, sampling=sampling),
-                        Focus(distance="auto"))  # fmt: skip
+    setup = CameraSetup(
+        camera, CameraSampling(rays=rays, sampling=sampling), Focus(distance="auto")
+    )
     return setup, ImageSpec(width=width, height=height)
 
 
@@ -115,9 +123,24 @@ def camera_setup(path: Path, rays: int, sampling: str, width: int):
 SIZE_MARGIN = 1.3
 
 
-def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="object",
-            tiles="static", steal=False, repeat=1, tile=32, copies=False, together=0,
-            order="rows", camera=None):  # fmt: skip
+def on_mesh(
+    scene,
+    image,
+    rows,
+    cols,
+    overlap,
+    threads=1,
+    balance="even",
+    mode="object",
+    tiles="static",
+    steal=False,
+    repeat=1,
+    tile=32,
+    copies=False,
+    together=0,
+    order="rows",
+    camera=None,
+):
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
     `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
@@ -132,14 +155,27 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
     from protocols.render import MeshPlan
 
     auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
-    plan = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, balance, mode, tiles,
-                    tile=tile, steal=steal, copies=copies, order=order)  # fmt: skip
+    plan = MeshPlan(
+        rows,
+        cols,
+        OVERLAPS[0] if auto else overlap,
+        balance,
+        mode,
+        tiles,
+        tile=tile,
+        steal=steal,
+        copies=copies,
+        order=order,
+    )
     runs, singles, windows = [], [], []
 
     def mesh_render():
         start = time.perf_counter()
-        _, stats = asyncio.run(render_on_mesh(scene, image, addresses, plan, camera=camera,
-                                              overlaps=OVERLAPS if auto else ()))  # fmt: skip
+        _, stats = asyncio.run(
+            render_on_mesh(
+                scene, image, addresses, plan, camera=camera, overlaps=OVERLAPS if auto else ()
+            )
+        )
         if stats["lost_nodes"]:  # re-planned on fewer nodes: not the row's mesh
             raise RuntimeError(f"{rows}x{cols}: nodes lost {stats['lost_nodes']}")
         return start, time.perf_counter(), stats
@@ -150,14 +186,17 @@ def on_mesh(scene, image, rows, cols, overlap, threads=1, balance="even", mode="
             start, end, stats = mesh_render()
             runs.append((end - start, stats))
         for _ in range(together):
-            windows.append(at_once(lambda: single(scene, image, warm=False, camera=camera),
-                                   mesh_render))  # fmt: skip
+            windows.append(
+                at_once(lambda: single(scene, image, warm=False, camera=camera), mesh_render)
+            )
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
     best["together"] = windows
     best["setup_reused_seconds"] = best["setup_seconds"]
     best["setup_seconds"] = runs[0][1]["setup_seconds"]
-    best["paired_speedups"] = [one[1]["trace_cpu_seconds"] / run[1]["busiest_node_cpu_seconds"]
-                               for one, run in zip(singles, runs, strict=True)]  # fmt: skip
+    best["paired_speedups"] = [
+        one[1]["trace_cpu_seconds"] / run[1]["busiest_node_cpu_seconds"]
+        for one, run in zip(singles, runs, strict=True)
+    ]
     return wall, best, min(singles, key=lambda r: r[1]["trace_cpu_seconds"])
 
 
@@ -179,9 +218,11 @@ def at_once(one_node, mesh_render) -> dict:
         (_, stats), ended = ref.result()
     inside = [r for r in renders if r[1] <= ended] or renders[:1]
     busiest = [r[2]["busiest_node_cpu_seconds"] for r in inside]
-    return {"one_node_cpu_seconds": stats["trace_cpu_seconds"],
-            "busiest_cpu_seconds": statistics.fmean(busiest),
-            "mesh_renders": len(inside)}  # fmt: skip
+    return {
+        "one_node_cpu_seconds": stats["trace_cpu_seconds"],
+        "busiest_cpu_seconds": statistics.fmean(busiest),
+        "mesh_renders": len(inside),
+    }
 
 
 def work(rays: dict) -> int:
@@ -221,35 +262,63 @@ def main(argv=None) -> int:
     add_scenes_option(p)
     p.add_argument("--only", default="balls,tetra")
     p.add_argument("--meshes", default="2x2,3x3")
-    p.add_argument("--overlaps", default="2,24,100",
-                   help="object space overlaps (percent; auto: the pre-pass chooses)")
+    p.add_argument(
+        "--overlaps",
+        default="2,24,100",
+        help="object space overlaps (percent; auto: the pre-pass chooses)",
+    )
     p.add_argument("--node-threads", default="1", help="tracing threads per node to compare")
     p.add_argument("--balance", default="even", help="image cuts to compare: even,cost")
-    p.add_argument("--modes", default="object",
-                   help="object,image: object space (every overlap and cut) and image space "
-                        "(static tiles; overlap and cuts do not apply)")  # fmt: skip
-    p.add_argument("--tiles", default="static", help="image space tilings to compare: "
-                   "static,dynamic")  # fmt: skip
+    p.add_argument(
+        "--modes",
+        default="object",
+        help="object,image: object space (every overlap and cut) and image space "
+        "(static tiles; overlap and cuts do not apply)",
+    )
+    p.add_argument(
+        "--tiles", default="static", help="image space tilings to compare: static,dynamic"
+    )
     p.add_argument("--tile", default="32", help="image space tile sides (samples) to compare")
-    p.add_argument("--orders", default="rows", help="dynamic tiles' dealing orders to "
-                   "compare: rows,centre")  # fmt: skip
-    p.add_argument("--steal", default="off", help="object space without and with stealing "
-                   "to compare: off,on")  # fmt: skip
-    p.add_argument("--copies", default="off", help="object space without and with the "
-                   "neighbours' copies: off,on")
+    p.add_argument(
+        "--orders", default="rows", help="dynamic tiles' dealing orders to compare: rows,centre"
+    )
+    p.add_argument(
+        "--steal", default="off", help="object space without and with stealing to compare: off,on"
+    )
+    p.add_argument(
+        "--copies",
+        default="off",
+        help="object space without and with the neighbours' copies: off,on",
+    )
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
-    p.add_argument("--camera", type=Path, help="with --size: render through this camera file "
-                   "(.toml) or lens table, focused on the image centre")  # fmt: skip
+    p.add_argument(
+        "--camera",
+        type=Path,
+        help="with --size: render through this camera file "
+        "(.toml) or lens table, focused on the image centre",
+    )
     p.add_argument("--lens-rays", type=int, default=16, help="rays per pixel with --camera")
     p.add_argument("--sampling", default="adaptive", help="how --camera places a pixel's rays")
-    p.add_argument("--min-trace", type=float, default=0.0,
-                   help="with --size: raise a scene's samples per pixel until one node "
-                        "traces at least this many CPU seconds")  # fmt: skip
-    p.add_argument("--repeat", type=int, default=1,
-                   help="best of N renders (least busiest-node CPU) for one node and each row")
-    p.add_argument("--together", type=int, default=1,
-                   help="windows in which one node and the mesh are measured at once")
+    p.add_argument(
+        "--min-trace",
+        type=float,
+        default=0.0,
+        help="with --size: raise a scene's samples per pixel until one node "
+        "traces at least this many CPU seconds",
+    )
+    p.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        help="best of N renders (least busiest-node CPU) for one node and each row",
+    )
+    p.add_argument(
+        "--together",
+        type=int,
+        default=1,
+        help="windows in which one node and the mesh are measured at once",
+    )
     p.add_argument("--json", type=Path)
     p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
     args = p.parse_args(argv)
@@ -258,8 +327,11 @@ def main(argv=None) -> int:
 
     if (args.min_trace or args.camera) and not args.size:
         p.error("--min-trace and --camera need --size")
-    base = (ImageSpec(width=args.size, height=args.size, spp=args.spp) if args.size
-            else ImageSpec(spd=True))  # fmt: skip
+    base = (
+        ImageSpec(width=args.size, height=args.size, spp=args.spp)
+        if args.size
+        else ImageSpec(spd=True)
+    )
     lens = None
     if args.camera:
         lens, base = camera_setup(args.camera, args.lens_rays, args.sampling, args.size)
@@ -275,102 +347,178 @@ def main(argv=None) -> int:
         image, camera, (wall1, s1) = sized(scene, base, args.min_trace, lens)
         cpu1 = s1["trace_cpu_seconds"]
         ref = {k: s1["rays"][k] for k in COUNTS}
-        rate = (f"{image.spp} spp" if camera is None else
-                f"{camera.sampling.rays} {camera.sampling.sampling} lens rays")  # fmt: skip
-        print(f"\n== {name}: {image.width}x{image.height} at {rate}, 1x1 in process  "
-              f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
-              "taking turns with the mesh)")
-        print(f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
-              f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
-              f"{'at once':>7} {'batch':>5} "
-              f"{'work':>5} {'wall':>5} "
-              f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
-              f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared")  # fmt: skip
+        rate = (
+            f"{image.spp} spp"
+            if camera is None
+            else f"{camera.sampling.rays} {camera.sampling.sampling} lens rays"
+        )
+        print(
+            f"\n== {name}: {image.width}x{image.height} at {rate}, 1x1 in process  "
+            f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
+            "taking turns with the mesh)"
+        )
+        print(
+            f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
+            f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
+            f"{'at once':>7} {'batch':>5} "
+            f"{'work':>5} {'wall':>5} "
+            f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
+            f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared"
+        )
         threads = [int(t) for t in args.node_threads.split(",")]
         cuts = args.balance.split(",")
         steals = [s == "on" for s in args.steal.split(",")]
         copies = [s == "on" for s in args.copies.split(",")]
         levers = [(st, cp) for st in steals for cp in copies]
-        runs = [(m, o, t, c, lv) for m in args.modes.split(",") for t in threads
-                for o, c, lv in ([(o, c, lv) for o in overlaps for c in cuts for lv in levers]
-                                 if m == "object" else
-                                 [(0.0, (t, int(side), order), (False, False))
-                                  for t in args.tiles.split(",")
-                                  for side in args.tile.split(",")
-                                  for order in args.orders.split(",")])]  # fmt: skip
+        runs = [
+            (m, o, t, c, lv)
+            for m in args.modes.split(",")
+            for t in threads
+            for o, c, lv in (
+                [(o, c, lv) for o in overlaps for c in cuts for lv in levers]
+                if m == "object"
+                else [
+                    (0.0, (t, int(side), order), (False, False))
+                    for t in args.tiles.split(",")
+                    for side in args.tile.split(",")
+                    for order in args.orders.split(",")
+                ]
+            )
+        ]
         for rows, cols in meshes:
             for mode, overlap, thr, cut, (steal, copy) in runs:
                 side = order = None
                 if mode == "image":  # `cut` names the tiling, tile side and order here
                     cut, side, order = cut
-                    got = on_mesh(scene, image, rows, cols, 0.0, thr, "even", mode, cut,
-                                  repeat=args.repeat, tile=side, together=args.together,
-                                  order=order, camera=camera)  # fmt: skip
+                    got = on_mesh(
+                        scene,
+                        image,
+                        rows,
+                        cols,
+                        0.0,
+                        thr,
+                        "even",
+                        mode,
+                        cut,
+                        repeat=args.repeat,
+                        tile=side,
+                        together=args.together,
+                        order=order,
+                        camera=camera,
+                    )
                     cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
                     cut += "" if len(args.orders.split(",")) == 1 else f"/{order}"
 
                 else:
-                    got = on_mesh(scene, image, rows, cols, overlap, thr, cut, mode,
-                                  steal=steal, repeat=args.repeat, copies=copy,
-                                  together=args.together, camera=camera)  # fmt: skip
+                    got = on_mesh(
+                        scene,
+                        image,
+                        rows,
+                        cols,
+                        overlap,
+                        thr,
+                        cut,
+                        mode,
+                        steal=steal,
+                        repeat=args.repeat,
+                        copies=copy,
+                        together=args.together,
+                        camera=camera,
+                    )
                     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
                 wall, st, (wall1, s1) = got
                 cpu1 = s1["trace_cpu_seconds"]
-                work1 = work({**s1["rays"], "intersection_tests": s1["intersection_tests"],
-                              "voxel_steps": s1["voxel_steps"]})  # fmt: skip
+                work1 = work(
+                    {
+                        **s1["rays"],
+                        "intersection_tests": s1["intersection_tests"],
+                        "voxel_steps": s1["voxel_steps"],
+                    }
+                )
                 work_busiest = max(work(n["rays"]) for n in st["nodes"])
                 counts = {k: st["rays"][k] for k in COUNTS}
                 if counts != ref:
                     bad.append(f"{name} {rows}x{cols} {mode} {cut} {overlap}%: {counts} != {ref}")
                 busiest = st["busiest_node_cpu_seconds"]
                 batch = cpu1 / max(st["busiest_node_batch_cpu_seconds"], 1e-9)
-                together = (statistics.median(w["one_node_cpu_seconds"] / w["busiest_cpu_seconds"]
-                                              for w in st["together"])
-                            if st["together"] else float("nan"))  # fmt: skip
+                together = (
+                    statistics.median(
+                        w["one_node_cpu_seconds"] / w["busiest_cpu_seconds"] for w in st["together"]
+                    )
+                    if st["together"]
+                    else float("nan")
+                )
                 mean, top = link_bytes(st)
                 used = st["mesh"]["overlap"]  # the pre-pass's choice under "auto"
                 shown = f"a:{used:g}" if overlap == "auto" else f"{overlap:g}"
-                row = {"scene": name, "mesh": f"{rows}x{cols}", "mode": mode, "overlap": overlap,
-                       "overlap_used": used,
-                       "node_threads": thr, "cuts": cut, "steal": steal, "copies": copy,
-                       "shared": list(st["mesh"].get("shared", ())),
-                       "objects_held_max_share": st["objects_held_max_share"],
-                       "tile": side, "order": order,
-                       "wall_seconds": wall, "busiest_cpu_seconds": busiest,
-                       "speedup": cpu1 / busiest, "wall_speedup": wall1 / wall,
-                       "batch_speedup": batch,
-                       "node_batch_cpu_seconds": [n["batch_cpu_seconds"] for n in st["nodes"]],
-                       "together": st["together"], "together_speedup": together,
-                       "paired_speedups": st["paired_speedups"],
-                       "work_speedup": work1 / work_busiest,
-                       "parallel_efficiency": st["parallel_efficiency"],
-                       "setup_seconds": st["setup_seconds"], "imbalance": st["imbalance"],
-                       "setup_reused_seconds": st["setup_reused_seconds"],
-                       "rays_passed": st["rays_passed"], "bytes_per_link_mean": mean,
-                       "bytes_per_link_max": top, "single_cpu_seconds": cpu1,
-                       "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
-                       "node_batches": [n["batches"] for n in st["nodes"]],
-                       "balance": st.get("balance"), "counts": counts,
-                       "image": image.to_wire(),
-                       "camera": None if camera is None else camera.sampling.to_wire()}  # fmt: skip
+                row = {
+                    "scene": name,
+                    "mesh": f"{rows}x{cols}",
+                    "mode": mode,
+                    "overlap": overlap,
+                    "overlap_used": used,
+                    "node_threads": thr,
+                    "cuts": cut,
+                    "steal": steal,
+                    "copies": copy,
+                    "shared": list(st["mesh"].get("shared", ())),
+                    "objects_held_max_share": st["objects_held_max_share"],
+                    "tile": side,
+                    "order": order,
+                    "wall_seconds": wall,
+                    "busiest_cpu_seconds": busiest,
+                    "speedup": cpu1 / busiest,
+                    "wall_speedup": wall1 / wall,
+                    "batch_speedup": batch,
+                    "node_batch_cpu_seconds": [n["batch_cpu_seconds"] for n in st["nodes"]],
+                    "together": st["together"],
+                    "together_speedup": together,
+                    "paired_speedups": st["paired_speedups"],
+                    "work_speedup": work1 / work_busiest,
+                    "parallel_efficiency": st["parallel_efficiency"],
+                    "setup_seconds": st["setup_seconds"],
+                    "imbalance": st["imbalance"],
+                    "setup_reused_seconds": st["setup_reused_seconds"],
+                    "rays_passed": st["rays_passed"],
+                    "bytes_per_link_mean": mean,
+                    "bytes_per_link_max": top,
+                    "single_cpu_seconds": cpu1,
+                    "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
+                    "node_batches": [n["batches"] for n in st["nodes"]],
+                    "balance": st.get("balance"),
+                    "counts": counts,
+                    "image": image.to_wire(),
+                    "camera": None if camera is None else camera.sampling.to_wire(),
+                }
                 results.append(row)
-                print(f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
-                      f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
-                      f"{statistics.median(st['paired_speedups']):>6.2f} {together:>7.2f} "
-                      f"{batch:>5.2f} "
-                      f"{row['work_speedup']:>5.2f} "
-                      f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
-                      f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
-                      f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,} "
-                      f"{st['objects_held_max_share']:>4.0%} "
-                      f"{','.join(map(str, row['shared'])) or '-'}")  # fmt: skip
+                print(
+                    f"{rows}x{cols:<3} {mode:>6} {shown:>7} {thr:>3} {cut:>18} {wall:>7.2f} "
+                    f"{cpu1:>14.3f} {busiest:>13.3f} {row['speedup']:>7.2f} "
+                    f"{statistics.median(st['paired_speedups']):>6.2f} {together:>7.2f} "
+                    f"{batch:>5.2f} "
+                    f"{row['work_speedup']:>5.2f} "
+                    f"{row['wall_speedup']:>5.2f} {st['parallel_efficiency']:>5.2f} "
+                    f"{st['imbalance']:>9.2f} {st['setup_seconds']:>7.2f} "
+                    f"{st['rays_passed']:>11} {mean:>15,.0f} {top:>11,} "
+                    f"{st['objects_held_max_share']:>4.0%} "
+                    f"{','.join(map(str, row['shared'])) or '-'}"
+                )
                 if args.plots:
                     tag = f"{name}-{rows}x{cols}-{mode}-{cut}-{shown}-t{thr}"
-                    load_plot(args.plots / f"{tag}.png", f"{tag}: speedup "
-                              f"{row['speedup']:.2f}, efficiency "
-                              f"{st['parallel_efficiency']:.2f}", st)  # fmt: skip
-    return finish(results, args.json, bad, "COUNT MISMATCH:\n",
-                  "ray counts equal the single node's on every mesh and overlap")
+                    load_plot(
+                        args.plots / f"{tag}.png",
+                        f"{tag}: speedup "
+                        f"{row['speedup']:.2f}, efficiency "
+                        f"{st['parallel_efficiency']:.2f}",
+                        st,
+                    )
+    return finish(
+        results,
+        args.json,
+        bad,
+        "COUNT MISMATCH:\n",
+        "ray counts equal the single node's on every mesh and overlap",
+    )
 
 
 if __name__ == "__main__":

@@ -34,8 +34,10 @@ def tiles(view, image, side: int):
     from host.planning.partition import tile_grid
     from meshnode.engine.camera import eye_rays
 
-    return [eye_rays(view, image, rows=(y0, y1), cols=(x0, x1))
-            for x0, x1, y0, y1 in tile_grid(image.width, image.height, side)]  # fmt: skip
+    return [
+        eye_rays(view, image, rows=(y0, y1), cols=(x0, x1))
+        for x0, x1, y0, y1 in tile_grid(image.width, image.height, side)
+    ]
 
 
 def timed(trace, batches):
@@ -91,10 +93,14 @@ def main(argv=None) -> int:
     from meshnode.engine import Engine
     from protocols.render import ImageSpec
 
-    print(f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread, "
-          f"best of {args.repeat} turns")  # fmt: skip
-    print(f"{'scene':>10} {'tiles':>6} {'mesh kernel s':>13} {'one-node kernel s':>17} "
-          f"{'mesh / one-node':>15} {'call us bound':>13} {'dispatched':>10}")  # fmt: skip
+    print(
+        f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread, "
+        f"best of {args.repeat} turns"
+    )
+    print(
+        f"{'scene':>10} {'tiles':>6} {'mesh kernel s':>13} {'one-node kernel s':>17} "
+        f"{'mesh / one-node':>15} {'call us bound':>13} {'dispatched':>10}"
+    )
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
@@ -116,14 +122,29 @@ def main(argv=None) -> int:
         if m_counts != o_counts or not np.allclose(m_rgb, o_rgb, rtol=0, atol=1e-12):
             bad.append(name)
         fast, typed = per_call(engine, mesh, batches[len(batches) // 2][:1])
-        rows.append({"scene": name, "tiles": len(batches), "mesh_kernel_cpu_seconds": m_cpu,
-                     "one_node_kernel_cpu_seconds": o_cpu, "ratio": m_cpu / o_cpu,
-                     "call_us_bound": fast, "call_us_dispatched": typed,
-                     "counts": o_counts})  # fmt: skip
-        print(f"{name:>10} {len(batches):>6} {m_cpu:>13.3f} {o_cpu:>17.3f} "
-              f"{m_cpu / o_cpu:>15.2f} {fast:>13.1f} {typed:>10.1f}")  # fmt: skip
-    return finish(rows, args.json, bad, "MISMATCH (colours or counts) between the kernels:\n",
-                  "both kernels gave the same colours and ray counts on every scene")
+        rows.append(
+            {
+                "scene": name,
+                "tiles": len(batches),
+                "mesh_kernel_cpu_seconds": m_cpu,
+                "one_node_kernel_cpu_seconds": o_cpu,
+                "ratio": m_cpu / o_cpu,
+                "call_us_bound": fast,
+                "call_us_dispatched": typed,
+                "counts": o_counts,
+            }
+        )
+        print(
+            f"{name:>10} {len(batches):>6} {m_cpu:>13.3f} {o_cpu:>17.3f} "
+            f"{m_cpu / o_cpu:>15.2f} {fast:>13.1f} {typed:>10.1f}"
+        )
+    return finish(
+        rows,
+        args.json,
+        bad,
+        "MISMATCH (colours or counts) between the kernels:\n",
+        "both kernels gave the same colours and ray counts on every scene",
+    )
 
 
 if __name__ == "__main__":

@@ -91,9 +91,11 @@ def main(argv=None) -> int:
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     plan = {"mode": "object", "steal": True, "balance": "cost", "copies": True}
-    print(f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
-          f"{args.overlap:g} (cost cuts, stealing, copies), simulated; {args.rounds} rounds "
-          f"in turns on one thread")  # fmt: skip
+    print(
+        f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
+        f"{args.overlap:g} (cost cuts, stealing, copies), simulated; {args.rounds} rounds "
+        f"in turns on one thread"
+    )
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
@@ -111,25 +113,49 @@ def main(argv=None) -> int:
         q1, median, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
         per_engine: dict = {}
         replay(mesh, per_engine)
-        print(f"\n== {name}: one node {best_one:.3f} s, mesh {best_mesh:.3f} s (best rounds); "
-              f"work mesh / one {wm / w1:.3f}; CPU mesh / one median {median:.3f} "
-              f"(quartiles {q1:.3f}-{q3:.3f})")  # fmt: skip
+        print(
+            f"\n== {name}: one node {best_one:.3f} s, mesh {best_mesh:.3f} s (best rounds); "
+            f"work mesh / one {wm / w1:.3f}; CPU mesh / one median {median:.3f} "
+            f"(quartiles {q1:.3f}-{q3:.3f})"
+        )
         print(f"{'engine':>8} {'kernel':>7} {'calls':>6} {'rays':>9} {'CPU s':>7} {'ns/unit':>8}")
         engines = []
         for i, (engine, calls, n_rays, cpu, units) in enumerate(per_engine.values()):
             kernel = "one" if engine.holds_scene else "mesh"
             ns = 1e9 * cpu / max(units, 1)
-            engines.append({"kernel": kernel, "calls": calls, "rays": n_rays, "cpu_seconds": cpu,
-                            "work_units": units})  # fmt: skip
+            engines.append(
+                {
+                    "kernel": kernel,
+                    "calls": calls,
+                    "rays": n_rays,
+                    "cpu_seconds": cpu,
+                    "work_units": units,
+                }
+            )
             print(f"{i:>8} {kernel:>7} {calls:>6} {n_rays:>9} {cpu:>7.3f} {ns:>8.2f}")
-        print(f"{'one node':>8} {'one':>7} {len(one):>6} {sum(len(c[1]) for c in one):>9} "
-              f"{c1:>7.3f} {1e9 * c1 / w1:>8.2f}")  # fmt: skip
-        rows.append({"scene": name, "mesh": args.mesh, "one_cpu_seconds": best_one,
-                     "mesh_cpu_seconds": best_mesh, "work_ratio": wm / w1,
-                     "cpu_ratio_median": median, "cpu_ratio_quartiles": [q1, q3],
-                     "engines": engines})  # fmt: skip
-    return finish(rows, args.json, bad, "MISMATCH (ray counts) between the mesh and one node:\n",
-                  "the mesh's calls counted the same hits, escapes and shadow rays as one node's")
+        print(
+            f"{'one node':>8} {'one':>7} {len(one):>6} {sum(len(c[1]) for c in one):>9} "
+            f"{c1:>7.3f} {1e9 * c1 / w1:>8.2f}"
+        )
+        rows.append(
+            {
+                "scene": name,
+                "mesh": args.mesh,
+                "one_cpu_seconds": best_one,
+                "mesh_cpu_seconds": best_mesh,
+                "work_ratio": wm / w1,
+                "cpu_ratio_median": median,
+                "cpu_ratio_quartiles": [q1, q3],
+                "engines": engines,
+            }
+        )
+    return finish(
+        rows,
+        args.json,
+        bad,
+        "MISMATCH (ray counts) between the mesh and one node:\n",
+        "the mesh's calls counted the same hits, escapes and shadow rays as one node's",
+    )
 
 
 if __name__ == "__main__":

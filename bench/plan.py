@@ -40,16 +40,30 @@ def parse_args(argv=None) -> argparse.Namespace:
 def run_once(scene: Path, extra: list[str], tmp: Path) -> dict:
     """One whole `host render --spd` process: wall seconds, tracing seconds, the plan line."""
     stats = tmp / "stats.json"
-    cmd = [sys.executable, "-m", "host.cli", "render", str(scene), "--spd", "-o",
-           str(tmp / "out.png"), "--stats", str(stats), *extra]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "host.cli",
+        "render",
+        str(scene),
+        "--spd",
+        "-o",
+        str(tmp / "out.png"),
+        "--stats",
+        str(stats),
+        *extra,
+    ]
     start = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     wall = time.perf_counter() - start
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     plan = next((ln for ln in done.stderr.splitlines() if ln.startswith("host: plan:")), "")
-    return {"wall_seconds": wall, "trace_seconds": json.loads(stats.read_text())["trace_seconds"],
-            "plan": plan}  # fmt: skip
+    return {
+        "wall_seconds": wall,
+        "trace_seconds": json.loads(stats.read_text())["trace_seconds"],
+        "plan": plan,
+    }
 
 
 def bench_scene(scene: Path, repeat: int) -> dict:
@@ -63,10 +77,12 @@ def bench_scene(scene: Path, repeat: int) -> dict:
                 runs[name].append(run_once(scene, extra, Path(tmp)))
     out = {"scene": scene.stem}
     for name, rs in runs.items():
-        out[name] = {"wall_seconds": min(r["wall_seconds"] for r in rs),
-                     "trace_seconds": min(r["trace_seconds"] for r in rs),
-                     "wall_seconds_all": [r["wall_seconds"] for r in rs],
-                     "plan": rs[0]["plan"]}  # fmt: skip
+        out[name] = {
+            "wall_seconds": min(r["wall_seconds"] for r in rs),
+            "trace_seconds": min(r["trace_seconds"] for r in rs),
+            "wall_seconds_all": [r["wall_seconds"] for r in rs],
+            "plan": rs[0]["plan"],
+        }
     out["wall_ratio"] = out["default"]["wall_seconds"] / out["1x1"]["wall_seconds"]
     out["trace_ratio"] = out["default"]["trace_seconds"] / out["1x1"]["trace_seconds"]
     return out
@@ -85,26 +101,34 @@ def main(argv=None) -> int:
     if missing:
         print(f"bench.plan: no {', '.join(missing)} in {args.scenes}", file=sys.stderr)
         return 2
-    print(f"default plan vs --mesh 1x1: whole host render --spd processes, taking turns, best "
-          f"of {args.repeat}")  # fmt: skip
+    print(
+        f"default plan vs --mesh 1x1: whole host render --spd processes, taking turns, best "
+        f"of {args.repeat}"
+    )
     rows = []
     for name in names:
         print(f"  {name} ...", file=sys.stderr, flush=True)
         rows.append(bench_scene(args.scenes / f"{name}.nff", args.repeat))
-    print(f"{'scene':8} {'default wall s':>14} {'1x1 wall s':>10} {'ratio':>6} "
-          f"{'default trace s':>15} {'1x1 trace s':>11} {'ratio':>6}")  # fmt: skip
+    print(
+        f"{'scene':8} {'default wall s':>14} {'1x1 wall s':>10} {'ratio':>6} "
+        f"{'default trace s':>15} {'1x1 trace s':>11} {'ratio':>6}"
+    )
     for r in rows:
         d, m = r["default"], r["1x1"]
-        print(f"{r['scene']:8} {d['wall_seconds']:14.3f} {m['wall_seconds']:10.3f} "
-              f"{r['wall_ratio']:6.2f} {d['trace_seconds']:15.3f} {m['trace_seconds']:11.3f} "
-              f"{r['trace_ratio']:6.2f}")  # fmt: skip
+        print(
+            f"{r['scene']:8} {d['wall_seconds']:14.3f} {m['wall_seconds']:10.3f} "
+            f"{r['wall_ratio']:6.2f} {d['trace_seconds']:15.3f} {m['trace_seconds']:11.3f} "
+            f"{r['trace_ratio']:6.2f}"
+        )
     for r in rows:
         print(f"{r['scene']}: default {r['default']['plan'] or '(no plan line)'}")
         print(f"{r['scene']}: 1x1     {r['1x1']['plan'] or '(no plan line)'}")
     slower = [r["scene"] for r in rows if r["wall_ratio"] > 1.0]
     same = [r["scene"] for r in rows if _plan(r["default"]["plan"]) == _plan(r["1x1"]["plan"])]
-    print("default at least as fast as --mesh 1x1 (wall): "
-          + ("on every scene" if not slower else f"not on {', '.join(slower)}"))
+    print(
+        "default at least as fast as --mesh 1x1 (wall): "
+        + ("on every scene" if not slower else f"not on {', '.join(slower)}")
+    )
     if same:
         print(f"same plan both ways on {', '.join(same)}: a ratio there is this machine's noise")
     if args.json:

@@ -36,19 +36,33 @@ from bench import add_scenes_option  # noqa: E402 (after the path is set)
 LATENCY_SHARE = 1e-5
 TILES_PER_NODE = 32  # a 4x4 mesh of bench.mesh's tiles has 36 a node
 
-MODES = {"object+steal": {"mode": "object", "steal": True},
-         "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
-         "object+cost": {"mode": "object", "balance": "cost"},
-         "object+steal+copies": {"mode": "object", "steal": True, "copies": True},
-         "object+steal+cost+copies": {"mode": "object", "steal": True, "balance": "cost",
-                                      "copies": True},
-         "image none": {"mode": "image", "tiles": "none"},
-         "image static": {"mode": "image", "tiles": "static"},
-         "image dynamic": {"mode": "image", "tiles": "dynamic"}}  # fmt: skip
+MODES = {
+    "object+steal": {"mode": "object", "steal": True},
+    "object+steal+cost": {"mode": "object", "steal": True, "balance": "cost"},
+    "object+cost": {"mode": "object", "balance": "cost"},
+    "object+steal+copies": {"mode": "object", "steal": True, "copies": True},
+    "object+steal+cost+copies": {
+        "mode": "object",
+        "steal": True,
+        "balance": "cost",
+        "copies": True,
+    },
+    "image none": {"mode": "image", "tiles": "none"},
+    "image static": {"mode": "image", "tiles": "static"},
+    "image dynamic": {"mode": "image", "tiles": "dynamic"},
+}
 
 
-def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float | str = 2,
-              clock: str = "rounds", latency: float = 0.0):
+def simulated(
+    scene,
+    rows: int,
+    cols: int,
+    size: int,
+    plan: dict,
+    overlap: float | str = 2,
+    clock: str = "rounds",
+    latency: float = 0.0,
+):
     """(busiest node's cost, total cost, rays passed, overlap, makespan) of a simulated
     render, planned as `host render` plans it (`overlap` "auto": the pre-pass chooses, with
     no memory bound), on the simulator's `clock` (a message's `latency` in work units)."""
@@ -67,11 +81,21 @@ def simulated(scene, rows: int, cols: int, size: int, plan: dict, overlap: float
     mesh = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, tile=tile, **plan)
     planned = plan_render(scene, image, EngineSpec(), mesh, overlaps=OVERLAPS if auto else ())
     part, keep = planned.partition, planned.holders
-    out = simulate([subset(scene, keep[n]) for n in range(part.nodes)], planned.spec, part,
-                   clock=clock, latency=latency)  # fmt: skip
+    out = simulate(
+        [subset(scene, keep[n]) for n in range(part.nodes)],
+        planned.spec,
+        part,
+        clock=clock,
+        latency=latency,
+    )
     costs = [n.cost for n in out.nodes]
-    return (max(costs), sum(costs), sum(n.rays_sent for n in out.nodes),
-            planned.spec.plan.overlap, out.makespan)  # fmt: skip
+    return (
+        max(costs),
+        sum(costs),
+        sum(n.rays_sent for n in out.nodes),
+        planned.spec.plan.overlap,
+        out.makespan,
+    )
 
 
 def measured_table(paths: list[Path]) -> dict:
@@ -84,9 +108,13 @@ def measured_table(paths: list[Path]) -> dict:
         if r["mode"] == "image":
             mode = f"image {r['cuts']}" if f"image {r['cuts']}" in MODES else None
         else:
-            mode = {"even+steal": "object+steal", "cost+steal": "object+steal+cost",
-                    "cost": "object+cost", "even+steal+copies": "object+steal+copies",
-                    "cost+steal+copies": "object+steal+cost+copies"}.get(r["cuts"])  # fmt: skip
+            mode = {
+                "even+steal": "object+steal",
+                "cost+steal": "object+steal+cost",
+                "cost": "object+cost",
+                "even+steal+copies": "object+steal+copies",
+                "cost+steal+copies": "object+steal+cost+copies",
+            }.get(r["cuts"])
             overlap = r["overlap"]
         if mode:
             out[(r["scene"], r["mesh"], mode, overlap)] = (r["speedup"], r.get("work_speedup"))
@@ -108,16 +136,33 @@ def main(argv=None) -> int:
     p.add_argument("--meshes", default="2x2,3x3,4x4,8x8,16x16")
     p.add_argument("--size", type=int, default=128, help="simulated image side (coarse)")
     p.add_argument("--modes", default=",".join(MODES), help=f"of {', '.join(MODES)}")
-    p.add_argument("--overlaps", default="2", help="object space: box overlaps (percent; "
-                   "auto: the pre-pass chooses, as `--overlap auto` does)")
-    p.add_argument("--clock", choices=("work", "rounds"), default="work",
-                   help="work: each node's clock moves by the work it does, so what stealing "
-                   "and dynamic tiles even out is seen; rounds: one batch a node a turn")
-    p.add_argument("--latency", type=float, default=LATENCY_SHARE,
-                   help="clock work: a message's flight as a share of one node's whole render "
-                   f"(default {LATENCY_SHARE:g}: 60 us of a 6 s render)")
-    p.add_argument("--measured", type=Path, nargs="+", default=[],
-                   help="bench.mesh --json outputs to compare with")
+    p.add_argument(
+        "--overlaps",
+        default="2",
+        help="object space: box overlaps (percent; "
+        "auto: the pre-pass chooses, as `--overlap auto` does)",
+    )
+    p.add_argument(
+        "--clock",
+        choices=("work", "rounds"),
+        default="work",
+        help="work: each node's clock moves by the work it does, so what stealing "
+        "and dynamic tiles even out is seen; rounds: one batch a node a turn",
+    )
+    p.add_argument(
+        "--latency",
+        type=float,
+        default=LATENCY_SHARE,
+        help="clock work: a message's flight as a share of one node's whole render "
+        f"(default {LATENCY_SHARE:g}: 60 us of a 6 s render)",
+    )
+    p.add_argument(
+        "--measured",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="bench.mesh --json outputs to compare with",
+    )
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
     unknown = set(args.modes.split(",")) - set(MODES)
@@ -132,18 +177,22 @@ def main(argv=None) -> int:
         scene = read_nff(args.scenes / f"{name}.nff")
         one, *_ = simulated(scene, 1, 1, args.size, {})
         latency = args.latency * one if args.clock == "work" else 0.0
-        print(f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}, "
-              f"clock {args.clock}" + (f", latency {latency:,.1f}" if latency else ""))
-        print(f"{'mesh':>6} {'mode':>24} {'overlap':>7} {'predicted':>9} {'wall':>5} "
-              f"{'measured':>8} {'ratio':>5} {'work':>5} {'rays passed':>11} "
-              f"{'seconds':>7}")  # fmt: skip
+        print(
+            f"\n== {name}: {args.size}x{args.size} simulated, one node's cost {one:,}, "
+            f"clock {args.clock}" + (f", latency {latency:,.1f}" if latency else "")
+        )
+        print(
+            f"{'mesh':>6} {'mode':>24} {'overlap':>7} {'predicted':>9} {'wall':>5} "
+            f"{'measured':>8} {'ratio':>5} {'work':>5} {'rays passed':>11} "
+            f"{'seconds':>7}"
+        )
         for mesh in args.meshes.split(","):
             rows, cols = (int(v) for v in mesh.split("x"))
             for mode, overlap in runs(args.modes.split(","), overlaps):
                 start = time.perf_counter()
                 busiest, _, passed, used, makespan = simulated(
-                    scene, rows, cols, args.size, MODES[mode], overlap or 0, args.clock,
-                    latency)  # fmt: skip
+                    scene, rows, cols, args.size, MODES[mode], overlap or 0, args.clock, latency
+                )
                 predicted = one / busiest
                 wall = f"{one / makespan:5.2f}" if makespan else f"{'-':>5}"
                 got, got_work = measured.get((name, mesh, mode, overlap), (None, None))
@@ -151,15 +200,27 @@ def main(argv=None) -> int:
                 seen += f" {got_work:5.2f}" if got_work else f" {'-':>5}"
                 shown = "-" if overlap is None else f"{used:g}"
                 shown = f"auto:{shown}" if overlap == "auto" else shown
-                print(f"{mesh:>6} {mode:>24} {shown:>7} {predicted:>9.2f} {wall} {seen} "
-                      f"{passed:>11,} "
-                      f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
-                table.append({"scene": name, "mesh": mesh, "mode": mode, "overlap": overlap,
-                              "overlap_used": used if overlap is not None else None,
-                              "predicted": predicted, "clock": args.clock,
-                              "predicted_wall": one / makespan if makespan else None,
-                              "measured": got,
-                              "measured_work": got_work, "rays_passed": passed})  # fmt: skip
+                print(
+                    f"{mesh:>6} {mode:>24} {shown:>7} {predicted:>9.2f} {wall} {seen} "
+                    f"{passed:>11,} "
+                    f"{time.perf_counter() - start:>7.1f}",
+                    flush=True,
+                )
+                table.append(
+                    {
+                        "scene": name,
+                        "mesh": mesh,
+                        "mode": mode,
+                        "overlap": overlap,
+                        "overlap_used": used if overlap is not None else None,
+                        "predicted": predicted,
+                        "clock": args.clock,
+                        "predicted_wall": one / makespan if makespan else None,
+                        "measured": got,
+                        "measured_work": got_work,
+                        "rays_passed": passed,
+                    }
+                )
     if args.json:
         args.json.write_text(json.dumps(table, indent=2) + "\n")
     return 0

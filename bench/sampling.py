@@ -61,21 +61,33 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.sampling", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", type=Path, default=DEFAULT_SCENE, help="NFF scene")
     p.add_argument("--camera", type=Path, default=DEFAULT_CAMERA, help="camera file")
-    p.add_argument("--pinhole", action="store_true",
-                   help="sample the scene's pinhole (pixel areas) instead of the camera's lens")
+    p.add_argument(
+        "--pinhole",
+        action="store_true",
+        help="sample the scene's pinhole (pixel areas) instead of the camera's lens",
+    )
     p.add_argument("--focus", type=float, default=2.0, help="focus distance, metres (2)")
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
     p.add_argument("--ref-rays", type=int, default=1024, help="reference rays per pixel")
-    p.add_argument("--spp", type=_ints, default=[1, 4, 9, 16, 64],
-                   help="rays per pixel, comma-separated (1,4,9,16,64)")  # fmt: skip
-    p.add_argument("--threshold", type=_floats, default=None,
-                   help="adaptive thresholds, comma-separated (renderer default)")  # fmt: skip
+    p.add_argument(
+        "--spp",
+        type=_ints,
+        default=[1, 4, 9, 16, 64],
+        help="rays per pixel, comma-separated (1,4,9,16,64)",
+    )
+    p.add_argument(
+        "--threshold",
+        type=_floats,
+        default=None,
+        help="adaptive thresholds, comma-separated (renderer default)",
+    )
     p.add_argument("--repeat", type=int, default=3, help="best of N timings (3)")
     p.add_argument("--seed", type=int, default=1, help="seed of the measured runs (1)")
     p.add_argument("--threads", type=int, default=0, help="tracing threads (0: one per core)")
-    p.add_argument("--out", type=Path, default=ROOT / "bench" / "out",
-                   help="folder for the PNGs (bench/out)")  # fmt: skip
+    p.add_argument(
+        "--out", type=Path, default=ROOT / "bench" / "out", help="folder for the PNGs (bench/out)"
+    )
     p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = p.parse_args(argv)
     if args.threshold is None:
@@ -118,14 +130,17 @@ class Bench:
 
         a = self.args
         if a.pinhole:
-            return (ImageSpec(width=a.width, height=a.height, seed=seed),
-                    EngineSpec(threads=a.threads),
-                    PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive"
-                                    else None))  # fmt: skip
-        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
-        return (ImageSpec(width=a.width, height=a.height, seed=seed),
+            return (
+                ImageSpec(width=a.width, height=a.height, seed=seed),
                 EngineSpec(threads=a.threads),
-                CameraSetup(self.camera, sampled, Focus(a.focus)))  # fmt: skip
+                PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive" else None),
+            )
+        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
+        return (
+            ImageSpec(width=a.width, height=a.height, seed=seed),
+            EngineSpec(threads=a.threads),
+            CameraSetup(self.camera, sampled, Focus(a.focus)),
+        )
 
     def render(self, settings, repeat: int = 1):
         """(image, stats, best tracing seconds of `repeat` identical renders)."""
@@ -149,11 +164,17 @@ class Bench:
         cam = stats["camera"]
         adaptive = cam["threshold"] is not None  # adaptive with one ray is one plain ray
         error = rms(image, reference)
-        return {"method": method_name(sampling, threshold), "sampling": sampling, "spp": spp,
-                "threshold": cam["threshold"] if adaptive else None,
-                "rays_per_pixel": stats["rays"]["eye_rays"] / self.pixels,
-                "refined": cam.get("refined_pixels", 0) / self.pixels if adaptive else None,
-                "seconds": seconds, "rms": error, "merit": error * math.sqrt(seconds)}  # fmt: skip
+        return {
+            "method": method_name(sampling, threshold),
+            "sampling": sampling,
+            "spp": spp,
+            "threshold": cam["threshold"] if adaptive else None,
+            "rays_per_pixel": stats["rays"]["eye_rays"] / self.pixels,
+            "refined": cam.get("refined_pixels", 0) / self.pixels if adaptive else None,
+            "seconds": seconds,
+            "rms": error,
+            "merit": error * math.sqrt(seconds),
+        }
 
 
 def method_name(sampling: str, threshold) -> str:
@@ -194,16 +215,20 @@ def reference_error(rows: list[dict], ref_rays: int) -> tuple[float, float]:
 
 def format_table(rows: list[dict]) -> str:
     """The rows as a fixed-width text table."""
-    head = (f"{'sampling':<15} {'spp':>4} {'thresh':>6} {'rays/px':>8} {'refined':>7} "
-            f"{'trace s':>8} {'RMS error':>10} {'RMS*sqrt(s)':>11} {'t/jit':>6} "
-            f"{'err/jit':>7}")  # fmt: skip
+    head = (
+        f"{'sampling':<15} {'spp':>4} {'thresh':>6} {'rays/px':>8} {'refined':>7} "
+        f"{'trace s':>8} {'RMS error':>10} {'RMS*sqrt(s)':>11} {'t/jit':>6} "
+        f"{'err/jit':>7}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         thresh = f"{r['threshold']:g}" if r["threshold"] is not None else "-"
         refined = f"{100 * r['refined']:.1f}%" if r["refined"] is not None else "-"
-        lines.append(f"{r['method']:<15} {r['spp']:>4} {thresh:>6} {r['rays_per_pixel']:>8.2f} "
-                     f"{refined:>7} {r['seconds']:>8.4f} {r['rms']:>10.5f} {r['merit']:>11.5f} "
-                     f"{r['time_vs_jittered']:>6.2f} {r['error_vs_jittered']:>7.2f}")  # fmt: skip
+        lines.append(
+            f"{r['method']:<15} {r['spp']:>4} {thresh:>6} {r['rays_per_pixel']:>8.2f} "
+            f"{refined:>7} {r['seconds']:>8.4f} {r['rms']:>10.5f} {r['merit']:>11.5f} "
+            f"{r['time_vs_jittered']:>6.2f} {r['error_vs_jittered']:>7.2f}"
+        )
     return "\n".join(lines)
 
 
@@ -271,8 +296,13 @@ def _draw_axes(draw, image, ax: LogAxes, title: str) -> None:
         draw.line([(left, py), (right, py)], fill=(225, 225, 225))
         draw.text((left - 6, py), f"{y:g}", fill="black", font=small, anchor="rm")
     draw.rectangle(ax.box, outline="black")
-    draw.text(((left + right) / 2, PLOT_SIZE[1] - 22), "tracing seconds (log)", fill="black",
-              font=font, anchor="mm")  # fmt: skip
+    draw.text(
+        ((left + right) / 2, PLOT_SIZE[1] - 22),
+        "tracing seconds (log)",
+        fill="black",
+        font=font,
+        anchor="mm",
+    )
     draw.text(((left + right) / 2, top / 2), title, fill="black", font=font, anchor="mm")
     label = "RMS error vs reference (log)"
     size = (int(draw.textlength(label, font=font)) + 4, 22)
@@ -290,8 +320,9 @@ def _marker(draw, xy, shape: int, colour) -> None:
     elif shape % 3 == 1:
         draw.rectangle([x - r, y - r, x + r, y + r], fill=colour, outline="black")
     else:
-        draw.polygon([(x, y - r - 1), (x + r + 1, y + r), (x - r - 1, y + r)], fill=colour,
-                     outline="black")  # fmt: skip
+        draw.polygon(
+            [(x, y - r - 1), (x + r + 1, y + r), (x - r - 1, y + r)], fill=colour, outline="black"
+        )
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
@@ -323,8 +354,9 @@ def _legend(draw, ax: LogAxes, methods: list[str]) -> None:
     width = max(draw.textlength(m, font=font) for m in methods) + 50
     _, top, right, _ = ax.box
     x0, y0 = right - width - 10, top + 10
-    draw.rectangle([x0, y0, right - 10, y0 + 22 * len(methods) + 8], fill="white",
-                   outline=(160, 160, 160))  # fmt: skip
+    draw.rectangle(
+        [x0, y0, right - 10, y0 + 22 * len(methods) + 8], fill="white", outline=(160, 160, 160)
+    )
     for i, method in enumerate(methods):
         colour, y = COLOURS[i % len(COLOURS)], y0 + 15 + 22 * i
         draw.line([(x0 + 8, y), (x0 + 36, y)], fill=colour, width=2)
@@ -343,36 +375,61 @@ def main(argv=None) -> int:
     bench = Bench(args)
     reference, ref_stats, ref_seconds = bench.reference()
     cam = ref_stats["camera"]
-    optics = (cam["source"] if args.pinhole else f"{cam['source']}  f/{cam['f_number']:.2f} "
-              f"focused at {cam['focus_distance_m']:g} m")  # fmt: skip
-    print(f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
-          f"{ref_stats['threads']} threads")  # fmt: skip
+    optics = (
+        cam["source"]
+        if args.pinhole
+        else f"{cam['source']}  f/{cam['f_number']:.2f} focused at {cam['focus_distance_m']:g} m"
+    )
+    print(
+        f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
+        f"{ref_stats['threads']} threads"
+    )
     ref_seed = args.seed + REF_SEED_OFFSET
-    print(f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
-          f"  measured runs: seed {args.seed}, best of {args.repeat}")  # fmt: skip
+    print(
+        f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
+        f"  measured runs: seed {args.seed}, best of {args.repeat}"
+    )
     rows = measure(bench, reference)
     print()
     print(format_table(rows))
-    print("\nadaptive with 1 ray per pixel traces that one ray (no threshold, same as jittered); "
-          "RMS*sqrt(s): lower is better")  # fmt: skip
+    print(
+        "\nadaptive with 1 ray per pixel traces that one ray (no threshold, same as jittered); "
+        "RMS*sqrt(s): lower is better"
+    )
     slope, ref_error = reference_error(rows, args.ref_rays)
-    print(f"jittered error ~ rays^{slope:.2f}; the reference's own error, extrapolated: "
-          f"~{ref_error:.2g} (smallest measured {min(r['rms'] for r in rows):.2g})")  # fmt: skip
+    print(
+        f"jittered error ~ rays^{slope:.2f}; the reference's own error, extrapolated: "
+        f"~{ref_error:.2g} (smallest measured {min(r['rms'] for r in rows):.2g})"
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     name = "sampling_pinhole" if args.pinhole else "sampling"
     ref_png, plot_png = args.out / f"{name}_reference.png", args.out / f"{name}.png"
     write_png(ref_png, reference)
-    optics = ("pinhole" if args.pinhole else f"f/{cam['f_number']:.1f} focused at "
-              f"{cam['focus_distance_m']:g} m")  # fmt: skip
-    title = (f"{args.scene.stem}: {optics}, {args.width}x{args.height}, reference "
-             f"{args.ref_rays} rays/pixel")  # fmt: skip
+    optics = (
+        "pinhole"
+        if args.pinhole
+        else f"f/{cam['f_number']:.1f} focused at {cam['focus_distance_m']:g} m"
+    )
+    title = (
+        f"{args.scene.stem}: {optics}, {args.width}x{args.height}, reference "
+        f"{args.ref_rays} rays/pixel"
+    )
     plot(rows, plot_png, title)
     print(f"\nplot: {plot_png}\nreference image: {ref_png}")
     if args.json:
-        info = {"scene": str(args.scene), "camera": cam, "width": args.width,
-                "height": args.height, "ref_rays": args.ref_rays, "ref_seconds": ref_seconds,
-                "repeat": args.repeat, "seed": args.seed, "jittered_rate": slope,
-                "reference_error": ref_error, "rows": rows}  # fmt: skip
+        info = {
+            "scene": str(args.scene),
+            "camera": cam,
+            "width": args.width,
+            "height": args.height,
+            "ref_rays": args.ref_rays,
+            "ref_seconds": ref_seconds,
+            "repeat": args.repeat,
+            "seed": args.seed,
+            "jittered_rate": slope,
+            "reference_error": ref_error,
+            "rows": rows,
+        }
         args.json.write_text(json.dumps(info, indent=2, default=str))
     print(f"whole run {time.perf_counter() - start:.1f} s")
     return 0

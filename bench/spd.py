@@ -39,18 +39,42 @@ STRUCTURES = ("grid", "bvh", "auto")  # --structures; the default (auto) always 
 # teapot's generator has changed since the table was made.
 PUBLISHED_TOLERANCE = {"teapot": 0.005}
 TOLERANCE = 0.001
-PUBLISHED_COLUMNS = {"eye rays that hit": "eye_hits", "reflected rays": "reflected_rays",
-                     "refracted rays": "refracted_rays", "shadow rays": "shadow_rays"}  # fmt: skip
-COUNT_KEYS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-              "shadow_rays_blocked")  # fmt: skip
+PUBLISHED_COLUMNS = {
+    "eye rays that hit": "eye_hits",
+    "reflected rays": "reflected_rays",
+    "refracted rays": "refracted_rays",
+    "shadow rays": "shadow_rays",
+}
+COUNT_KEYS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 COUNT_LABELS = ("eye", "hits", "reflected", "refracted", "shadow", "blocked")
 DEFAULT_SCALING = "tetra:1-10,balls:1-6"  # 4 .. 1,048,576 triangles, 10 .. 597,871 spheres
 # The structures --scaling compares, and the figures of run_config that a scaling run keeps.
 SCALING_STRUCTURES = ("grid", "auto")
-SCALING_KEYS = ("label", "structure", "used_structure", "structure_reason", "used_storage",
-                "resolution", "bvh", "trace_seconds", "trace_seconds_all", "total_rays",
-                "rays_per_second", "tests_per_ray", "steps_per_ray", "structure_bytes",
-                "variant", "rays")  # fmt: skip
+SCALING_KEYS = (
+    "label",
+    "structure",
+    "used_structure",
+    "structure_reason",
+    "used_storage",
+    "resolution",
+    "bvh",
+    "trace_seconds",
+    "trace_seconds_all",
+    "total_rays",
+    "rays_per_second",
+    "tests_per_ray",
+    "steps_per_ray",
+    "structure_bytes",
+    "variant",
+    "rays",
+)
 
 if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(ROOT))
@@ -87,21 +111,37 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="bench.spd", description=__doc__.split("\n\n")[0])
     add_scenes_option(p)
     p.add_argument("--only", help="comma-separated scene names (default: all)")
-    p.add_argument("--structures", default=",".join(STRUCTURES),
-                   help="which of grid (every storage x density), bvh, auto to run (default "
-                   "all; auto, the default the POV-Ray ratios are about, always runs)")  # fmt: skip
+    p.add_argument(
+        "--structures",
+        default=",".join(STRUCTURES),
+        help="which of grid (every storage x density), bvh, auto to run (default "
+        "all; auto, the default the POV-Ray ratios are about, always runs)",
+    )
     p.add_argument("--densities", default="0.5,1,2", help="grid densities (default 0.5,1,2)")
-    p.add_argument("--repeat", type=int, default=3,
-                   help="best of N for scenes with a pov/NAME.pov, POV-Ray's and ours, "
-                   "and for --scaling (default 3)")  # fmt: skip
+    p.add_argument(
+        "--repeat",
+        type=int,
+        default=3,
+        help="best of N for scenes with a pov/NAME.pov, POV-Ray's and ours, "
+        "and for --scaling (default 3)",
+    )
     p.add_argument("--json", type=Path, help="write all figures to this JSON file")
     p.add_argument("--no-pov", action="store_true", help="skip the POV-Ray comparison")
     p.add_argument("--no-wall", action="store_true", help="skip whole-process wall times")
-    p.add_argument("--scaling", nargs="?", const=DEFAULT_SCALING, metavar="SCENE:N-M,...",
-                   help="only the scaling table: generated tetra/balls at size factors N..M "
-                   f"(default {DEFAULT_SCALING})")  # fmt: skip
-    p.add_argument("--size", type=int, default=512,
-                   help="image side for --scaling (SPD corner rays; default 512)")  # fmt: skip
+    p.add_argument(
+        "--scaling",
+        nargs="?",
+        const=DEFAULT_SCALING,
+        metavar="SCENE:N-M,...",
+        help="only the scaling table: generated tetra/balls at size factors N..M "
+        f"(default {DEFAULT_SCALING})",
+    )
+    p.add_argument(
+        "--size",
+        type=int,
+        default=512,
+        help="image side for --scaling (SPD corner rays; default 512)",
+    )
     args = p.parse_args(argv)
     args.densities = [float(d) for d in args.densities.split(",") if d.strip()]
     args.structures = [s.strip() for s in args.structures.split(",") if s.strip()]
@@ -166,8 +206,10 @@ def warm_kernels(scene) -> dict:
 
     eye_rays(scene.view, ImageSpec(spd=True).sized(scene.view), rows=(0, 1))
     loads = {}
-    for name, kw in [*((s, {"structure": "grid", "storage": s, "density": 0.05})
-                       for s in STORAGES), ("bvh", {"structure": "bvh"})]:  # fmt: skip
+    for name, kw in [
+        *((s, {"structure": "grid", "storage": s, "density": 0.05}) for s in STORAGES),
+        ("bvh", {"structure": "bvh"}),
+    ]:
         start = time.perf_counter()
         Engine(scene, **kw).warmup()
         loads[name] = time.perf_counter() - start
@@ -191,8 +233,15 @@ def build(scene, structure: str, storage: str, density: float):
     return Engine(scene, structure=structure, storage=storage, density=density)
 
 
-def run_config(scene, structure: str, storage: str, density: float, repeats: int, built=None,
-               size: int | None = None) -> dict:  # fmt: skip
+def run_config(
+    scene,
+    structure: str,
+    storage: str,
+    density: float,
+    repeats: int,
+    built=None,
+    size: int | None = None,
+) -> dict:
     """Render `repeats` times with one configuration; keep the best tracing time.
     `built`: that configuration's engine, reused (a big scene's structure is built once);
     `size`: image side under the SPD rules (default 512)."""
@@ -299,8 +348,10 @@ def parse_published(text: str) -> dict[str, dict[str, int]]:
     if not found or not rows:
         return {}
     keys = [PUBLISHED_COLUMNS.get(h.lower()) for h in rows[0][1:]]
-    return {r[0]: {k: int(v.replace(",", "")) for k, v in zip(keys, r[1:], strict=True) if k}
-            for r in rows[1:]}  # fmt: skip
+    return {
+        r[0]: {k: int(v.replace(",", "")) for k, v in zip(keys, r[1:], strict=True) if k}
+        for r in rows[1:]
+    }
 
 
 def read_published(scenes: Path) -> dict[str, dict[str, int]]:
@@ -316,8 +367,12 @@ def compare_published(name: str, counts: dict, published: dict | None) -> dict |
         return None
     tolerance = PUBLISHED_TOLERANCE.get(name, TOLERANCE)
     relative = {k: (counts[k] - n) / max(n, 1) for k, n in published.items()}
-    return {"published": published, "relative": relative, "tolerance": tolerance,
-            "within": all(abs(d) <= tolerance for d in relative.values())}  # fmt: skip
+    return {
+        "published": published,
+        "relative": relative,
+        "tolerance": tolerance,
+        "within": all(abs(d) <= tolerance for d in relative.values()),
+    }
 
 
 # ---------------------------------------------------------------------------- scaling
@@ -330,9 +385,12 @@ def scaling_run(scene, structure: str, size: int, repeat: int) -> dict:
     engine = build(scene, structure, storage, density)
     load = engine.warmup()
     c = run_config(scene, structure, storage, density, repeat, built=engine, size=size)
-    return {"build_seconds": engine.preprocess_seconds, "kernel_load_seconds": load,
-            **{k: c[k] for k in SCALING_KEYS},
-            "seconds_per_ray": c["trace_seconds"] / c["total_rays"]}  # fmt: skip
+    return {
+        "build_seconds": engine.preprocess_seconds,
+        "kernel_load_seconds": load,
+        **{k: c[k] for k in SCALING_KEYS},
+        "seconds_per_ray": c["trace_seconds"] / c["total_rays"],
+    }
 
 
 def scaling_row(name: str, n: int, size: int, repeat: int) -> dict:
@@ -345,9 +403,16 @@ def scaling_row(name: str, n: int, size: int, repeat: int) -> dict:
     generate_seconds = time.perf_counter() - start
     runs = {s: scaling_run(scene, s, size, repeat) for s in SCALING_STRUCTURES}
     error, warnings = check_counts(f"{name} size factor {n}", list(runs.values()))
-    return {"scene": name, "size_factor": n, "objects": scene.n_objects,
-            "generate_seconds": generate_seconds, "total_rays": runs["auto"]["total_rays"],
-            "runs": runs, "count_error": error, "warnings": warnings}  # fmt: skip
+    return {
+        "scene": name,
+        "size_factor": n,
+        "objects": scene.n_objects,
+        "generate_seconds": generate_seconds,
+        "total_rays": runs["auto"]["total_rays"],
+        "runs": runs,
+        "count_error": error,
+        "warnings": warnings,
+    }
 
 
 def bench_scaling(plan: list[tuple[str, list[int]]], size: int, repeat: int) -> list[dict]:
@@ -391,28 +456,58 @@ def _chosen(rows: list[dict]) -> str:
 def print_scaling(rows: list[dict]) -> None:
     """The scaling table of one scene, grid and default side by side, and each one's growth."""
     name = rows[0]["scene"]
-    print(f"\n== {name}  (generated SPD {name}; grid vs the default, structure auto; best of "
-          f"{len(rows[0]['runs']['grid']['trace_seconds_all'])})")  # fmt: skip
-    headers = ["n", "objects", "gen s", "rays", "grid", "build s", "trace s", "us/ray",
-               "tests/ray", "growth", "auto", "build s", "trace s", "us/ray", "tests/ray",
-               "growth", "grid/auto"]  # fmt: skip
+    print(
+        f"\n== {name}  (generated SPD {name}; grid vs the default, structure auto; best of "
+        f"{len(rows[0]['runs']['grid']['trace_seconds_all'])})"
+    )
+    headers = [
+        "n",
+        "objects",
+        "gen s",
+        "rays",
+        "grid",
+        "build s",
+        "trace s",
+        "us/ray",
+        "tests/ray",
+        "growth",
+        "auto",
+        "build s",
+        "trace s",
+        "us/ray",
+        "tests/ray",
+        "growth",
+        "grid/auto",
+    ]
     body = []
     for r in rows:
         g, a = r["runs"]["grid"], r["runs"]["auto"]
-        body.append([r["size_factor"], f"{r['objects']:,}", f"{r['generate_seconds']:.2f}",
-                     f"{r['total_rays']:,}",
-                     "x".join(map(str, g["resolution"])) + f" {g['used_storage']}", *_cells(g),
-                     a["used_structure"], *_cells(a),
-                     f"{g['trace_seconds'] / a['trace_seconds']:.2f}"])  # fmt: skip
+        body.append(
+            [
+                r["size_factor"],
+                f"{r['objects']:,}",
+                f"{r['generate_seconds']:.2f}",
+                f"{r['total_rays']:,}",
+                "x".join(map(str, g["resolution"])) + f" {g['used_storage']}",
+                *_cells(g),
+                a["used_structure"],
+                *_cells(a),
+                f"{g['trace_seconds'] / a['trace_seconds']:.2f}",
+            ]
+        )
     print(table(headers, body))
-    print(f"{name}: auto chose {_chosen(rows)}; at n={rows[-1]['size_factor']}: "
-          f"{rows[-1]['runs']['auto']['structure_reason']}")  # fmt: skip
+    print(
+        f"{name}: auto chose {_chosen(rows)}; at n={rows[-1]['size_factor']}: "
+        f"{rows[-1]['runs']['auto']['structure_reason']}"
+    )
     for s in SCALING_STRUCTURES:
         a = growth_exponent(rows, s)
         if a is not None:
             growth = rows[-1]["runs"][s]["growth"]
-            print(f"{name} {s}: {rows[-1]['objects'] / rows[0]['objects']:,.0f}x the objects, "
-                  f"{growth:.2f}x the time per ray (objects^{a:.3f})")  # fmt: skip
+            print(
+                f"{name} {s}: {rows[-1]['objects'] / rows[0]['objects']:,.0f}x the objects, "
+                f"{growth:.2f}x the time per ray (objects^{a:.3f})"
+            )
     for r in rows:
         if r["count_error"]:
             print("COUNT MISMATCH:", r["count_error"])
@@ -423,23 +518,35 @@ def print_scaling(rows: list[dict]) -> None:
 
 def _cells(run: dict) -> list[str]:
     """One structure's columns of a scaling row."""
-    return [f"{run['build_seconds']:.2f}", f"{run['trace_seconds']:.3f}",
-            f"{run['seconds_per_ray'] * 1e6:.3f}", f"{run['tests_per_ray']:.2f}",
-            f"{run['growth']:.2f}"]  # fmt: skip
+    return [
+        f"{run['build_seconds']:.2f}",
+        f"{run['trace_seconds']:.3f}",
+        f"{run['seconds_per_ray'] * 1e6:.3f}",
+        f"{run['tests_per_ray']:.2f}",
+        f"{run['growth']:.2f}",
+    ]
 
 
 def main_scaling(args: argparse.Namespace) -> int:
     """--scaling: the table for generated scenes only (no scene folder, no POV-Ray)."""
     plan = ", ".join(f"{name} {sizes[0]}-{sizes[-1]}" for name, sizes in args.scaling)
-    print(f"SPD scaling: generated {plan}; {args.size}x{args.size} SPD image "
-          f"({args.size + 1}x{args.size + 1} corner rays), depth 5, 1 thread; grid (storage "
-          f"{default_storage()}, density {default_density():g}) and the default (structure "
-          f"auto); best of {args.repeat}")  # fmt: skip
+    print(
+        f"SPD scaling: generated {plan}; {args.size}x{args.size} SPD image "
+        f"({args.size + 1}x{args.size + 1} corner rays), depth 5, 1 thread; grid (storage "
+        f"{default_storage()}, density {default_density():g}) and the default (structure "
+        f"auto); best of {args.repeat}"
+    )
     rows = bench_scaling(args.scaling, args.size, args.repeat)
     if args.json:
-        data = {"size": args.size, "repeat": args.repeat, "threads": 1,
-                "structures": list(SCALING_STRUCTURES), "storage": default_storage(),
-                "density": default_density(), "rows": rows}  # fmt: skip
+        data = {
+            "size": args.size,
+            "repeat": args.repeat,
+            "threads": 1,
+            "structures": list(SCALING_STRUCTURES),
+            "storage": default_storage(),
+            "density": default_density(),
+            "rows": rows,
+        }
         args.json.write_text(json.dumps({"scaling": data}, indent=2) + "\n")
         print(f"figures written to {args.json}")
     errors = [r["count_error"] for r in rows if r["count_error"]]
@@ -491,8 +598,18 @@ def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
     tracers take turns, so a slow spell of this shared machine falls on both alike."""
     runs, ours = [], []
     with tempfile.TemporaryDirectory(prefix="bench-pov-") as tmp:
-        cmd = [exe, f"+I{pov}", f"+O{Path(tmp) / pov.stem}.png", "+W512", "+H512", "-A",
-               "+MV3.7", "-D", "+WT1", "+FN"]  # fmt: skip
+        cmd = [
+            exe,
+            f"+I{pov}",
+            f"+O{Path(tmp) / pov.stem}.png",
+            "+W512",
+            "+H512",
+            "-A",
+            "+MV3.7",
+            "-D",
+            "+WT1",
+            "+FN",
+        ]
         for _ in range(repeats):
             done = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True)
             if done.returncode != 0:
@@ -563,8 +680,10 @@ def goal(pov: dict) -> dict:
 def goal_line(g: dict) -> str:
     """The goal in one line, e.g. 'goal POV-Ray/default >= 2.0: met on balls 2.31; not met
     on gears 1.52; not measured: tree'."""
-    line = (f"goal POV-Ray/default >= {g['ratio']:.1f}: met on {_ratios(g['met'])}; "
-            f"not met on {_ratios(g['missed'])}")  # fmt: skip
+    line = (
+        f"goal POV-Ray/default >= {g['ratio']:.1f}: met on {_ratios(g['met'])}; "
+        f"not met on {_ratios(g['missed'])}"
+    )
     return line + (f"; not measured: {', '.join(g['absent'])}" if g["absent"] else "")
 
 
@@ -579,8 +698,21 @@ def _ratios(by_scene: dict) -> str:
 def wall_time(scene: Path, out_png: Path, env: dict) -> float:
     """Wall seconds of one `python -m host.cli render SCENE --spd --mesh 1x1 --threads 1` process
     (one node in the process: the figure POV-Ray's whole run compares with)."""
-    cmd = [sys.executable, "-m", "host.cli", "render", str(scene), "--spd", "--mesh", "1x1",
-           "--threads", "1", "--quiet", "-o", str(out_png)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "host.cli",
+        "render",
+        str(scene),
+        "--spd",
+        "--mesh",
+        "1x1",
+        "--threads",
+        "1",
+        "--quiet",
+        "-o",
+        str(out_png),
+    ]
     start = time.perf_counter()
     done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - start
@@ -601,8 +733,12 @@ def wall_times(scene: Path, repeat: int) -> dict:
         cache = Path(tmp) / "numba-cache"
         cache.mkdir()
         cold = wall_time(scene, png, {**env, "NUMBA_CACHE_DIR": str(cache)})
-    return {"prime_seconds": prime, "warm_seconds": min(warm), "warm_seconds_all": warm,
-            "cold_seconds": cold}  # fmt: skip
+    return {
+        "prime_seconds": prime,
+        "warm_seconds": min(warm),
+        "warm_seconds_all": warm,
+        "cold_seconds": cold,
+    }
 
 
 # ---------------------------------------------------------------------------- printing
@@ -612,8 +748,9 @@ def table(headers: list[str], rows: list[list[str]]) -> str:
     """Right-aligned text table."""
     widths = [max(len(str(x)) for x in col) for col in zip(headers, *rows, strict=True)]
     lines = [headers, ["-" * w for w in widths], *rows]
-    return "\n".join("  ".join(str(x).rjust(w) for x, w in zip(ln, widths, strict=True))
-                     for ln in lines)  # fmt: skip
+    return "\n".join(
+        "  ".join(str(x).rjust(w) for x, w in zip(ln, widths, strict=True)) for ln in lines
+    )
 
 
 def print_scene(r: dict) -> None:
@@ -621,25 +758,49 @@ def print_scene(r: dict) -> None:
     mismatch is flagged) when they differ between configurations."""
     c = r["counts"]
     loads = ", ".join(f"{k} {v:.2f} s" for k, v in r["kernel_load_seconds"].items())
-    print(f"\n== {r['scene']}  ({r['objects']} objects, best of {r['repeats']}; "
-          f"kernel load {loads})")  # fmt: skip
+    print(
+        f"\n== {r['scene']}  ({r['objects']} objects, best of {r['repeats']}; kernel load {loads})"
+    )
     pairs = list(zip(COUNT_LABELS, COUNT_KEYS, strict=True))
     if r["count_error"] is None:
-        print("rays (identical in every configuration): "
-              + "  ".join(f"{lab} {c[k]}" for lab, k in pairs))  # fmt: skip
-    headers = ["config", "structure", "prep s", "trace s", "Mrays/s", "tests/ray", "steps/ray",
-               "struct bytes"]  # fmt: skip
-    rows = [[x["label"], _shape(x), f"{x['preprocess_seconds']:.3f}",
-             f"{x['trace_seconds']:.3f}", f"{x['rays_per_second'] / 1e6:.3f}",
-             f"{x['tests_per_ray']:.2f}", f"{x['steps_per_ray']:.2f}",
-             f"{x['structure_bytes']:,}"] for x in r["configs"]]  # fmt: skip
+        print(
+            "rays (identical in every configuration): "
+            + "  ".join(f"{lab} {c[k]}" for lab, k in pairs)
+        )
+    headers = [
+        "config",
+        "structure",
+        "prep s",
+        "trace s",
+        "Mrays/s",
+        "tests/ray",
+        "steps/ray",
+        "struct bytes",
+    ]
+    rows = [
+        [
+            x["label"],
+            _shape(x),
+            f"{x['preprocess_seconds']:.3f}",
+            f"{x['trace_seconds']:.3f}",
+            f"{x['rays_per_second'] / 1e6:.3f}",
+            f"{x['tests_per_ray']:.2f}",
+            f"{x['steps_per_ray']:.2f}",
+            f"{x['structure_bytes']:,}",
+        ]
+        for x in r["configs"]
+    ]
     if r["count_error"] is not None:
         headers += [lab for lab, _ in pairs]
-        rows = [row + [x["rays"][k] for _, k in pairs] for row, x in zip(rows, r["configs"],
-                                                                         strict=True)]
+        rows = [
+            row + [x["rays"][k] for _, k in pairs]
+            for row, x in zip(rows, r["configs"], strict=True)
+        ]
     print(table(headers, rows))
-    print(f"(steps/ray: voxel steps, or ray-box tests in the hierarchy; default {r['default']}: "
-          f"{r['default_reason']})")  # fmt: skip
+    print(
+        f"(steps/ray: voxel steps, or ray-box tests in the hierarchy; default {r['default']}: "
+        f"{r['default_reason']})"
+    )
     if r["count_error"] is not None:
         print("COUNT MISMATCH: the ray counts differ between configurations (engine bug)")
     for w in r["warnings"]:
@@ -662,18 +823,44 @@ def print_published(results: list[dict]) -> None:
             continue
         cells = []
         for k in PUBLISHED_COLUMNS.values():
-            cells += ([r["spd_counts"][k], p["published"][k], f"{p['relative'][k]:+.3%}"]
-                      if k in p["published"] else ["-"] * 3)  # fmt: skip
+            cells += (
+                [r["spd_counts"][k], p["published"][k], f"{p['relative'][k]:+.3%}"]
+                if k in p["published"]
+                else ["-"] * 3
+            )
         off = [k for k, d in p["relative"].items() if abs(d) > p["tolerance"]]
-        rows.append([r["scene"], *cells, f"{p['tolerance']:.1%}",
-                     "yes" if p["within"] else "NO: " + ", ".join(off)])  # fmt: skip
+        rows.append(
+            [
+                r["scene"],
+                *cells,
+                f"{p['tolerance']:.1%}",
+                "yes" if p["within"] else "NO: " + ", ".join(off),
+            ]
+        )
     if not rows:
         return
-    print("\n== ray counts of the default against the SPD author's published table "
-          "(scenes README; 513x513 corner rays, depth 5; refracted counts total internal "
-          "reflections, as the author's counter does)")  # fmt: skip
-    headers = ["scene", "hits", "SPD", "diff", "reflected", "SPD", "diff", "refracted", "SPD",
-               "diff", "shadow", "SPD", "diff", "tolerance", "within"]  # fmt: skip
+    print(
+        "\n== ray counts of the default against the SPD author's published table "
+        "(scenes README; 513x513 corner rays, depth 5; refracted counts total internal "
+        "reflections, as the author's counter does)"
+    )
+    headers = [
+        "scene",
+        "hits",
+        "SPD",
+        "diff",
+        "reflected",
+        "SPD",
+        "diff",
+        "refracted",
+        "SPD",
+        "diff",
+        "shadow",
+        "SPD",
+        "diff",
+        "tolerance",
+        "within",
+    ]
     print(table(headers, rows))
 
 
@@ -682,35 +869,65 @@ def print_pov(results: list[dict], pov: dict) -> None:
     if not pov.get("available"):
         return
     print("\n== POV-Ray 3.7 side by side (512x512, 1 thread, trace time only)")
-    headers = ["scene", "povray", "ours best", "config", "ours default", "config",
-               "pov/best", "pov/default", "shadow ours", "pov", "blocked ours", "pov",
-               "refl ours", "pov"]  # fmt: skip
+    headers = [
+        "scene",
+        "povray",
+        "ours best",
+        "config",
+        "ours default",
+        "config",
+        "pov/best",
+        "pov/default",
+        "shadow ours",
+        "pov",
+        "blocked ours",
+        "pov",
+        "refl ours",
+        "pov",
+    ]
     rows = []
     for r in results:
         p = pov["scenes"].get(r["scene"])
         if p is None:
             continue
         c = r["counts"]
-        rows.append([r["scene"], f"{p['trace_seconds']:.3f}", f"{r['best_trace_seconds']:.3f}",
-                     r["best"], f"{p['ours_default_seconds']:.3f}", r["default"],
-                     f"{p['ratio_best']:.2f}", f"{p['ratio_default']:.2f}",
-                     c["shadow_rays"], p["shadow_rays"], c["shadow_rays_blocked"],
-                     p["shadow_rays_blocked"], c["reflected_rays"], p["reflected_rays"]])
+        rows.append(
+            [
+                r["scene"],
+                f"{p['trace_seconds']:.3f}",
+                f"{r['best_trace_seconds']:.3f}",
+                r["best"],
+                f"{p['ours_default_seconds']:.3f}",
+                r["default"],
+                f"{p['ratio_best']:.2f}",
+                f"{p['ratio_default']:.2f}",
+                c["shadow_rays"],
+                p["shadow_rays"],
+                c["shadow_rays_blocked"],
+                p["shadow_rays_blocked"],
+                c["reflected_rays"],
+                p["reflected_rays"],
+            ]
+        )
     print(table(headers, rows))
-    print(f"(best of {pov['repeat']} each, ours' default taking turns with POV-Ray (ours best: "
-          "the scene's own pass); ratio > 1: we are faster; ours traces 513x513 "
-          "corner rays, POV-Ray 512x512 centres with adc_bailout; default = structure auto, "
-          f"storage auto, density {default_density():g})")  # fmt: skip
+    print(
+        f"(best of {pov['repeat']} each, ours' default taking turns with POV-Ray (ours best: "
+        "the scene's own pass); ratio > 1: we are faster; ours traces 513x513 "
+        "corner rays, POV-Ray 512x512 centres with adc_bailout; default = structure auto, "
+        f"storage auto, density {default_density():g})"
+    )
 
 
 def print_wall(wall: dict) -> None:
     """Whole-process wall seconds, warm and cold numba cache."""
     if not wall:
         return
-    print("\n== whole process: python -m host.cli render SCENE --spd --mesh 1x1 --threads 1"
-          " --quiet")
-    rows = [[name, f"{w['warm_seconds']:.2f}", f"{w['cold_seconds']:.2f}"]
-            for name, w in wall.items()]  # fmt: skip
+    print(
+        "\n== whole process: python -m host.cli render SCENE --spd --mesh 1x1 --threads 1 --quiet"
+    )
+    rows = [
+        [name, f"{w['warm_seconds']:.2f}", f"{w['cold_seconds']:.2f}"] for name, w in wall.items()
+    ]
     print(table(["scene", "warm cache s", "cold cache s"], rows))
 
 
@@ -723,11 +940,15 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
         w = wall.get(r["scene"])
         if p is None and w is None:
             continue
-        parts = [f"{r['scene']}: ours {r['best_trace_seconds']:.3f} s ({r['best']}), "
-                 f"default {r['default_trace_seconds']:.3f} s ({r['default']})"]
+        parts = [
+            f"{r['scene']}: ours {r['best_trace_seconds']:.3f} s ({r['best']}), "
+            f"default {r['default_trace_seconds']:.3f} s ({r['default']})"
+        ]
         if p:
-            parts.append(f"POV-Ray {p['trace_seconds']:.3f} s -> pov/ours {p['ratio_best']:.2f}"
-                         f" best, {p['ratio_default']:.2f} default")
+            parts.append(
+                f"POV-Ray {p['trace_seconds']:.3f} s -> pov/ours {p['ratio_best']:.2f}"
+                f" best, {p['ratio_default']:.2f} default"
+            )
         if w:
             parts.append(f"process warm {w['warm_seconds']:.2f} s, cold {w['cold_seconds']:.2f} s")
         print("; ".join(parts))
@@ -738,8 +959,10 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
     checked = [r for r in results if r.get("published")]
     if checked:
         off = [r["scene"] for r in checked if not r["published"]["within"]]
-        print(f"published counts: {len(checked) - len(off)} of {len(checked)} scenes within "
-              f"tolerance" + (f"; outside: {', '.join(off)}" if off else ""))
+        print(
+            f"published counts: {len(checked) - len(off)} of {len(checked)} scenes within "
+            f"tolerance" + (f"; outside: {', '.join(off)}" if off else "")
+        )
 
 
 # ---------------------------------------------------------------------------- main
@@ -753,10 +976,12 @@ def main(argv=None) -> int:
     files = scene_files(args.scenes, args.only)
     plan = config_plan(args.structures, args.densities)
     with_pov = [p.stem for p in files if pov_file(args.scenes, p.stem)]
-    print(f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
-          f"1 thread; {', '.join(sorted(set(args.structures) | {'auto'}))}; densities "
-          f"{args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
-          f"{', '.join(with_pov) or 'none'}")  # fmt: skip
+    print(
+        f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
+        f"1 thread; {', '.join(sorted(set(args.structures) | {'auto'}))}; densities "
+        f"{args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
+        f"{', '.join(with_pov) or 'none'}"
+    )
     published = read_published(args.scenes)
     results = []
     for path in files:
@@ -764,21 +989,29 @@ def main(argv=None) -> int:
         repeats = args.repeat if path.stem in with_pov else 1
         results.append(bench_scene(path, plan, repeats))
         r = results[-1]
-        r["published"] = compare_published(r["scene"], r["spd_counts"],
-                                           published.get(r["scene"]))  # fmt: skip
+        r["published"] = compare_published(r["scene"], r["spd_counts"], published.get(r["scene"]))
         print_scene(r)
         sys.stdout.flush()
     print_published(results)
     pov = {} if args.no_pov else compare_pov(results, args.scenes, args.repeat)
     print_pov(results, pov)
-    wall = {} if args.no_wall else {p.stem: wall_times(p, args.repeat) for p in files
-                                    if p.stem in WALL_SCENES}  # fmt: skip
+    wall = (
+        {}
+        if args.no_wall
+        else {p.stem: wall_times(p, args.repeat) for p in files if p.stem in WALL_SCENES}
+    )
     print_wall(wall)
     print_summary(results, pov, wall)
     if args.json:
-        data = {"structures": args.structures, "densities": args.densities,
-                "repeat": args.repeat, "scenes": results, "povray": pov,
-                "goal": goal(pov) if pov.get("available") else None, "wall": wall}  # fmt: skip
+        data = {
+            "structures": args.structures,
+            "densities": args.densities,
+            "repeat": args.repeat,
+            "scenes": results,
+            "povray": pov,
+            "goal": goal(pov) if pov.get("available") else None,
+            "wall": wall,
+        }
         args.json.write_text(json.dumps(data, indent=2) + "\n")
         print(f"figures written to {args.json}")
     errors = [r["count_error"] for r in results if r["count_error"]]

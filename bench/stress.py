@@ -32,8 +32,14 @@ if __package__ in (None, ""):
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
 
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 
 
 def vm_hwm(pid: int) -> int:
@@ -70,16 +76,28 @@ async def faulted_render(scene, image, engine, mesh, addresses, silence: float) 
         traced["attempt"] += 1
         traced["rays"] = 0
 
-    task = asyncio.create_task(render_on_mesh(
-        scene, image, addresses, MeshPlan(3, 3, 2), engine, secret=mesh.secret,
-        progress=progress, notice=notice, silence=silence))  # fmt: skip
+    task = asyncio.create_task(
+        render_on_mesh(
+            scene,
+            image,
+            addresses,
+            MeshPlan(3, 3, 2),
+            engine,
+            secret=mesh.secret,
+            progress=progress,
+            notice=notice,
+            silence=silence,
+        )
+    )
     await asyncio.wait_for(first_rays.wait(), 300)
     peaks[killed] = vm_hwm(mesh.procs[killed].pid)
     print(f"killing node {killed} (pid {mesh.procs[killed].pid}) mid-frame", file=sys.stderr)
     os.kill(mesh.procs[killed].pid, signal.SIGKILL)
     await asyncio.wait_for(replanned.wait(), 300)
-    print(f"pausing node {paused} (pid {mesh.procs[paused].pid}) in the re-planned frame",
-          file=sys.stderr)  # fmt: skip
+    print(
+        f"pausing node {paused} (pid {mesh.procs[paused].pid}) in the re-planned frame",
+        file=sys.stderr,
+    )
     os.kill(mesh.procs[paused].pid, signal.SIGSTOP)
     try:
         img, stats = await asyncio.wait_for(task, 1800)
@@ -96,11 +114,16 @@ def main(argv=None) -> int:
     p.add_argument("--scene", default="balls.nff")
     p.add_argument("--size", type=int, default=768)
     p.add_argument("--spp", type=int, default=4)
-    p.add_argument("--delay", type=float, default=0.02, help="seconds each ray message from "
-                   "node 0 to node 1 is held")  # fmt: skip
+    p.add_argument(
+        "--delay",
+        type=float,
+        default=0.02,
+        help="seconds each ray message from node 0 to node 1 is held",
+    )
     p.add_argument("--rate", default="200mbit", help="rate limit on node 2's cable")
-    p.add_argument("--silence", type=float, default=5.0, help="seconds before a silent node "
-                   "is given up")  # fmt: skip
+    p.add_argument(
+        "--silence", type=float, default=5.0, help="seconds before a silent node is given up"
+    )
     args = p.parse_args(argv)
 
     import numpy as np
@@ -118,27 +141,38 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     ref, ref_stats = render(scene, image, EngineSpec(threads=0))
     single_s = time.perf_counter() - start
-    total = sum(ref_stats["rays"][k] for k in ("eye_rays", "reflected_rays", "refracted_rays",
-                                               "shadow_rays"))  # fmt: skip
+    total = sum(
+        ref_stats["rays"][k]
+        for k in ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
+    )
     print(f"single node: {total:,} rays in {single_s:.1f} s", file=sys.stderr)
 
     root = str(Path(__file__).resolve().parents[1])
-    slow = {"module": "tests.faultnode", "options": ["--slow-link", f"0,1,{args.delay},1000000000"],
-            "env": {"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}}
+    slow = {
+        "module": "tests.faultnode",
+        "options": ["--slow-link", f"0,1,{args.delay},1000000000"],
+        "env": {"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")},
+    }
     start = time.perf_counter()
-    with netns.namespaced_mesh(9, lambda net: net.shape(2, rate=args.rate),
-                               **slow) as (_, mesh, addresses):  # fmt: skip
-        img, stats, peaks = asyncio.run(faulted_render(scene, image, EngineSpec(threads=1), mesh,
-                                                       addresses, args.silence))
+    with netns.namespaced_mesh(9, lambda net: net.shape(2, rate=args.rate), **slow) as (
+        _,
+        mesh,
+        addresses,
+    ):
+        img, stats, peaks = asyncio.run(
+            faulted_render(scene, image, EngineSpec(threads=1), mesh, addresses, args.silence)
+        )
     wall = time.perf_counter() - start
     r = stats["rays"]
     created = r["eye_rays"] + r["reflected_rays"] + r["refracted_rays"] + r["shadow_rays"]
     ended = r["hits"] + r["escaped"] + r["shadow_rays_blocked"] + r["shadow_rays_lit"]
     lost = sum(abs(r[k] - ref_stats["rays"][k]) for k in COUNTS) + abs(created - ended)
     diff = float(np.abs(img - ref).max())
-    print(f"\n{args.scene} {args.size}x{args.size} spp {args.spp}: 3x3 mesh in namespaces, "
-          f"ray messages node 0 -> 1 held {args.delay:g} s each, node 2's cable limited to "
-          f"{args.rate}")
+    print(
+        f"\n{args.scene} {args.size}x{args.size} spp {args.spp}: 3x3 mesh in namespaces, "
+        f"ray messages node 0 -> 1 held {args.delay:g} s each, node 2's cable limited to "
+        f"{args.rate}"
+    )
     print(f"{'count':22} {'single node':>14} {'mesh':>14}")
     for k in COUNTS:
         print(f"{k:22} {ref_stats['rays'][k]:>14,} {r[k]:>14,}")
@@ -146,13 +180,17 @@ def main(argv=None) -> int:
     print(f"largest pixel difference to the single node: {diff:.3g}")
     for d in stats["lost_nodes"]:
         print(f"lost node {d['node']} ({d['address']}) at {d['at_seconds']:.1f} s: {d['reason']}")
-    print(f"final mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}; recovery (first loss "
-          f"to frame end) {stats['recovery_seconds']:.1f} s; render wall "
-          f"{stats['wall_seconds']:.1f} s, with namespaces and processes {wall:.1f} s; single "
-          f"node {single_s:.1f} s")
+    print(
+        f"final mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}; recovery (first loss "
+        f"to frame end) {stats['recovery_seconds']:.1f} s; render wall "
+        f"{stats['wall_seconds']:.1f} s, with namespaces and processes {wall:.1f} s; single "
+        f"node {single_s:.1f} s"
+    )
     host_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    print(f"peak RSS: host {host_peak / 2**20:.0f} MiB; nodes " + ", ".join(
-        f"{i}: {peaks[i] / 2**20:.0f} MiB" for i in sorted(peaks)))  # fmt: skip
+    print(
+        f"peak RSS: host {host_peak / 2**20:.0f} MiB; nodes "
+        + ", ".join(f"{i}: {peaks[i] / 2**20:.0f} MiB" for i in sorted(peaks))
+    )
     return 0 if lost == 0 and diff <= 1e-5 and len(stats["lost_nodes"]) == 2 else 1
 
 

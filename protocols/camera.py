@@ -159,10 +159,23 @@ class CameraSpec(Spec):
     def __eq__(self, other) -> bool:
         if not isinstance(other, CameraSpec):
             return NotImplemented
-        same = (self.film_width, self.film_height, self.film_z, self.sampling, self.pupil,
-                self.pupil_radius, self.pupil_area) == (
-            other.film_width, other.film_height, other.film_z, other.sampling, other.pupil,
-            other.pupil_radius, other.pupil_area)  # fmt: skip
+        same = (
+            self.film_width,
+            self.film_height,
+            self.film_z,
+            self.sampling,
+            self.pupil,
+            self.pupil_radius,
+            self.pupil_area,
+        ) == (
+            other.film_width,
+            other.film_height,
+            other.film_z,
+            other.sampling,
+            other.pupil,
+            other.pupil_radius,
+            other.pupil_area,
+        )
         return same and np.array_equal(self.elements, other.elements)
 
     @property

@@ -102,7 +102,16 @@ ELEMENT = np.dtype(
 
 # Every array dtype that may travel in a frame, by the name frames use for it.
 WIRE_DTYPES = {
-    "ray": RAY, "deposit": DEPOSIT, "material": MATERIAL, "light": LIGHT, "sphere": SPHERE,
-    "triangle": TRIANGLE, "polygon": POLYGON, "cone": CONE, "f8": np.dtype("<f8"),
-    "i8": np.dtype("<i8"), "element": ELEMENT, "link_traffic": LINK_TRAFFIC,
-}  # fmt: skip
+    "ray": RAY,
+    "deposit": DEPOSIT,
+    "material": MATERIAL,
+    "light": LIGHT,
+    "sphere": SPHERE,
+    "triangle": TRIANGLE,
+    "polygon": POLYGON,
+    "cone": CONE,
+    "f8": np.dtype("<f8"),
+    "i8": np.dtype("<i8"),
+    "element": ELEMENT,
+    "link_traffic": LINK_TRAFFIC,
+}

@@ -32,15 +32,29 @@ def nonce() -> bytes:
     return secrets.token_bytes(NONCE_BYTES)
 
 
-def hello(cluster: str, role: str, node: int = -1, nonce: bytes = b"\0" * NONCE_BYTES,
-          render: bytes = b"", memory: int = 0) -> dict:  # fmt: skip
+def hello(
+    cluster: str,
+    role: str,
+    node: int = -1,
+    nonce: bytes = b"\0" * NONCE_BYTES,
+    render: bytes = b"",
+    memory: int = 0,
+) -> dict:
     """What a side says first: who it is (role host or node, node index, and for a node's
     link to a neighbour the render it is for), what it speaks, its fresh nonce, and (a
     listening node) the memory it can give a render."""
     if role not in ROLES:
         raise ValueError(f"role must be one of {ROLES}")
-    return make(Kind.HELLO, version=PROTOCOL_VERSION, cluster=cluster, role=role, node=node,
-                nonce=nonce, render=render, memory=memory)  # fmt: skip
+    return make(
+        Kind.HELLO,
+        version=PROTOCOL_VERSION,
+        cluster=cluster,
+        role=role,
+        node=node,
+        nonce=nonce,
+        render=render,
+        memory=memory,
+    )
 
 
 def check_hello(message: dict, cluster: str) -> dict:
@@ -61,16 +75,24 @@ def check_hello(message: dict, cluster: str) -> dict:
     if not 0 <= fields["memory"] < 1 << 62:
         raise VersionMismatch(f"peer reports {fields['memory']} bytes of memory")
     if len(fields["render"]) not in (0, RENDER_ID_BYTES):
-        raise VersionMismatch(f"peer's render id has {len(fields['render'])} bytes, not "
-                              f"{RENDER_ID_BYTES}")  # fmt: skip
+        raise VersionMismatch(
+            f"peer's render id has {len(fields['render'])} bytes, not {RENDER_ID_BYTES}"
+        )
     return fields
 
 
 def proof(secret: bytes, speaker: str, dialler: dict, listener_nonce: bytes) -> bytes:
     """HMAC-SHA256 over who speaks and everything the dialler claimed, both nonces."""
-    parts = [b"meshtrace-auth", speaker.encode(), dialler["cluster"].encode(),
-             dialler["role"].encode(), str(dialler["node"]).encode(), dialler["nonce"],
-             dialler["render"], listener_nonce]  # fmt: skip
+    parts = [
+        b"meshtrace-auth",
+        speaker.encode(),
+        dialler["cluster"].encode(),
+        dialler["role"].encode(),
+        str(dialler["node"]).encode(),
+        dialler["nonce"],
+        dialler["render"],
+        listener_nonce,
+    ]
     body = b"|".join(len(p).to_bytes(4, "big") + p for p in parts)
     return hmac.new(secret, body, hashlib.sha256).digest()
 
@@ -79,16 +101,19 @@ def auth(secret: bytes, speaker: str, dialler: dict, listener_nonce: bytes) -> d
     return make(Kind.AUTH, proof=proof(secret, speaker, dialler, listener_nonce))
 
 
-def check_auth(message: dict, secret: bytes, speaker: str, dialler: dict,
-               listener_nonce: bytes) -> None:  # fmt: skip
+def check_auth(
+    message: dict, secret: bytes, speaker: str, dialler: dict, listener_nonce: bytes
+) -> None:
     """AuthFailed unless the message is `speaker`'s AUTH proving the cluster secret."""
     kind, fields = parse(message)
     if kind is not Kind.AUTH:
         raise AuthFailed(f"expected AUTH from the {speaker}, got {kind.name}")
     want = proof(secret, speaker, dialler, listener_nonce)
     if not hmac.compare_digest(fields["proof"], want):
-        raise AuthFailed(f"the {speaker} does not hold this cluster's secret (wrong or missing "
-                         "MESHTRACE_SECRET / --secret-file)")  # fmt: skip
+        raise AuthFailed(
+            f"the {speaker} does not hold this cluster's secret (wrong or missing "
+            "MESHTRACE_SECRET / --secret-file)"
+        )
 
 
 def read_secret(path=None, environ=None) -> bytes | None:

@@ -49,23 +49,52 @@ _NUM = (int, float)
 FIELDS = {
     # render: the render a node's link to a neighbour belongs to (empty from a host);
     # memory: bytes the listening node can give a render (the host plans with it; 0 unknown)
-    Kind.HELLO: {"version": int, "cluster": str, "role": str, "node": int, "nonce": bytes,
-                 "render": bytes, "memory": int},  # fmt: skip
+    Kind.HELLO: {
+        "version": int,
+        "cluster": str,
+        "role": str,
+        "node": int,
+        "nonce": bytes,
+        "render": bytes,
+        "memory": int,
+    },
     # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms);
     # render_id: this render's random id (a new one for every try at a frame)
-    Kind.CONFIG: {"node": int, "neighbours": dict, "render": dict, "partition": dict,
-                  "view": dict, "background": list, "render_id": bytes},  # fmt: skip
+    Kind.CONFIG: {
+        "node": int,
+        "neighbours": dict,
+        "render": dict,
+        "partition": dict,
+        "view": dict,
+        "background": list,
+        "render_id": bytes,
+    },
     Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
-    Kind.STATE: {"state": int, "last_busy": int, "round": int, "sent": np.dtype("<i8"),
-                 "received": np.dtype("<i8"), "dest": int},  # fmt: skip
+    Kind.STATE: {
+        "state": int,
+        "last_busy": int,
+        "round": int,
+        "sent": np.dtype("<i8"),
+        "received": np.dtype("<i8"),
+        "dest": int,
+    },
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},
-    Kind.PROGRESS: {"node": int, "rays": int, "work": int, "ready": bool, "state": int,
-                    "busy_ms": int, "elapsed_ms": int, "traced": int, "objects": int,
-                    "links": dtypes.LINK_TRAFFIC},  # fmt: skip
+    Kind.PROGRESS: {
+        "node": int,
+        "rays": int,
+        "work": int,
+        "ready": bool,
+        "state": int,
+        "busy_ms": int,
+        "elapsed_ms": int,
+        "traced": int,
+        "objects": int,
+        "links": dtypes.LINK_TRAFFIC,
+    },
     Kind.AUTH: {"proof": bytes},
     Kind.WELCOME: {},
     # owners: every tile's node, with `last` under adaptive sampling (else empty)
@@ -76,9 +105,15 @@ FIELDS = {
     Kind.STEAL: {"node": int},
     Kind.GIVE: {"chunks": list},
 }
-OBJECT_TABLES = {"spheres": dtypes.SPHERE, "triangles": dtypes.TRIANGLE,
-                 "polygons": dtypes.POLYGON, "cones": dtypes.CONE, "vertices": np.dtype("<f8"),
-                 "materials": dtypes.MATERIAL, "lights": dtypes.LIGHT}  # fmt: skip
+OBJECT_TABLES = {
+    "spheres": dtypes.SPHERE,
+    "triangles": dtypes.TRIANGLE,
+    "polygons": dtypes.POLYGON,
+    "cones": dtypes.CONE,
+    "vertices": np.dtype("<f8"),
+    "materials": dtypes.MATERIAL,
+    "lights": dtypes.LIGHT,
+}
 
 
 def _check(kind: Kind, name: str, value, want) -> None:
@@ -94,8 +129,10 @@ def _check(kind: Kind, name: str, value, want) -> None:
     if isinstance(value, bool) and want is int:
         raise BadFrame(f"{kind.name}.{name} must be int, got bool")
     if not isinstance(value, want):
-        raise BadFrame(f"{kind.name}.{name} must be {getattr(want, '__name__', want)}, "
-                       f"got {type(value).__name__}")  # fmt: skip
+        raise BadFrame(
+            f"{kind.name}.{name} must be {getattr(want, '__name__', want)}, "
+            f"got {type(value).__name__}"
+        )
 
 
 def make(kind: Kind, **fields) -> dict:
@@ -120,24 +157,33 @@ def parse(message: dict) -> tuple[Kind, dict]:
     missing = set(spec) - set(fields)
     extra = set(fields) - set(spec)
     if missing or extra:
-        raise BadFrame(f"{kind.name}: missing {sorted(missing)}, unexpected "
-                       f"{sorted(map(repr, extra))}")  # keys of any type: sort their reprs
+        raise BadFrame(
+            f"{kind.name}: missing {sorted(missing)}, unexpected {sorted(map(repr, extra))}"
+        )  # keys of any type: sort their reprs
     for name, value in fields.items():
         _check(kind, name, value, spec[name])
     if kind is Kind.GIVE:
         chunks = fields["chunks"]
         if len(chunks) > MAX_TILES_PER_MESSAGE or not all(
-                isinstance(c, list) and len(c) == 4 and all(
-                    isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
-                and c[0] < c[1] and c[2] < c[3] for c in chunks):  # fmt: skip
-            raise BadFrame(f"GIVE.chunks must be at most {MAX_TILES_PER_MESSAGE} rectangles "
-                           "[x0, x1, y0, y1] of non-negative integers, x0 < x1, y0 < y1")
+            isinstance(c, list)
+            and len(c) == 4
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
+            and c[0] < c[1]
+            and c[2] < c[3]
+            for c in chunks
+        ):
+            raise BadFrame(
+                f"GIVE.chunks must be at most {MAX_TILES_PER_MESSAGE} rectangles "
+                "[x0, x1, y0, y1] of non-negative integers, x0 < x1, y0 < y1"
+            )
     if kind in (Kind.TILES, Kind.TILE_DONE):
         tiles = fields["tiles"]
         if len(tiles) > MAX_TILES_PER_MESSAGE or not all(
-                isinstance(t, int) and not isinstance(t, bool) and t >= 0 for t in tiles):
-            raise BadFrame(f"{kind.name}.tiles must be at most {MAX_TILES_PER_MESSAGE} "
-                           "tile indices")  # fmt: skip
+            isinstance(t, int) and not isinstance(t, bool) and t >= 0 for t in tiles
+        ):
+            raise BadFrame(
+                f"{kind.name}.tiles must be at most {MAX_TILES_PER_MESSAGE} tile indices"
+            )
     if kind is Kind.PROGRESS:
         _check_progress(fields)
     if kind is Kind.OBJECTS:
@@ -154,8 +200,10 @@ def _check_progress(f: dict) -> None:
     counts = ("node", "rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects")
     bad = [name for name in counts if f[name] < 0]
     links = f["links"]
-    if len(links) > MAX_LINKS or (len(links) and (links["peer"].min() < 0 or links["rays"].min()
-                                                   < 0 or links["bytes"].min() < 0)):  # fmt: skip
+    if len(links) > MAX_LINKS or (
+        len(links)
+        and (links["peer"].min() < 0 or links["rays"].min() < 0 or links["bytes"].min() < 0)
+    ):
         bad.append("links")
     if bad:
         raise BadFrame(f"PROGRESS: {', '.join(bad)} out of range")

@@ -178,7 +178,8 @@ class MeshPlan(Spec):
     def _check_shared(self) -> None:
         shared = self.shared
         if not isinstance(shared, tuple) or not all(
-                isinstance(c, int) and not isinstance(c, bool) for c in shared):  # fmt: skip
+            isinstance(c, int) and not isinstance(c, bool) for c in shared
+        ):
             self.fail("shared", "must be a list of node numbers (a tuple in Python)")
         if shared and not self.copies:
             self.fail("shared", "shared cells are copies too: they need 'copies'")
@@ -243,8 +244,12 @@ class Partition(Spec):
         if not 1 <= m <= MAX_RECTS:
             self.fail("rects", f"must list 1 to {MAX_RECTS} rectangles")
         r = _array(self, "rects", np.int64, (m, 4))
-        if np.any(r < 0) or np.any(r > MAX_SIDE + 1) or np.any(r[:, 1] < r[:, 0]) or np.any(
-            r[:, 3] < r[:, 2]):  # fmt: skip
+        if (
+            np.any(r < 0)
+            or np.any(r > MAX_SIDE + 1)
+            or np.any(r[:, 1] < r[:, 0])
+            or np.any(r[:, 3] < r[:, 2])
+        ):
             self.fail("rects", "each must be x0 <= x1, y0 <= y1 inside the image")
         owner = _array(self, "owner", np.int64, (m,))
         if np.any(owner < 0) or np.any(owner >= n):
@@ -267,14 +272,20 @@ class Partition(Spec):
             self.fail("occ_res", f"voxels per axis must be from 1 to {MAX_OCC_SIDE}")
         want = -(-int(res.prod()) // 8)
         if not isinstance(self.occ_bits, bytes) or len(self.occ_bits) != want:
-            got = (f"{len(self.occ_bits)} bytes" if isinstance(self.occ_bits, bytes) else
-                   f"a {type(self.occ_bits).__name__}")  # fmt: skip
-            raise SpecError(f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
-                            f"of the {'x'.join(map(str, res.tolist()))} voxels")  # fmt: skip
+            got = (
+                f"{len(self.occ_bits)} bytes"
+                if isinstance(self.occ_bits, bytes)
+                else f"a {type(self.occ_bits).__name__}"
+            )
+            raise SpecError(
+                f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
+                f"of the {'x'.join(map(str, res.tolist()))} voxels"
+            )
 
     @classmethod
-    def make(cls, rects, los, his, scene_box, owner=None, cells=None,
-             occupancy=EVERYWHERE, takers=()) -> "Partition":  # fmt: skip
+    def make(
+        cls, rects, los, his, scene_box, owner=None, cells=None, occupancy=EVERYWHERE, takers=()
+    ) -> "Partition":
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
         hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits);
         `takers` empty: each rectangle's owner takes its eye rays on."""
@@ -284,11 +295,18 @@ class Partition(Spec):
 
         owner = range(len(rects)) if owner is None else owner
         cells = (los, his) if cells is None else cells
-        return cls(tuple(tuple(x) for x in np.asarray(rects).tolist()),
-                   tuple(int(o) for o in owner), rows(los), rows(his),
-                   *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
-                   rows(cells[0]), rows(cells[1]), tuple(int(v) for v in occupancy[0]),
-                   bytes(occupancy[1]), tuple(int(t) for t in takers))  # fmt: skip
+        return cls(
+            tuple(tuple(x) for x in np.asarray(rects).tolist()),
+            tuple(int(o) for o in owner),
+            rows(los),
+            rows(his),
+            *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
+            rows(cells[0]),
+            rows(cells[1]),
+            tuple(int(v) for v in occupancy[0]),
+            bytes(occupancy[1]),
+            tuple(int(t) for t in takers),
+        )
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
         """The rectangles node `node` owns, in order."""
@@ -339,8 +357,12 @@ class RenderSpec(Spec):
     plan: MeshPlan = MeshPlan()
     camera: CameraSpec | None = None
 
-    NESTED: ClassVar[dict] = {"image": ImageSpec, "engine": EngineSpec, "plan": MeshPlan,
-                              "camera": CameraSpec}  # fmt: skip
+    NESTED: ClassVar[dict] = {
+        "image": ImageSpec,
+        "engine": EngineSpec,
+        "plan": MeshPlan,
+        "camera": CameraSpec,
+    }
 
     def check(self) -> None:
         for name, record in self.NESTED.items():
@@ -350,8 +372,7 @@ class RenderSpec(Spec):
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
         if self.camera is not None and self.image.spp != 1:
-            self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, "
-                               "not spp")  # fmt: skip
+            self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, not spp")
 
     @property
     def adaptive(self) -> bool:

@@ -49,8 +49,10 @@ class View:
         sight = at - eye
         scale = max(float(np.abs(np.concatenate([eye, at])).max()), MIN_LENGTH)
         if not np.linalg.norm(sight) > max(1e-12 * scale, MIN_LENGTH):
-            raise ValueError(f"view: 'from' {_point(eye)} and 'at' {_point(at)} coincide (or are "
-                             f"closer than {MIN_LENGTH:g}: scale the scene up)")  # fmt: skip
+            raise ValueError(
+                f"view: 'from' {_point(eye)} and 'at' {_point(at)} coincide (or are "
+                f"closer than {MIN_LENGTH:g}: scale the scene up)"
+            )
         across = np.cross(sight / np.linalg.norm(sight), up)
         if not np.linalg.norm(up) > 0 or not np.linalg.norm(across) > 1e-9 * np.linalg.norm(up):
             raise ValueError(f"view: 'up' {_point(up)} is zero or along the line of sight")

@@ -46,16 +46,18 @@ class Spec:
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or not lo <= v <= hi:
             self.fail(name, f"must be an integer from {lo} to {hi}")
 
-    def want_number(self, name: str, lo: float, hi: float, open_lo: bool = False,
-                    optional: bool = False) -> None:  # fmt: skip
+    def want_number(
+        self, name: str, lo: float, hi: float, open_lo: bool = False, optional: bool = False
+    ) -> None:
         v = getattr(self, name)
         if optional and v is None:
             return
         ok = isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
         ok = ok and math.isfinite(v) and (lo < v if open_lo else lo <= v) and v <= hi
         if not ok:
-            self.fail(name, f"must be a finite number {'>' if open_lo else '>='} {lo:g} "
-                            f"and <= {hi:g}")  # fmt: skip
+            self.fail(
+                name, f"must be a finite number {'>' if open_lo else '>='} {lo:g} and <= {hi:g}"
+            )
 
     def want_choice(self, name: str, choices) -> None:
         value = getattr(self, name)
@@ -87,8 +89,10 @@ class Spec:
         names = {f.name for f in fields(cls)}
         missing, extra = names - set(d), set(d) - names
         if missing or extra:
-            raise SpecError(f"{cls.__name__}: missing fields {sorted(missing)}, unknown "
-                            f"fields {sorted(map(str, extra))}")  # fmt: skip
+            raise SpecError(
+                f"{cls.__name__}: missing fields {sorted(missing)}, unknown "
+                f"fields {sorted(map(str, extra))}"
+            )
         values = dict(d)
         for name, record in cls.NESTED.items():
             if values[name] is not None:

@@ -37,8 +37,12 @@ class Torus:
     def neighbours(self, node: int) -> dict[str, int]:
         """The node in each direction (possibly the same node twice, or the node itself)."""
         r, c = self.coords(node)
-        return {"north": self.node(r - 1, c), "south": self.node(r + 1, c),
-                "west": self.node(r, c - 1), "east": self.node(r, c + 1)}  # fmt: skip
+        return {
+            "north": self.node(r - 1, c),
+            "south": self.node(r + 1, c),
+            "west": self.node(r, c - 1),
+            "east": self.node(r, c + 1),
+        }
 
     def links(self, node: int) -> list[int]:
         """Distinct other nodes this node has a TCP link to."""

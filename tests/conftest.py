@@ -47,8 +47,15 @@ def shared_file(path: Path) -> Path:
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
 # Scenes whose kernel variants most test files use (the all-kinds variant aside).
-WARM_SCENES = ("balls_s1.nff", "tetra_s1.nff", "teapot_s1.nff", "rings_s1.nff", "tree_s1.nff",
-               "gears_s1.nff", "mount_s1.nff")  # fmt: skip
+WARM_SCENES = (
+    "balls_s1.nff",
+    "tetra_s1.nff",
+    "teapot_s1.nff",
+    "rings_s1.nff",
+    "tree_s1.nff",
+    "gears_s1.nff",
+    "mount_s1.nff",
+)
 
 
 def example_variants() -> tuple[set, set]:
@@ -86,8 +93,11 @@ def warm_jobs() -> list:
     if SCENES.exists():
         from host.scene.nff import read_nff
 
-        whole |= {variant_of(build_tables(read_nff(SCENES / n))) for n in WARM_SCENES
-                  if (SCENES / n).exists()}  # fmt: skip
+        whole |= {
+            variant_of(build_tables(read_nff(SCENES / n)))
+            for n in WARM_SCENES
+            if (SCENES / n).exists()
+        }
     kernels = {v: ("trace", "passing") for v in whole - {ALL_KINDS}}
     kernels.update({v: ("passing",) for v in nodes - whole - {ALL_KINDS}})
     jobs += [lambda v=v: warmup([v], common=False, kernels=kernels[v]) for v in sorted(kernels)]
@@ -130,22 +140,33 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter):
-    missing = [r for r in terminalreporter.stats.get("skipped", [])
-               if str(SCENES) in str(getattr(r, "longrepr", ""))]  # fmt: skip
+    missing = [
+        r
+        for r in terminalreporter.stats.get("skipped", [])
+        if str(SCENES) in str(getattr(r, "longrepr", ""))
+    ]
     if missing:
         terminalreporter.write_line(
             f"{len(missing)} tests skipped: no SPD scenes in {SCENES} (set MESHTRACE_SCENES; "
-            "the README says where the scenes come from)")  # fmt: skip
+            "the README says where the scenes come from)"
+        )
     for load in ([KERNEL_LOAD] if KERNEL_LOAD else []) + WORKER_LOADS:
         kind = "compiled (cold cache)" if load["cold"] else "loaded (warm cache)"
-        terminalreporter.write_line(f"kernels {kind} in {load['seconds']:.1f} s, "
-                                    f"cache {load['cache']}")  # fmt: skip
+        terminalreporter.write_line(
+            f"kernels {kind} in {load['seconds']:.1f} s, cache {load['cache']}"
+        )
 
 
 def make_scene(
-    spheres=(), triangles=(), polygons=(), cones=(), lights=(), materials=None,
-    view=None, background=(0.0, 0.0, 0.0),
-) -> SceneData:  # fmt: skip
+    spheres=(),
+    triangles=(),
+    polygons=(),
+    cones=(),
+    lights=(),
+    materials=None,
+    view=None,
+    background=(0.0, 0.0, 0.0),
+) -> SceneData:
     """A scene from plain tuples: spheres (c, r, mat), triangles (v0, v1, v2, mat),
     polygons (vertices, mat), cones (base, br, apex, ar, mat), lights (pos). gids follow the
     order spheres, triangles, polygons, cones."""
@@ -180,9 +201,16 @@ def make_scene(
     for i, pos in enumerate(lights):
         li[i] = (pos, (1.0, 1.0, 1.0))
     return SceneData(
-        view=view, background=background, lights=li, materials=m, spheres=s, triangles=t,
-        polygons=p, vertices=np.concatenate(verts) if verts else np.zeros((0, 3)), cones=c,
-    )  # fmt: skip
+        view=view,
+        background=background,
+        lights=li,
+        materials=m,
+        spheres=s,
+        triangles=t,
+        polygons=p,
+        vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
+        cones=c,
+    )
 
 
 class Job(NamedTuple):

@@ -46,8 +46,15 @@ def main(argv=None) -> int:
     del argv[at : at + 2]
     slow = service_class(int(src), int(dst), float(seconds), int(count))
     args = cli.parse(argv)
-    return cli.serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
-                     service_class=slow, secret=cli.serving_secret(args))  # fmt: skip
+    return cli.serve(
+        args.listen,
+        args.cluster,
+        args.once,
+        args.threads,
+        args.incoming_high,
+        service_class=slow,
+        secret=cli.serving_secret(args),
+    )
 
 
 if __name__ == "__main__":

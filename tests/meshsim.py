@@ -15,10 +15,28 @@ from meshnode.mesh.simulator import simulate
 from protocols.render import ImageSpec, MeshPlan, RenderSpec
 
 
-def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1, depth=5,
-                seed=0, delay=None, camera=None, batch=512, cuts=None, cells=None,
-                passed_min=PASSED_MIN, clock="rounds", latency=10, outcome=None,
-                **plan):  # fmt: skip
+def render_mesh(
+    scene,
+    rows,
+    cols,
+    overlap,
+    width,
+    height,
+    corners=False,
+    spp=1,
+    depth=5,
+    seed=0,
+    delay=None,
+    camera=None,
+    batch=512,
+    cuts=None,
+    cells=None,
+    passed_min=PASSED_MIN,
+    clock="rounds",
+    latency=10,
+    outcome=None,
+    **plan,
+):
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
     `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `cuts`:
@@ -28,12 +46,12 @@ def render_mesh(scene, rows, cols, overlap, width, height, corners=False, spp=1,
     units); `outcome`: a list the simulator's Outcome is appended to; `plan`: more MeshPlan
     fields (mode, tiles, tile)."""
     image = ImageSpec(width=width, height=height, spd=corners, spp=spp, depth=depth, seed=seed)
-    spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan),
-                      camera=camera)  # fmt: skip
+    spec = RenderSpec(
+        image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan), camera=camera
+    )
     part, keep = partition(scene, spec, *(cuts or (None, None)), cells)
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
-    out = simulate(scenes, spec, part, seed, delay, batch, passed_min, clock=clock,
-                   latency=latency)  # fmt: skip
+    out = simulate(scenes, spec, part, seed, delay, batch, passed_min, clock=clock, latency=latency)
     if outcome is not None:
         outcome.append(out)
     w, h = spec.image.size

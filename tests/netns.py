@@ -67,9 +67,29 @@ class Network:
         if mtu:
             _ip("-n", self.spaces[i], "link", "set", self.inner[i], "mtu", str(mtu))
         if rate:
-            subprocess.run(["ip", "netns", "exec", self.spaces[i], "tc", "qdisc", "add", "dev",
-                            self.inner[i], "root", "tbf", "rate", rate, "burst", "64kb",
-                            "latency", "100ms"], check=True, capture_output=True)  # fmt: skip
+            subprocess.run(
+                [
+                    "ip",
+                    "netns",
+                    "exec",
+                    self.spaces[i],
+                    "tc",
+                    "qdisc",
+                    "add",
+                    "dev",
+                    self.inner[i],
+                    "root",
+                    "tbf",
+                    "rate",
+                    rate,
+                    "burst",
+                    "64kb",
+                    "latency",
+                    "100ms",
+                ],
+                check=True,
+                capture_output=True,
+            )
 
     def cut(self, i: int) -> None:
         """Take node i's cable down: the node lives on, unreachable."""
@@ -97,8 +117,13 @@ def namespaced_mesh(n: int, shape=None, **node_options):
             shape(net)
         wrap = lambda i: ["ip", "netns", "exec", net.spaces[i]]  # noqa: E731
         # Beyond loopback every node needs the cluster secret: the real, authenticated setup.
-        mesh = LocalMesh(n, listen=[net.address(i) for i in range(n)], wrap=wrap,
-                         secret=secrets.token_hex(16).encode(), **node_options)  # fmt: skip
+        mesh = LocalMesh(
+            n,
+            listen=[net.address(i) for i in range(n)],
+            wrap=wrap,
+            secret=secrets.token_hex(16).encode(),
+            **node_options,
+        )
         with mesh as addresses:
             yield net, mesh, addresses
     finally:

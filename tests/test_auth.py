@@ -76,9 +76,11 @@ async def test_floods_before_the_handshake_are_cut_off():
     service = await serving()
     loop = asyncio.get_running_loop()
     try:
-        for payload in (struct.pack(">I", 64 * 1024 * 1024),  # announces a 64 MiB frame
-                        struct.pack(">I", HANDSHAKE_FRAME + 1) + b"x" * 100,
-                        b"\0\0\0\5hello-not-msgpack"):  # fmt: skip
+        for payload in (
+            struct.pack(">I", 64 * 1024 * 1024),  # announces a 64 MiB frame
+            struct.pack(">I", HANDSHAKE_FRAME + 1) + b"x" * 100,
+            b"\0\0\0\5hello-not-msgpack",
+        ):
             s = socket.create_connection(("127.0.0.1", service.port))
             s.setblocking(False)
             await loop.sock_sendall(s, payload)
@@ -116,8 +118,7 @@ async def test_a_link_for_another_render_is_refused_as_a_neighbour():
         kind, _ = await asyncio.wait_for(host.recv(), 10)  # the session's first heartbeat
         assert kind is Kind.PROGRESS
         address = f"127.0.0.1:{service.port}"
-        stale, _ = await dial(address, "node 1", "meshtrace", SECRET, "node", 0,
-                              render=b"x" * 16)  # fmt: skip
+        stale, _ = await dial(address, "node 1", "meshtrace", SECRET, "node", 0, render=b"x" * 16)
         with pytest.raises(LinkClosed):
             await asyncio.wait_for(stale.recv(), 10)  # the node hangs up on it
         assert service.pending == {}
@@ -154,9 +155,15 @@ async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node
         for name in OBJECT_TABLES:
             data = getattr(scene, name)
             data = data.reshape(-1) if name == "vertices" else data
-            await host.send(make(Kind.OBJECTS, node=0, table=name,
-                                 records=np.ascontiguousarray(data),
-                                 last=name == "lights"))  # fmt: skip
+            await host.send(
+                make(
+                    Kind.OBJECTS,
+                    node=0,
+                    table=name,
+                    records=np.ascontiguousarray(data),
+                    last=name == "lights",
+                )
+            )
         while (answer := await asyncio.wait_for(host.recv(), 30))[0] is not Kind.ERROR:
             pass  # heartbeats while it builds and dials
         assert address in answer[1]["reason"] and "handshake failed" in answer[1]["reason"]
@@ -177,8 +184,9 @@ def test_only_loopback_may_listen_without_a_secret(tmp_path, monkeypatch):
     args = cli.parse(["serve", "--listen", "0.0.0.0:7700"])
     with pytest.raises(ValueError, match="beyond this machine"):
         cli.serving_secret(args)
-    assert cli.serving_secret(cli.parse(["serve", "--listen", "0.0.0.0:7700", "--insecure"])) \
-        is None
+    assert (
+        cli.serving_secret(cli.parse(["serve", "--listen", "0.0.0.0:7700", "--insecure"])) is None
+    )
     assert cli.serving_secret(cli.parse(["serve"])) is None  # the default: loopback
     f = tmp_path / "secret"
     f.write_text("  s3cret\n")
@@ -213,5 +221,6 @@ def test_a_local_mesh_renders_with_its_own_secret(tmp_path):
     common = ["--width", "24", "--height", "24", "--quiet"]
     assert main(["render", str(scene), "-o", str(one), "--mesh", "1x1", *common]) == 0
     assert main(["render", str(scene), "-o", str(two), "--mesh", "1x2", *common]) == 0
-    np.testing.assert_allclose(read_pfm(two.with_suffix(".pfm")),
-                               read_pfm(one.with_suffix(".pfm")), atol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(
+        read_pfm(two.with_suffix(".pfm")), read_pfm(one.with_suffix(".pfm")), atol=1e-5
+    )

@@ -40,19 +40,29 @@ The author notes | that counts vary.
 
 def test_published_table_is_parsed_and_only_it():
     assert parse_published(README) == {
-        "balls": {"eye_hits": 263169, "reflected_rays": 175095, "refracted_rays": 0,
-                  "shadow_rays": 954368},
-        "gears": {"eye_hits": 245086, "reflected_rays": 304643, "refracted_rays": 207564,
-                  "shadow_rays": 2246955},
-    }  # fmt: skip
+        "balls": {
+            "eye_hits": 263169,
+            "reflected_rays": 175095,
+            "refracted_rays": 0,
+            "shadow_rays": 954368,
+        },
+        "gears": {
+            "eye_hits": 245086,
+            "reflected_rays": 304643,
+            "refracted_rays": 207564,
+            "shadow_rays": 2246955,
+        },
+    }
     assert parse_published("# Scenes\n\n| a | b |\n| --- | --- |\n| 1 | 2 |\n") == {}
 
 
 def test_published_table_of_the_scenes_folder_has_the_six_scenes():
     table = parse_published(shared_file(SCENES / "README.md").read_text())
     assert set(table) == {"balls", "gears", "rings", "teapot", "tetra", "tree"}
-    assert all(set(c) == {"eye_hits", "reflected_rays", "refracted_rays", "shadow_rays"}
-               for c in table.values())  # fmt: skip
+    assert all(
+        set(c) == {"eye_hits", "reflected_rays", "refracted_rays", "shadow_rays"}
+        for c in table.values()
+    )
 
 
 def test_compare_published_relative_and_tolerance():
@@ -60,18 +70,23 @@ def test_compare_published_relative_and_tolerance():
     ok = compare_published("balls", {"eye_hits": 1001, "refracted_rays": 0}, published)
     assert ok["relative"] == {"eye_hits": pytest.approx(0.001), "refracted_rays": 0.0}
     assert ok["within"]
-    assert not compare_published("balls", {"eye_hits": 1002, "refracted_rays": 0},
-                                 published)["within"]  # fmt: skip
-    assert compare_published("teapot", {"eye_hits": 1004, "refracted_rays": 0},
-                             published)["within"]  # fmt: skip
+    assert not compare_published("balls", {"eye_hits": 1002, "refracted_rays": 0}, published)[
+        "within"
+    ]
+    assert compare_published("teapot", {"eye_hits": 1004, "refracted_rays": 0}, published)["within"]
     zero = compare_published("balls", {"eye_hits": 1000, "refracted_rays": 3}, published)
     assert zero["relative"]["refracted_rays"] == 3.0 and not zero["within"]  # finite over 0
     assert compare_published("shells", {"eye_hits": 1}, None) is None
 
 
 def config(structure, used, storage="auto", used_storage="csr", density=1.0):
-    return {"structure": structure, "used_structure": used, "storage": storage,
-            "used_storage": used_storage, "density": density}  # fmt: skip
+    return {
+        "structure": structure,
+        "used_structure": used,
+        "storage": storage,
+        "used_storage": used_storage,
+        "density": density,
+    }
 
 
 def test_labels_say_what_was_asked_and_what_auto_chose():
@@ -92,13 +107,21 @@ def test_plan_ends_with_the_default_whatever_is_restricted():
 
 
 def test_goal_sorts_scenes_by_the_default_ratio():
-    pov = {"scenes": {"balls": {"ratio_default": 2.5}, "gears": {"ratio_default": 1.9},
-                      "tetra": {"ratio_default": 2.0}, "shells": {"ratio_default": 9.0}}}
+    pov = {
+        "scenes": {
+            "balls": {"ratio_default": 2.5},
+            "gears": {"ratio_default": 1.9},
+            "tetra": {"ratio_default": 2.0},
+            "shells": {"ratio_default": 9.0},
+        }
+    }
     g = goal(pov)
     assert g["met"] == {"balls": 2.5, "tetra": 2.0} and g["missed"] == {"gears": 1.9}
     assert g["absent"] == ["rings", "teapot", "tree"]
-    assert goal_line(g) == ("goal POV-Ray/default >= 2.0: met on balls 2.50, tetra 2.00; "
-                            "not met on gears 1.90; not measured: rings, teapot, tree")
+    assert goal_line(g) == (
+        "goal POV-Ray/default >= 2.0: met on balls 2.50, tetra 2.00; "
+        "not met on gears 1.90; not measured: rings, teapot, tree"
+    )
     assert goal({})["absent"] == ["balls", "tetra", "gears", "rings", "teapot", "tree"]
 
 

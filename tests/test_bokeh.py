@@ -46,10 +46,16 @@ def lens(stop_radius: float, film: float, sides: int = 0, rotation: float = 0.0)
     area 2), is the disc around the diaphragm."""
     elements = stack(
         {"kind": dtypes.THIN_LENS, "z": 0.0, "focal": F, "ax": stop_radius, "ay": stop_radius},
-        {"kind": dtypes.DIAPHRAGM, "z": 0.0, "ax": stop_radius, "ay": stop_radius,
-         "shape": dtypes.POLYGON_RIM if sides else dtypes.ELLIPSE, "sides": sides,
-         "rotation": rotation},
-    )  # fmt: skip
+        {
+            "kind": dtypes.DIAPHRAGM,
+            "z": 0.0,
+            "ax": stop_radius,
+            "ay": stop_radius,
+            "shape": dtypes.POLYGON_RIM if sides else dtypes.ELLIPSE,
+            "sides": sides,
+            "rotation": rotation,
+        },
+    )
     return Camera(elements, film, film, None, 2.0)
 
 
@@ -62,9 +68,17 @@ def glowing_sphere(distance: float, radius: float):
 def shoot(scene, camera: Camera, size: int, focus: float, rays: int = 256, **kw) -> np.ndarray:
     """The rendered image's brightness (mean of the channels; the sphere is white)."""
     kw.setdefault("seed", 7)
-    settings = records(width=size, height=size, camera=camera, generation=2,
-                              rays=rays, sampling="jittered", adaptation="all",
-                              distance=focus, **kw)  # fmt: skip
+    settings = records(
+        width=size,
+        height=size,
+        camera=camera,
+        generation=2,
+        rays=rays,
+        sampling="jittered",
+        adaptation="all",
+        distance=focus,
+        **kw,
+    )
     image, _ = render(scene, *settings)
     return image.mean(axis=2)
 
@@ -87,10 +101,12 @@ COC_SIZE = 64
 
 @pytest.mark.parametrize(
     "so,soa,n",
-    [(2.0, 1.0, 2.0),  # nearer than the focus: C = 0.641 mm = 32 px
-     (1.0, 2.5, 2.8),  # beyond the focus: C = 0.564 mm = 28 px
-     (0.5, 0.35, 4.0)],  # a close-up, nearer: C = 0.595 mm = 30 px
-)  # fmt: skip
+    [
+        (2.0, 1.0, 2.0),  # nearer than the focus: C = 0.641 mm = 32 px
+        (1.0, 2.5, 2.8),  # beyond the focus: C = 0.564 mm = 28 px
+        (0.5, 0.35, 4.0),
+    ],  # a close-up, nearer: C = 0.595 mm = 30 px
+)
 def test_circle_of_confusion_matches_the_thin_lens_formula(so, soa, n):
     """Second moments add under convolution, and a uniform disc of diameter C has the variance
     C^2 / 16 along each axis: C = 4 sqrt(var(defocused) - var(sharp)), per axis, with var(sharp)
@@ -198,8 +214,12 @@ def radius_profile(img, cx, cy, level, angles) -> np.ndarray:
         x, y = cx + steps * math.cos(a), cy - steps * math.sin(a)
         x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
         fx, fy = x - x0, y - y0
-        v = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
-             + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)  # fmt: skip
+        v = (
+            img[y0, x0] * (1 - fx) * (1 - fy)
+            + img[y0, x0 + 1] * fx * (1 - fy)
+            + img[y0 + 1, x0] * (1 - fx) * fy
+            + img[y0 + 1, x0 + 1] * fx * fy
+        )
         j = int(np.flatnonzero(v >= level)[-1])
         out.append(steps[j] + 0.25 * (v[j] - level) / (v[j] - v[j + 1]))
     return np.array(out)

@@ -183,6 +183,12 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
     assert counts_ref["eye_hits"] > 50 and len(passed_ref) > 50
     np.testing.assert_array_equal(rgb, rgb_ref)
     assert passed.tobytes() == passed_ref.tobytes()
-    keys = ("eye_hits", "shadow_rays", "shadow_rays_blocked", "reflected_rays", "ray_segments",
-            "rays_forwarded")  # fmt: skip
+    keys = (
+        "eye_hits",
+        "shadow_rays",
+        "shadow_rays_blocked",
+        "reflected_rays",
+        "ray_segments",
+        "rays_forwarded",
+    )
     assert {k: counts[k] for k in keys} == {k: counts_ref[k] for k in keys}

@@ -32,7 +32,8 @@ def test_thin_lens_camera_figures_match_thin_lens_formulas():
     assert d["hyperfocal_distance_m"] == pytest.approx(f * f / (d["f_number"] * 3e-5), rel=1e-9)
     image = 1 / (1 / f - 1 / 2.0)
     assert d["field_of_view_deg"]["horizontal"] == pytest.approx(
-        2 * math.degrees(math.atan(0.018 / image)), rel=1e-9)  # fmt: skip
+        2 * math.degrees(math.atan(0.018 / image)), rel=1e-9
+    )
     assert n == pytest.approx(d["f_number"], rel=1e-4)
 
 
@@ -42,16 +43,21 @@ def test_lens_table_matches_the_same_lens_as_toml(tmp_path):
     table.write_text("# r t n aperture\n50 5 1.5 30\n-50 49.152542 0 30\n")
     t = describe(read_table(table))
     toml = describe(read_toml(CAMERAS / "biconvex.toml"))
-    assert t["effective_focal_length_m"] == pytest.approx(toml["effective_focal_length_m"],
-                                                          rel=1e-9)  # fmt: skip
+    assert t["effective_focal_length_m"] == pytest.approx(
+        toml["effective_focal_length_m"], rel=1e-9
+    )
     assert t["back_focal_distance_m"] == pytest.approx(toml["back_focal_distance_m"], rel=1e-9)
 
 
 @pytest.mark.parametrize(
     "text,where",
-    [("50 5 1.5\n", ":1:"), ("# c\n50 5 x 30\n", ":2:"), ("50 5 1.5 30\n-50 40 1.5 30\n", ":2:"),
-     ("5 5 1.5 30\n", ":1:")],
-)  # fmt: skip
+    [
+        ("50 5 1.5\n", ":1:"),
+        ("# c\n50 5 x 30\n", ":2:"),
+        ("50 5 1.5 30\n-50 40 1.5 30\n", ":2:"),
+        ("5 5 1.5 30\n", ":1:"),
+    ],
+)
 def test_bad_lens_tables_name_the_line(tmp_path, text, where):
     path = tmp_path / "bad.txt"
     path.write_text(text)
@@ -103,17 +109,25 @@ def _lens_with_stop(shape: str, stop_r: float, lens_r: float = 0.01):
 
     elements = stack(
         {"kind": dtypes.THIN_LENS, "z": 0.0, "focal": 0.05, "ax": lens_r, "ay": lens_r},
-        {"kind": dtypes.DIAPHRAGM, "z": 0.0, "ax": stop_r, "ay": stop_r,
-         "shape": dtypes.POLYGON_RIM if shape == "hexagon" else dtypes.ELLIPSE,
-         "sides": 6 if shape == "hexagon" else 0},
-    )  # fmt: skip
+        {
+            "kind": dtypes.DIAPHRAGM,
+            "z": 0.0,
+            "ax": stop_r,
+            "ay": stop_r,
+            "shape": dtypes.POLYGON_RIM if shape == "hexagon" else dtypes.ELLIPSE,
+            "sides": 6 if shape == "hexagon" else 0,
+        },
+    )
     return Camera(elements, 0.036, 0.024, None, 2.0)
 
 
-@pytest.mark.parametrize("shape,stop_r,leaving", [
-    ("ellipse", 0.005, None),  # round: rays are drawn in the exit pupil, few are lost
-    ("hexagon", 0.01, 3 * math.sqrt(3) / (2 * math.pi)),  # aimed at the rim: hexagon / disc
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "shape,stop_r,leaving",
+    [
+        ("ellipse", 0.005, None),  # round: rays are drawn in the exit pupil, few are lost
+        ("hexagon", 0.01, 3 * math.sqrt(3) / (2 * math.pi)),  # aimed at the rim: hexagon / disc
+    ],
+)
 def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, stop_r, leaving):
     """Under adaptation "all" a ray weighs the area it was drawn from over the area passing
     from the film's centre: however the rays are aimed, the centre of a uniform background is
@@ -123,8 +137,9 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
 
     scene = _empty_scene()
     cam = _lens_with_stop(shape, stop_r)
-    rs = records(width=8, height=6, camera=cam, generation=2, rays=4096,
-                        adaptation="all", threads=1)  # fmt: skip
+    rs = records(
+        width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="all", threads=1
+    )
     img, stats = render(scene, *rs)
     assert img[2:4, 3:5].mean() == pytest.approx(1.0, abs=0.02)
     share = stats["camera"]["centre_rays_leaving_camera"]
@@ -133,8 +148,9 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
     else:
         assert share == pytest.approx(leaving, abs=0.02)
     # Averaged over the rays that left the camera instead, nothing is lost.
-    rs = records(width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="left",
-                 threads=1)  # fmt: skip
+    rs = records(
+        width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="left", threads=1
+    )
     img, _ = render(scene, *rs)
     np.testing.assert_allclose(img[2:4, 3:5], 1.0, atol=1e-12)
 
@@ -145,13 +161,17 @@ def test_camera_image_is_upright_and_not_mirrored():
     from protocols.scene import View
     from tests.conftest import make_scene, records
 
-    scene = make_scene(spheres=[((1.0, 0.8, 0.0), 0.3, 0)], lights=[(0, 0, -10)],
-                       view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0))  # fmt: skip
+    scene = make_scene(
+        spheres=[((1.0, 0.8, 0.0), 0.3, 0)],
+        lights=[(0, 0, -10)],
+        view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0),
+    )
     cam = read_toml(CAMERAS / "thin_f2.8.toml")
     centroids = []
     for camera in (None, cam):
-        rs = records(width=40, height=40, camera=camera, **({"generation": 1} if camera else {}),
-                            threads=1)  # fmt: skip
+        rs = records(
+            width=40, height=40, camera=camera, **({"generation": 1} if camera else {}), threads=1
+        )
         img, _ = render(scene, *rs)
         ys, xs = np.nonzero(img.sum(axis=2) > 0.05)
         assert len(ys)
@@ -162,8 +182,21 @@ def test_camera_image_is_upright_and_not_mirrored():
 def test_host_render_through_a_camera(tmp_path, capsys):
     scene = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
     out = tmp_path / "c.png"
-    args = ["render", str(scene), "-o", str(out), "--width", "24", "--height", "16",
-            "--lens-rays", "4", "--quiet", "--stats", str(tmp_path / "s.json")]  # fmt: skip
+    args = [
+        "render",
+        str(scene),
+        "-o",
+        str(out),
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--lens-rays",
+        "4",
+        "--quiet",
+        "--stats",
+        str(tmp_path / "s.json"),
+    ]
     assert main([*args, "--camera", str(CAMERAS / "hexagon.toml")]) == 0
     stats = json.loads((tmp_path / "s.json").read_text())
     assert 0 < stats["rays"]["eye_rays"] <= 24 * 16 * 4  # lost rays are not traced
@@ -205,19 +238,22 @@ def test_wide_angle_example_has_visible_barrel_distortion():
     assert d[2] < -0.005 and d[4] < -0.02
 
 
-@pytest.mark.parametrize("film,element,what", [
-    ("width = -0.036\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
-    ("width = inf\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
-    ("width = 0.036\nheight = 0", "focal = 0.05", "width and height must be positive"),
-    ("width = 0.036\nheight = 0.024\nz = nan", "focal = 0.05", "z must be finite"),
-    ("width = 0.036\nheight = 0.024", "focal = nan", "element 1: focal must be finite"),
-    ("width = 0.036\nheight = 0.024", "focal = 0.05\nn_after = inf", "n_after must be"),
-])  # fmt: skip
-def test_a_camera_file_with_an_impossible_film_or_element_is_refused(tmp_path, film, element,
-                                                                     what):  # fmt: skip
+@pytest.mark.parametrize(
+    "film,element,what",
+    [
+        ("width = -0.036\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
+        ("width = inf\nheight = 0.024", "focal = 0.05", "width and height must be positive"),
+        ("width = 0.036\nheight = 0", "focal = 0.05", "width and height must be positive"),
+        ("width = 0.036\nheight = 0.024\nz = nan", "focal = 0.05", "z must be finite"),
+        ("width = 0.036\nheight = 0.024", "focal = nan", "element 1: focal must be finite"),
+        ("width = 0.036\nheight = 0.024", "focal = 0.05\nn_after = inf", "n_after must be"),
+    ],
+)
+def test_a_camera_file_with_an_impossible_film_or_element_is_refused(tmp_path, film, element, what):
     f = tmp_path / "cam.toml"
-    f.write_text(f"[film]\n{film}\n[[element]]\ntype = \"thin_lens\"\n{element}\n"
-                 "diameter = 0.02\nz = 0.0\n")  # fmt: skip
+    f.write_text(
+        f'[film]\n{film}\n[[element]]\ntype = "thin_lens"\n{element}\ndiameter = 0.02\nz = 0.0\n'
+    )
     with pytest.raises(CameraError, match="cam.toml") as e:
         read_camera(f)
     assert what in str(e.value)
@@ -227,15 +263,26 @@ def test_a_film_of_another_shape_than_the_image_is_reconciled_and_said(tmp_path,
     # 36 x 24 mm (3:2) on a square scene: without --width/--height the image becomes 3:2;
     # with both, the film is cropped to 24 x 24 mm. Never stretched, always said.
     scene = tmp_path / "s.nff"
-    scene.write_text("v\nfrom 0 0 -5\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 48 48\n"
-                     "b 0.5 0.5 0.5\n")  # fmt: skip
+    scene.write_text(
+        "v\nfrom 0 0 -5\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 48 48\nb 0.5 0.5 0.5\n"
+    )
     camera = str(Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml")
     stats = tmp_path / "s.json"
-    common = [str(scene), "-o", str(tmp_path / "a.png"), "--camera", camera, "--stats",
-              str(stats), "--quiet"]  # fmt: skip
+    common = [
+        str(scene),
+        "-o",
+        str(tmp_path / "a.png"),
+        "--camera",
+        camera,
+        "--stats",
+        str(stats),
+        "--quiet",
+    ]
     assert main(["render", *common]) == 0
     assert "rendering 48x32 so nothing is stretched" in capsys.readouterr().err
-    assert (json.loads(stats.read_text())["image"]["width"],
-            json.loads(stats.read_text())["image"]["height"]) == (48, 32)  # fmt: skip
+    assert (
+        json.loads(stats.read_text())["image"]["width"],
+        json.loads(stats.read_text())["image"]["height"],
+    ) == (48, 32)
     assert main(["render", *common, "--width", "40", "--height", "40"]) == 0
     assert "cropping the film to 24 x 24 mm" in capsys.readouterr().err

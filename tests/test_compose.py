@@ -41,8 +41,10 @@ def test_node_services_serve_where_the_host_looks_for_them():
         assert node.once  # it exits when the host's render is done: compose up ends
         assert "build" in services[name] or services[name]["image"] == host["image"]
         # Listening beyond loopback, a node needs the cluster secret; the host proves it too.
-        assert node.listen.startswith("0.0.0.0") and "MESHTRACE_SECRET" in services[name][
-            "environment"]  # fmt: skip
+        assert (
+            node.listen.startswith("0.0.0.0")
+            and "MESHTRACE_SECRET" in services[name]["environment"]
+        )
     assert "MESHTRACE_SECRET" in host["environment"]
     assert set(host["depends_on"]) == set(services)
     assert host["build"] == "." and host["command"][0] in ("host", "meshtrace")
@@ -75,17 +77,29 @@ def test_docker_compose_config_accepts_the_file():
     tool = shutil.which("docker-compose")
     if tool is None:
         if os.environ.get("MESHTRACE_REQUIRE_SCENES") == "1":
-            pytest.fail("docker-compose is missing and MESHTRACE_REQUIRE_SCENES=1 (.ci/run "
-                        "installs it: apt-get install docker-compose)")  # fmt: skip
+            pytest.fail(
+                "docker-compose is missing and MESHTRACE_REQUIRE_SCENES=1 (.ci/run "
+                "installs it: apt-get install docker-compose)"
+            )
         pytest.skip("docker-compose not installed")
     env = {**os.environ, "MESHTRACE_SECRET": "x" * 64}
-    r = subprocess.run([tool, "-f", str(ROOT / "docker-compose.yml"), "config"], env=env,
-                       capture_output=True, text=True, cwd=ROOT)  # fmt: skip
+    r = subprocess.run(
+        [tool, "-f", str(ROOT / "docker-compose.yml"), "config"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, r.stderr
     resolved = yaml.safe_load(r.stdout)["services"]
     assert set(resolved) == set(compose()["services"])
     assert resolved["host"]["environment"]["MESHTRACE_SECRET"] == "x" * 64
     without = {k: v for k, v in env.items() if k != "MESHTRACE_SECRET"}
-    r = subprocess.run([tool, "-f", str(ROOT / "docker-compose.yml"), "config", "-q"],
-                       env=without, capture_output=True, text=True, cwd=ROOT)  # fmt: skip
+    r = subprocess.run(
+        [tool, "-f", str(ROOT / "docker-compose.yml"), "config", "-q"],
+        env=without,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert r.returncode != 0 and "set MESHTRACE_SECRET" in r.stderr  # no default secret

@@ -51,9 +51,19 @@ def test_copies_on_every_mesh_give_the_single_node_image(name, spp):
     want = {k: st["rays"][k] for k in SPD_COUNTS}
     for rows, cols in SHAPES:
         for steal in (False, True):
-            img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 36, 36, spp=spp,
-                                                steal=steal, tile=4, passed_min=1,
-                                                copies=True)  # fmt: skip
+            img, totals, nodes, _ = render_mesh(
+                scene,
+                rows,
+                cols,
+                1,
+                36,
+                36,
+                spp=spp,
+                steal=steal,
+                tile=4,
+                passed_min=1,
+                copies=True,
+            )
             assert {k: totals[k] for k in SPD_COUNTS} == want, (rows, cols, steal)
             np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
             passed = _check_sends(rows, cols, nodes)
@@ -71,9 +81,19 @@ def test_shared_cells_on_every_mesh_give_the_single_node_image():
     for rows, cols in SHAPES[1:]:
         n = rows * cols
         for shared, steal in (((n - 1,), True), ((0, n // 2), False)):
-            img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 36, 36, steal=steal,
-                                                tile=4, passed_min=1, copies=True,
-                                                shared=shared)  # fmt: skip
+            img, totals, nodes, _ = render_mesh(
+                scene,
+                rows,
+                cols,
+                1,
+                36,
+                36,
+                steal=steal,
+                tile=4,
+                passed_min=1,
+                copies=True,
+                shared=shared,
+            )
             assert {k: totals[k] for k in SPD_COUNTS} == want, (rows, cols, shared)
             np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
             _check_sends(rows, cols, nodes, shared)
@@ -88,9 +108,21 @@ def test_copies_through_a_camera_give_the_single_node_image(sampling):
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
         shared = (rows * cols - 1,) if rows * cols > 2 else ()
-        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 30, 24, seed=3, camera=spec,
-                                            steal=True, tile=3, passed_min=1,
-                                            copies=True, shared=shared)  # fmt: skip
+        img, totals, nodes, _ = render_mesh(
+            scene,
+            rows,
+            cols,
+            1,
+            30,
+            24,
+            seed=3,
+            camera=spec,
+            steal=True,
+            tile=3,
+            passed_min=1,
+            copies=True,
+            shared=shared,
+        )
         assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
         _check_sends(rows, cols, nodes, shared)
@@ -165,8 +197,12 @@ def test_shared_cells_are_checked_and_held_by_every_node():
     assert plan.held(0) == [0, 1, 2, 3, 6, 8] and plan.held(8) == [8, 2, 5, 6, 7]
     assert plan.holders(8) == [8, *range(8)] and plan.holders(4) == [4, 1, 3, 5, 7]
     assert MeshPlan.from_wire({**plan.to_wire(), "shared": [8]}) == plan  # msgpack: a list
-    for bad, why in (((9,), "distinct nodes from 0 to 8"), ((1, 1), "distinct nodes"),
-                     ((True,), "list of node numbers"), ([1], "list of node numbers")):
+    for bad, why in (
+        ((9,), "distinct nodes from 0 to 8"),
+        ((1, 1), "distinct nodes"),
+        ((True,), "list of node numbers"),
+        ([1], "list of node numbers"),
+    ):
         with pytest.raises(SpecError, match=why):
             MeshPlan(3, 3, copies=True, shared=bad)
     with pytest.raises(SpecError, match="need 'copies'"):
@@ -206,8 +242,7 @@ def test_the_pre_pass_shares_the_cell_the_work_gathers_in_within_memory():
     assert (before > 0.01 * before.max()).sum() <= 5
     shared, report = choose_shared(scene, spec, None, None, None, True, before.max())
     assert shared and report["chosen"] == list(shared)
-    at = RenderSpec(image, plan=MeshPlan(3, 3, 100, tile=4, steal=True, copies=True,
-                                         shared=shared))  # fmt: skip
+    at = RenderSpec(image, plan=MeshPlan(3, 3, 100, tile=4, steal=True, copies=True, shared=shared))
     after = node_costs(scene, at, None, None)
     assert after.max() <= SHARE_GAIN * before.max()
     assert (after > 0.01 * after.max()).sum() > 5

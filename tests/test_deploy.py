@@ -56,13 +56,17 @@ def test_the_job_renders_on_the_statefulsets_pods_by_their_stable_names():
     service, nodes, job = r["Service"], r["StatefulSet"], r["Job"]["spec"]["template"]["spec"]
     assert service["spec"]["clusterIP"] == "None"  # headless: a DNS name per pod
     assert nodes["spec"]["serviceName"] == service["metadata"]["name"]
-    assert service["spec"]["selector"].items() <= \
-        nodes["spec"]["template"]["metadata"]["labels"].items()  # fmt: skip
+    assert (
+        service["spec"]["selector"].items()
+        <= nodes["spec"]["template"]["metadata"]["labels"].items()
+    )
     [init] = job["initContainers"]
     made = _parser().parse_args(init["command"][1:])
     assert made.command == "cluster-file"
-    assert (made.statefulset, made.service) == (nodes["metadata"]["name"],
-                                                service["metadata"]["name"])  # fmt: skip
+    assert (made.statefulset, made.service) == (
+        nodes["metadata"]["name"],
+        service["metadata"]["name"],
+    )
     assert made.rows * made.cols == nodes["spec"]["replicas"]
     [node] = nodes["spec"]["template"]["spec"]["containers"]
     served = parse_node(node["command"][1:])
@@ -78,32 +82,80 @@ def test_the_job_renders_on_the_statefulsets_pods_by_their_stable_names():
     assert Path(made.output).parent == Path(init_mounts["config"]) == Path(mounts["config"])
     claim = [v for v in job["volumes"] if "persistentVolumeClaim" in v]
     assert [v["name"] for v in claim] == ["out"]
-    assert claim[0]["persistentVolumeClaim"]["claimName"] == \
-        r["PersistentVolumeClaim"]["metadata"]["name"]  # fmt: skip
+    assert (
+        claim[0]["persistentVolumeClaim"]["claimName"]
+        == r["PersistentVolumeClaim"]["metadata"]["name"]
+    )
     assert Path(render.output).parent == Path(mounts["out"])
     assert node["image"] == host["image"] == init["image"]
 
 
 def test_cluster_file_lists_each_pod_as_its_node(tmp_path, capsys):
     out = tmp_path / "cluster.txt"
-    assert main(["cluster-file", "--statefulset", "meshnode", "--service", "mesh", "--rows",
-                 "2", "--cols", "3", "--port", "7701", "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "cluster-file",
+                "--statefulset",
+                "meshnode",
+                "--service",
+                "mesh",
+                "--rows",
+                "2",
+                "--cols",
+                "3",
+                "--port",
+                "7701",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rows, cols, addresses = read_cluster(out)
     assert (rows, cols) == (2, 3)
     assert addresses == [f"meshnode-{i}.mesh:7701" for i in range(6)]
-    assert main(["cluster-file", "--statefulset", "meshnode", "--service", "mesh", "--rows",
-                 "1", "--cols", "2", "--namespace", "render"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "cluster-file",
+                "--statefulset",
+                "meshnode",
+                "--service",
+                "mesh",
+                "--rows",
+                "1",
+                "--cols",
+                "2",
+                "--namespace",
+                "render",
+            ]
+        )
+        == 0
+    )
     assert "1 meshnode-1.mesh.render.svc.cluster.local:7700" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("flags,what", [
-    (["--statefulset", "Mesh_Node"], "not a Kubernetes name"),
-    (["--rows", "0"], "must be at least 1"),
-    (["--port", "70000"], "not a TCP port"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "flags,what",
+    [
+        (["--statefulset", "Mesh_Node"], "not a Kubernetes name"),
+        (["--rows", "0"], "must be at least 1"),
+        (["--port", "70000"], "not a TCP port"),
+    ],
+)
 def test_cluster_file_refuses_bad_input_in_one_line(flags, what, capsys):
-    argv = ["cluster-file", "--statefulset", "meshnode", "--service", "mesh", "--rows", "2",
-            "--cols", "2"]  # fmt: skip
+    argv = [
+        "cluster-file",
+        "--statefulset",
+        "meshnode",
+        "--service",
+        "mesh",
+        "--rows",
+        "2",
+        "--cols",
+        "2",
+    ]
     assert main(argv + flags) == 2
     err = capsys.readouterr().err
     assert what in err and len(err.splitlines()) == 1

@@ -22,8 +22,13 @@ COC = 30e-6
 
 
 def lens_camera(rim=0.02, focus=2.0):
-    return Camera(stack({"kind": dtypes.THIN_LENS, "z": 0.0, "focal": F, "ax": rim, "ay": rim}),
-                  0.036, 0.024, None, focus)  # fmt: skip
+    return Camera(
+        stack({"kind": dtypes.THIN_LENS, "z": 0.0, "focal": F, "ax": rim, "ay": rim}),
+        0.036,
+        0.024,
+        None,
+        focus,
+    )
 
 
 def spot_diameter(cam: Camera, distance: float) -> float:
@@ -82,7 +87,7 @@ def test_autofocus_finds_the_depth_at_the_image_centre():
     view = View(eye=(0.3, 0.2, -1.0), at=(0.3, 0.2, 0.0), up=(0, 1, 0), angle=40.0)
     wall = [(-5, -5, 2.7), (5, -5, 2.7), (5, 5, 2.7), (-5, 5, 2.7)]
     scene = make_scene(polygons=[(wall, 0)], lights=[(0, 0, -3)], view=view)
-    rs = records(width=16, height=12, camera=lens_camera(), distance="auto", threads=1)  # fmt: skip
+    rs = records(width=16, height=12, camera=lens_camera(), distance="auto", threads=1)
     _, stats = render(scene, *rs)
     cam = stats["camera"]
     assert cam["focus_distance_m"] == pytest.approx(3.7, rel=1e-9)
@@ -97,11 +102,24 @@ def test_host_render_depth_of_field_options(tmp_path, capsys):
     from tests.test_camera import CAMERAS
 
     scene = tmp_path / "s.nff"
-    scene.write_text("v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 8 8\n"
-                     "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n")  # fmt: skip
+    scene.write_text(
+        "v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 8 8\n"
+        "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n"
+    )
     out, stats = tmp_path / "o.png", tmp_path / "s.json"
-    args = ["render", str(scene), "-o", str(out), "--stats", str(stats), "--quiet",
-            "--mesh", "1x1", "--camera", str(CAMERAS / "thin_f2.8.toml")]  # fmt: skip
+    args = [
+        "render",
+        str(scene),
+        "-o",
+        str(out),
+        "--stats",
+        str(stats),
+        "--quiet",
+        "--mesh",
+        "1x1",
+        "--camera",
+        str(CAMERAS / "thin_f2.8.toml"),
+    ]
     assert main([*args, "--dof-near", "2", "--dof-far", "4"]) == 0
     cam = json.loads(stats.read_text())["camera"]
     assert cam["focus_distance_m"] == pytest.approx(2 * 2 * 4 / 6)
@@ -114,8 +132,9 @@ def test_host_render_depth_of_field_options(tmp_path, capsys):
     assert main([*args, "--focus", "near"]) == 2
 
 
-@pytest.mark.parametrize("name", ["balls_s1.nff", "gears_s1.nff", "teapot_s1.nff",
-                                  "tree_s1.nff", "rings_s1.nff"])  # fmt: skip
+@pytest.mark.parametrize(
+    "name", ["balls_s1.nff", "gears_s1.nff", "teapot_s1.nff", "tree_s1.nff", "rings_s1.nff"]
+)
 def test_mesh_autofocus_probes_only_the_objects_in_its_cone(name):
     # The host focuses a mesh render with an engine over the objects inside the probe's cone:
     # the same depth as a whole-scene engine (a probe ray can hit nothing else), fewer objects.

@@ -42,13 +42,22 @@ from tests.test_node_service import config
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERAS = ROOT / "host" / "cameras"
-FUZZ = settings(deadline=None, derandomize=True, database=None, print_blob=False,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                       HealthCheck.function_scoped_fixture])  # fmt: skip
+FUZZ = settings(
+    deadline=None,
+    derandomize=True,
+    database=None,
+    print_blob=False,
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+        HealthCheck.function_scoped_fixture,
+    ],
+)
 
 
 def fuzz(examples: int) -> settings:
     return settings(FUZZ, max_examples=examples)
+
 
 # Reported bugs the property tests tolerate until fixed: (exception types, project file, the
 # functions that raise them) -> the strict xfail test reproducing it.
@@ -58,8 +67,11 @@ KNOWN_BUGS: dict = {}
 def known_bug(error: BaseException) -> str | None:
     """The xfail test of the reported bug `error` is an instance of, or None: matched on its
     type and the project function it was raised from."""
-    frames = [f for f in traceback.extract_tb(error.__traceback__) if Path(
-        f.filename).is_absolute() and Path(f.filename).resolve().is_relative_to(ROOT)]
+    frames = [
+        f
+        for f in traceback.extract_tb(error.__traceback__)
+        if Path(f.filename).is_absolute() and Path(f.filename).resolve().is_relative_to(ROOT)
+    ]
     if not frames:
         return None
     where = Path(frames[-1].filename).resolve().relative_to(ROOT).as_posix()
@@ -86,9 +98,32 @@ def outcome(call, *documented):
 
 # ------------------------------------------------------------------ values a peer can send
 
-ODD_NUMBERS = [0, 1, -1, 2, 7, 255, 65536, 2**31, -(2**31) - 1, 2**63 - 1, -(2**63), 2**64 - 1,
-               0.5, -0.0, 5e-324, 1e-300, 1e300, 1e308, -1e308, math.inf, -math.inf, math.nan,
-               True, False]  # fmt: skip
+ODD_NUMBERS = [
+    0,
+    1,
+    -1,
+    2,
+    7,
+    255,
+    65536,
+    2**31,
+    -(2**31) - 1,
+    2**63 - 1,
+    -(2**63),
+    2**64 - 1,
+    0.5,
+    -0.0,
+    5e-324,
+    1e-300,
+    1e300,
+    1e308,
+    -1e308,
+    math.inf,
+    -math.inf,
+    math.nan,
+    True,
+    False,
+]
 
 
 @st.composite
@@ -101,13 +136,24 @@ def wire_arrays(draw, names=tuple(WIRE_DTYPES)):
 
 
 SCALARS = st.one_of(
-    st.sampled_from(ODD_NUMBERS), st.none(), st.integers(-(2**63), 2**64 - 1),
-    st.floats(), st.text(max_size=6), st.binary(max_size=6), wire_arrays(),
-)  # fmt: skip
-KEYS = st.one_of(st.sampled_from(sorted({f for spec in FIELDS.values() for f in spec} | {"k"})),
-                 st.text(max_size=4), st.binary(max_size=3))  # fmt: skip
-VALUES = st.recursive(SCALARS, lambda kids: st.lists(kids, max_size=3)
-                      | st.dictionaries(KEYS, kids, max_size=3), max_leaves=6)  # fmt: skip
+    st.sampled_from(ODD_NUMBERS),
+    st.none(),
+    st.integers(-(2**63), 2**64 - 1),
+    st.floats(),
+    st.text(max_size=6),
+    st.binary(max_size=6),
+    wire_arrays(),
+)
+KEYS = st.one_of(
+    st.sampled_from(sorted({f for spec in FIELDS.values() for f in spec} | {"k"})),
+    st.text(max_size=4),
+    st.binary(max_size=3),
+)
+VALUES = st.recursive(
+    SCALARS,
+    lambda kids: st.lists(kids, max_size=3) | st.dictionaries(KEYS, kids, max_size=3),
+    max_leaves=6,
+)
 
 
 def wire(message: dict) -> dict:
@@ -125,14 +171,30 @@ def _valid(kind: Kind, n: int, flag: bool, table: str) -> dict:
         return config()
     if kind is Kind.OBJECTS:
         return make(kind, node=0, table=table, records=np.zeros(n, OBJECT_TABLES[table]), last=flag)
-    plain = {int: n, str: "node 0: boom", bytes: b"\2" * 32, bool: flag, dict: {"eye": n},
-             list: list(range(n))}  # fmt: skip
-    return make(kind, **{name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]
-                         for name, want in FIELDS[kind].items()})  # fmt: skip
+    plain = {
+        int: n,
+        str: "node 0: boom",
+        bytes: b"\2" * 32,
+        bool: flag,
+        dict: {"eye": n},
+        list: list(range(n)),
+    }
+    return make(
+        kind,
+        **{
+            name: np.zeros(n, want) if isinstance(want, np.dtype) else plain[want]
+            for name, want in FIELDS[kind].items()
+        },
+    )
 
 
-VALID_MESSAGES = st.builds(_valid, st.sampled_from(list(Kind)), st.integers(0, 3), st.booleans(),
-                           st.sampled_from(sorted(OBJECT_TABLES)))  # fmt: skip
+VALID_MESSAGES = st.builds(
+    _valid,
+    st.sampled_from(list(Kind)),
+    st.integers(0, 3),
+    st.booleans(),
+    st.sampled_from(sorted(OBJECT_TABLES)),
+)
 
 
 @st.composite
@@ -180,13 +242,23 @@ def assert_well_formed(kind: Kind, fields: dict) -> None:
 def streams(draw):
     """Bytes a peer might send: whole frames, frames of arbitrary payload, arbitrary length
     prefixes (small or huge) and raw noise, in any order."""
-    parts = draw(st.lists(st.one_of(
-        st.builds(lambda m: encode(m), st.dictionaries(st.text(max_size=4), VALUES, max_size=3)),
-        st.builds(lambda p: HEADER.pack(len(p)) + p, st.binary(max_size=40)),
-        st.builds(lambda n, p: HEADER.pack(n) + p,
-                  st.one_of(st.integers(0, 64), st.integers(0, 2**32 - 1)), st.binary(max_size=40)),
-        st.binary(max_size=12),
-    ), max_size=6))  # fmt: skip
+    parts = draw(
+        st.lists(
+            st.one_of(
+                st.builds(
+                    lambda m: encode(m), st.dictionaries(st.text(max_size=4), VALUES, max_size=3)
+                ),
+                st.builds(lambda p: HEADER.pack(len(p)) + p, st.binary(max_size=40)),
+                st.builds(
+                    lambda n, p: HEADER.pack(n) + p,
+                    st.one_of(st.integers(0, 64), st.integers(0, 2**32 - 1)),
+                    st.binary(max_size=40),
+                ),
+                st.binary(max_size=12),
+            ),
+            max_size=6,
+        )
+    )
     return b"".join(parts)
 
 
@@ -210,8 +282,11 @@ def reference(stream: bytes, max_frame: int):
 
 
 @fuzz(200)
-@given(stream=streams(), cuts=st.lists(st.integers(0, 400), max_size=8),
-       max_frame=st.sampled_from([0, 1, 16, 64, 4096, MAX_FRAME]))  # fmt: skip
+@given(
+    stream=streams(),
+    cuts=st.lists(st.integers(0, 400), max_size=8),
+    max_frame=st.sampled_from([0, 1, 16, 64, 4096, MAX_FRAME]),
+)
 def test_framer_is_split_invariant_and_bounded(stream, cuts, max_frame):
     """However the bytes are split, FrameDecoder.feed yields the same messages as one walk over
     the stream and raises the same error at the chunk that makes it detectable (FrameTooLarge
@@ -240,9 +315,14 @@ def test_framer_is_split_invariant_and_bounded(stream, cuts, max_frame):
 
 
 @fuzz(200)
-@given(size=st.one_of(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 4095, 4096, 4097,
-                                                                   MAX_FRAME, MAX_FRAME + 1])),
-       max_frame=st.sampled_from([4096, MAX_FRAME]), body=st.binary(max_size=64))  # fmt: skip
+@given(
+    size=st.one_of(
+        st.integers(0, 2**32 - 1),
+        st.sampled_from([0, 1, 4095, 4096, 4097, MAX_FRAME, MAX_FRAME + 1]),
+    ),
+    max_frame=st.sampled_from([4096, MAX_FRAME]),
+    body=st.binary(max_size=64),
+)
 def test_length_prefix_over_the_limit_is_refused_on_its_last_byte(size, max_frame, body):
     """Fed one byte at a time, a prefix announcing more than max_frame raises FrameTooLarge on
     its fourth byte with nothing else buffered; a smaller one waits for its payload (holding
@@ -267,17 +347,26 @@ def test_length_prefix_over_the_limit_is_refused_on_its_last_byte(size, max_fram
 def payloads(draw):
     """msgpack documents (maps or not, ARRAY_EXT and other extensions, bad array headers,
     non-string keys), truncated or with a byte flipped, or plain noise."""
-    ext = st.builds(msgpack.ExtType, st.sampled_from([1, 1, 0, 2, 127]),
-                    st.one_of(st.binary(max_size=40),
-                              st.builds(lambda n, c, b: n + b"\0" + struct.pack("<Q", c) + b,
-                                        st.sampled_from([k.encode() for k in WIRE_DTYPES]
-                                                        + [b"", b"x", b"ray\xff"]),
-                                        st.sampled_from([0, 1, 2, 2**63, 2**64 - 1]),
-                                        st.binary(max_size=96))))  # fmt: skip
+    ext = st.builds(
+        msgpack.ExtType,
+        st.sampled_from([1, 1, 0, 2, 127]),
+        st.one_of(
+            st.binary(max_size=40),
+            st.builds(
+                lambda n, c, b: n + b"\0" + struct.pack("<Q", c) + b,
+                st.sampled_from([k.encode() for k in WIRE_DTYPES] + [b"", b"x", b"ray\xff"]),
+                st.sampled_from([0, 1, 2, 2**63, 2**64 - 1]),
+                st.binary(max_size=96),
+            ),
+        ),
+    )
     stamp = st.builds(msgpack.Timestamp, st.integers(0, 2**40), st.integers(0, 10**9 - 1))
     keys = st.one_of(KEYS, st.integers(-(2**63), 2**64 - 1), st.none())
-    doc = st.recursive(st.one_of(SCALARS, ext, stamp), lambda kids: st.lists(kids, max_size=3)
-                       | st.dictionaries(keys, kids, max_size=3), max_leaves=6)  # fmt: skip
+    doc = st.recursive(
+        st.one_of(SCALARS, ext, stamp),
+        lambda kids: st.lists(kids, max_size=3) | st.dictionaries(keys, kids, max_size=3),
+        max_leaves=6,
+    )
     raw = msgpack.packb(draw(doc), use_bin_type=True, default=lambda a: a.tobytes())
     how = draw(st.sampled_from(["as is", "cut", "flip", "noise"]))
     if how == "cut":
@@ -324,9 +413,16 @@ def test_parse_checks_every_kind_against_its_fields(message):
 
 
 @fuzz(200)
-@given(base=st.builds(hello, st.sampled_from(["meshtrace", "other", ""]), st.sampled_from(ROLES),
-                      st.integers(-1, 4), st.binary(min_size=32, max_size=32)),
-       data=st.data())  # fmt: skip
+@given(
+    base=st.builds(
+        hello,
+        st.sampled_from(["meshtrace", "other", ""]),
+        st.sampled_from(ROLES),
+        st.integers(-1, 4),
+        st.binary(min_size=32, max_size=32),
+    ),
+    data=st.data(),
+)
 def test_check_hello_accepts_only_a_matching_hello(base, data):
     """check_hello on a (mutated) HELLO returns fields only for this protocol version, this
     cluster, a known role and a full nonce; anything else is a ProtocolError."""
@@ -347,8 +443,9 @@ def auth_messages(draw):
     """The right AUTH, AUTH with another secret, speaker or nonce, a proof cut, grown or with a
     bit flipped, or any mutated message."""
     right = proof(SECRET, "dialler", DIALLER, LISTENER_NONCE)
-    p = draw(st.sampled_from(["right", "secret", "speaker", "nonce", "cut", "grow", "flip",
-                              "mutate"]))  # fmt: skip
+    p = draw(
+        st.sampled_from(["right", "secret", "speaker", "nonce", "cut", "grow", "flip", "mutate"])
+    )
     if p == "right":
         return make(Kind.AUTH, proof=right)
     if p == "secret":
@@ -374,8 +471,9 @@ def test_check_auth_passes_only_the_right_proof(message):
     every other message, proof or secret is refused with a ProtocolError (AuthFailed when it
     is a well-formed AUTH)."""
     received = wire(message)
-    result = outcome(lambda: check_auth(received, SECRET, "dialler", DIALLER, LISTENER_NONCE),
-                     ProtocolError)  # fmt: skip
+    result = outcome(
+        lambda: check_auth(received, SECRET, "dialler", DIALLER, LISTENER_NONCE), ProtocolError
+    )
     right = make(Kind.AUTH, proof=proof(SECRET, "dialler", DIALLER, LISTENER_NONCE))
     assert (result is None) == (repr(received) == repr(right))
 
@@ -498,11 +596,59 @@ c
 0 -1 0 0.5
 0 1 0 0.2
 """
-NFF_TOKENS = ["v", "from", "at", "up", "angle", "hither", "yon", "resolution", "b", "l", "f",
-              "s", "p", "pp", "c", "#", "0", "1", "-1", "3", "4", "2.5", "1e3", "-0", "+3",
-              ".5", "5.", "1e999", "-1e999", "nan", "inf", "-inf", "Infinity", "1_0", "0x10",
-              "\u0663", "\uff13", "99999999999999999999", "1e-320", "180", "0.0001", "\n",
-              "\r\n", "\t", "\x0b", "\x1c", "\u2028", "\x85", "\x00", "é", "#c\n"]  # fmt: skip
+NFF_TOKENS = [
+    "v",
+    "from",
+    "at",
+    "up",
+    "angle",
+    "hither",
+    "yon",
+    "resolution",
+    "b",
+    "l",
+    "f",
+    "s",
+    "p",
+    "pp",
+    "c",
+    "#",
+    "0",
+    "1",
+    "-1",
+    "3",
+    "4",
+    "2.5",
+    "1e3",
+    "-0",
+    "+3",
+    ".5",
+    "5.",
+    "1e999",
+    "-1e999",
+    "nan",
+    "inf",
+    "-inf",
+    "Infinity",
+    "1_0",
+    "0x10",
+    "\u0663",
+    "\uff13",
+    "99999999999999999999",
+    "1e-320",
+    "180",
+    "0.0001",
+    "\n",
+    "\r\n",
+    "\t",
+    "\x0b",
+    "\x1c",
+    "\u2028",
+    "\x85",
+    "\x00",
+    "é",
+    "#c\n",
+]
 
 
 @st.composite
@@ -553,8 +699,9 @@ def test_nff_reader_raises_only_scene_errors_that_name_the_line(text, source):
     for table in (scene.spheres, scene.triangles, scene.polygons, scene.cones):
         assert np.all((0 <= table["mat"]) & (table["mat"] < len(scene.materials)))
     p = scene.polygons
-    assert np.all((p["start"] >= 0) & (p["count"] >= 4) & (p["start"] + p["count"]
-                                                          <= len(scene.vertices)))  # fmt: skip
+    assert np.all(
+        (p["start"] >= 0) & (p["count"] >= 4) & (p["start"] + p["count"] <= len(scene.vertices))
+    )
     assert np.all(np.isfinite(scene.lights["pos"]))
 
 
@@ -568,8 +715,13 @@ def toml_text(tree: dict) -> str:
         if isinstance(v, bool):
             return "true" if v else "false"
         if isinstance(v, float):
-            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(
-                v) else repr(v)  # fmt: skip
+            return (
+                "nan"
+                if math.isnan(v)
+                else ("inf" if v > 0 else "-inf")
+                if math.isinf(v)
+                else repr(v)
+            )
         if isinstance(v, int):
             return str(v)
         if isinstance(v, str):
@@ -583,17 +735,57 @@ def toml_text(tree: dict) -> str:
 
 TOML_SCALARS = st.one_of(
     st.sampled_from([x for x in ODD_NUMBERS if not isinstance(x, bool)] + [10**400, -(10**30)]),
-    st.integers(), st.floats(), st.booleans(),
-    st.sampled_from(["infinity", "cap", "plane", "thin_lens", "diaphragm", "ellipse",
-                     "rectangle", "polygon", "hexagon", "", "1.0"]), st.text(max_size=5),
-)  # fmt: skip
-TOML_VALUES = st.recursive(TOML_SCALARS, lambda kids: st.lists(kids, max_size=3)
-                           | st.dictionaries(st.text(max_size=5), kids, max_size=3),
-                           max_leaves=5)  # fmt: skip
-TOML_KEYS = st.one_of(st.sampled_from(["type", "z", "radius", "n_after", "focal", "diameter",
-                                       "semi_x", "semi_y", "shape", "sides", "rotation_deg",
-                                       "width", "height", "distance", "film", "focus",
-                                       "element"]), st.text(max_size=5))  # fmt: skip
+    st.integers(),
+    st.floats(),
+    st.booleans(),
+    st.sampled_from(
+        [
+            "infinity",
+            "cap",
+            "plane",
+            "thin_lens",
+            "diaphragm",
+            "ellipse",
+            "rectangle",
+            "polygon",
+            "hexagon",
+            "",
+            "1.0",
+        ]
+    ),
+    st.text(max_size=5),
+)
+TOML_VALUES = st.recursive(
+    TOML_SCALARS,
+    lambda kids: (
+        st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=5), kids, max_size=3)
+    ),
+    max_leaves=5,
+)
+TOML_KEYS = st.one_of(
+    st.sampled_from(
+        [
+            "type",
+            "z",
+            "radius",
+            "n_after",
+            "focal",
+            "diameter",
+            "semi_x",
+            "semi_y",
+            "shape",
+            "sides",
+            "rotation_deg",
+            "width",
+            "height",
+            "distance",
+            "film",
+            "focus",
+            "element",
+        ]
+    ),
+    st.text(max_size=5),
+)
 BASE_CAMERAS = [tomllib.loads(p.read_text()) for p in sorted(CAMERAS.glob("*.toml"))]
 
 
@@ -639,8 +831,28 @@ TABLE = """# r t n aperture
  30.0   4.0  1.70   14.0
 -30.0  42.8  0      14.0
 """
-TABLE_TOKENS = ["0", "0.0", "-0", "1", "-30", "1.5", "1e-9", "1e300", "1e999", "-1e999", "nan",
-                "inf", "-inf", "x", "#", "1_0", "\u0663", "\x00", "\n", ""]  # fmt: skip
+TABLE_TOKENS = [
+    "0",
+    "0.0",
+    "-0",
+    "1",
+    "-30",
+    "1.5",
+    "1e-9",
+    "1e300",
+    "1e999",
+    "-1e999",
+    "nan",
+    "inf",
+    "-inf",
+    "x",
+    "#",
+    "1_0",
+    "\u0663",
+    "\x00",
+    "\n",
+    "",
+]
 
 
 @st.composite
@@ -701,15 +913,18 @@ def test_bug_choice_field_holding_an_array():
         Config(parse(fields)[1])
 
 
-@pytest.mark.parametrize("text", [
-    'film = 0\n[[element]]\ntype = "thin_lens"\nfocal = 0.05\ndiameter = 0.03\n',
-    "element = 7\n",
-    '[[element]]\ntype = "thin_lens"\nfocal = [0.05]\ndiameter = 0.03\n',
-    '[[element]]\ntype = "thin_lens"\nz = "near"\nfocal = 0.05\ndiameter = 0.03\n',
-    '[[element]]\ntype = "diaphragm"\nshape = "polygon"\nsides = 70000\ndiameter = 0.03\n',
-    '[focus]\ndistance = 1' + "0" * 400 + '\n[[element]]\ntype = "thin_lens"\nfocal = 0.05\n'
-    'diameter = 0.03\n',
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text",
+    [
+        'film = 0\n[[element]]\ntype = "thin_lens"\nfocal = 0.05\ndiameter = 0.03\n',
+        "element = 7\n",
+        '[[element]]\ntype = "thin_lens"\nfocal = [0.05]\ndiameter = 0.03\n',
+        '[[element]]\ntype = "thin_lens"\nz = "near"\nfocal = 0.05\ndiameter = 0.03\n',
+        '[[element]]\ntype = "diaphragm"\nshape = "polygon"\nsides = 70000\ndiameter = 0.03\n',
+        "[focus]\ndistance = 1" + "0" * 400 + '\n[[element]]\ntype = "thin_lens"\nfocal = 0.05\n'
+        "diameter = 0.03\n",
+    ],
+)
 def test_bug_toml_camera_value_of_another_type(tmp_path, text):
     """A camera file value of the wrong TOML type (a table that is a number, a number that is a
     list or a word, an integer too large) is a CameraError naming the file (read_toml once
@@ -727,4 +942,3 @@ def test_bug_lens_table_not_utf8(tmp_path):
     path.write_bytes(b"50 5 1.5 30\n-50 49 0 30 \xff\n")
     with pytest.raises(CameraError, match=str(path)):
         read_table(path)
-

@@ -29,14 +29,24 @@ def assert_same_scene(made, read) -> None:
     assert np.allclose(made.vertices, read.vertices, rtol=0, atol=TOL)
 
 
-@pytest.mark.parametrize("n,name", [(1, "tetra_s1"), (2, "tetra_s2"), (3, "tetra_s3"),
-                                    (4, "tetra_s4"), (5, "tetra_s5"), (6, "tetra")])  # fmt: skip
+@pytest.mark.parametrize(
+    "n,name",
+    [
+        (1, "tetra_s1"),
+        (2, "tetra_s2"),
+        (3, "tetra_s3"),
+        (4, "tetra_s4"),
+        (5, "tetra_s5"),
+        (6, "tetra"),
+    ],
+)
 def test_tetra_is_the_spd_file(n, name):
     assert_same_scene(tetra(n), read_nff(spd_scene(f"{name}.nff")))
 
 
-@pytest.mark.parametrize("n,name", [(1, "balls_s1"), (2, "balls_s2"), (3, "balls_s3"),
-                                    (4, "balls")])  # fmt: skip
+@pytest.mark.parametrize(
+    "n,name", [(1, "balls_s1"), (2, "balls_s2"), (3, "balls_s3"), (4, "balls")]
+)
 def test_balls_is_the_spd_file(n, name):
     assert_same_scene(balls(n), read_nff(spd_scene(f"{name}.nff")))
 

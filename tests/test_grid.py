@@ -27,13 +27,15 @@ def assert_same_hits(t_ref, g_ref, t, g, rtol=1e-9):
 
 def random_scene(rng, n=60):
     """Spheres, triangles, concave polygons and cones scattered in [-5, 5]^3."""
-    spheres = [(rng.uniform(-5, 5, 3), rng.uniform(0.1, 0.8) * rng.choice([1, -1]), 0)
-               for _ in range(n)]  # fmt: skip
+    spheres = [
+        (rng.uniform(-5, 5, 3), rng.uniform(0.1, 0.8) * rng.choice([1, -1]), 0) for _ in range(n)
+    ]
     tris = []
     for _ in range(n):
         c = rng.uniform(-5, 5, 3)
-        tris.append((c + rng.normal(0, 0.6, 3), c + rng.normal(0, 0.6, 3),
-                     c + rng.normal(0, 0.6, 3), 0))  # fmt: skip
+        tris.append(
+            (c + rng.normal(0, 0.6, 3), c + rng.normal(0, 0.6, 3), c + rng.normal(0, 0.6, 3), 0)
+        )
     polys = []
     for _ in range(n // 3):
         c = rng.uniform(-5, 5, 3)
@@ -79,8 +81,9 @@ def test_random_scene_grid_equals_reference(seed):
     assert (g_ref >= 0).sum() > 100  # the rays really hit things
     for storage in STORAGES:
         for density in (0.5, 4.0):
-            t, g = Engine(scene, storage=storage, density=density,
-                          structure="grid").first_hits(o, d)  # fmt: skip
+            t, g = Engine(scene, storage=storage, density=density, structure="grid").first_hits(
+                o, d
+            )
             assert_same_hits(t_ref, g_ref, t, g)
     for kw in ({"brute": True}, {"structure": "bvh"}):
         t, g = Engine(scene, **kw).first_hits(o, d)
@@ -88,15 +91,27 @@ def test_random_scene_grid_equals_reference(seed):
 
 
 @pytest.mark.parametrize(
-    "name", ["balls_s1.nff", "tetra_s3.nff", "gears_s1.nff", "rings_s1.nff", "teapot_s1.nff",
-             "mount_s1.nff", "tree_s1.nff", "jacks.nff"],
-)  # fmt: skip
+    "name",
+    [
+        "balls_s1.nff",
+        "tetra_s3.nff",
+        "gears_s1.nff",
+        "rings_s1.nff",
+        "teapot_s1.nff",
+        "mount_s1.nff",
+        "tree_s1.nff",
+        "jacks.nff",
+    ],
+)
 def test_spd_scene_eye_hits_equal_reference(name):
     scene = read_nff(spd_scene(name))
     rays = eye_rays(scene.view, ImageSpec(width=24, height=24))
     t_ref, g_ref = reference.first_hits(scene, rays["o"], rays["d"], t_min=0.0)
-    for kw in ({"storage": "csr", "structure": "grid"}, {"storage": "hash", "structure": "grid"},
-               {"structure": "bvh"}):  # fmt: skip
+    for kw in (
+        {"storage": "csr", "structure": "grid"},
+        {"storage": "hash", "structure": "grid"},
+        {"structure": "bvh"},
+    ):
         t, g = Engine(scene, **kw).first_hits(rays["o"], rays["d"])
         assert_same_hits(t_ref, g_ref, t, g)
 
@@ -201,8 +216,11 @@ def test_equal_distances_go_to_the_lower_gid_whatever_the_grid():
         tie = t_ref == 3.0
         assert tie.sum() > 50
         np.testing.assert_array_equal(g_ref[tie], np.zeros(tie.sum()))
-        engines = [Engine(scene, storage=storage, density=density, structure="grid")
-                   for storage in STORAGES for density in (0.3, 1.0, 8.0)]  # fmt: skip
+        engines = [
+            Engine(scene, storage=storage, density=density, structure="grid")
+            for storage in STORAGES
+            for density in (0.3, 1.0, 8.0)
+        ]
         for engine in [*engines, Engine(scene, structure="bvh")]:
             t, g = engine.first_hits(o, d)
             np.testing.assert_array_equal(g, g_ref)

@@ -28,8 +28,9 @@ CASES = [("host", path, p) for path, p in _commands(host_parser())] + [
 ]
 
 
-@pytest.mark.parametrize(("prog", "path", "parser"), CASES,
-                         ids=[" ".join((c[0], *c[1])) for c in CASES])  # fmt: skip
+@pytest.mark.parametrize(
+    ("prog", "path", "parser"), CASES, ids=[" ".join((c[0], *c[1])) for c in CASES]
+)
 def test_every_help_prints_and_exits_0(prog, path, parser, capsys):
     top = host_parser() if prog == "host" else node_parser()
     for flag in ("--help", "-h"):
@@ -53,8 +54,9 @@ def test_the_subcommands_are_all_walked():
 
 @pytest.mark.parametrize("module", ["host.cli", "meshnode.service.cli"])
 def test_the_commands_print_help_in_a_fresh_process(module):
-    r = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True,
-                       timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=60
+    )
     assert r.returncode == 0 and r.stdout.startswith("usage:"), r.stderr
     assert "Traceback" not in r.stderr
 

@@ -16,11 +16,20 @@ from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
 from tests.test_sampling import dof_scene, thin_camera
 
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
-TILINGS = [dict(tiles="none"), dict(tiles="static", tile=7),
-           dict(tiles="dynamic", tile=5, buffer=2)]  # fmt: skip
+TILINGS = [
+    dict(tiles="none"),
+    dict(tiles="static", tile=7),
+    dict(tiles="dynamic", tile=5, buffer=2),
+]
 
 
 def reference(scene, image, camera=None):
@@ -34,8 +43,9 @@ def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
     scene = read_nff(spd_scene("rings_s1.nff"))
     ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=spp))
     for rows, cols in SHAPES:
-        img, totals, nodes, _ = render_mesh(scene, rows, cols, 0, 30, 26, spp=spp,
-                                            mode="image", **tiling)  # fmt: skip
+        img, totals, nodes, _ = render_mesh(
+            scene, rows, cols, 0, 30, 26, spp=spp, mode="image", **tiling
+        )
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
         assert sum(n.rays_sent for n in nodes) == 0  # no ray leaves a node
@@ -54,8 +64,9 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling, monkeypatch
     refined_taken = 0
     for rows, cols in SHAPES:
         for tiling in TILINGS:
-            img, totals, nodes, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3,
-                                                camera=spec, mode="image", **tiling)  # fmt: skip
+            img, totals, nodes, _ = render_mesh(
+                scene, rows, cols, 0, 30, 24, seed=3, camera=spec, mode="image", **tiling
+            )
             assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
             np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
             if tiling["tiles"] == "dynamic" and sampling == "adaptive":
@@ -77,8 +88,20 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
-    img, totals, nodes, _ = render_mesh(scene, 3, 3, 0, 30, 24, seed=3, camera=spec,
-                                        mode="image", tiles="dynamic", tile=12, buffer=1)
+    img, totals, nodes, _ = render_mesh(
+        scene,
+        3,
+        3,
+        0,
+        30,
+        24,
+        seed=3,
+        camera=spec,
+        mode="image",
+        tiles="dynamic",
+        tile=12,
+        buffer=1,
+    )
     assert {k: totals[k] for k in COUNTS} == counts
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     assert sum(n.chunks_taken for n in nodes[6:]) > 0
@@ -125,8 +148,9 @@ def test_every_node_holds_the_whole_scene_and_box():
     assert (los == lo).all() and (his == hi).all()
 
 
-@pytest.mark.parametrize("sampling,tiling", [(None, "static"), ("adaptive", "static"),
-                                             ("adaptive", "dynamic")])  # fmt: skip
+@pytest.mark.parametrize(
+    "sampling,tiling", [(None, "static"), ("adaptive", "static"), ("adaptive", "dynamic")]
+)
 def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     # Real node processes: the whole scene downloaded to each, tiles dealt, no rays passed;
     # adaptive seams travel as pixel packets between the tiles' owners (under dynamic tiles
@@ -221,8 +245,7 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
         assert sorted(order) == list(range(len(rects)))
         assert deal_order(rects, "rows") == list(range(len(rects)))
         cols, rows = -(-w // t), -(-h // t)
-        ring = [max(abs(i % cols - (cols - 1) / 2), abs(i // cols - (rows - 1) / 2))
-                for i in order]
+        ring = [max(abs(i % cols - (cols - 1) / 2), abs(i // cols - (rows - 1) / 2)) for i in order]
         assert ring == sorted(ring)
         x0, x1, y0, y1 = rects[order[0]]
         assert abs((x0 + x1) / 2 - w / 2) <= t and abs((y0 + y1) / 2 - h / 2) <= t
@@ -240,8 +263,9 @@ def dynamic_adaptive_node():
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
     image = ImageSpec(width=12, height=10).sized(scene.view)
     camera, _ = setup.spec(scene, image, lambda: None)
-    spec = RenderSpec(image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5),
-                      camera=camera)  # fmt: skip
+    spec = RenderSpec(
+        image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5), camera=camera
+    )
     part, _ = partition(scene, spec)
     return NodeCore(1, scene, spec, part), camera, part
 

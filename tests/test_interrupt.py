@@ -45,14 +45,26 @@ def read_until(fd: int, pattern: str, deadline: float) -> str:
     return text
 
 
-@pytest.mark.parametrize("mesh,progress", [("2x2", r"mesh 2x2 primary:"),
-                                           ("1x1", r"tracing:")])  # fmt: skip
+@pytest.mark.parametrize("mesh,progress", [("2x2", r"mesh 2x2 primary:"), ("1x1", r"tracing:")])
 def test_ctrl_c_prints_one_line_exits_130_and_leaves_no_process(tmp_path, mesh, progress):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "host.cli", "render", str(EXAMPLE), "--mesh", mesh,
-         "--spp", "64", "-o", str(tmp_path / "a.png")],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "host.cli",
+            "render",
+            str(EXAMPLE),
+            "--mesh",
+            mesh,
+            "--spp",
+            "64",
+            "-o",
+            str(tmp_path / "a.png"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     try:
         before = read_until(proc.stderr.fileno(), progress, time.monotonic() + DEADLINE)
         nodes = children(proc.pid)

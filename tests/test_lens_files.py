@@ -53,15 +53,22 @@ def paraxial_efl(path: Path) -> float:
 
 def _uniform_scene(width=36, height=24) -> SceneData:
     """Nothing but a white background: every pixel that light reaches should be 1."""
-    return SceneData(view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0, 0.0, width, height),
-                     background=(1.0, 1.0, 1.0))  # fmt: skip
+    return SceneData(
+        view=View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0, 0.0, width, height),
+        background=(1.0, 1.0, 1.0),
+    )
 
 
 def _thin_lens(efl: float, n: float) -> Camera:
     """An ideal lens of focal length `efl` stopped to f/n by a diaphragm listed first."""
-    return Camera(stack({"kind": dtypes.DIAPHRAGM, "ax": efl / (2 * n), "ay": efl / (2 * n)},
-                        {"kind": dtypes.THIN_LENS, "focal": efl, "ax": efl, "ay": efl,
-                         "n_after": 1.0}), 0.036, 0.024)  # fmt: skip
+    return Camera(
+        stack(
+            {"kind": dtypes.DIAPHRAGM, "ax": efl / (2 * n), "ay": efl / (2 * n)},
+            {"kind": dtypes.THIN_LENS, "focal": efl, "ax": efl, "ay": efl, "n_after": 1.0},
+        ),
+        0.036,
+        0.024,
+    )
 
 
 def _render(scene, setup, width=36, height=24, seed=0):
@@ -102,20 +109,25 @@ def test_table_rows_comments_missing_last_thickness_and_air(tmp_path):
     fixed.write_text("50 5 1.5 30\n0 1 0 20\n-50 40 1 30\n")  # a stop row in air (index 0)
     cam = read_camera(fixed, film_size=(0.024, 0.016))
     assert cam.film_z == pytest.approx(-0.046) and (cam.film_width, cam.film_height) == (
-        0.024, 0.016)  # fmt: skip
+        0.024,
+        0.016,
+    )
 
 
-@pytest.mark.parametrize("rows,line,words", [
-    ("50 5 1.5 30\nfifty 0 1 30\n", 2, "'fifty' is not a number"),
-    ("50 5 1.5 30 7\n-50 0 1 30\n", 1, "expected 4 numbers"),
-    ("50 1.5 30\n-50 0 1 30\n", 1, "only the last row may leave out its thickness"),
-    ("50 5 1.5 -30\n-50 0 1 30\n", 1, "aperture diameter must be positive"),
-    ("50 5 0.5 30\n-50 0 1 30\n", 1, "neither air"),
-    ("50 5 1.5 30\n-50 nan 1 30\n", 2, "finite"),
-    ("50 5 1.5 30\n-50 -1 1 30\n", 2, "thickness must be >= 0"),
-    ("10 5 1.5 30\n-50 0 1 30\n", 1, "smaller than half the aperture"),
-    ("50 5 1.5 30\n-50 0 1.5 30\n", 2, "must leave the light in air"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "rows,line,words",
+    [
+        ("50 5 1.5 30\nfifty 0 1 30\n", 2, "'fifty' is not a number"),
+        ("50 5 1.5 30 7\n-50 0 1 30\n", 1, "expected 4 numbers"),
+        ("50 1.5 30\n-50 0 1 30\n", 1, "only the last row may leave out its thickness"),
+        ("50 5 1.5 -30\n-50 0 1 30\n", 1, "aperture diameter must be positive"),
+        ("50 5 0.5 30\n-50 0 1 30\n", 1, "neither air"),
+        ("50 5 1.5 30\n-50 nan 1 30\n", 2, "finite"),
+        ("50 5 1.5 30\n-50 -1 1 30\n", 2, "thickness must be >= 0"),
+        ("10 5 1.5 30\n-50 0 1 30\n", 1, "smaller than half the aperture"),
+        ("50 5 1.5 30\n-50 0 1.5 30\n", 2, "must leave the light in air"),
+    ],
+)
 def test_bad_table_rows_name_the_file_and_line(tmp_path, rows, line, words, capsys):
     path = tmp_path / "bad.dat"
     path.write_text("# header\n" + rows)
@@ -131,7 +143,8 @@ def test_bad_table_rows_name_the_file_and_line(tmp_path, rows, line, words, caps
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_most_camera_rays_leave_through_the_exit_pupil_and_the_centre_is_as_bright_as_a_thin_lens(
-        name):  # fmt: skip
+    name,
+):
     cam = read_camera(shared_lens(name))
     d = describe(cam)
     setup = CameraSetup(cam, CameraSampling(rays=16))
@@ -150,8 +163,12 @@ def test_most_camera_rays_leave_through_the_exit_pupil_and_the_centre_is_as_brig
     _, alive_rear = camera_rays(replace(spec, pupil=()), scene.view, 36, 24, pixels)
     assert alive.mean() > 1.5 * alive_rear.mean()
     # As bright at the centre as an ideal lens of the same f-number (colour adaptation all).
-    thin, _ = _render(scene, CameraSetup(_thin_lens(d["effective_focal_length_m"],
-                                                    d["f_number"]), CameraSampling(rays=16)))
+    thin, _ = _render(
+        scene,
+        CameraSetup(
+            _thin_lens(d["effective_focal_length_m"], d["f_number"]), CameraSampling(rays=16)
+        ),
+    )
     centre = (slice(11, 13), slice(17, 19))
     np.testing.assert_allclose(thin[centre], 1.0, atol=1e-12)
     assert img[centre].mean() == pytest.approx(thin[centre].mean(), rel=0.05)
@@ -184,15 +201,24 @@ def test_drawing_rays_in_the_pupil_changes_no_pixel_beyond_noise():
 
 
 def _ellipsoid(a, b, c, n_after=1.0, rim=0.01, z=0.0):
-    return {"kind": dtypes.ELLIPSOID, "z": z, "cap_x": a, "cap_y": b, "radius": c,
-            "n_after": n_after, "ax": rim, "ay": rim}  # fmt: skip
+    return {
+        "kind": dtypes.ELLIPSOID,
+        "z": z,
+        "cap_x": a,
+        "cap_y": b,
+        "radius": c,
+        "n_after": n_after,
+        "ax": rim,
+        "ay": rim,
+    }
 
 
 def test_an_ellipsoid_with_equal_semi_axes_is_the_spherical_cap():
     r, n = 0.05, 1.6
     glass = {"kind": dtypes.PLANE, "z": -0.2, "n_after": n, "ax": 0.05, "ay": 0.05}
-    cap = stack(glass, {"kind": dtypes.CAP, "z": 0.0, "radius": -r, "n_after": 1.0,
-                        "ax": 0.02, "ay": 0.02})  # fmt: skip
+    cap = stack(
+        glass, {"kind": dtypes.CAP, "z": 0.0, "radius": -r, "n_after": 1.0, "ax": 0.02, "ay": 0.02}
+    )
     ell = stack(glass, _ellipsoid(r, r, -r, rim=0.02))
     rng = np.random.default_rng(1)
     o = np.column_stack([rng.uniform(-0.015, 0.015, (200, 2)), np.full(200, 0.1)])
@@ -226,8 +252,16 @@ def test_a_prolate_ellipsoid_of_eccentricity_one_over_n_focuses_without_aberrati
 
     oval = spot(_ellipsoid(small, small, -big, rim=rim))
     assert np.abs(oval).max() < 1e-12 * big / 1e-3
-    sphere = spot({"kind": dtypes.CAP, "z": 0.0, "radius": -small * small / big,
-                   "n_after": 1.0, "ax": rim, "ay": rim})  # fmt: skip
+    sphere = spot(
+        {
+            "kind": dtypes.CAP,
+            "z": 0.0,
+            "radius": -small * small / big,
+            "n_after": 1.0,
+            "ax": rim,
+            "ay": rim,
+        }
+    )
     assert np.abs(sphere).max() > 1e-4  # the marginal rays of a sphere cross short of it
     # Paraxially the two agree: the vertex curvature sets the power.
     assert abs(sphere[0]) < 1e-9
@@ -238,9 +272,11 @@ def test_ellipsoids_in_camera_files_and_host_camera(tmp_path, capsys):
     radius, whatever the thickness."""
     a, c, n = 0.02, 0.03, 1.5
     path = tmp_path / "ell.toml"
-    path.write_text(f'[[element]]\ntype = "plane"\nz = 0.0\nn_after = {n}\ndiameter = 0.02\n'
-                    f'[[element]]\ntype = "ellipsoid"\nz = 0.004\nsemi_axes = [{a}, {a}, {-c}]\n'
-                    'diameter = 0.02\n')  # fmt: skip
+    path.write_text(
+        f'[[element]]\ntype = "plane"\nz = 0.0\nn_after = {n}\ndiameter = 0.02\n'
+        f'[[element]]\ntype = "ellipsoid"\nz = 0.004\nsemi_axes = [{a}, {a}, {-c}]\n'
+        "diameter = 0.02\n"
+    )
     d = describe(read_toml(path))
     assert d["effective_focal_length_m"] == pytest.approx(a * a / c / (n - 1), rel=1e-6)
     assert main(["camera", str(path)]) == 0
@@ -248,8 +284,9 @@ def test_ellipsoids_in_camera_files_and_host_camera(tmp_path, capsys):
     path.write_text('[[element]]\ntype = "ellipsoid"\nsemi_axes = [0.01, 0.01]\ndiameter = 0.01\n')
     with pytest.raises(CameraError, match="element 1: an ellipsoid needs semi_axes"):
         read_toml(path)
-    path.write_text('[[element]]\ntype = "ellipsoid"\nsemi_axes = [0.004, 0.01, 0.01]\n'
-                    "diameter = 0.01\n")  # fmt: skip
+    path.write_text(
+        '[[element]]\ntype = "ellipsoid"\nsemi_axes = [0.004, 0.01, 0.01]\ndiameter = 0.01\n'
+    )
     with pytest.raises(CameraError, match="rim reaches beyond"):
         read_toml(path)
 
@@ -262,8 +299,12 @@ def test_the_pinhole_set_up_as_a_camera_makes_the_scenes_own_rays():
     from tests.conftest import make_scene
 
     view = View((0, 0, -10), (0, 0, 0), (0, 1, 0), 45.0, hither=2.0)
-    scene = make_scene(spheres=[((0.2, 0.1, 0.0), 1.5, 0)], lights=[(2, 3, -4)], view=view,
-                       background=(0.2, 0.3, 0.4))  # fmt: skip
+    scene = make_scene(
+        spheres=[((0.2, 0.1, 0.0), 1.5, 0)],
+        lights=[(2, 3, -4)],
+        view=view,
+        background=(0.2, 0.3, 0.4),
+    )
     image = ImageSpec(width=24, height=16)
     plain, _ = render(scene, image, EngineSpec(threads=1))
     camera, _ = render(scene, image, EngineSpec(threads=1), PinholeSetup.of("uniform", 1))
@@ -273,8 +314,19 @@ def test_the_pinhole_set_up_as_a_camera_makes_the_scenes_own_rays():
 def test_adaptive_pinhole_from_the_command_line(tmp_path, capsys):
     scene = ROOT / "bench" / "scenes" / "dof.nff"
     stats = tmp_path / "s.json"
-    args = ["render", str(scene), "--width", "40", "--height", "30", "--mesh", "1x1",
-            "--quiet", "-o", str(tmp_path / "a.png")]  # fmt: skip
+    args = [
+        "render",
+        str(scene),
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--mesh",
+        "1x1",
+        "--quiet",
+        "-o",
+        str(tmp_path / "a.png"),
+    ]
     assert main([*args, "--sampling", "adaptive", "--spp", "16", "--stats", str(stats)]) == 0
     s = json.loads(stats.read_text())
     per_pixel = s["rays"]["eye_rays"] / (40 * 30)
@@ -285,8 +337,20 @@ def test_adaptive_pinhole_from_the_command_line(tmp_path, capsys):
     assert "--generation" in capsys.readouterr().err
     assert main([*args, "--threshold", "0.1"]) == 2
     assert "--threshold" in capsys.readouterr().err
-    assert main([*args, "--camera", str(ROOT / "host/cameras/thin_f2.8.toml"), "--generation",
-                 "4", "--lens-rays", "9"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                *args,
+                "--camera",
+                str(ROOT / "host/cameras/thin_f2.8.toml"),
+                "--generation",
+                "4",
+                "--lens-rays",
+                "9",
+            ]
+        )
+        == 0
+    )
     assert "warning: --lens-rays 9 changes nothing" in capsys.readouterr().err
 
 
@@ -309,12 +373,34 @@ def test_adaptive_pinhole_is_closer_to_the_many_ray_image_than_one_ray():
 def test_lens_table_renders_from_the_command_line_with_film_size_and_f_number(tmp_path):
     lens = shared_lens("dgauss.50mm.dat")
     scene = tmp_path / "s.nff"
-    scene.write_text("v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 12 8\n"
-                     "b 1 1 1\n")  # fmt: skip
+    scene.write_text(
+        "v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 12 8\nb 1 1 1\n"
+    )
     stats = tmp_path / "s.json"
-    assert main(["render", str(scene), "--camera", str(lens), "--film-size", "24x16",
-                 "--f-number", "4", "--lens-rays", "8", "--mesh", "1x1", "--quiet", "-o",
-                 str(tmp_path / "o.png"), "--stats", str(stats)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "render",
+                str(scene),
+                "--camera",
+                str(lens),
+                "--film-size",
+                "24x16",
+                "--f-number",
+                "4",
+                "--lens-rays",
+                "8",
+                "--mesh",
+                "1x1",
+                "--quiet",
+                "-o",
+                str(tmp_path / "o.png"),
+                "--stats",
+                str(stats),
+            ]
+        )
+        == 0
+    )
     cam = json.loads(stats.read_text())["camera"]
     assert cam["f_number"] == pytest.approx(4.0, rel=1e-3)
     assert cam["rays_leaving_lens"] > 0.5

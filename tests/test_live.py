@@ -32,19 +32,33 @@ WAIT = 30.0  # seconds any one wait may take before the test fails
 
 def progress(node: int, rays: int, state: int = 1, links=()) -> dict:
     """A PROGRESS message's fields as protocols.messages.parse hands them over."""
-    return {"node": node, "rays": rays, "work": 1, "ready": True, "state": state,
-            "busy_ms": 750, "elapsed_ms": 1000, "traced": 10 * rays, "objects": 7,
-            "links": np.array(list(links), LINK_TRAFFIC)}  # fmt: skip
+    return {
+        "node": node,
+        "rays": rays,
+        "work": 1,
+        "ready": True,
+        "state": state,
+        "busy_ms": 750,
+        "elapsed_ms": 1000,
+        "traced": 10 * rays,
+        "objects": 7,
+        "links": np.array(list(links), LINK_TRAFFIC),
+    }
 
 
 def frame_of(fb: Framebuffer) -> np.ndarray:
     return to_srgb8(fb.image())
 
 
-@pytest.mark.parametrize("text,want", [("8000", ("127.0.0.1", 8000)),
-                                       ("0", ("127.0.0.1", 0)),
-                                       ("0.0.0.0:80", ("0.0.0.0", 80)),
-                                       ("[::1]:9", ("::1", 9))])  # fmt: skip
+@pytest.mark.parametrize(
+    "text,want",
+    [
+        ("8000", ("127.0.0.1", 8000)),
+        ("0", ("127.0.0.1", 0)),
+        ("0.0.0.0:80", ("0.0.0.0", 80)),
+        ("[::1]:9", ("::1", 9)),
+    ],
+)
 def test_serve_addresses_default_to_loopback(text, want):
     assert parse_address(text) == want
 
@@ -121,7 +135,8 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 monitor.node(1, progress(1, 12, links=[(0, 40, 4000)]))
                 half = frame_of(fb)
                 status, frames = await receive_until(
-                    ws, lambda s, f: s["progress"]["done"] == 12 and s["frame"] in f)
+                    ws, lambda s, f: s["progress"]["done"] == 12 and s["frame"] in f
+                )
                 np.testing.assert_array_equal(frames[status["frame"]], half)
                 assert status["progress"]["total"] == 24
                 assert status["progress"]["fraction"] == 0.5
@@ -135,11 +150,14 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 assert status["nodes"][0]["tiles"] == 0
 
                 fb.add(np.arange(12, 24), np.full((12, 3), 2.0))
-                stats = {"nodes": [node_stats(0, 5, 0.25), node_stats(1, 9, 0.5)],
-                         "odd": float("inf")}  # fmt: skip
+                stats = {
+                    "nodes": [node_stats(0, 5, 0.25), node_stats(1, 9, 0.5)],
+                    "odd": float("inf"),
+                }
                 monitor.finish(fb.image(), stats)
                 status, frames = await receive_until(
-                    ws, lambda s, f: s["final"] and s["frame"] in f)
+                    ws, lambda s, f: s["final"] and s["frame"] in f
+                )
                 np.testing.assert_array_equal(frames[status["frame"]], frame_of(fb))
                 assert status["phase"] == "done" and status["progress"]["fraction"] == 1.0
                 assert status["stats"]["odd"] is None  # strict JSON: no Infinity
@@ -155,9 +173,13 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
 
 def node_stats(n: int, shadow: int, busy: float) -> dict:
     """A node's STATS body as far as the live view reads it."""
-    return {"objects": 3 + n, "rays": {"eye_rays": 6, "shadow_rays": shadow, "eye_hits": 99},
-            "busy_seconds": busy, "idle_seconds": 1.0 - busy,
-            "links": {str(1 - n): {"rays_sent": 2, "bytes_out": 99}}}  # fmt: skip
+    return {
+        "objects": 3 + n,
+        "rays": {"eye_rays": 6, "shadow_rays": shadow, "eye_hits": 99},
+        "busy_seconds": busy,
+        "idle_seconds": 1.0 - busy,
+        "links": {str(1 - n): {"rays_sent": 2, "bytes_out": 99}},
+    }
 
 
 def test_progress_outside_the_mesh_is_not_trusted():
@@ -171,8 +193,9 @@ def test_progress_outside_the_mesh_is_not_trusted():
     assert [link["peer"] for link in status["nodes"][0]["links"]] == [1]
 
 
-@pytest.mark.parametrize("headers", [{"Origin": "http://evil.example"},
-                                     {"Host": "rebound.example"}])  # fmt: skip
+@pytest.mark.parametrize(
+    "headers", [{"Origin": "http://evil.example"}, {"Host": "rebound.example"}]
+)
 async def test_other_sites_are_refused(headers):
     with LiveServer(Monitor()) as live:
         async with aiohttp.ClientSession() as http:
@@ -187,11 +210,31 @@ def test_serve_stays_until_ctrl_c(tmp_path):
     the final image and the statistics it wrote served."""
     out, stats = tmp_path / "a.png", tmp_path / "s.json"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "host.cli", "render", str(EXAMPLE), "-o", str(out), "--stats",
-         str(stats), "--width", "24", "--height", "16", "--mesh", "1x1", "--quiet",
-         "--serve", "0"],
-        stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-        env=os.environ | {"PYTHONPATH": str(ROOT)})  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "host.cli",
+            "render",
+            str(EXAMPLE),
+            "-o",
+            str(out),
+            "--stats",
+            str(stats),
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--mesh",
+            "1x1",
+            "--quiet",
+            "--serve",
+            "0",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},
+    )
     try:
         lines = stderr_lines(proc)
         url = wait_for_line(lines, "live view at ").split("live view at ")[1].strip()
@@ -268,8 +311,15 @@ def test_nodes_report_state_busy_objects_and_link_traffic():
 
     watch = Recording()
     with LocalMesh(2) as addresses:
-        img, stats = asyncio.run(render_on_mesh(read_nff(EXAMPLE), ImageSpec(width=24, height=16),
-                                                addresses, MeshPlan(1, 2), watch=watch))
+        img, stats = asyncio.run(
+            render_on_mesh(
+                read_nff(EXAMPLE),
+                ImageSpec(width=24, height=16),
+                addresses,
+                MeshPlan(1, 2),
+                watch=watch,
+            )
+        )
     watch.finish(img, stats)
     for n, s in enumerate(stats["nodes"]):
         seen = watch.seen[n]
@@ -289,18 +339,36 @@ def test_nodes_report_state_busy_objects_and_link_traffic():
 def test_serve_exit_returns_when_the_render_is_done(tmp_path, capsys):
     from host.cli import main
 
-    code = main(["render", str(EXAMPLE), "-o", str(tmp_path / "a.png"), "--width", "8",
-                 "--height", "8", "--mesh", "1x1", "--quiet", "--serve", "0",
-                 "--serve-exit"])  # fmt: skip
+    code = main(
+        [
+            "render",
+            str(EXAMPLE),
+            "-o",
+            str(tmp_path / "a.png"),
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--mesh",
+            "1x1",
+            "--quiet",
+            "--serve",
+            "0",
+            "--serve-exit",
+        ]
+    )
     assert code == 0 and (tmp_path / "a.png").exists()
     assert "live view at http://127.0.0.1:" in capsys.readouterr().err
     assert not [t for t in threading.enumerate() if t.name == "live-view"]
 
 
-@pytest.mark.parametrize("options,message", [
-    (["--serve-exit"], "--serve-exit needs --serve"),
-    (["--serve", "nowhere:port"], "expected [HOST:]PORT"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "options,message",
+    [
+        (["--serve-exit"], "--serve-exit needs --serve"),
+        (["--serve", "nowhere:port"], "expected [HOST:]PORT"),
+    ],
+)
 def test_serve_options_are_checked_before_any_work(tmp_path, capsys, options, message):
     from host.cli import main
 

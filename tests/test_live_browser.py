@@ -20,9 +20,17 @@ from tests.test_live import WAIT, stderr_lines, wait_for_line
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "host" / "examples" / "showcase.nff"
 RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--window-size=1200,820"]  # fmt: skip
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--window-size=1200,820",
+]
 # The canvas's pixels as [width, height, RGBA bytes...], read with getImageData.
 CANVAS = """const c = document.getElementById("canvas");
 return [c.width, c.height, ...c.getContext("2d").getImageData(0, 0, c.width, c.height).data];"""
@@ -38,8 +46,10 @@ def chromium(profile: Path):
     except ImportError:
         webdriver = None
     if not (browser and driver and webdriver):
-        why = (f"no headless browser (chromium: {browser}, chromedriver: {driver}, selenium: "
-               f"{'yes' if webdriver else 'no'}); apt-get install chromium chromium-driver")
+        why = (
+            f"no headless browser (chromium: {browser}, chromedriver: {driver}, selenium: "
+            f"{'yes' if webdriver else 'no'}); apt-get install chromium chromium-driver"
+        )
         if os.environ.get("MESHTRACE_REQUIRE_BROWSER") == "1":
             pytest.fail(why)
         pytest.skip(why)
@@ -54,10 +64,26 @@ def chromium(profile: Path):
 def serve(tmp_path: Path, *options: str) -> tuple[subprocess.Popen, str]:
     """`host render --serve 0` of the showcase in a process of its own, and the page's URL."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "host.cli", "render", str(EXAMPLE), "-o", str(tmp_path / "a.png"),
-         "--stats", str(tmp_path / "s.json"), "--quiet", "--serve", "0", *options],
-        stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-        env=os.environ | {"PYTHONPATH": str(ROOT)})  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "host.cli",
+            "render",
+            str(EXAMPLE),
+            "-o",
+            str(tmp_path / "a.png"),
+            "--stats",
+            str(tmp_path / "s.json"),
+            "--quiet",
+            "--serve",
+            "0",
+            *options,
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},
+    )
     proc.lines = stderr_lines(proc)
     line = wait_for_line(proc.lines, "live view at ")
     return proc, line.split("live view at ")[1].strip()
@@ -66,8 +92,7 @@ def serve(tmp_path: Path, *options: str) -> tuple[subprocess.Popen, str]:
 def wait_for(browser, script: str, timeout: float) -> None:
     from selenium.webdriver.support.ui import WebDriverWait
 
-    WebDriverWait(browser, timeout, poll_frequency=0.1).until(
-        lambda b: b.execute_script(script))
+    WebDriverWait(browser, timeout, poll_frequency=0.1).until(lambda b: b.execute_script(script))
 
 
 def children(pid: int) -> list[int]:
@@ -88,8 +113,19 @@ def test_the_page_shows_the_image_and_the_nodes(tmp_path, mesh):
     browser = chromium(tmp_path / "profile")
     proc = None
     try:
-        proc, url = serve(tmp_path, "--mesh", mesh, "--width", "40", "--height", "30",
-                          "--spp", "2", "--mode", "object")  # rays cross the links  # fmt: skip
+        proc, url = serve(
+            tmp_path,
+            "--mesh",
+            mesh,
+            "--width",
+            "40",
+            "--height",
+            "30",
+            "--spp",
+            "2",
+            "--mode",
+            "object",
+        )  # rays cross the links
         browser.get(url)
         wait_for(browser, DONE, WAIT * 6)  # a cold mesh loads its kernels first
         assert browser.execute_script("return document.body.dataset.phase") == "done"
@@ -102,8 +138,9 @@ def test_the_page_shows_the_image_and_the_nodes(tmp_path, mesh):
         np.testing.assert_array_equal(page[..., :3], png)  # exactly the PNG written
 
         stats = json.loads((tmp_path / "s.json").read_text())
-        nodes = stats.get("nodes") or [{"rays": stats["rays"], "links": {},
-                                        "objects": stats["engine"]["objects"]}]  # fmt: skip
+        nodes = stats.get("nodes") or [
+            {"rays": stats["rays"], "links": {}, "objects": stats["engine"]["objects"]}
+        ]
         assert len(nodes) == (4 if mesh == "2x2" else 1)
         for n, s in enumerate(nodes):
             panel = f'.node[data-node="{n}"]'
@@ -112,10 +149,15 @@ def test_the_page_shows_the_image_and_the_nodes(tmp_path, mesh):
                         p.querySelector(".objects").dataset.value,
                         [...p.querySelectorAll(".links li")].map(
                             (li) => [li.dataset.peer, li.dataset.rays, li.dataset.bytes])];""")
-            links = [[p, str(v["rays_sent"]), str(v["bytes_out"])]
-                     for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))]
-            assert shown == [str(sum(s["rays"].get(k, 0) for k in RAY_KINDS)),
-                             str(s["objects"]), links]  # fmt: skip
+            links = [
+                [p, str(v["rays_sent"]), str(v["bytes_out"])]
+                for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))
+            ]
+            assert shown == [
+                str(sum(s["rays"].get(k, 0) for k in RAY_KINDS)),
+                str(s["objects"]),
+                links,
+            ]
         if mesh == "2x2":
             assert sum(s["rays_sent"] for s in nodes) > 0  # rays crossed links: shown above
         assert not children(proc.pid)  # the local mesh is gone; only the page is left

@@ -31,14 +31,21 @@ from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
 from tests.test_grid import lit_glass_scene
 
-SPD_COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-              "shadow_rays_blocked")  # fmt: skip
+SPD_COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 SIZE = 36
 
 
 def single(scene, structure="auto"):
-    img, stats = render(scene, ImageSpec(width=SIZE, height=SIZE),
-                        EngineSpec(threads=1, structure=structure))  # fmt: skip
+    img, stats = render(
+        scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, structure=structure)
+    )
     return img, {k: stats["rays"][k] for k in SPD_COUNTS}
 
 
@@ -50,10 +57,12 @@ def check_mesh(scene, shapes, overlaps, reference=None):
             assert {k: totals[k] for k in SPD_COUNTS} == ref_counts, (rows, cols, overlap)
             np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-5)
             # Conservation: every ray created ends exactly once, every pass is received once.
-            created = sum(totals[k] for k in ("eye_rays", "reflected_rays", "refracted_rays",
-                                              "shadow_rays"))  # fmt: skip
-            ended = sum(totals[k] for k in ("hits", "escaped", "shadow_rays_blocked",
-                                            "shadow_rays_lit"))  # fmt: skip
+            created = sum(
+                totals[k] for k in ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
+            )
+            ended = sum(
+                totals[k] for k in ("hits", "escaped", "shadow_rays_blocked", "shadow_rays_lit")
+            )
             assert created == ended
             assert sum(p.rays_sent for p in per_node) == sum(p.rays_received for p in per_node)
             assert totals["rays_forwarded"] == sum(p.rays_sent for p in per_node)
@@ -63,9 +72,19 @@ SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
 
 
 @pytest.mark.parametrize(
-    "name", ["balls_s1.nff", "balls_s2.nff", "tetra_s3.nff", "mount_s1.nff", "gears_s1.nff",
-             "rings_s1.nff", "teapot_s1.nff", "tree_s1.nff", "jacks.nff"],
-)  # fmt: skip
+    "name",
+    [
+        "balls_s1.nff",
+        "balls_s2.nff",
+        "tetra_s3.nff",
+        "mount_s1.nff",
+        "gears_s1.nff",
+        "rings_s1.nff",
+        "teapot_s1.nff",
+        "tree_s1.nff",
+        "jacks.nff",
+    ],
+)
 def test_spd_scene_on_every_mesh_equals_single_node(name):
     check_mesh(read_nff(spd_scene(name)), SHAPES, (1, 24, 100))
 
@@ -106,8 +125,9 @@ def test_an_eye_ray_goes_to_the_cell_where_it_enters_the_scene(overlap):
     # it. Were it handed to any box holding it (the one it crosses farthest), a large overlap
     # would draw every ray to one node (at 100% on 2x2 each box spans the scene).
     scene = read_nff(spd_scene("teapot_s1.nff"))
-    spec = RenderSpec(ImageSpec(width=40, height=30).sized(scene.view),
-                      plan=MeshPlan(2, 2, overlap))  # fmt: skip
+    spec = RenderSpec(
+        ImageSpec(width=40, height=30).sized(scene.view), plan=MeshPlan(2, 2, overlap)
+    )
     part, keep = partition(scene, spec)
     core = NodeCore(0, subset(scene, keep[0]), spec, part)
     rays = eye_rays(scene.view, spec.image)
@@ -129,8 +149,9 @@ def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(
     through empty voxels only (it hits nothing: brute force) goes to the same cell, but to
     start past the box, where that node's kernel ends it at once."""
     scene = read_nff(spd_scene(name))
-    spec = RenderSpec(ImageSpec(width=64, height=48, spp=2).sized(scene.view),
-                      plan=MeshPlan(3, 3, 100))  # fmt: skip
+    spec = RenderSpec(
+        ImageSpec(width=64, height=48, spp=2).sized(scene.view), plan=MeshPlan(3, 3, 100)
+    )
     part, keep = partition(scene, spec)
     core = NodeCore(4, subset(scene, keep[4]), spec, part)
     rays = eye_rays(scene.view, spec.image)
@@ -173,8 +194,9 @@ def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
     from host.planning.balance import balanced_cuts
 
     scene = read_nff(spd_scene(name))
-    spec = RenderSpec(ImageSpec(width=128, height=128).sized(scene.view),
-                      plan=MeshPlan(2, 2, 2.0, tile=8))  # fmt: skip
+    spec = RenderSpec(
+        ImageSpec(width=128, height=128).sized(scene.view), plan=MeshPlan(2, 2, 2.0, tile=8)
+    )
     for cuts in (None, balanced_cuts(scene, spec)):
         part, _ = partition(scene, spec, *((cuts.xs, cuts.ys, cuts.cells) if cuts else ()))
         made_away = entered = 0
@@ -298,10 +320,10 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     from host.planning.partition import splits
 
     rng = np.random.default_rng(3)
-    centres = np.column_stack([rng.uniform(-4, -1.5, 200), rng.uniform(-3, 3, 200),
-                               rng.uniform(-1, 1, 200)])  # fmt: skip
-    scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres],
-                       lights=[(0.0, 5.0, -10.0)])  # fmt: skip
+    centres = np.column_stack(
+        [rng.uniform(-4, -1.5, 200), rng.uniform(-3, 3, 200), rng.uniform(-1, 1, 200)]
+    )
+    scene = make_scene(spheres=[(tuple(c), 0.25, 0) for c in centres], lights=[(0.0, 5.0, -10.0)])
     spec = RenderSpec(ImageSpec(width=96, height=96), plan=MeshPlan(2, 3, 1.0))
     xs, ys, report, cells, *_ = balanced_cuts(scene, spec, families=("shared rows",))
     assert report["family"] == "shared rows" and cells is None
@@ -322,8 +344,9 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     from host.planning.balance import balanced_cuts, node_costs
 
     scene = read_nff(spd_scene("teapot_s1.nff"))
-    spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE).sized(scene.view),
-                      plan=MeshPlan(2, 2, 1.0))  # fmt: skip
+    spec = RenderSpec(
+        ImageSpec(width=SIZE, height=SIZE).sized(scene.view), plan=MeshPlan(2, 2, 1.0)
+    )
     xs, ys, report, cells, *_ = balanced_cuts(scene, spec)
     assert report["family"] == "work map" and xs is None and ys is None
     family = report["simulated_busiest_vs_even_by_family"]
@@ -348,13 +371,17 @@ def test_each_column_cut_where_its_work_lies():
     from host.planning.partition import splits
 
     rng = np.random.default_rng(5)
-    centres = np.concatenate([
-        np.column_stack([rng.uniform(-4, -2, 100), rng.uniform(1.5, 3.5, 100),
-                         rng.uniform(-1, 1, 100)]),
-        np.column_stack([rng.uniform(2, 4, 100), rng.uniform(-3.5, -1.5, 100),
-                         rng.uniform(-1, 1, 100)])])  # fmt: skip
-    scene = make_scene(spheres=[(tuple(c), 0.2, 0) for c in centres],
-                       lights=[(0.0, 5.0, -10.0)])  # fmt: skip
+    centres = np.concatenate(
+        [
+            np.column_stack(
+                [rng.uniform(-4, -2, 100), rng.uniform(1.5, 3.5, 100), rng.uniform(-1, 1, 100)]
+            ),
+            np.column_stack(
+                [rng.uniform(2, 4, 100), rng.uniform(-3.5, -1.5, 100), rng.uniform(-1, 1, 100)]
+            ),
+        ]
+    )
+    scene = make_scene(spheres=[(tuple(c), 0.2, 0) for c in centres], lights=[(0.0, 5.0, -10.0)])
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(3, 3, 1.0))
     xs, ys, report, *_ = balanced_cuts(scene, spec, families=("shared rows", "rows per column"))
     family = report["simulated_busiest_vs_even_by_family"]
@@ -373,8 +400,12 @@ colour = st.floats(0.0, 4.0, allow_nan=False, allow_infinity=False)
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.integers(1, 6), st.lists(st.tuples(st.integers(0, 40), colour, colour, colour),
-                                   max_size=120), st.integers(1, 3), st.booleans())  # fmt: skip
+@given(
+    st.integers(1, 6),
+    st.lists(st.tuples(st.integers(0, 40), colour, colour, colour), max_size=120),
+    st.integers(1, 3),
+    st.booleans(),
+)
 def test_deposits_summed_per_cell_give_the_same_frame_to_the_bit(spp, raw, batches, ordered):
     """A node sums a batch's deposits per pixel before they travel (`per_cell`); the host's
     frame from those sums equals, bit for bit, its frame from every deposit, over several
@@ -484,8 +515,13 @@ def test_eye_rays_skip_only_empty_space_before_their_first_hit(name):
     rays = eye_rays(scene.view, spec.image)
     before = rays["t_min"].copy()
     lo, hi = (np.asarray(b, float) for b in (part.scene_lo, part.scene_hi))
-    skip_empty(rays, lo, hi, *occupancy_arrays(lo, hi, part.occ_res, part.occ_bits),
-               np.zeros(N_COUNTERS, np.int64))  # fmt: skip
+    skip_empty(
+        rays,
+        lo,
+        hi,
+        *occupancy_arrays(lo, hi, part.occ_res, part.occ_bits),
+        np.zeros(N_COUNTERS, np.int64),
+    )
     t, _ = Engine(scene, brute=True).first_hits(rays["o"], rays["d"])
     hit = np.isfinite(t)
     assert (rays["t_min"] >= before).all()

@@ -3,7 +3,6 @@ with its own address; one cable rate-limited, one with a small MTU; a node cut o
 Needs root and iproute2 (CI machines like this one have them)."""
 
 import asyncio
-import time
 
 import numpy as np
 import pytest
@@ -31,8 +30,9 @@ def test_mesh_across_namespaces_equals_single_node():
     ref, ref_stats = render(scene, *rs)
     with netns.namespaced_mesh(4, _shape) as (_, mesh, addresses):
         assert all(a.startswith("10.213.") for a in addresses)
-        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine,
-                              secret=mesh.secret)  # fmt: skip
+        coro = render_on_mesh(
+            scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine, secret=mesh.secret
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
@@ -47,15 +47,20 @@ def test_a_node_cut_off_the_network_is_named_within_seconds():
 
         async def run():
             started = asyncio.Event()
-            coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), silence=3.0,
-                                  secret=mesh.secret, on_node_loss="fail",
-                                  progress=lambda n: started.set())  # fmt: skip
+            coro = render_on_mesh(
+                scene,
+                rs.image,
+                addresses,
+                MeshPlan(1, 2),
+                silence=3.0,
+                secret=mesh.secret,
+                on_node_loss="fail",
+                progress=lambda n: started.set(),
+            )
             task = asyncio.create_task(coro)
             await asyncio.wait_for(started.wait(), 60)  # tracing has begun
             net.cut(1)  # no RST, no FIN: only silence tells
-            return await asyncio.wait_for(task, 30)
+            return await asyncio.wait_for(task, 15)  # named within seconds, or TimeoutError
 
-        start = time.monotonic()
         with pytest.raises(MeshError, match=r"node 1 \(10\.213\.[0-9.]+:7700\): no message"):
             asyncio.run(run())
-        assert time.monotonic() - start < 15

@@ -403,6 +403,7 @@ SPD_COUNTS = {
     "jacks.nff": (6, 0, 0, 3, 1),
 }
 
+
 @pytest.mark.parametrize("name", sorted(SPD_COUNTS))
 def test_spd_scene_counts(name):
     s = read_nff(spd_scene(name))
@@ -465,24 +466,30 @@ def test_generated_100k_scene():
     np.testing.assert_array_equal(s.triangles["n"][:, 2], np.tile([0.0, 0, 1], (n, 1)))
 
 
-@pytest.mark.parametrize("view,what", [
-    ("from 1 2 3\nat 1 2 3\nup 0 1 0", "coincide"),
-    ("from 0 0 -5\nat 0 0 0\nup 0 0 1", "along the line of sight"),
-    ("from 0 0 -5\nat 0 0 0\nup 0 0 0", "zero or along"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "view,what",
+    [
+        ("from 1 2 3\nat 1 2 3\nup 0 1 0", "coincide"),
+        ("from 0 0 -5\nat 0 0 0\nup 0 0 1", "along the line of sight"),
+        ("from 0 0 -5\nat 0 0 0\nup 0 0 0", "zero or along"),
+    ],
+)
 def test_a_degenerate_view_is_refused_with_its_line(view, what):
     text = f"b 0 0 0\nv\n{view}\nangle 45\nhither 1\nresolution 8 8\n"
     with pytest.raises(SceneError, match=rf"scene.nff:2: view: .*{what}"):
         parse_nff(text, "scene.nff")
 
 
-@pytest.mark.parametrize("k,where,what", [
-    (1e-300, ":1:", "coincide (or are closer than 1e-100"),
-    (1e300, ":2:", "beyond +-1e+100")])  # fmt: skip
+@pytest.mark.parametrize(
+    "k,where,what",
+    [(1e-300, ":1:", "coincide (or are closer than 1e-100"), (1e300, ":2:", "beyond +-1e+100")],
+)
 def test_a_scene_scaled_past_float64_is_refused_naming_the_line(k, where, what):
     # Scaled by 1e-300 the eye and target cannot be told apart; by 1e300 squares overflow.
-    text = (f"v\nfrom {2 * k:g} {k:g} {k:g}\nat 0 0 0\nup 0 0 1\nangle 40\nhither 0\n"
-            f"f 1 0 0 1 0 1 0 0\ns 0 0 0 {k:g}\n")  # fmt: skip
+    text = (
+        f"v\nfrom {2 * k:g} {k:g} {k:g}\nat 0 0 0\nup 0 0 1\nangle 40\nhither 0\n"
+        f"f 1 0 0 1 0 1 0 0\ns 0 0 0 {k:g}\n"
+    )
     with pytest.raises(SceneError, match=where) as e:
         parse_nff(text, "scaled.nff")
     assert what in str(e.value)

@@ -20,18 +20,27 @@ def config(node=0, plan=None, **render_wire):
     plan = plan or MeshPlan()
     spec = RenderSpec(ImageSpec(width=4, height=4), plan=plan)
     n = plan.nodes
-    part = Partition.make([(0, 4, 0, 4)] * n, np.zeros((n, 3)), np.ones((n, 3)),
-                          (np.zeros(3), np.ones(3)))  # fmt: skip
+    part = Partition.make(
+        [(0, 4, 0, 4)] * n, np.zeros((n, 3)), np.ones((n, 3)), (np.zeros(3), np.ones(3))
+    )
     render = spec.to_wire()
     for record, changes in render_wire.items():
         render[record].update(changes)
-    return make(Kind.CONFIG, node=node, neighbours={str(m): "127.0.0.1:9" for m in range(n)},
-                render=render, partition=part.to_wire(), view=asdict(VIEW),
-                background=[0, 0, 0], render_id=b"r" * 16)  # fmt: skip
+    return make(
+        Kind.CONFIG,
+        node=node,
+        neighbours={str(m): "127.0.0.1:9" for m in range(n)},
+        render=render,
+        partition=part.to_wire(),
+        view=asdict(VIEW),
+        background=[0, 0, 0],
+        render_id=b"r" * 16,
+    )
 
 
-async def host_link(port: int, secret: bytes | None = None, role: str = "host",
-                    node: int = -1) -> Link:  # fmt: skip
+async def host_link(
+    port: int, secret: bytes | None = None, role: str = "host", node: int = -1
+) -> Link:
     link, _ = await dial(f"127.0.0.1:{port}", "node under test", "meshtrace", secret, role, node)
     return link
 
@@ -122,12 +131,15 @@ async def _heartbeat(link: Link) -> None:
     assert kind is Kind.PROGRESS and not f["ready"]
 
 
-@pytest.mark.parametrize("table,change,what", [
-    ("spheres", {"mat": -2**31}, "material index"),
-    ("spheres", {"radius": float("nan")}, "must be finite"),
-    ("polygons", {"count": 2**31 - 1}, "vertex ranges"),
-    ("lights", {"pos": float("nan")}, "must be finite"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "table,change,what",
+    [
+        ("spheres", {"mat": -(2**31)}, "material index"),
+        ("spheres", {"radius": float("nan")}, "must be finite"),
+        ("polygons", {"count": 2**31 - 1}, "vertex ranges"),
+        ("lights", {"pos": float("nan")}, "must be finite"),
+    ],
+)
 async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, change, what):
     # Found by bench/fuzz_node.py: a bad material index read outside an array in a kernel
     # (a segfault), a NaN kept a ray walking forever, a huge polygon count asked for 16 GiB.
@@ -145,9 +157,15 @@ async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, cha
         for name in OBJECT_TABLES:
             data = records if name == table else getattr(scene, name)
             data = data.reshape(-1) if name == "vertices" else data
-            await link.send(make(Kind.OBJECTS, node=0, table=name,
-                                 records=np.ascontiguousarray(data),
-                                 last=name == "lights"))  # fmt: skip
+            await link.send(
+                make(
+                    Kind.OBJECTS,
+                    node=0,
+                    table=name,
+                    records=np.ascontiguousarray(data),
+                    last=name == "lights",
+                )
+            )
         while True:  # heartbeats, then the error naming the table
             kind, f = await asyncio.wait_for(link.recv(), 10)
             if kind is Kind.ERROR:

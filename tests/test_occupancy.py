@@ -38,8 +38,9 @@ def test_an_empty_map_is_clear_everywhere():
     assert (distances(np.zeros((4, 4, 4), bool)) == 255).all()
 
 
-@pytest.mark.parametrize("name", ["balls_s1.nff", "mount_s1.nff", "teapot_s1.nff",
-                                  "gears_s1.nff", "tetra_s3.nff"])  # fmt: skip
+@pytest.mark.parametrize(
+    "name", ["balls_s1.nff", "mount_s1.nff", "teapot_s1.nff", "gears_s1.nff", "tetra_s3.nff"]
+)
 def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
     """Rays from random points of the scene's box in random directions: the first occupied
     voxel comes no later than the first hit (brute force), and a ray told nothing lies
@@ -69,16 +70,31 @@ def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
 
 
 def test_a_partition_checks_its_occupancy_map():
-    part = Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
-                          occupancy=((4, 4, 2), bytes(4)))  # fmt: skip
+    part = Partition.make(
+        [(0, 4, 0, 4)],
+        [(0, 0, 0)],
+        [(1, 1, 1)],
+        ((0, 0, 0), (1, 1, 1)),
+        occupancy=((4, 4, 2), bytes(4)),
+    )
     again = Partition.from_wire(part.to_wire())
     assert again.occ_res == (4, 4, 2) and again.occ_bits == bytes(4)
     with pytest.raises(SpecError, match=r"occ_bits is 3 bytes: must be 4 bytes.*4x4x2"):
-        Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
-                       occupancy=((4, 4, 2), bytes(3)))  # fmt: skip
+        Partition.make(
+            [(0, 4, 0, 4)],
+            [(0, 0, 0)],
+            [(1, 1, 1)],
+            ((0, 0, 0), (1, 1, 1)),
+            occupancy=((4, 4, 2), bytes(3)),
+        )
     with pytest.raises(SpecError, match="occ_res"):
-        Partition.make([(0, 4, 0, 4)], [(0, 0, 0)], [(1, 1, 1)], ((0, 0, 0), (1, 1, 1)),
-                       occupancy=((0, 4, 2), b""))  # fmt: skip
+        Partition.make(
+            [(0, 4, 0, 4)],
+            [(0, 0, 0)],
+            [(1, 1, 1)],
+            ((0, 0, 0), (1, 1, 1)),
+            occupancy=((0, 4, 2), b""),
+        )
 
 
 @pytest.mark.parametrize("name", ["balls_s1.nff", "teapot_s1.nff"])
@@ -87,8 +103,7 @@ def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch)
     runs = {}
     for skip in (True, False):
         if not skip:  # one occupied voxel: every segment goes on as it did before the map
-            monkeypatch.setattr(host.planning.partition, "occupancy_map",
-                                lambda *_: EVERYWHERE)  # fmt: skip
+            monkeypatch.setattr(host.planning.partition, "occupancy_map", lambda *_: EVERYWHERE)
         runs[skip] = render_mesh(scene, 2, 2, 2, 32, 32, spp=2)
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
@@ -106,11 +121,13 @@ def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
     from host.planning.balance import balanced_cuts, node_costs
 
     scene = read_nff(spd_scene(name))
-    spec = RenderSpec(ImageSpec(width=48, height=48).sized(scene.view),
-                      plan=MeshPlan(2, 2, 2.0, balance="cost"))  # fmt: skip
+    spec = RenderSpec(
+        ImageSpec(width=48, height=48).sized(scene.view), plan=MeshPlan(2, 2, 2.0, balance="cost")
+    )
     cuts = balanced_cuts(scene, spec)
-    busiest = {on: node_costs(scene, spec, cuts.xs, cuts.ys, cuts.cells, on).max()
-               for on in (True, False)}  # fmt: skip
+    busiest = {
+        on: node_costs(scene, spec, cuts.xs, cuts.ys, cuts.cells, on).max() for on in (True, False)
+    }
     assert cuts.occupancy == (busiest[True] <= busiest[False])
     assert cuts.report["occupancy_map"] == cuts.occupancy
     ratio = cuts.report["simulated_busiest_without_map_vs_with"]

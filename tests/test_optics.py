@@ -20,8 +20,9 @@ def stack(*rows):
 
 
 def thin(f, z=0.0, rim=0.0125):
-    return stack({"kind": dtypes.THIN_LENS, "z": z, "focal": f, "ax": rim, "ay": rim,
-                  "n_after": 1.0})  # fmt: skip
+    return stack(
+        {"kind": dtypes.THIN_LENS, "z": z, "focal": f, "ax": rim, "ay": rim, "n_after": 1.0}
+    )
 
 
 @pytest.mark.parametrize("f", [0.035, 0.05, 0.2])
@@ -77,8 +78,16 @@ def test_thick_biconvex_lens_matches_the_lensmaker():
 
 def test_hexagonal_diaphragm_passes_the_hexagons_share_of_a_disc():
     r = 0.01
-    hexagon = stack({"kind": dtypes.DIAPHRAGM, "z": 0.0, "ax": r, "ay": r,
-                     "shape": dtypes.POLYGON_RIM, "sides": 6})  # fmt: skip
+    hexagon = stack(
+        {
+            "kind": dtypes.DIAPHRAGM,
+            "z": 0.0,
+            "ax": r,
+            "ay": r,
+            "shape": dtypes.POLYGON_RIM,
+            "sides": 6,
+        }
+    )
     rng = np.random.default_rng(1)
     ang = rng.uniform(0, 2 * np.pi, 200_000)
     rad = r * np.sqrt(rng.uniform(0, 1, 200_000))

@@ -17,14 +17,19 @@ from meshnode.mesh.simulator import simulate
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
 
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 
 
 def planned(scene, image, memory=0, balance="cost"):
     plan = MeshPlan(2, 2, OVERLAPS[0], balance=balance, steal=True)
-    return plan_render(scene, image, EngineSpec(threads=1), plan, overlaps=OVERLAPS,
-                       memory=memory)  # fmt: skip
+    return plan_render(scene, image, EngineSpec(threads=1), plan, overlaps=OVERLAPS, memory=memory)
 
 
 @pytest.mark.parametrize("balance", ["cost", "even"])
@@ -63,8 +68,9 @@ def test_overlaps_whose_largest_node_would_not_fit_are_not_taken():
     image = ImageSpec(width=48, height=48)
     spec = RenderSpec(image.sized(scene.view), plan=MeshPlan(2, 2, OVERLAPS[0]))
     smallest = largest_engine(scene, spec, None, None)
-    widest = largest_engine(scene, RenderSpec(spec.image, plan=MeshPlan(2, 2, OVERLAPS[-1])),
-                            None, None)  # fmt: skip
+    widest = largest_engine(
+        scene, RenderSpec(spec.image, plan=MeshPlan(2, 2, OVERLAPS[-1])), None, None
+    )
     assert smallest < widest <= engine_bytes(scene)  # a wider overlap holds more
     memory = int(smallest / FITS) + 1  # room for the smallest overlap's nodes alone
     got = planned(scene, image, memory=memory, balance="even")

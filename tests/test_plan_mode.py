@@ -42,9 +42,16 @@ def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(node_
     ref, ref_stats = render(scene, *rs)
     notices: list[str] = []
     with LocalMesh(2) as addresses:
-        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), rs.engine,
-                              mode="auto", node_memory=node_memory,
-                              notice=notices.append)  # fmt: skip
+        coro = render_on_mesh(
+            scene,
+            rs.image,
+            addresses,
+            MeshPlan(1, 2),
+            rs.engine,
+            mode="auto",
+            node_memory=node_memory,
+            notice=notices.append,
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert stats["mode"]["choice"] == mode == stats["mesh"]["mode"]
     assert all(m > 64 << 20 for m in stats["mode"]["node_memory_bytes"])  # real reports
@@ -57,8 +64,25 @@ def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(node_
 def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
     scene = str(spd_scene("tetra_s1.nff"))
     out = str(tmp_path / "t.png")
-    assert main(["render", scene, "-o", out, "--mesh", "1x2", "--width", "16",
-                 "--height", "16", "--node-memory", "1K"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "render",
+                scene,
+                "-o",
+                out,
+                "--mesh",
+                "1x2",
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--node-memory",
+                "1K",
+            ]
+        )
+        == 0
+    )
     # The first line the host writes, among the progress bar's redraws:
     lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
     first = next(line for line in lines if line.startswith("host:"))

@@ -25,8 +25,11 @@ def ray_batch(n):
 
 def test_frames_survive_every_split_point():
     rays = ray_batch(5)
-    msgs = [make(Kind.RAYS, rays=rays, dest=2), make(Kind.SHUTDOWN),
-            make(Kind.ERROR, reason="x" * 300)]  # fmt: skip
+    msgs = [
+        make(Kind.RAYS, rays=rays, dest=2),
+        make(Kind.SHUTDOWN),
+        make(Kind.ERROR, reason="x" * 300),
+    ]
     stream = b"".join(encode(m) for m in msgs)
     for cut in range(len(stream) + 1):
         dec = FrameDecoder()
@@ -78,8 +81,9 @@ def test_message_fields_are_checked():
         parse({"k": int(Kind.ERROR)})
     with pytest.raises(BadFrame):
         parse({"k": int(Kind.STATS), "node": True, "stats": {}})
-    objs = make(Kind.OBJECTS, node=0, table="spheres", records=np.zeros(2, dtypes.SPHERE),
-                last=True)
+    objs = make(
+        Kind.OBJECTS, node=0, table="spheres", records=np.zeros(2, dtypes.SPHERE), last=True
+    )
     kind, fields = parse(FrameDecoder().feed(encode(objs))[0])
     assert kind is Kind.OBJECTS and len(fields["records"]) == 2
     bad = dict(objs, table="teapots")
@@ -92,9 +96,18 @@ def test_message_fields_are_checked():
 
 def progress(**change):
     """A PROGRESS as a node sends it, with `change`d fields, through the framer."""
-    fields = {"node": 1, "rays": 5, "work": 2, "ready": True, "state": 1, "busy_ms": 9,
-              "elapsed_ms": 10, "traced": 50, "objects": 3,
-              "links": np.array([(0, 4, 400), (2, 0, 0)], dtypes.LINK_TRAFFIC)} | change
+    fields = {
+        "node": 1,
+        "rays": 5,
+        "work": 2,
+        "ready": True,
+        "state": 1,
+        "busy_ms": 9,
+        "elapsed_ms": 10,
+        "traced": 50,
+        "objects": 3,
+        "links": np.array([(0, 4, 400), (2, 0, 0)], dtypes.LINK_TRAFFIC),
+    } | change
     return FrameDecoder().feed(encode(make(Kind.PROGRESS, **fields)))[0]
 
 

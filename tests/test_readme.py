@@ -23,7 +23,7 @@ def test_the_picture_on_top_is_made_by_the_command_shown():
 
 
 def test_the_two_commands_and_no_path_outside_the_repository():
-    assert "    pip install -e \".[test]\" && python -m pytest -q\n" in README
+    assert '    pip install -e ".[test]" && python -m pytest -q\n' in README
     assert "    pip install . && meshtrace render host/examples/showcase.nff" in README
     assert "../" not in README
     ci = (ROOT / ".ci" / "run").read_text()

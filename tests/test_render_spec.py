@@ -31,17 +31,36 @@ def over_the_wire(record):
     return type(record).from_wire(message["r"])
 
 
-images = st.builds(ImageSpec, width=st.integers(1, 4096), height=st.integers(1, 4096),
-                   spp=st.integers(1, 64), depth=st.integers(1, 64),
-                   seed=st.integers(0, 2**63 - 1))  # fmt: skip
-engines = st.builds(EngineSpec, storage=st.sampled_from(["auto", "csr", "hash"]),
-                    density=st.floats(0.01, 100), threads=st.integers(0, 64))  # fmt: skip
-plans = st.builds(MeshPlan, rows=st.integers(1, 8), cols=st.integers(1, 8),
-                  overlap=st.floats(0, 100), balance=st.sampled_from(["even", "cost"]))
-samplings = st.builds(CameraSampling, generation=st.integers(0, 7), rays=st.integers(1, 256),
-                      sampling=st.sampled_from(["uniform", "jittered", "random", "adaptive"]),
-                      threshold=st.floats(0, 1), film_area=st.sampled_from(["ellipse",
-                      "rectangle"]), special=st.booleans())  # fmt: skip
+images = st.builds(
+    ImageSpec,
+    width=st.integers(1, 4096),
+    height=st.integers(1, 4096),
+    spp=st.integers(1, 64),
+    depth=st.integers(1, 64),
+    seed=st.integers(0, 2**63 - 1),
+)
+engines = st.builds(
+    EngineSpec,
+    storage=st.sampled_from(["auto", "csr", "hash"]),
+    density=st.floats(0.01, 100),
+    threads=st.integers(0, 64),
+)
+plans = st.builds(
+    MeshPlan,
+    rows=st.integers(1, 8),
+    cols=st.integers(1, 8),
+    overlap=st.floats(0, 100),
+    balance=st.sampled_from(["even", "cost"]),
+)
+samplings = st.builds(
+    CameraSampling,
+    generation=st.integers(0, 7),
+    rays=st.integers(1, 256),
+    sampling=st.sampled_from(["uniform", "jittered", "random", "adaptive"]),
+    threshold=st.floats(0, 1),
+    film_area=st.sampled_from(["ellipse", "rectangle"]),
+    special=st.booleans(),
+)
 
 
 @settings(max_examples=60, deadline=None)
@@ -56,49 +75,113 @@ def test_every_record_round_trips_through_its_wire_form(image, engine, plan, sam
 
 
 def test_partition_round_trips_and_checks_its_shapes():
-    part = Partition.make([(0, 20, 0, 30), (20, 40, 0, 30)], np.zeros((2, 3)),
-                          np.ones((2, 3)), (np.full(3, -1.0), np.full(3, 2.0)))  # fmt: skip
+    part = Partition.make(
+        [(0, 20, 0, 30), (20, 40, 0, 30)],
+        np.zeros((2, 3)),
+        np.ones((2, 3)),
+        (np.full(3, -1.0), np.full(3, 2.0)),
+    )
     assert over_the_wire(part) == part
     assert part.boxes[0].shape == (2, 3) and part.nodes == 2
     with pytest.raises(SpecError, match=r"Partition\.his"):
         Partition.make([(0, 1, 0, 1)], np.ones((1, 3)), np.zeros((1, 3)), (np.zeros(3),) * 2)
     with pytest.raises(SpecError, match=r"Partition\.los"):
-        Partition(((0, 1, 0, 1),), (0,), ((0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
-                  ((0, 0, 0),), ((1, 1, 1),))
+        Partition(
+            ((0, 1, 0, 1),),
+            (0,),
+            ((0, 0),),
+            ((1, 1, 1),),
+            (0, 0, 0),
+            (1, 1, 1),
+            ((0, 0, 0),),
+            ((1, 1, 1),),
+        )
     with pytest.raises(SpecError, match=r"Partition\.rects"):
-        Partition(((5, 1, 0, 1),), (0,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
-                  ((0, 0, 0),), ((1, 1, 1),))
+        Partition(
+            ((5, 1, 0, 1),),
+            (0,),
+            ((0, 0, 0),),
+            ((1, 1, 1),),
+            (0, 0, 0),
+            (1, 1, 1),
+            ((0, 0, 0),),
+            ((1, 1, 1),),
+        )
     with pytest.raises(SpecError, match=r"Partition\.owner"):
-        Partition(((0, 1, 0, 1),), (3,), ((0, 0, 0),), ((1, 1, 1),), (0, 0, 0), (1, 1, 1),
-                  ((0, 0, 0),), ((1, 1, 1),))
+        Partition(
+            ((0, 1, 0, 1),),
+            (3,),
+            ((0, 0, 0),),
+            ((1, 1, 1),),
+            (0, 0, 0),
+            (1, 1, 1),
+            ((0, 0, 0),),
+            ((1, 1, 1),),
+        )
     with pytest.raises(SpecError, match=r"Partition\.cell_his"):  # a cell outside its box
-        Partition.make([(0, 1, 0, 1)], np.zeros((1, 3)), np.ones((1, 3)), (np.zeros(3),) * 2,
-                       cells=(np.zeros((1, 3)), np.full((1, 3), 2.0)))
-    grown = Partition.make([(0, 1, 0, 1)], np.zeros((1, 3)), np.ones((1, 3)), (np.zeros(3),) * 2,
-                           cells=(np.full((1, 3), 0.25), np.full((1, 3), 0.75)))
+        Partition.make(
+            [(0, 1, 0, 1)],
+            np.zeros((1, 3)),
+            np.ones((1, 3)),
+            (np.zeros(3),) * 2,
+            cells=(np.zeros((1, 3)), np.full((1, 3), 2.0)),
+        )
+    grown = Partition.make(
+        [(0, 1, 0, 1)],
+        np.zeros((1, 3)),
+        np.ones((1, 3)),
+        (np.zeros(3),) * 2,
+        cells=(np.full((1, 3), 0.25), np.full((1, 3), 0.75)),
+    )
     assert over_the_wire(grown) == grown and grown.cells[0].tolist() == [[0.25] * 3]
-    tiled = Partition.make([(0, 2, 0, 2), (2, 4, 0, 2), (0, 4, 2, 4)], np.zeros((2, 3)),
-                           np.ones((2, 3)), (np.zeros(3), np.ones(3)), owner=[0, 1, 0])
+    tiled = Partition.make(
+        [(0, 2, 0, 2), (2, 4, 0, 2), (0, 4, 2, 4)],
+        np.zeros((2, 3)),
+        np.ones((2, 3)),
+        (np.zeros(3), np.ones(3)),
+        owner=[0, 1, 0],
+    )
     assert over_the_wire(tiled) == tiled and tiled.nodes == 2
     assert tiled.rects_of(0) == [(0, 2, 0, 2), (0, 4, 2, 4)]
 
 
-@pytest.mark.parametrize("record,field,value", [
-    (ImageSpec, "depth", 0), (ImageSpec, "depth", 1000), (ImageSpec, "spp", 0),
-    (ImageSpec, "width", -3), (ImageSpec, "width", 10**9), (ImageSpec, "seed", -1),
-    (ImageSpec, "spp", "4"), (ImageSpec, "spd", 1), (ImageSpec, "depth", True),
-    (EngineSpec, "density", 0.0), (EngineSpec, "density", float("nan")),
-    (EngineSpec, "storage", "btree"), (EngineSpec, "threads", -1),
-    (MeshPlan, "rows", 0), (MeshPlan, "cols", 100_000), (MeshPlan, "overlap", -1.0),
-    (MeshPlan, "overlap", float("inf")), (MeshPlan, "balance", "magic"),
-    (CameraSampling, "rays", 0), (CameraSampling, "generation", 8),
-    (CameraSampling, "sampling", "lucky"), (CameraSampling, "threshold", -0.1),
-    (CameraSampling, "film_area_size", 0.0), (CameraSampling, "adaptation", "some"),
-    (Focus, "distance", -2.0), (Focus, "distance", "soon"), (Focus, "coc", 0.0),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "record,field,value",
+    [
+        (ImageSpec, "depth", 0),
+        (ImageSpec, "depth", 1000),
+        (ImageSpec, "spp", 0),
+        (ImageSpec, "width", -3),
+        (ImageSpec, "width", 10**9),
+        (ImageSpec, "seed", -1),
+        (ImageSpec, "spp", "4"),
+        (ImageSpec, "spd", 1),
+        (ImageSpec, "depth", True),
+        (EngineSpec, "density", 0.0),
+        (EngineSpec, "density", float("nan")),
+        (EngineSpec, "storage", "btree"),
+        (EngineSpec, "threads", -1),
+        (MeshPlan, "rows", 0),
+        (MeshPlan, "cols", 100_000),
+        (MeshPlan, "overlap", -1.0),
+        (MeshPlan, "overlap", float("inf")),
+        (MeshPlan, "balance", "magic"),
+        (CameraSampling, "rays", 0),
+        (CameraSampling, "generation", 8),
+        (CameraSampling, "sampling", "lucky"),
+        (CameraSampling, "threshold", -0.1),
+        (CameraSampling, "film_area_size", 0.0),
+        (CameraSampling, "adaptation", "some"),
+        (Focus, "distance", -2.0),
+        (Focus, "distance", "soon"),
+        (Focus, "coc", 0.0),
+    ],
+)
 def test_bad_values_are_refused_naming_the_field(record, field, value):
-    with pytest.raises(SpecError, match=rf"{record.__name__}\.{field} = {value!r}".replace(
-            "(", r"\(").replace(")", r"\)")) as e:  # fmt: skip
+    with pytest.raises(
+        SpecError,
+        match=rf"{record.__name__}\.{field} = {value!r}".replace("(", r"\(").replace(")", r"\)"),
+    ) as e:
         record(**{field: value})
     assert str(e.value).split(": ", 1)[1]  # says what is allowed, never empty
 
@@ -139,10 +222,15 @@ def test_sample_grid_is_corners_under_the_spd_rules_only():
     assert ImageSpec(width=40, height=30, spp=4).sample_grid() == (40, 30)
 
 
-@pytest.mark.parametrize("flag,record,name", [
-    ("--depth", ImageSpec, "depth"), ("--lens-rays", CameraSampling, "rays"),
-    ("--overlap", MeshPlan, "overlap"), ("--density", EngineSpec, "density"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "flag,record,name",
+    [
+        ("--depth", ImageSpec, "depth"),
+        ("--lens-rays", CameraSampling, "rays"),
+        ("--overlap", MeshPlan, "overlap"),
+        ("--density", EngineSpec, "density"),
+    ],
+)
 def test_the_command_line_shows_and_uses_the_records_defaults(flag, record, name):
     render = _parser()._subparsers._group_actions[0].choices["render"]
     (action,) = [a for a in render._actions if flag in a.option_strings]

@@ -24,17 +24,25 @@ def test_shrink_uses_every_node_left_nearly_square():
         assert (plan.rows, plan.cols) == want and plan.mode == "image" and plan.tiles == "dynamic"
 
 
-@pytest.mark.parametrize("rows,cols,fault,mode", [
-    (2, 2, "kill", "object"), (2, 2, "pause", "object"), (3, 3, "kill", "object"),
-    (3, 3, "pause", "object"), (2, 2, "kill", "image")])  # fmt: skip
+@pytest.mark.parametrize(
+    "rows,cols,fault,mode",
+    [
+        (2, 2, "kill", "object"),
+        (2, 2, "pause", "object"),
+        (3, 3, "kill", "object"),
+        (3, 3, "pause", "object"),
+        (2, 2, "kill", "image"),
+    ],
+)
 def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols, fault, mode):
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=48, height=48, threads=1)
     ref, ref_stats = render(scene, *rs)
     n = rows * cols
     victim = n - 1
-    plan = MeshPlan(rows, cols, 10, mode=mode, **({"tiles": "dynamic", "tile": 8}
-                                                   if mode == "image" else {}))  # fmt: skip
+    plan = MeshPlan(
+        rows, cols, 10, mode=mode, **({"tiles": "dynamic", "tile": 8} if mode == "image" else {})
+    )
     # Node 0's first ray messages to node 1 are held back 1.5 s (object space), so the frame
     # cannot end before the fault lands; image space has no such link, so its tiles are small
     # and the fault comes with the first traced rays.
@@ -44,9 +52,18 @@ def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols,
 
         async def run():
             started = asyncio.Event()
-            task = asyncio.create_task(render_on_mesh(
-                scene, rs.image, addresses, plan, rs.engine, silence=4.0,
-                progress=lambda k: started.set(), notice=notices.append))  # fmt: skip
+            task = asyncio.create_task(
+                render_on_mesh(
+                    scene,
+                    rs.image,
+                    addresses,
+                    plan,
+                    rs.engine,
+                    silence=4.0,
+                    progress=lambda k: started.set(),
+                    notice=notices.append,
+                )
+            )
             await asyncio.wait_for(started.wait(), 60)  # tracing has begun
             proc = mesh.procs[victim]
             os.kill(proc.pid, signal.SIGKILL if fault == "kill" else signal.SIGSTOP)

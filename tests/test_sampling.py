@@ -31,11 +31,16 @@ def dof_scene():
     lens focused at 2 m the middle one is sharp and the others blurred."""
     view = View(eye=(0, 0, 0), at=(0, 0, 1), up=(0, 1, 0), angle=30.0)
     return make_scene(
-        spheres=[((-0.12, 0.0, 1.0), 0.05, 0), ((0.0, 0.02, 2.0), 0.12, 0),
-                 ((0.6, -0.1, 5.0), 0.4, 0)],
+        spheres=[
+            ((-0.12, 0.0, 1.0), 0.05, 0),
+            ((0.0, 0.02, 2.0), 0.12, 0),
+            ((0.6, -0.1, 5.0), 0.4, 0),
+        ],
         polygons=[([(-9, -0.6, 0.5), (9, -0.6, 0.5), (9, -0.6, 30), (-9, -0.6, 30)], 0)],
-        lights=[(1.0, 3.0, -1.0)], view=view, background=(0.2, 0.3, 0.5),
-    )  # fmt: skip
+        lights=[(1.0, 3.0, -1.0)],
+        view=view,
+        background=(0.2, 0.3, 0.5),
+    )
 
 
 @pytest.mark.parametrize("n", [4, 9, 16, 5, 7])
@@ -68,8 +73,7 @@ def test_concentric_map_keeps_area():
 
 
 def _render(camera=None, **kw):
-    rs = records(width=48, height=36, camera=camera or thin_camera(),
-                        threads=1, **kw)  # fmt: skip
+    rs = records(width=48, height=36, camera=camera or thin_camera(), threads=1, **kw)
     return render(dof_scene(), *rs)
 
 
@@ -127,16 +131,23 @@ def test_film_area_antialiases_an_edge():
 
 def _mesh(rows, cols, rs, progress=None):
     with LocalMesh(rows * cols) as addresses:
-        coro = render_on_mesh(dof_scene(), rs.image, addresses, MeshPlan(rows, cols, 1.0),
-                              rs.engine, rs.camera, progress=progress)  # fmt: skip
+        coro = render_on_mesh(
+            dof_scene(),
+            rs.image,
+            addresses,
+            MeshPlan(rows, cols, 1.0),
+            rs.engine,
+            rs.camera,
+            progress=progress,
+        )
         return asyncio.run(asyncio.wait_for(coro, 180))
 
 
-@pytest.mark.parametrize("sampling,meshes", [("jittered", [(2, 2)]),
-                                             ("adaptive", [(2, 2), (3, 3)])])  # fmt: skip
+@pytest.mark.parametrize(
+    "sampling,meshes", [("jittered", [(2, 2)]), ("adaptive", [(2, 2), (3, 3)])]
+)
 def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
-    rs = records(width=30, height=24, camera=thin_camera(), rays=9,
-                        sampling=sampling, threads=1)  # fmt: skip
+    rs = records(width=30, height=24, camera=thin_camera(), rays=9, sampling=sampling, threads=1)
     ref, ref_stats = render(dof_scene(), *rs)
     for rows, cols in meshes:
         reports = []
@@ -154,8 +165,9 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     # two nodes decide exactly as one node does.
     from meshnode.mesh.adaptive import AdaptiveFilm, RectIndex, deposit_routes
 
-    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05,
-                      CameraSampling(rays=4, sampling="adaptive"))
+    spec = CameraSpec(
+        thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(rays=4, sampling="adaptive")
+    )
     width, height, n = 5, 4, spec.per_pixel
     pixels = np.arange(width * height)
     ids = np.concatenate([pixels * n + k for k in first_pass(spec)])
@@ -185,9 +197,15 @@ def test_adaptive_refines_pixels_whose_corner_rays_the_camera_stops():
     # every pixel is refined and the image is the jittered one, not black.
     elements = stack(
         {"kind": dtypes.THIN_LENS, "z": 0.0, "focal": 0.05, "ax": 0.015, "ay": 0.015},
-        {"kind": dtypes.DIAPHRAGM, "z": 0.002, "ax": 0.00625, "ay": 0.00625,
-         "shape": dtypes.POLYGON_RIM, "sides": 6},
-    )  # fmt: skip
+        {
+            "kind": dtypes.DIAPHRAGM,
+            "z": 0.002,
+            "ax": 0.00625,
+            "ay": 0.00625,
+            "shape": dtypes.POLYGON_RIM,
+            "sides": 6,
+        },
+    )
     cam = Camera(elements, 0.024, 0.018, None, 2.0)
     full, _ = _render(cam, rays=16, sampling="jittered")
     img, st = _render(cam, rays=16, sampling="adaptive")
@@ -202,14 +220,27 @@ def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
     from host.cli import main
 
     scene = tmp_path / "s.nff"
-    scene.write_text("v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 8 8\n"
-                     "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n")  # fmt: skip
+    scene.write_text(
+        "v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 8 8\n"
+        "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n"
+    )
     camera = tmp_path / "c.toml"
-    camera.write_text('[[element]]\ntype = "thin_lens"\nz = 0.0\nfocal = 0.05\ndiameter = 0.03\n'
-                      '[[element]]\ntype = "diaphragm"\nz = 0.002\ndiameter = 0.008\n'
-                      'shape = "hexagon"\n')  # fmt: skip
-    args = ["render", str(scene), "-o", str(tmp_path / "o.png"), "--quiet", "--mesh", "1x1",
-            "--camera", str(camera)]  # fmt: skip
+    camera.write_text(
+        '[[element]]\ntype = "thin_lens"\nz = 0.0\nfocal = 0.05\ndiameter = 0.03\n'
+        '[[element]]\ntype = "diaphragm"\nz = 0.002\ndiameter = 0.008\n'
+        'shape = "hexagon"\n'
+    )
+    args = [
+        "render",
+        str(scene),
+        "-o",
+        str(tmp_path / "o.png"),
+        "--quiet",
+        "--mesh",
+        "1x1",
+        "--camera",
+        str(camera),
+    ]
     assert main(args) == 0
     assert "of the camera rays leave the camera" in capsys.readouterr().err
     assert main([*args, "--spp", "4"]) == 2
@@ -222,13 +253,18 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
     # patterns leaves the camera, jittered or not (none on the rim, none beyond it).
     from meshnode.engine.lenscamera import camera_rays
 
-    spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.0513,
-                      CameraSampling(generation=generation))
+    spec = CameraSpec(
+        thin_camera().elements, 0.024, 0.018, -0.0513, CameraSampling(generation=generation)
+    )
     _, alive = camera_rays(spec, dof_scene().view, 64, 48, np.arange(64 * 48))
     assert alive.all()
-    special = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.0513,
-                         CameraSampling(generation=generation, film_area="rectangle",
-                                        special=True))  # fmt: skip
+    special = CameraSpec(
+        thin_camera().elements,
+        0.024,
+        0.018,
+        -0.0513,
+        CameraSampling(generation=generation, film_area="rectangle", special=True),
+    )
     assert first_pass(special).tolist() == ([1, 4] if generation < 6 else [0, 8])
 
 
@@ -238,10 +274,15 @@ def test_rect_index_finds_the_rectangle_of_every_pixel():
     from meshnode.mesh.adaptive import RectIndex
 
     width, height = 37, 23
-    meshes = [[(0, 10, 0, 8), (10, 37, 0, 8), (0, 10, 8, 23), (10, 37, 8, 23)],
-              [(x, min(x + 8, width), y, min(y + 8, height)) for y in range(0, height, 8)
-               for x in range(0, width, 8)],
-              [(0, 37, 0, 5), (0, 37, 9, 23)]]  # fmt: skip
+    meshes = [
+        [(0, 10, 0, 8), (10, 37, 0, 8), (0, 10, 8, 23), (10, 37, 8, 23)],
+        [
+            (x, min(x + 8, width), y, min(y + 8, height))
+            for y in range(0, height, 8)
+            for x in range(0, width, 8)
+        ],
+        [(0, 37, 0, 5), (0, 37, 9, 23)],
+    ]
     pixels = np.arange(width * height)
     x, y = pixels % width, pixels // width
     for rects in meshes:

@@ -21,8 +21,14 @@ from protocols.render import EngineSpec, ImageSpec
 from tests.meshsim import render_mesh
 
 SIZE = 48
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 
 # The settings every mesh below shares, in TOML and in NFF.
 SETTINGS = """resolution = [48, 48]
@@ -57,9 +63,24 @@ f 1 0.5 0.25 0.75 0.25 8 0 1
 
 # Two quads, a triangle and a pentagon, all planar and counter-clockwise towards the eye;
 # coordinates are exact in binary so text and float32 give the same numbers.
-POINTS = np.array([[-2, -1, 0], [0, -1, 0], [0, 1, 0], [-2, 1, 0], [1.5, -1, -1], [1.5, 1, -1],
-                   [-1, -1.5, 1], [1, -1.5, 1], [0, -0.5, 1.5], [1, 1.25, 0.5],
-                   [2, 1.25, 0.5], [2.5, 2, 0.5], [1.5, 2.5, 0.5], [0.75, 2, 0.5]])  # fmt: skip
+POINTS = np.array(
+    [
+        [-2, -1, 0],
+        [0, -1, 0],
+        [0, 1, 0],
+        [-2, 1, 0],
+        [1.5, -1, -1],
+        [1.5, 1, -1],
+        [-1, -1.5, 1],
+        [1, -1.5, 1],
+        [0, -0.5, 1.5],
+        [1, 1.25, 0.5],
+        [2, 1.25, 0.5],
+        [2.5, 2, 0.5],
+        [1.5, 2.5, 0.5],
+        [0.75, 2, 0.5],
+    ]
+)
 FACES = [[0, 1, 2, 3], [1, 4, 5, 2], [6, 7, 8], [9, 10, 11, 12, 13]]
 
 
@@ -68,12 +89,17 @@ def nff_of(faces, normals=None) -> str:
     out = [NFF_HEAD]
     for face in faces:
         if normals is None:
-            out.append(f"p {len(face)}\n" + "".join(f"{x:g} {y:g} {z:g}\n"
-                                                    for x, y, z in POINTS[face]))  # fmt: skip
+            out.append(
+                f"p {len(face)}\n" + "".join(f"{x:g} {y:g} {z:g}\n" for x, y, z in POINTS[face])
+            )
         else:
-            out.append(f"pp {len(face)}\n" + "".join(
-                f"{p[0]:g} {p[1]:g} {p[2]:g} {n[0]:g} {n[1]:g} {n[2]:g}\n"
-                for p, n in zip(POINTS[face], normals[face], strict=True)))  # fmt: skip
+            out.append(
+                f"pp {len(face)}\n"
+                + "".join(
+                    f"{p[0]:g} {p[1]:g} {p[2]:g} {n[0]:g} {n[1]:g} {n[2]:g}\n"
+                    for p, n in zip(POINTS[face], normals[face], strict=True)
+                )
+            )
     return "".join(out)
 
 
@@ -102,8 +128,10 @@ def write_ply(path, faces, normals=None, text=True) -> None:
         vert["nx"], vert["ny"], vert["nz"] = normals.T
     face = np.empty(len(faces), [("vertex_indices", "O")])
     face["vertex_indices"] = [np.array(f, np.int32) for f in faces]
-    plyfile.PlyData([plyfile.PlyElement.describe(vert, "vertex"),
-                     plyfile.PlyElement.describe(face, "face")], text=text).write(str(path))
+    plyfile.PlyData(
+        [plyfile.PlyElement.describe(vert, "vertex"), plyfile.PlyElement.describe(face, "face")],
+        text=text,
+    ).write(str(path))
 
 
 def smooth_normals():
@@ -117,8 +145,9 @@ def smooth_normals():
 
 def single(scene):
     """Image and ray counts on one node (CSR storage: fewer kernel variants to compile)."""
-    img, stats = render(scene, ImageSpec(width=SIZE, height=SIZE),
-                        EngineSpec(threads=1, storage="csr"))  # fmt: skip
+    img, stats = render(
+        scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, storage="csr")
+    )
     return img, {k: stats["rays"][k] for k in COUNTS}
 
 
@@ -154,12 +183,18 @@ def test_obj_and_ply_render_the_equivalent_nff_bit_for_bit(tmp_path, smooth):
 
 def test_mesh_with_normals_on_some_faces_mixes_patches_and_polygons(tmp_path):
     normals = smooth_normals()
-    text = obj_of(FACES, normals).replace(f"f {' '.join(f'{i + 1}//{i + 1}' for i in FACES[1])}",
-                                          "f " + " ".join(str(i + 1) for i in FACES[1]))
+    text = obj_of(FACES, normals).replace(
+        f"f {' '.join(f'{i + 1}//{i + 1}' for i in FACES[1])}",
+        "f " + " ".join(str(i + 1) for i in FACES[1]),
+    )
     (tmp_path / "m.obj").write_text(text)
     (tmp_path / "m.toml").write_text(SETTINGS)
-    ref = parse_nff(nff_of(FACES[:1], normals) + nff_of(FACES[1:2])[len(NFF_HEAD):]
-                    + nff_of(FACES[2:], normals)[len(NFF_HEAD):], "ref.nff")  # fmt: skip
+    ref = parse_nff(
+        nff_of(FACES[:1], normals)
+        + nff_of(FACES[1:2])[len(NFF_HEAD) :]
+        + nff_of(FACES[2:], normals)[len(NFF_HEAD) :],
+        "ref.nff",
+    )
     assert_same_records(read_scene(tmp_path / "m.obj"), ref)
 
 
@@ -190,15 +225,18 @@ def test_degenerate_and_warped_faces_are_dropped_or_cut_with_a_note(tmp_path):
     assert any("1 face not in one plane" in n and "line 32" in n for n in notes), notes
     warped = scene.triangles[scene.triangles["v"][:, :, 1].min(axis=1) >= 3]
     assert len(warped) == 2 and len(set(warped["gid"])) == 2  # two flat triangles
-    np.testing.assert_array_equal(warped["v"].reshape(-1, 3)[[0, 1, 2, 3, 4, 5]],
-                                  [[0, 3, 0], [1, 3, 0], [1, 4, 1], [0, 3, 0], [1, 4, 1],
-                                   [0, 4, 0]])  # fmt: skip
+    np.testing.assert_array_equal(
+        warped["v"].reshape(-1, 3)[[0, 1, 2, 3, 4, 5]],
+        [[0, 3, 0], [1, 3, 0], [1, 4, 1], [0, 3, 0], [1, 4, 1], [0, 4, 0]],
+    )
 
 
 # --- Inventor ---------------------------------------------------------------------------------
 
 HEAD = "#Inventor V2.1 ascii\n"
-EVERY_NODE = HEAD + """
+EVERY_NODE = (
+    HEAD
+    + """
 DEF top Separator {
   PerspectiveCamera { position 0.5 1.5 9 orientation 1 0 0 -0.15 heightAngle 0.7
                       focalDistance 9 nearDistance 1 }
@@ -231,6 +269,7 @@ DEF top Separator {
   Info { string "every node kind" }
 }
 """
+)
 
 
 def test_inventor_scene_with_every_node_renders_the_same_on_a_mesh():
@@ -258,17 +297,19 @@ def ring(radius, x0, y0, z, facing_plus_z):
     a = 2 * math.pi * np.arange(CAP_SIDES) / CAP_SIDES
     r = radius / math.cos(math.pi / CAP_SIDES)
     turn = 1.0 if facing_plus_z else -1.0
-    return f"p {CAP_SIDES}\n" + "".join(f"{x0 + r * math.cos(t)!r} {y0 + turn * r * math.sin(t)!r}"
-                                        f" {z!r}\n" for t in a)  # fmt: skip
+    return f"p {CAP_SIDES}\n" + "".join(
+        f"{x0 + r * math.cos(t)!r} {y0 + turn * r * math.sin(t)!r} {z!r}\n" for t in a
+    )
 
 
 def same_faces(got, want):
     """Every polygon of `want` is in `got`: matched by centroid, same material, same corners
     in the same cyclic order (so the same side faces out), to round-off."""
+
     def faces(scene):
         v, p = scene.vertices, scene.polygons
-        return [(v[s : s + c], m) for s, c, m in zip(p["start"], p["count"], p["mat"],
-                                                     strict=True)]  # fmt: skip
+        return [(v[s : s + c], m) for s, c, m in zip(p["start"], p["count"], p["mat"], strict=True)]
+
     g, w = faces(got), faces(want)
     assert len(g) == len(w)
     centres = np.array([v.mean(0) for v, _ in g])
@@ -281,7 +322,9 @@ def same_faces(got, want):
 
 
 def test_inventor_transforms_match_hand_computed_nff():
-    iv = HEAD + """
+    iv = (
+        HEAD
+        + """
 PerspectiveCamera { position 0 0 12 heightAngle 0.6 }
 PointLight { location 4 6 10 }
 Material { diffuseColor 1 0.5 0.25 }
@@ -306,6 +349,7 @@ Separator {
 }
 Sphere { radius 0.25 }
 """
+    )
     # By hand: the sphere doubles about its centre and is blue glass (ior 1); the 2 x 2 x 2
     # cube scaled to 2 x 4 x 1, turned a quarter about z and moved is the box [-4, 0] x [0, 2]
     # x [-0.5, 0.5]; the cylinder turned a quarter about x runs along +z around (0, -2),
@@ -334,13 +378,20 @@ s 0 0 0 0.25
     want = parse_nff(nff, "hand.nff")
     for name in ("spheres", "cones", "triangles"):
         for key in getattr(want, name).dtype.names:
-            np.testing.assert_allclose(getattr(got, name)[key], getattr(want, name)[key],
-                                       atol=1e-12, err_msg=f"{name}.{key}")  # fmt: skip
+            np.testing.assert_allclose(
+                getattr(got, name)[key],
+                getattr(want, name)[key],
+                atol=1e-12,
+                err_msg=f"{name}.{key}",
+            )
     same_faces(got, want)
     np.testing.assert_array_equal(got.materials, want.materials)
     assert got.view.angle == pytest.approx(want.view.angle, abs=1e-12)
-    np.testing.assert_allclose([got.view.eye, got.view.at, got.view.up],
-                               [want.view.eye, want.view.at, want.view.up], atol=1e-12)
+    np.testing.assert_allclose(
+        [got.view.eye, got.view.at, got.view.up],
+        [want.view.eye, want.view.at, want.view.up],
+        atol=1e-12,
+    )
     img, counts = single(got)
     ref_img, ref_counts = single(want)
     assert counts == ref_counts
@@ -348,10 +399,13 @@ s 0 0 0 0.25
 
 
 def test_separator_restores_state_and_mirrors_keep_faces_outward():
-    iv = HEAD + """Separator { Scale { scaleFactor -1 1 1 } Material { diffuseColor 0 1 0 }
+    iv = (
+        HEAD
+        + """Separator { Scale { scaleFactor -1 1 1 } Material { diffuseColor 0 1 0 }
 Cube { width 2 height 4 depth 6 } }
 Cube { }
 """
+    )
     scene = parse_inventor(iv, "t.iv")
     v, p = scene.vertices, scene.polygons
     assert list(p["mat"]) == [0] * 6 + [1] * 6  # the second cube is out of the Separator
@@ -363,12 +417,15 @@ Cube { }
 
 
 def test_use_repeats_a_defined_node_and_lights_follow_the_matrix():
-    iv = HEAD + """DEF ball Sphere { radius 0.5 }
+    iv = (
+        HEAD
+        + """DEF ball Sphere { radius 0.5 }
 Translation { translation 3 0 0 }
 USE ball
 PointLight { location 0 1 0 color 1 0.5 0 intensity 0.5 }
 DirectionalLight { on FALSE }
 """
+    )
     notes = []
     scene = parse_inventor(iv, "t.iv", note=notes.append)
     assert scene.spheres["center"].tolist() == [[0, 0, 0], [3, 0, 0]]
@@ -394,22 +451,29 @@ def error_of(text: str, source: str = "t.iv") -> str:
     return str(info.value)
 
 
-@pytest.mark.parametrize("body,line,words", [
-    ("Separator {\n  Foo { }\n}\n", 3, "unknown node 'Foo'"),
-    ("Sphere { radius 1\n", 3, "never closed"),
-    ("Sphere { size 1 }\n", 2, "Sphere has no field 'size'"),
-    ("Sphere { radius x }\n", 2, "expected a number, got 'x'"),
-    ("Cube { Sphere { } }\n", 2, "Cube cannot have child nodes"),
-    ("USE nothing\n", 2, "no node was DEF'd"),
-    ("\nScale { scaleFactor 1 2 1 }\nSphere { }\n", 4, "ellipsoid"),
-    ("Scale { scaleFactor 2 1 1 }\n\nCone { }\n", 4, "not a circle"),
-    ("Coordinate3 { point [0 0 0, 1 0 0, 0 1 0] }\nIndexedFaceSet {\n coordIndex [0, 1, 3]\n}\n",
-     4, "coordIndex 3 is out of range"),
-    ("IndexedFaceSet { coordIndex [0, 1, 2] }\n", 2, "no Coordinate3"),
-    ("Material { diffuseColor [1 0 0, 0 1 0] }\n", 2, "one material per shape"),
-    ("Cylinder { parts (SIDES | LID) }\n", 2, "parts ['LID'] unknown"),
-    ("Rotation { rotation 0 0 0 1 }\n", 2, "zero axis"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "body,line,words",
+    [
+        ("Separator {\n  Foo { }\n}\n", 3, "unknown node 'Foo'"),
+        ("Sphere { radius 1\n", 3, "never closed"),
+        ("Sphere { size 1 }\n", 2, "Sphere has no field 'size'"),
+        ("Sphere { radius x }\n", 2, "expected a number, got 'x'"),
+        ("Cube { Sphere { } }\n", 2, "Cube cannot have child nodes"),
+        ("USE nothing\n", 2, "no node was DEF'd"),
+        ("\nScale { scaleFactor 1 2 1 }\nSphere { }\n", 4, "ellipsoid"),
+        ("Scale { scaleFactor 2 1 1 }\n\nCone { }\n", 4, "not a circle"),
+        (
+            "Coordinate3 { point [0 0 0, 1 0 0, 0 1 0] }\n"
+            "IndexedFaceSet {\n coordIndex [0, 1, 3]\n}\n",
+            4,
+            "coordIndex 3 is out of range",
+        ),
+        ("IndexedFaceSet { coordIndex [0, 1, 2] }\n", 2, "no Coordinate3"),
+        ("Material { diffuseColor [1 0 0, 0 1 0] }\n", 2, "one material per shape"),
+        ("Cylinder { parts (SIDES | LID) }\n", 2, "parts ['LID'] unknown"),
+        ("Rotation { rotation 0 0 0 1 }\n", 2, "zero axis"),
+    ],
+)
 def test_inventor_errors_name_file_and_line(body, line, words):
     msg = error_of(HEAD + body)
     assert msg.startswith(f"t.iv:{line}: ") and words in msg, msg
@@ -419,46 +483,64 @@ def test_inventor_header_is_required():
     assert error_of("#VRML V1.0 ascii\nSphere { }\n").startswith("t.iv:1: not an Open Inventor")
 
 
-@pytest.mark.parametrize("text,line,words", [
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "face names vertex 4 but the file has 3"),
-    ("v 0 0 0\nv 1 0 x\n", 2, "expected a number, got 'x'"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", 4, "at least 3 corners"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", 4, "counts back past the first"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//2 3//1\n", 5, "normal 2 but the file has 1"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\ncurv 0 1 1 2\n", 5, "free-form"),
-    ("v 0 0 0\nbogus 1\n", 2, "unknown statement 'bogus'"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 0\nf 1//1 2//1 3//1\n", 5, "zero length"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text,line,words",
+    [
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "face names vertex 4 but the file has 3"),
+        ("v 0 0 0\nv 1 0 x\n", 2, "expected a number, got 'x'"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", 4, "at least 3 corners"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", 4, "counts back past the first"),
+        (
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//2 3//1\n",
+            5,
+            "normal 2 but the file has 1",
+        ),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\ncurv 0 1 1 2\n", 5, "free-form"),
+        ("v 0 0 0\nbogus 1\n", 2, "unknown statement 'bogus'"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 0\nf 1//1 2//1 3//1\n", 5, "zero length"),
+    ],
+)
 def test_obj_errors_name_file_and_line(tmp_path, text, line, words):
     path, msg = file_error(tmp_path / "t.obj", text)
     assert msg.startswith(f"{path}:{line}: ") and words in msg, msg
 
 
-PLY_HEAD = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n" \
-           "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+PLY_HEAD = (
+    "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+    "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+)
 
 
-@pytest.mark.parametrize("text,line,words", [
-    (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", 13, "vertex index 7 out of range"),
-    (PLY_HEAD + "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n", 11, "vertex"),
-    (PLY_HEAD.replace("format ascii", "format asky"), 2, "PLY header"),
-    (PLY_HEAD.replace("property float z\n", "") + "0 0\n1 0\n0 1\n3 0 1 2\n", 3,
-     "vertex lacks z"),
-    (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", 13, "at least 3 corners"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "text,line,words",
+    [
+        (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", 13, "vertex index 7 out of range"),
+        (PLY_HEAD + "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n", 11, "vertex"),
+        (PLY_HEAD.replace("format ascii", "format asky"), 2, "PLY header"),
+        (
+            PLY_HEAD.replace("property float z\n", "") + "0 0\n1 0\n0 1\n3 0 1 2\n",
+            3,
+            "vertex lacks z",
+        ),
+        (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", 13, "at least 3 corners"),
+    ],
+)
 def test_ply_errors_name_file_and_line(tmp_path, text, line, words):
     path, msg = file_error(tmp_path / "t.ply", text)
     assert msg.startswith(f"{path}:{line}: ") and words in msg, msg
 
 
-@pytest.mark.parametrize("toml,line,words", [
-    ("[view]\nfrom = [0, 0, 5]\nangle = 'wide'\n", 3, "angle must be a number"),
-    ("[material]\nkd = 1\nglow = 2\n", 3, "unknown key 'glow'"),
-    ("resolution = [64, 64]\n[[light]]\ncolour = [1, 1, 1]\n", 2, "needs a position"),
-    ("[view\n", 1, "TOML"),
-    ("[material]\nks = -1\n", 2, "negative ks"),
-    ("[view]\nfrom = [0, 0, 0]\nat = [0, 0, 0]\n", 1, "coincide"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "toml,line,words",
+    [
+        ("[view]\nfrom = [0, 0, 5]\nangle = 'wide'\n", 3, "angle must be a number"),
+        ("[material]\nkd = 1\nglow = 2\n", 3, "unknown key 'glow'"),
+        ("resolution = [64, 64]\n[[light]]\ncolour = [1, 1, 1]\n", 2, "needs a position"),
+        ("[view\n", 1, "TOML"),
+        ("[material]\nks = -1\n", 2, "negative ks"),
+        ("[view]\nfrom = [0, 0, 0]\nat = [0, 0, 0]\n", 1, "coincide"),
+    ],
+)
 def test_settings_errors_name_file_and_line(tmp_path, toml, line, words):
     (tmp_path / "t.toml").write_text(toml)
     _, msg = file_error(tmp_path / "t.obj", obj_of(FACES))
@@ -481,9 +563,28 @@ def test_cli_renders_every_format_and_refuses_bad_ones_in_one_line(tmp_path, cap
     (tmp_path / "all.iv").write_text(EVERY_NODE)
     for scene, extra in (("m.obj", ["--settings", str(tmp_path / "s.toml")]), ("all.iv", [])):
         out = tmp_path / f"{scene}.png"
-        assert main(["render", str(tmp_path / scene), "-o", str(out), "--width", "16",
-                     "--height", "16", "--mesh", "1x1", "--threads", "1", "--storage",
-                     "csr"] + extra) == 0
+        assert (
+            main(
+                [
+                    "render",
+                    str(tmp_path / scene),
+                    "-o",
+                    str(out),
+                    "--width",
+                    "16",
+                    "--height",
+                    "16",
+                    "--mesh",
+                    "1x1",
+                    "--threads",
+                    "1",
+                    "--storage",
+                    "csr",
+                ]
+                + extra
+            )
+            == 0
+        )
         assert out.exists()
     err = capsys.readouterr().err
     assert "using" not in err  # both files give camera and light: nothing was defaulted
@@ -528,20 +629,58 @@ def test_examples_read_without_defaults(name):
     assert notes == [] and scene.n_objects > 0 and len(scene.lights) > 0
 
 
-PIECES = ["{", "}", "[", "]", "(", ")", "|", ",", "-1", "0", "1e400", "nan", "DEF", "USE",
-          "Sphere", "Separator", '"', "\n", "#", "TRUE", "99", "IndexedFaceSet", "f", "v",
-          "vn", "1//", "/", "-9", "[view]", "="]  # fmt: skip
+PIECES = [
+    "{",
+    "}",
+    "[",
+    "]",
+    "(",
+    ")",
+    "|",
+    ",",
+    "-1",
+    "0",
+    "1e400",
+    "nan",
+    "DEF",
+    "USE",
+    "Sphere",
+    "Separator",
+    '"',
+    "\n",
+    "#",
+    "TRUE",
+    "99",
+    "IndexedFaceSet",
+    "f",
+    "v",
+    "vn",
+    "1//",
+    "/",
+    "-9",
+    "[view]",
+    "=",
+]
 
 
 @settings(max_examples=150, deadline=None)
-@given(edits=st.lists(st.tuples(st.floats(0, 1), st.booleans(), st.sampled_from(PIECES),
-                                st.integers(1, 8)), min_size=1, max_size=4))  # fmt: skip
+@given(
+    edits=st.lists(
+        st.tuples(st.floats(0, 1), st.booleans(), st.sampled_from(PIECES), st.integers(1, 8)),
+        min_size=1,
+        max_size=4,
+    )
+)
 def test_mangled_inputs_fail_only_with_a_file_and_line(tmp_path_factory, edits):
     """Whatever is inserted or deleted, a reader either reads the file or names where it is
     wrong: no other exception, no empty message."""
     folder = tmp_path_factory.mktemp("mangled")
-    files = {"m.iv": EVERY_NODE, "m.obj": obj_of(FACES), "m.toml": SETTINGS,
-             "p.ply": PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"}  # fmt: skip
+    files = {
+        "m.iv": EVERY_NODE,
+        "m.obj": obj_of(FACES),
+        "m.toml": SETTINGS,
+        "p.ply": PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    }
     for name, text in files.items():
         for where, delete, piece, n in edits:
             i = int(where * len(text))

@@ -17,8 +17,9 @@ def rays(n: int) -> np.ndarray:
 def tracing(nodes: int = 2, threads: int = 1, high: int = 1000) -> Scheduler:
     """Node 1 of a ring of `nodes`, in TRACE with three primary batches of 10 rays."""
     s = Scheduler(1, 0, nodes, threads, high)
-    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(nodes, np.int64),
-                       np.zeros(nodes, np.int64)))  # fmt: skip
+    s.packet_in(
+        Packet(int(State.TRACE), 0, 1, np.zeros(nodes, np.int64), np.zeros(nodes, np.int64))
+    )
     assert s.next() == Enter(State.TRACE)
     s.primaries = Primaries(rays(10) for _ in range(3))
     step = s.next()  # the packet goes on before any primary batch (next test)

@@ -39,8 +39,12 @@ def test_spiral_chunks_tile_the_rectangle_once_from_the_centre_out():
     for x0, x1, y0, y1 in chunks:
         cover[y0:y1, x0:x1] += 1
     assert (cover[5:30, 3:40] == 1).all() and cover.sum() == 37 * 25  # once, nothing outside
-    ring = [max(abs(i - 3), abs(j - 2)) for i, j in  # chunk grid 7 x 5, centre (3, 2)
-            (((x0 - 3) // 6, (y0 - 5) // 6) for x0, _, y0, _ in chunks)]  # fmt: skip
+    ring = [
+        max(abs(i - 3), abs(j - 2))
+        for i, j in (  # chunk grid 7 x 5, centre (3, 2)
+            ((x0 - 3) // 6, (y0 - 5) // 6) for x0, _, y0, _ in chunks
+        )
+    ]
     assert ring == sorted(ring) and ring[0] == 0  # the centre first, then ring by ring
 
 
@@ -107,8 +111,9 @@ def test_a_node_out_of_work_steals_and_holds_the_packet_until_answered():
 def test_a_busy_node_answers_a_steal_before_tracing_on():
     s = Scheduler(0, 1, 2, neighbours=[1], steal=True)
     s.state = State.TRACE
-    s.primaries = ChunkFeed([(i, i + 1, 0, 1) for i in range(5)],
-                            lambda c: iter([np.zeros(1, RAY)]))  # fmt: skip
+    s.primaries = ChunkFeed(
+        [(i, i + 1, 0, 1) for i in range(5)], lambda c: iter([np.zeros(1, RAY)])
+    )
     s.steal_request(1)
     assert s.next() == Give(1, [(4, 5, 0, 1), (3, 4, 0, 1)]) and s.chunks_given == 2
 
@@ -134,9 +139,10 @@ def test_a_node_that_had_nothing_gives_unasked_once_it_has_chunks_to_spare():
     assert s.term.sent == s.term.received + 1  # the gift is a counted message
 
 
-@pytest.mark.parametrize("name,spp,corners", [("balls_s2.nff", 1, False),
-                                              ("gears_s1.nff", 4, False),
-                                              ("rings_s1.nff", 1, True)])  # fmt: skip
+@pytest.mark.parametrize(
+    "name,spp,corners",
+    [("balls_s2.nff", 1, False), ("gears_s1.nff", 4, False), ("rings_s1.nff", 1, True)],
+)
 def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
     scene = read_nff(spd_scene(name))
     size = 24 if corners else 36
@@ -147,9 +153,19 @@ def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
         # Passed rays go first as they come (passed_min 1): at this size they never reach
         # PASSED_MIN, so every node would trace its primaries at one pace and none run out
         # early; this way nodes busy with passed rays fall behind and the others steal.
-        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, size, size, corners=corners,
-                                            spp=spp, steal=True, tile=4,
-                                            passed_min=1)  # fmt: skip
+        img, totals, nodes, _ = render_mesh(
+            scene,
+            rows,
+            cols,
+            1,
+            size,
+            size,
+            corners=corners,
+            spp=spp,
+            steal=True,
+            tile=4,
+            passed_min=1,
+        )
         assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
         assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)
@@ -163,10 +179,10 @@ def test_stealing_through_a_camera_and_where_it_is_refused():
     lens = Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml"
     camera = CameraSetup(read_camera(lens))
     ref, st = render(scene, rs.image, rs.engine, camera)
-    spec = plan_render(scene, rs.image, rs.engine, MeshPlan(2, 2, steal=True, tile=4),
-                       camera).spec  # fmt: skip
-    img, totals, nodes, _ = render_mesh(scene, 2, 2, 1, 24, 24, camera=spec.camera,
-                                        steal=True, tile=4)  # fmt: skip
+    spec = plan_render(scene, rs.image, rs.engine, MeshPlan(2, 2, steal=True, tile=4), camera).spec
+    img, totals, nodes, _ = render_mesh(
+        scene, 2, 2, 1, 24, 24, camera=spec.camera, steal=True, tile=4
+    )
     assert totals["eye_rays"] == st["rays"]["eye_rays"]
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     with pytest.raises(SpecError, match="MeshPlan.steal"):
@@ -192,8 +208,9 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     given = {"TRACE": 0, "REFINE": 0}
     for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
-        img, totals, nodes, _ = render_mesh(scene, rows, cols, 1, 30, 24, seed=3, camera=spec,
-                                            steal=True, tile=3, passed_min=1)  # fmt: skip
+        img, totals, nodes, _ = render_mesh(
+            scene, rows, cols, 1, 30, 24, seed=3, camera=spec, steal=True, tile=3, passed_min=1
+        )
         assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
         assert sum(n.chunks_given for n in nodes) == sum(n.chunks_taken for n in nodes)
@@ -224,27 +241,36 @@ def test_stealing_over_tcp_gives_the_single_node_image():
     rs = records(width=48, height=48, spp=4, threads=1)
     ref, st = render(scene, *rs)
     with LocalMesh(4) as addresses:
-        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(2, 2, 1, steal=True, tile=8),
-                              rs.engine)  # fmt: skip
+        coro = render_on_mesh(
+            scene, rs.image, addresses, MeshPlan(2, 2, 1, steal=True, tile=8), rs.engine
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
-        n["chunks_taken"] for n in stats["nodes"])  # fmt: skip
+        n["chunks_taken"] for n in stats["nodes"]
+    )
 
 
 def test_adaptive_stealing_over_tcp_gives_the_single_node_image():
     scene, image, setup, _ = adaptive_setup(30, 24)
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     with LocalMesh(4) as addresses:
-        coro = render_on_mesh(scene, image, addresses, MeshPlan(2, 2, 1, steal=True, tile=3),
-                              EngineSpec(threads=1), setup)  # fmt: skip
+        coro = render_on_mesh(
+            scene,
+            image,
+            addresses,
+            MeshPlan(2, 2, 1, steal=True, tile=3),
+            EngineSpec(threads=1),
+            setup,
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     given = [n["chunks_given_by_state"] for n in stats["nodes"]]
     assert sum(n["chunks_given"] for n in stats["nodes"]) == sum(
-        n["chunks_taken"] for n in stats["nodes"])  # fmt: skip
+        n["chunks_taken"] for n in stats["nodes"]
+    )
     # Whether chunks change hands over TCP, and in which pass, depends on timing (a clean
     # CI run once gave none in one pass): the by-state record must add up; the simulated
     # mesh above shows both passes stolen from, deterministically.

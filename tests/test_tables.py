@@ -24,8 +24,7 @@ MATERIALS = [((0.1, 0.2, 0.3), 0.4, 0.5, 6.0, 0.7, 1.8), ((0.9, 0.8, 0.7), 0.6, 
 
 def test_material_and_light_columns_follow_their_constants():
     lights = [(1.0, 2.0, 3.0), (-4.0, 5.0, -6.0)]
-    tb = build_tables(make_scene(spheres=[((0, 0, 0), 1.0, 0)], lights=lights,
-                                 materials=MATERIALS))  # fmt: skip
+    tb = build_tables(make_scene(spheres=[((0, 0, 0), 1.0, 0)], lights=lights, materials=MATERIALS))
     assert tb.materials.shape == (2, MAT_COLS)
     for row, (rgb, kd, ks, shine, t, ior) in zip(tb.materials, MATERIALS, strict=True):
         np.testing.assert_array_equal(row[MAT_RGB : MAT_RGB + 3], rgb)

@@ -74,6 +74,11 @@ def test_states_run_in_order_to_done():
     for _ in range(12):
         p = t.pass_on(p)
         seen.append(p.state)
-    assert [s for s in dict.fromkeys(seen)] == [State.DOWNLOAD, State.TRACE, State.REFINE,
-                                                 State.FLUSH, State.DONE]  # fmt: skip
+    assert [s for s in dict.fromkeys(seen)] == [
+        State.DOWNLOAD,
+        State.TRACE,
+        State.REFINE,
+        State.FLUSH,
+        State.DONE,
+    ]
     assert t.advances == [State.TRACE, State.REFINE, State.FLUSH, State.DONE]

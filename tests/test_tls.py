@@ -30,8 +30,10 @@ def pki(tmp_path_factory):
     for name, pem in (("ca", ca.cert_pem), ("rogue", rogue.cert_pem)):
         pem.write_to_path(d / f"{name}.pem")
         files[name] = str(d / f"{name}.pem")
-    for name, cert in (("node", ca.issue_cert("127.0.0.1", "localhost")),
-                       ("client", ca.issue_cert("meshtrace-host"))):  # fmt: skip
+    for name, cert in (
+        ("node", ca.issue_cert("127.0.0.1", "localhost")),
+        ("client", ca.issue_cert("meshtrace-host")),
+    ):
         cert.private_key_pem.write_to_path(d / f"{name}.key")
         for i, blob in enumerate(cert.cert_chain_pems):
             blob.write_to_path(d / f"{name}.pem", append=i > 0)
@@ -41,8 +43,9 @@ def pki(tmp_path_factory):
 
 def tls_mesh(pki, n=2) -> LocalMesh:
     cert, key = pki["node"]
-    return LocalMesh(n, secret=SECRET,
-                     options=["--tls-cert", cert, "--tls-key", key, "--tls-ca", pki["ca"]])
+    return LocalMesh(
+        n, secret=SECRET, options=["--tls-cert", cert, "--tls-key", key, "--tls-ca", pki["ca"]]
+    )
 
 
 def test_a_tls_cluster_renders_the_single_node_image_and_refuses_other_hosts(pki):
@@ -52,14 +55,24 @@ def test_a_tls_cluster_renders_the_single_node_image_and_refuses_other_hosts(pki
     good = TlsFiles(*pki["client"], pki["ca"]).client()
 
     def on_mesh(addresses, tls):
-        coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2, 1), rs.engine,
-                              secret=SECRET, tls=tls, on_node_loss="fail")  # fmt: skip
+        coro = render_on_mesh(
+            scene,
+            rs.image,
+            addresses,
+            MeshPlan(1, 2, 1),
+            rs.engine,
+            secret=SECRET,
+            tls=tls,
+            on_node_loss="fail",
+        )
         return asyncio.run(asyncio.wait_for(coro, 120))
 
     with tls_mesh(pki) as addresses:
-        for tls, why in [(None, "closes plain connections"),
-                         (TlsFiles(*pki["client"], pki["rogue"]).client(), "CERTIFICATE_VERIFY"),
-                         (TlsFiles(ca=pki["ca"]).client(), "handshake failed")]:  # fmt: skip
+        for tls, why in [
+            (None, "closes plain connections"),
+            (TlsFiles(*pki["client"], pki["rogue"]).client(), "CERTIFICATE_VERIFY"),
+            (TlsFiles(ca=pki["ca"]).client(), "handshake failed"),
+        ]:
             with pytest.raises(MeshError, match=why):
                 on_mesh(addresses, tls)
         img, stats = on_mesh(addresses, good)
@@ -74,11 +87,28 @@ def test_tls_options_are_checked_before_work(pki, tmp_path, capsys):
     cluster = tmp_path / "c.txt"
     cluster.write_text("0 0 127.0.0.1:1\n")
     out = str(tmp_path / "x.png")
-    assert main(["render", scene, "-o", out, "--cluster", str(cluster),
-                 "--tls-cert", pki["client"][0]]) == 2  # fmt: skip
+    assert (
+        main(
+            ["render", scene, "-o", out, "--cluster", str(cluster), "--tls-cert", pki["client"][0]]
+        )
+        == 2
+    )
     assert "--tls-cert and --tls-key go together" in capsys.readouterr().err
-    assert main(["render", scene, "-o", out, "--cluster", str(cluster),
-                 "--tls-ca", str(tmp_path / "missing.pem")]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "render",
+                scene,
+                "-o",
+                out,
+                "--cluster",
+                str(cluster),
+                "--tls-ca",
+                str(tmp_path / "missing.pem"),
+            ]
+        )
+        == 2
+    )
     assert "cannot use the TLS files" in capsys.readouterr().err
     assert main(["render", scene, "-o", out, "--mesh", "1x2", "--tls-ca", pki["ca"]]) == 2
     assert "are for nodes of a --cluster" in capsys.readouterr().err

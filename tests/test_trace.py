@@ -16,8 +16,14 @@ from protocols.scene import View
 from tests.conftest import make_scene, records, spd_scene
 from tests.test_grid import lit_glass_scene
 
-COUNTS = ("eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-          "shadow_rays_blocked")  # fmt: skip
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
 
 
 def small(scene, **kw):
@@ -27,15 +33,25 @@ def small(scene, **kw):
 
 
 @pytest.mark.parametrize(
-    "name", ["balls_s1.nff", "tetra_s2.nff", "mount_s1.nff", "gears_s1.nff", "teapot_s1.nff",
-             "rings_s1.nff"],
-)  # fmt: skip
+    "name",
+    [
+        "balls_s1.nff",
+        "tetra_s2.nff",
+        "mount_s1.nff",
+        "gears_s1.nff",
+        "teapot_s1.nff",
+        "rings_s1.nff",
+    ],
+)
 def test_grid_and_bvh_image_and_counts_equal_brute_force(name):
     scene = read_nff(spd_scene(name))
     ref_img, ref_counts = small(scene, brute=True)
     assert ref_counts["eye_hits"] > 0
-    configs = [{"storage": s, "density": d, "structure": "grid"} for s in ("csr", "hash")
-               for d in (0.5, 4.0)] + [{"structure": "bvh"}]  # fmt: skip
+    configs = [
+        {"storage": s, "density": d, "structure": "grid"}
+        for s in ("csr", "hash")
+        for d in (0.5, 4.0)
+    ] + [{"structure": "bvh"}]
     for config in configs:
         img, counts = small(scene, **config)
         assert counts == ref_counts
@@ -69,8 +85,14 @@ def test_counts_of_a_mirror_sphere_by_hand():
     img, counts = small(scene)
     hits = counts["eye_hits"]
     assert 0 < hits < 1600
-    expect = {"eye_rays": 1600, "eye_hits": hits, "reflected_rays": hits, "refracted_rays": 0,
-              "shadow_rays": hits, "shadow_rays_blocked": 0}  # fmt: skip
+    expect = {
+        "eye_rays": 1600,
+        "eye_hits": hits,
+        "reflected_rays": hits,
+        "refracted_rays": 0,
+        "shadow_rays": hits,
+        "shadow_rays_blocked": 0,
+    }
     assert counts == expect
     # The eye ray through the centre hits head-on: ambient + diffuse + specular, exactly.
     engine = Engine(scene)
@@ -155,11 +177,12 @@ def test_refract_kernel_obeys_snell(incidence, eta):
 def transformed(scene, scale, offset):
     """The same scene with every coordinate mapped x -> x * scale + offset."""
     s = dataclasses.replace(scene)
+
     def f(x):
         return np.asarray(x) * scale + offset
+
     v = scene.view
-    s.view = dataclasses.replace(v, eye=tuple(f(v.eye)), at=tuple(f(v.at)),
-                                 hither=v.hither * scale)  # fmt: skip
+    s.view = dataclasses.replace(v, eye=tuple(f(v.eye)), at=tuple(f(v.at)), hither=v.hither * scale)
     s.lights = scene.lights.copy()
     s.lights["pos"] = f(scene.lights["pos"])
     s.spheres = scene.spheres.copy()
@@ -178,7 +201,8 @@ def transformed(scene, scale, offset):
 
 
 @pytest.mark.parametrize(
-    "scale,offset", [(1.0, 1e6), (1e-4, 0.0), (1e4, 0.0), (1e-4, 3.0)],
+    "scale,offset",
+    [(1.0, 1e6), (1e-4, 0.0), (1e4, 0.0), (1e-4, 3.0)],
 )
 def test_far_tiny_and_huge_scenes_render_the_same(scale, offset):
     scene = read_nff(spd_scene("balls_s2.nff"))
@@ -230,7 +254,13 @@ def test_teapot_patches_render_without_isolated_dark_pixels():
     img, _ = render(scene, *records(width=256, height=256))
     lum = img @ np.array([0.2126, 0.7152, 0.0722])
     h, w = lum.shape
-    around = np.stack([lum[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx]
-                       for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])  # fmt: skip
+    around = np.stack(
+        [
+            lum[1 + dy : h - 1 + dy, 1 + dx : w - 1 + dx]
+            for dy in (-1, 0, 1)
+            for dx in (-1, 0, 1)
+            if dy or dx
+        ]
+    )
     speckles = lum[1:-1, 1:-1] < 0.7 * around.min(axis=0)
     assert int(speckles.sum()) == 0

@@ -22,19 +22,25 @@ def test_each_warmup_scene_makes_the_engine_choose_its_variant():
 
 
 @settings(max_examples=60, deadline=None)
-@given(counts=st.lists(st.integers(0, 2), min_size=4, max_size=4), lights=st.integers(0, 2),
-       smooth=st.booleans(), transmit=st.lists(st.booleans(), min_size=8, max_size=8))
-def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights, smooth,
-                                                                   transmit):  # fmt: skip
+@given(
+    counts=st.lists(st.integers(0, 2), min_size=4, max_size=4),
+    lights=st.integers(0, 2),
+    smooth=st.booleans(),
+    transmit=st.lists(st.booleans(), min_size=8, max_size=8),
+)
+def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights, smooth, transmit):
     ns, nt, npoly, nc = counts
     mats = [((1, 1, 1), 0.5, 0.2, 10, 0.9 if t else 0.0, 1.5) for t in transmit]
     scene = make_scene(
         spheres=[((3 * i, 0, 0), 1.0, i) for i in range(ns)],
         triangles=[((i, 0, 0), (i + 1, 0, 0), (i, 1, 0), 2 + i) for i in range(nt)],
-        polygons=[([(i, 0, 1), (i + 1, 0, 1), (i + 1, 1, 1), (i, 1, 1)], 4 + i)
-                  for i in range(npoly)],
+        polygons=[
+            ([(i, 0, 1), (i + 1, 0, 1), (i + 1, 1, 1), (i, 1, 1)], 4 + i) for i in range(npoly)
+        ],
         cones=[((i, 0, 2), 0.5, (i, 1, 2), 0.2, 6 + i) for i in range(nc)],
-        lights=[(0, 5, -5)] * lights, materials=mats)  # fmt: skip
+        lights=[(0, 5, -5)] * lights,
+        materials=mats,
+    )
     scene.triangles["smooth"] = smooth
     assert variant_of(build_tables(scene)) in all_variants()
 
@@ -67,8 +73,9 @@ def test_a_render_in_a_fresh_process_after_warmup_compiles_nothing():
     # The session's workers share the warmup out: make sure it is all in this cache (a load
     # from disk when another worker compiled it already).
     warmup()
-    r = subprocess.run([sys.executable, "-c", FRESH_RENDER], capture_output=True, text=True,
-                       timeout=600)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-c", FRESH_RENDER], capture_output=True, text=True, timeout=600
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.split()[-1] == "0", r.stdout
 
@@ -123,7 +130,9 @@ def test_one_process_at_a_time_compiles_a_variant():
         with kernelcache.compiling("test-variant-b"):  # another name: not blocked
             assert held("test-variant-b")
     assert not held("test-variant-a") and not held("test-variant-b")
-    with pytest.raises(RuntimeError, match="compile failed"), \
-            kernelcache.compiling("test-variant-a"):  # fmt: skip
+    with (
+        pytest.raises(RuntimeError, match="compile failed"),
+        kernelcache.compiling("test-variant-a"),
+    ):
         raise RuntimeError("compile failed")
     assert not held("test-variant-a")  # released on an error too

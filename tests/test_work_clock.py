@@ -15,9 +15,11 @@ from tests.meshsim import render_mesh
 from tests.test_image_space import COUNTS, SHAPES, reference
 from tests.test_sampling import dof_scene, thin_camera
 
-MODES = [dict(mode="image", tiles="dynamic", tile=5, buffer=2),
-         dict(mode="object", steal=True, tile=4),
-         dict(mode="object", steal=True, copies=True, tile=4)]  # fmt: skip
+MODES = [
+    dict(mode="image", tiles="dynamic", tile=5, buffer=2),
+    dict(mode="object", steal=True, tile=4),
+    dict(mode="object", steal=True, copies=True, tile=4),
+]
 
 
 @pytest.mark.parametrize("latency", [0, 10, 30_000])
@@ -29,8 +31,19 @@ def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan, latency):
     ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=2))
     for rows, cols in SHAPES:
         outs = []
-        img, totals, _, _ = render_mesh(scene, rows, cols, 30, 30, 26, spp=2, clock="work",
-                                            latency=latency, outcome=outs, **plan)  # fmt: skip
+        img, totals, _, _ = render_mesh(
+            scene,
+            rows,
+            cols,
+            30,
+            30,
+            26,
+            spp=2,
+            clock="work",
+            latency=latency,
+            outcome=outs,
+            **plan,
+        )
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
         # every message of the last state's ring took `latency`: the clock saw them
@@ -41,8 +54,9 @@ def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():
     scene = read_nff(spd_scene("rings_s1.nff"))
     ref, counts = reference(scene, ImageSpec(width=30, height=26))
     for delay in [(0, 1, 50), (1, 0, 50)]:
-        img, totals, _, _ = render_mesh(scene, 2, 2, 30, 30, 26, clock="work", latency=100,
-                                        delay=delay, **MODES[1])  # fmt: skip
+        img, totals, _, _ = render_mesh(
+            scene, 2, 2, 30, 30, 26, clock="work", latency=100, delay=delay, **MODES[1]
+        )
         assert {k: totals[k] for k in COUNTS} == counts, delay
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
 
@@ -55,8 +69,9 @@ def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(mo
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
-        img, totals, _, _ = render_mesh(scene, rows, cols, 0, 30, 24, seed=3, camera=spec,
-                                        clock="work", **MODES[0])  # fmt: skip
+        img, totals, _, _ = render_mesh(
+            scene, rows, cols, 0, 30, 24, seed=3, camera=spec, clock="work", **MODES[0]
+        )
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
 
@@ -68,8 +83,20 @@ def test_on_the_work_clock_dynamic_tiles_even_out_what_rounds_cannot():
     spread = {}
     for clock in ("rounds", "work"):
         outs = []
-        *_, nodes, _ = render_mesh(scene, 2, 2, 0, 64, 64, clock=clock, outcome=outs,
-                                   mode="image", tiles="dynamic", tile=8, buffer=1)  # fmt: skip
+        *_, nodes, _ = render_mesh(
+            scene,
+            2,
+            2,
+            0,
+            64,
+            64,
+            clock=clock,
+            outcome=outs,
+            mode="image",
+            tiles="dynamic",
+            tile=8,
+            buffer=1,
+        )
         costs = np.array([n.cost for n in nodes], float)
         spread[clock] = costs.max() / costs.mean()
         batches = [n.batches for n in nodes]

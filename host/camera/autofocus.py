@@ -49,8 +49,9 @@ def probe_engine(scene, width: int, height: int, **engine_options) -> Engine:
     return engine
 
 
-def autofocus_distance(engine, view, width: int, height: int, fraction: float = 0.1,
-                       grid: int = 16) -> tuple[float, dict]:  # fmt: skip
+def autofocus_distance(
+    engine, view, width: int, height: int, fraction: float = 0.1, grid: int = 16
+) -> tuple[float, dict]:
     """Average depth of the image centre (infinity if the probe hits nothing), and what the
     probe saw, for the statistics."""
     o, d, fwd = probe_rays(view, width, height, fraction, grid)
@@ -58,5 +59,4 @@ def autofocus_distance(engine, view, width: int, height: int, fraction: float = 
     hit = np.isfinite(t)
     depth = t[hit] * (d[hit] @ fwd)
     distance = float(depth.mean()) if hit.any() else math.inf
-    return distance, {"probe_rays": len(t), "probe_hits": int(hit.sum()),
-                      "distance_m": distance}  # fmt: skip
+    return distance, {"probe_rays": len(t), "probe_hits": int(hit.sum()), "distance_m": distance}

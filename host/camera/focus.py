@@ -97,8 +97,10 @@ def dof_from_tolerance(efl: float, coc: float, distance: float, tolerance: float
     """f-number that keeps distance +- tolerance sharp when focused at `distance`; the near
     side is the binding one (depth of field is deeper behind the focus than in front)."""
     if not 0 < tolerance < distance or distance <= efl:
-        raise ValueError(f"depth of field needs 0 < tolerance < distance and a distance beyond "
-                         f"the focal length; got {distance} m +- {tolerance} m")  # fmt: skip
+        raise ValueError(
+            f"depth of field needs 0 < tolerance < distance and a distance beyond "
+            f"the focal length; got {distance} m +- {tolerance} m"
+        )
     return efl * efl * tolerance / (coc * (distance - efl) * (distance - tolerance))
 
 

@@ -27,11 +27,20 @@ from host.camera.focus import cardinal, dof_from_near_far, dof_from_tolerance, f
 from meshnode.engine.optics import trace
 from protocols import dtypes
 
-TYPES = {"cap": dtypes.CAP, "ellipsoid": dtypes.ELLIPSOID, "plane": dtypes.PLANE,
-         "thin_lens": dtypes.THIN_LENS, "diaphragm": dtypes.DIAPHRAGM}  # fmt: skip
+TYPES = {
+    "cap": dtypes.CAP,
+    "ellipsoid": dtypes.ELLIPSOID,
+    "plane": dtypes.PLANE,
+    "thin_lens": dtypes.THIN_LENS,
+    "diaphragm": dtypes.DIAPHRAGM,
+}
 FULL_FRAME = (0.036, 0.024)  # film size of a lens table unless one is asked for (m)
-SHAPES = {"ellipse": dtypes.ELLIPSE, "rectangle": dtypes.RECTANGLE,
-          "polygon": dtypes.POLYGON_RIM, "hexagon": dtypes.POLYGON_RIM}  # fmt: skip
+SHAPES = {
+    "ellipse": dtypes.ELLIPSE,
+    "rectangle": dtypes.RECTANGLE,
+    "polygon": dtypes.POLYGON_RIM,
+    "hexagon": dtypes.POLYGON_RIM,
+}
 
 
 class CameraError(ValueError):
@@ -49,8 +58,11 @@ class Camera:
     notes: list = field(default_factory=list)
 
     def focused_film_z(self) -> float:
-        return self.film_z if self.film_z is not None else film_for_distance(
-            self.elements, self.focus_distance)  # fmt: skip
+        return (
+            self.film_z
+            if self.film_z is not None
+            else film_for_distance(self.elements, self.focus_distance)
+        )
 
 
 def _element(spec: dict, where: str) -> np.void:
@@ -94,8 +106,9 @@ def _element(spec: dict, where: str) -> np.void:
 def _ellipsoid(e: np.void, axes, where: str) -> None:
     """Semi-axes [x, y, z] of an ellipsoidal cap; its rim must lie inside the ellipsoid."""
     if not isinstance(axes, list) or len(axes) != 3:
-        raise CameraError(f"{where}: an ellipsoid needs semi_axes = [x, y, z] (z > 0: centre "
-                          "toward the scene)")  # fmt: skip
+        raise CameraError(
+            f"{where}: an ellipsoid needs semi_axes = [x, y, z] (z > 0: centre toward the scene)"
+        )
     x, y, z = (float(v) for v in axes)
     if not (x > 0 and y > 0 and z != 0) or not all(map(math.isfinite, (x, y, z))):
         raise CameraError(f"{where}: semi_axes need x > 0, y > 0 and z != 0, all finite")
@@ -123,11 +136,15 @@ def _camera_from_toml(path: Path, data: dict, film_size=None) -> Camera:
     specs = data.get("element", [])
     if not specs:
         raise CameraError(f"{path}: no [[element]] tables")
-    elements = np.array([_element(s, f"{path}: element {i + 1}") for i, s in enumerate(specs)],
-                        dtype=dtypes.ELEMENT)  # fmt: skip
+    elements = np.array(
+        [_element(s, f"{path}: element {i + 1}") for i, s in enumerate(specs)], dtype=dtypes.ELEMENT
+    )
     for i, e in enumerate(elements):
-        bad = [name for name in dtypes.ELEMENT.names if dtypes.ELEMENT[name].kind == "f"
-               and not math.isfinite(float(e[name]))]  # fmt: skip
+        bad = [
+            name
+            for name in dtypes.ELEMENT.names
+            if dtypes.ELEMENT[name].kind == "f" and not math.isfinite(float(e[name]))
+        ]
         if bad:
             raise CameraError(f"{path}: element {i + 1}: {', '.join(bad)} must be finite")
     if np.any(np.diff(elements["z"]) < 0):
@@ -137,8 +154,10 @@ def _camera_from_toml(path: Path, data: dict, film_size=None) -> Camera:
     distance = math.inf if focus == "infinity" else float(focus)
     if not distance > 0:
         raise CameraError(f"{path}: [focus] distance must be positive metres or 'infinity'")
-    width, height = film_size or (float(film.get("width", FULL_FRAME[0])),
-                                  float(film.get("height", FULL_FRAME[1])))
+    width, height = film_size or (
+        float(film.get("width", FULL_FRAME[0])),
+        float(film.get("height", FULL_FRAME[1])),
+    )
     if not (0 < width < math.inf and 0 < height < math.inf):
         raise CameraError(f"{path}: [film] width and height must be positive and finite")
     film_z = film.get("z")
@@ -156,14 +175,19 @@ def read_table(path, film_size=None) -> Camera:
         text = path.read_text()
     except UnicodeDecodeError as e:
         raise CameraError(f"{path}: not a text file ({e})") from e
-    rows = [row for number, line in enumerate(text.splitlines(), 1)
-            if (row := _table_row(path, number, line)) is not None]  # fmt: skip
+    rows = [
+        row
+        for number, line in enumerate(text.splitlines(), 1)
+        if (row := _table_row(path, number, line)) is not None
+    ]
     if not rows:
         raise CameraError(f"{path}: no lens rows")
     for number, _, thick, *_ in rows[:-1]:
         if thick is None:
-            raise CameraError(f"{path}:{number}: expected radius thickness index aperture "
-                              "(only the last row may leave out its thickness)")  # fmt: skip
+            raise CameraError(
+                f"{path}:{number}: expected radius thickness index aperture "
+                "(only the last row may leave out its thickness)"
+            )
     # Positions from the front vertex (z = 0) toward the film (negative z), in metres.
     z, out = 0.0, []
     for i, (number, radius, thick, _, aperture) in enumerate(rows):
@@ -201,13 +225,17 @@ def _table_row(path: Path, number: int, line: str):
         values = [float(w) for w in words]
     except ValueError:
         bad = next(w for w in words if not _is_number(w))
-        raise CameraError(f"{path}:{number}: {bad!r} is not a number (expected radius "
-                          "thickness index aperture, in mm)") from None  # fmt: skip
+        raise CameraError(
+            f"{path}:{number}: {bad!r} is not a number (expected radius "
+            "thickness index aperture, in mm)"
+        ) from None
     if len(values) == 3:  # the last row may leave out its thickness
         values.insert(1, None)
     if len(values) != 4:
-        raise CameraError(f"{path}:{number}: expected 4 numbers (radius thickness index "
-                          f"aperture, in mm), got {len(values)}")  # fmt: skip
+        raise CameraError(
+            f"{path}:{number}: expected 4 numbers (radius thickness index "
+            f"aperture, in mm), got {len(values)}"
+        )
     radius, thick, index, aperture = values
     if not all(math.isfinite(v) for v in values if v is not None):
         raise CameraError(f"{path}:{number}: every value must be finite")
@@ -216,8 +244,9 @@ def _table_row(path: Path, number: int, line: str):
     if thick is not None and thick < 0:
         raise CameraError(f"{path}:{number}: the thickness must be >= 0")
     if index != 0 and index < 1:
-        raise CameraError(f"{path}:{number}: index {index:g} is neither air (1 or 0) nor a "
-                          "glass (> 1)")  # fmt: skip
+        raise CameraError(
+            f"{path}:{number}: index {index:g} is neither air (1 or 0) nor a glass (> 1)"
+        )
     return number, radius, thick, index, aperture
 
 
@@ -248,8 +277,9 @@ def validate(cam: Camera) -> Camera:
     except ValueError as e:
         raise CameraError(f"{cam.source}: {e}") from e
     if cam.film_z is not None and cam.film_z >= first:
-        raise CameraError(f"{cam.source}: the film (z={cam.film_z}) is not behind the first "
-                          f"element (z={first})")  # fmt: skip
+        raise CameraError(
+            f"{cam.source}: the film (z={cam.film_z}) is not behind the first element (z={first})"
+        )
     if card["effective_focal_length"] <= 0:
         raise CameraError(f"{cam.source}: the lens does not form a real image (EFL <= 0)")
     if cam.focus_distance <= 0:
@@ -259,9 +289,11 @@ def validate(cam: Camera) -> Camera:
     except ValueError as e:
         raise CameraError(f"{cam.source}: {e}") from e
     if film_z >= first:
-        raise CameraError(f"{cam.source}: focused at {cam.focus_distance:g} m, the film "
-                          f"(z={film_z:.6g}) would not be behind the first element "
-                          f"(z={first})")  # fmt: skip
+        raise CameraError(
+            f"{cam.source}: focused at {cam.focus_distance:g} m, the film "
+            f"(z={film_z:.6g}) would not be behind the first element "
+            f"(z={first})"
+        )
     return cam
 
 
@@ -284,8 +316,11 @@ def describe(cam: Camera, focus: float | None = None, coc: float | None = None) 
     pupil = entrance_pupil_radius(cam.elements)
     n = efl / (2 * pupil)
     distance = cam.focus_distance if focus is None else focus
-    film_z = cam.film_z if (cam.film_z is not None and focus is None) else film_for_distance(
-        cam.elements, distance)  # fmt: skip
+    film_z = (
+        cam.film_z
+        if (cam.film_z is not None and focus is None)
+        else film_for_distance(cam.elements, distance)
+    )
     image = card["rear_principal_plane_z"] - film_z
     diag = math.hypot(cam.film_width, cam.film_height)
     c = coc if coc is not None else diag / 1500
@@ -330,10 +365,18 @@ def with_f_number(cam: Camera, n: float) -> Camera:
         elements["ay"][stops] *= scale
     got = entrance_pupil_radius(elements)
     if abs(got - want) > 1e-3 * want:
-        raise CameraError(f"{cam.source}: the lens opens only to f/{efl / (2 * got):.2f}, "
-                          f"not f/{n:.2f}")  # fmt: skip
-    out = Camera(elements, cam.film_width, cam.film_height, cam.film_z, cam.focus_distance,
-                 cam.source, [*cam.notes, f"stopped to f/{n:.3g}"])  # fmt: skip
+        raise CameraError(
+            f"{cam.source}: the lens opens only to f/{efl / (2 * got):.2f}, not f/{n:.2f}"
+        )
+    out = Camera(
+        elements,
+        cam.film_width,
+        cam.film_height,
+        cam.film_z,
+        cam.focus_distance,
+        cam.source,
+        [*cam.notes, f"stopped to f/{n:.3g}"],
+    )
     return out
 
 
@@ -342,8 +385,16 @@ def default_coc(cam: Camera) -> float:
     return math.hypot(cam.film_width, cam.film_height) / 1500
 
 
-def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=None,
-            autofocus=None, f_number=None) -> Camera:  # fmt: skip
+def focused(
+    cam: Camera,
+    focus=None,
+    near=None,
+    far=None,
+    tolerance=None,
+    coc=None,
+    autofocus=None,
+    f_number=None,
+) -> Camera:
     """The camera focused and stopped as asked: `focus` in metres, "infinity" or "auto"
     (`autofocus()` gives the distance: a probe pass through the scene); `near`/`far`: the
     depth of field, focus and f-number chosen for it; `tolerance`: focus +- tolerance sharp;
@@ -353,8 +404,10 @@ def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=No
     out = cam
     if f_number is not None:
         if near is not None or far is not None or tolerance is not None:
-            raise CameraError(f"{cam.source}: an f-number is chosen by the depth of field "
-                              "(near/far or tolerance); give one or the other")  # fmt: skip
+            raise CameraError(
+                f"{cam.source}: an f-number is chosen by the depth of field "
+                "(near/far or tolerance); give one or the other"
+            )
         out = cam = with_f_number(cam, f_number)
     try:
         if near is not None or far is not None:
@@ -377,6 +430,13 @@ def focused(cam: Camera, focus=None, near=None, far=None, tolerance=None, coc=No
         raise CameraError(f"{cam.source}: {e}") from e
     if focus is None and near is None and far is None and cam.film_z is not None:
         return out  # the file fixes the film
-    out = Camera(out.elements, out.film_width, out.film_height, None, distance, out.source,
-                 [*out.notes, f"focused at {distance:.4g} m"])  # fmt: skip
+    out = Camera(
+        out.elements,
+        out.film_width,
+        out.film_height,
+        None,
+        distance,
+        out.source,
+        [*out.notes, f"focused at {distance:.4g} m"],
+    )
     return validate(out)

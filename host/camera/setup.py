@@ -40,8 +40,13 @@ class Focus(Spec):
 
     def check(self) -> None:
         d = self.distance
-        if not (d is None or d in FOCUS_WORDS or isinstance(d, int | float)
-                and not isinstance(d, bool) and 0 < d < math.inf):  # fmt: skip
+        if not (
+            d is None
+            or d in FOCUS_WORDS
+            or isinstance(d, int | float)
+            and not isinstance(d, bool)
+            and 0 < d < math.inf
+        ):
             self.fail("distance", "must be metres (> 0), 'infinity' or 'auto'")
         for name in ("dof_near", "dof_far", "dof_tolerance", "coc", "f_number"):
             self.want_number(name, 0.0, math.inf, open_lo=True, optional=True)
@@ -68,24 +73,41 @@ class CameraSetup:
             return distance
 
         f = self.focus
-        cam = focused(self.camera, f.distance, f.dof_near, f.dof_far, f.dof_tolerance, f.coc,
-                      autofocus, f.f_number)  # fmt: skip
+        cam = focused(
+            self.camera,
+            f.distance,
+            f.dof_near,
+            f.dof_far,
+            f.dof_tolerance,
+            f.coc,
+            autofocus,
+            f.f_number,
+        )
         film_z = cam.focused_film_z()
         pupil = exit_pupil(cam.elements, film_z, math.hypot(cam.film_width, cam.film_height) / 2)
-        spec = CameraSpec(cam.elements, cam.film_width, cam.film_height, film_z, self.sampling,
-                          *pupil)  # fmt: skip
+        spec = CameraSpec(
+            cam.elements, cam.film_width, cam.film_height, film_z, self.sampling, *pupil
+        )
         s = self.sampling
         return spec, {
-            "source": cam.source, "notes": cam.notes, "f_number": describe(cam)["f_number"],
-            "focus_distance_m": cam.focus_distance, "film_z_m": spec.film_z,
+            "source": cam.source,
+            "notes": cam.notes,
+            "f_number": describe(cam)["f_number"],
+            "focus_distance_m": cam.focus_distance,
+            "film_z_m": spec.film_z,
             "effective_focal_length_m": describe(cam)["effective_focal_length_m"],
-            "generation": s.generation, "rays_per_pixel": s.per_pixel, "sampling": s.sampling,
-            "threshold": s.threshold if s.adaptive else None, "film_area": s.film_area,
-            "special_jittering": s.special, "adaptation": s.adaptation,
-            "autofocus": probe or None, "exit_pupil_bands": len(spec.pupil) // 3,
+            "generation": s.generation,
+            "rays_per_pixel": s.per_pixel,
+            "sampling": s.sampling,
+            "threshold": s.threshold if s.adaptive else None,
+            "film_area": s.film_area,
+            "special_jittering": s.special,
+            "adaptation": s.adaptation,
+            "autofocus": probe or None,
+            "exit_pupil_bands": len(spec.pupil) // 3,
             "centre_rays_leaving_camera": leaving_share(spec, scene.view, w, h, centre=True),
             "rays_leaving_lens": leaving_share(spec, scene.view, w, h),
-        }  # fmt: skip
+        }
 
 
 @dataclass(frozen=True)
@@ -106,18 +128,30 @@ class PinholeSetup:
         spec = CameraSpec(pinhole, w * step, h * step, -1.0, self.sampling)
         s = self.sampling
         return spec, {
-            "source": "pinhole (the scene's view)", "notes": [], "generation": s.generation,
-            "rays_per_pixel": s.per_pixel, "sampling": s.sampling,
-            "threshold": s.threshold if s.adaptive else None, "film_area": s.film_area,
-            "adaptation": s.adaptation, "rays_leaving_lens": 1.0,
-        }  # fmt: skip
+            "source": "pinhole (the scene's view)",
+            "notes": [],
+            "generation": s.generation,
+            "rays_per_pixel": s.per_pixel,
+            "sampling": s.sampling,
+            "threshold": s.threshold if s.adaptive else None,
+            "film_area": s.film_area,
+            "adaptation": s.adaptation,
+            "rays_leaving_lens": 1.0,
+        }
 
     @classmethod
     def of(cls, sampling: str, spp: int, threshold: float | None = None) -> "PinholeSetup":
         """`spp` rays over each pixel's area, placed by `sampling`."""
         given = {} if threshold is None else {"threshold": threshold}
-        return cls(CameraSampling(generation=Generation.PINHOLE, rays=spp, sampling=sampling,
-                                  film_area="rectangle", **given))  # fmt: skip
+        return cls(
+            CameraSampling(
+                generation=Generation.PINHOLE,
+                rays=spp,
+                sampling=sampling,
+                film_area="rectangle",
+                **given,
+            )
+        )
 
 
 def leaving_share(spec: CameraSpec, view, width: int, height: int, centre=False) -> float:
@@ -126,13 +160,23 @@ def leaving_share(spec: CameraSpec, view, width: int, height: int, centre=False)
     uniform rays from the centre pixel: a lens that blocks most rays wastes most of the work
     (the CLI warns)."""
     if centre:
-        probe = replace(spec, sampling=replace(spec.sampling, rays=256, sampling="uniform",
-                                               film_area="centre", special=False))
+        probe = replace(
+            spec,
+            sampling=replace(
+                spec.sampling, rays=256, sampling="uniform", film_area="centre", special=False
+            ),
+        )
         pixels = np.array([(height // 2) * width + width // 2])
     else:
         rays = spec.sampling.rays if spec.sampling.kind.points else 64
-        probe = replace(spec, sampling=replace(spec.sampling, rays=rays, sampling="jittered"
-                                               if spec.adaptive else spec.sampling.sampling))
+        probe = replace(
+            spec,
+            sampling=replace(
+                spec.sampling,
+                rays=rays,
+                sampling="jittered" if spec.adaptive else spec.sampling.sampling,
+            ),
+        )
         xs = np.unique(np.linspace(0, width - 1, min(width, 32)).astype(np.int64))
         ys = np.unique(np.linspace(0, height - 1, min(height, 32)).astype(np.int64))
         pixels = (ys[:, None] * width + xs[None, :]).ravel()

@@ -52,8 +52,15 @@ class Monitor:
         self.png: tuple[int, bytes] | None = None
 
     # ------------------------------------------------------------------ render side
-    def start(self, fb: Framebuffer, rows: int, cols: int, objects: list[int],
-              total: int | None, unit: str = "rays") -> None:  # fmt: skip
+    def start(
+        self,
+        fb: Framebuffer,
+        rows: int,
+        cols: int,
+        objects: list[int],
+        total: int | None,
+        unit: str = "rays",
+    ) -> None:
         """Tracing is about to begin on `rows` x `cols` nodes holding `objects` each; `total`
         units of progress (None: not known ahead, as with camera rays lost in the lens)."""
         with self.lock:
@@ -86,8 +93,12 @@ class Monitor:
             self.done = done
             node = self.nodes[0]
             wall = max(time.monotonic() - self.started, 1e-9)
-            node.update(state="trace", ready=True, traced=_traced(totals),
-                        busy=min(cpu / (wall * threads), 1.0))  # fmt: skip
+            node.update(
+                state="trace",
+                ready=True,
+                traced=_traced(totals),
+                busy=min(cpu / (wall * threads), 1.0),
+            )
         self.pixels()
         self._changed()
 
@@ -100,11 +111,20 @@ class Monitor:
             self._work(f["rays"])
             self.done += f["rays"]
             state = STATES[f["state"]] if f["state"] < len(STATES) else "unknown"
-            links = [{"peer": int(p), "rays": int(r), "bytes": int(b)}
-                     for p, r, b in f["links"].tolist() if 0 <= p < len(self.nodes)]  # fmt: skip
+            links = [
+                {"peer": int(p), "rays": int(r), "bytes": int(b)}
+                for p, r, b in f["links"].tolist()
+                if 0 <= p < len(self.nodes)
+            ]
             busy = f["busy_ms"] / f["elapsed_ms"] if f["elapsed_ms"] else 0.0
-            self.nodes[n].update(state=state, ready=f["ready"], traced=f["traced"],
-                                 objects=f["objects"], busy=min(busy, 1.0), links=links)
+            self.nodes[n].update(
+                state=state,
+                ready=f["ready"],
+                traced=f["traced"],
+                objects=f["objects"],
+                busy=min(busy, 1.0),
+                links=links,
+            )
         self.pixels()
         self._changed()
 
@@ -128,8 +148,11 @@ class Monitor:
 
     def fail(self, message: str) -> None:
         with self.lock:
-            self.phase, self.error, self.ended = "failed", message or "render failed", \
-                time.monotonic()  # fmt: skip
+            self.phase, self.error, self.ended = (
+                "failed",
+                message or "render failed",
+                time.monotonic(),
+            )
         self._changed()
 
     # ------------------------------------------------------------------ server side
@@ -143,12 +166,18 @@ class Monitor:
         with self.lock:
             now = self.ended or time.monotonic()
             return {
-                "phase": self.phase, "error": self.error, "width": self.width,
-                "height": self.height, "rows": self.rows, "cols": self.cols,
-                "frame": self.version, "final": self.final is not None,
-                "progress": self._progress(now), "nodes": [dict(n) for n in self.nodes],
+                "phase": self.phase,
+                "error": self.error,
+                "width": self.width,
+                "height": self.height,
+                "rows": self.rows,
+                "cols": self.cols,
+                "frame": self.version,
+                "final": self.final is not None,
+                "progress": self._progress(now),
+                "nodes": [dict(n) for n in self.nodes],
                 "stats": strict(self.stats) if self.stats is not None else None,
-            }  # fmt: skip
+            }
 
     def frame(self) -> tuple[int, bytes] | None:
         """(version, PNG) of the newest frame: the final image once there is one."""
@@ -189,9 +218,15 @@ class Monitor:
         eta = None
         if self.phase == "tracing" and self.total and rate > 0 and spent >= 1.0:
             eta = max(self.total - self.done, 0) / rate
-        return {"done": self.done, "total": self.total, "unit": self.unit,
-                "fraction": fraction, "rate": rate, "eta_seconds": eta,
-                "elapsed_seconds": now - self.began}  # fmt: skip
+        return {
+            "done": self.done,
+            "total": self.total,
+            "unit": self.unit,
+            "fraction": fraction,
+            "rate": rate,
+            "eta_seconds": eta,
+            "elapsed_seconds": now - self.began,
+        }
 
     def _final_nodes(self, stats: dict) -> None:
         """Node panels from the statistics (the figures the STATS messages carried)."""
@@ -200,27 +235,48 @@ class Monitor:
             threads = stats.get("threads", 1)
             wall = max(stats.get("trace_seconds", 0.0), 1e-9)
             busy = stats.get("trace_cpu_seconds", 0.0) / (wall * threads)
-            node.update(state="done", traced=_traced(stats["rays"]), busy=min(busy, 1.0),
-                        objects=stats["engine"]["objects"])  # fmt: skip
+            node.update(
+                state="done",
+                traced=_traced(stats["rays"]),
+                busy=min(busy, 1.0),
+                objects=stats["engine"]["objects"],
+            )
             self.nodes = [node]
             return
         nodes = []
         tiles = stats.get("tiles_per_node") or [0] * len(stats["nodes"])
         for n, s in enumerate(stats["nodes"]):
             total = s["busy_seconds"] + s["idle_seconds"]
-            links = [{"peer": int(p), "rays": v["rays_sent"], "bytes": v["bytes_out"]}
-                     for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))]
+            links = [
+                {"peer": int(p), "rays": v["rays_sent"], "bytes": v["bytes_out"]}
+                for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))
+            ]
             node = _node(n, self.cols, s["objects"])
-            node.update(state="done", ready=True, traced=_traced(s["rays"]), links=links,
-                        busy=s["busy_seconds"] / total if total > 0 else 0.0,
-                        tiles=tiles[n])  # fmt: skip
+            node.update(
+                state="done",
+                ready=True,
+                traced=_traced(s["rays"]),
+                links=links,
+                busy=s["busy_seconds"] / total if total > 0 else 0.0,
+                tiles=tiles[n],
+            )
             nodes.append(node)
         self.nodes = nodes
 
 
 def _node(n: int, cols: int, objects: int) -> dict:
-    return {"node": n, "row": n // cols, "col": n % cols, "state": "download", "ready": False,
-            "busy": 0.0, "traced": 0, "objects": objects, "links": [], "tiles": 0}  # fmt: skip
+    return {
+        "node": n,
+        "row": n // cols,
+        "col": n % cols,
+        "state": "download",
+        "ready": False,
+        "busy": 0.0,
+        "traced": 0,
+        "objects": objects,
+        "links": [],
+        "tiles": 0,
+    }
 
 
 def _traced(rays: dict) -> int:

@@ -52,8 +52,9 @@ class LiveServer:
     """Serves `monitor` at http://host:port/ from a thread of its own; `start` returns once
     the port is bound (or raises LiveError), `stop` closes every page's socket and the port."""
 
-    def __init__(self, monitor: Monitor, host: str = LOOPBACK, port: int = 0,
-                 interval: float = 0.25):  # fmt: skip
+    def __init__(
+        self, monitor: Monitor, host: str = LOOPBACK, port: int = 0, interval: float = 0.25
+    ):
         self.monitor, self.host, self.port, self.interval = monitor, host, port, interval
         self.clients: set[_Client] = set()
         self.bound: list[tuple] = []
@@ -73,8 +74,9 @@ class LiveServer:
         if not self.ready.wait(30):
             raise LiveError(f"the live view on {self.host}:{self.port} did not start in 30 s")
         if self.error is not None:
-            raise LiveError(f"cannot serve the live view on {self.host}:{self.port}: "
-                            f"{self.error}") from self.error  # fmt: skip
+            raise LiveError(
+                f"cannot serve the live view on {self.host}:{self.port}: {self.error}"
+            ) from self.error
         self.monitor.listen(self._poke)
         return self
 
@@ -119,9 +121,15 @@ class LiveServer:
         self._stopping = asyncio.Event()
         self._sent = asyncio.Event()
         app = web.Application()
-        app.add_routes([web.get("/", self._index), web.get("/ws", self._stream),
-                        web.get("/frame.png", self._frame), web.get("/status.json", self._status),
-                        web.get("/stats.json", self._stats)])  # fmt: skip
+        app.add_routes(
+            [
+                web.get("/", self._index),
+                web.get("/ws", self._stream),
+                web.get("/frame.png", self._frame),
+                web.get("/status.json", self._status),
+                web.get("/stats.json", self._stats),
+            ]
+        )
         app.on_shutdown.append(self._close_pages)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
         await runner.setup()
@@ -183,8 +191,7 @@ class LiveServer:
     async def _status(self, request: web.Request) -> web.StreamResponse:
         if why := self._trusted(request):
             raise web.HTTPForbidden(text=f"refused: {why}\n")
-        return web.json_response(self.monitor.status(), headers=NO_STORE,
-                                 dumps=_dumps)  # fmt: skip
+        return web.json_response(self.monitor.status(), headers=NO_STORE, dumps=_dumps)
 
     async def _stats(self, request: web.Request) -> web.StreamResponse:
         if why := self._trusted(request):

@@ -85,12 +85,17 @@ def coarse_spec(spec: RenderSpec) -> RenderSpec:
     width, height = spec.sample_grid
     scale = COARSE / max(width, height)
     plan = replace(spec.plan, tile=max(1, round(spec.plan.tile * scale)))
-    image = ImageSpec(width=max(plan.cols, round(width * scale)),
-                      height=max(plan.rows, round(height * scale)), depth=spec.image.depth)
+    image = ImageSpec(
+        width=max(plan.cols, round(width * scale)),
+        height=max(plan.rows, round(height * scale)),
+        depth=spec.image.depth,
+    )
     camera = spec.camera
     if camera is not None:
-        camera = replace(camera, sampling=CameraSampling(generation=Generation.CENTRE, rays=1,
-                                                         sampling="uniform"))  # fmt: skip
+        camera = replace(
+            camera,
+            sampling=CameraSampling(generation=Generation.CENTRE, rays=1, sampling="uniform"),
+        )
     return RenderSpec(image, spec.engine, plan, camera)
 
 
@@ -107,8 +112,9 @@ def _coarse_mesh(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
     coarse = coarse_spec(spec)
     (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
     xs, ys = xs or splits(width, spec.plan.cols), ys or splits(height, spec.plan.rows)
-    part, keep = partition(scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch),
-                           cells, occupancy)  # fmt: skip
+    part, keep = partition(
+        scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch), cells, occupancy
+    )
     return coarse, part, [subset(scene, keep[n]) for n in range(part.nodes)]
 
 
@@ -119,8 +125,9 @@ def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:
     return max(sum(own[m] for m in spec.plan.held(n)) for n in range(spec.plan.nodes))
 
 
-def choose_holding(scene, spec: RenderSpec, xs, ys, cells, busiest: float,
-                   overlaps=(), memory: int = 0) -> tuple[float, bool, dict]:
+def choose_holding(
+    scene, spec: RenderSpec, xs, ys, cells, busiest: float, overlaps=(), memory: int = 0
+) -> tuple[float, bool, dict]:
     """(overlap, occupancy map, report) for the nodes on these cuts, whose busiest node
     simulates at `busiest` with the plan's overlap and the map: the plan's overlap, or
     of `overlaps` (with the plan's) the one whose busiest node simulates least among
@@ -133,18 +140,23 @@ def choose_holding(scene, spec: RenderSpec, xs, ys, cells, busiest: float,
         at = _at(spec, overlap)
         if overlap != plan.overlap and _too_big(scene, at, xs, ys, cells, memory, too_big):
             continue
-        with_map = busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys,
-                                                                      cells).max()  # fmt: skip
+        with_map = (
+            busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys, cells).max()
+        )
         tried[overlap, True] = float(with_map)
         tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
     # ties: the smaller overlap (less held), then the map (fewer rays passed)
     (overlap, occupancy), _ = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
-    report = {"occupancy_map": occupancy,
-              "simulated_busiest_without_map_vs_with": _ratio(tried[overlap, False],
-                                                              tried[overlap, True])}  # fmt: skip
+    report = {
+        "occupancy_map": occupancy,
+        "simulated_busiest_without_map_vs_with": _ratio(
+            tried[overlap, False], tried[overlap, True]
+        ),
+    }
     if overlaps:
-        report["overlap"] = _overlap_report(overlap, {o: b for (o, m), b in tried.items()
-                                                      if m == occupancy}, too_big, memory)
+        report["overlap"] = _overlap_report(
+            overlap, {o: b for (o, m), b in tried.items() if m == occupancy}, too_big, memory
+        )
     return overlap, occupancy, report
 
 
@@ -160,18 +172,24 @@ def _too_big(scene, spec: RenderSpec, xs, ys, cells, memory: int, refused: list)
     held = largest_engine(scene, spec, xs, ys, cells)
     if held <= FITS * memory:
         return False
-    refused.append({"overlap": spec.plan.overlap, "shared": list(spec.plan.shared),
-                    "largest_node_bytes": held})
+    refused.append(
+        {"overlap": spec.plan.overlap, "shared": list(spec.plan.shared), "largest_node_bytes": held}
+    )
     return True
 
 
 def _overlap_report(chosen: float, busiest: dict, too_big: list, memory: int) -> dict:
     """What the statistics say of an overlap choice: each overlap's simulated busiest node
     (work units) and against the chosen one's, and those refused for memory."""
-    return {"chosen": chosen, "simulated_busiest": {f"{o:g}": b for o, b in busiest.items()},
-            "simulated_busiest_vs_chosen": {f"{o:g}": _ratio(b, busiest[chosen])
-                                            for o, b in busiest.items()},
-            "too_big_for_memory": too_big, "memory_bytes": memory}  # fmt: skip
+    return {
+        "chosen": chosen,
+        "simulated_busiest": {f"{o:g}": b for o, b in busiest.items()},
+        "simulated_busiest_vs_chosen": {
+            f"{o:g}": _ratio(b, busiest[chosen]) for o, b in busiest.items()
+        },
+        "too_big_for_memory": too_big,
+        "memory_bytes": memory,
+    }
 
 
 def _ratio(a: float, b: float) -> float:
@@ -193,8 +211,9 @@ def _even_out(seen: list, n: int) -> list[int]:
     at = sorted(share)
     cum = np.maximum.accumulate([share[b] for b in at])  # later rounds may disagree a little
     parts = len(seen[-1][1])
-    return _bands(np.searchsorted(np.interp(np.arange(n + 1), at, cum),
-                                  np.arange(1, parts) / parts), n)  # fmt: skip
+    return _bands(
+        np.searchsorted(np.interp(np.arange(n + 1), at, cum), np.arange(1, parts) / parts), n
+    )
 
 
 def work_map(scene, spec: RenderSpec, fine: int = FINE):
@@ -204,8 +223,16 @@ def work_map(scene, spec: RenderSpec, fine: int = FINE):
     box = scene_box(scene)
     axes = cell_axes(scene.view, *spec.image.size)
     ex, ey = (np.linspace(box[0][a], box[1][a], fine + 1) for a in axes)
-    plan = replace(spec.plan, rows=fine, cols=fine, overlap=0.0, balance="even", steal=False,
-                   copies=False, shared=())
+    plan = replace(
+        spec.plan,
+        rows=fine,
+        cols=fine,
+        overlap=0.0,
+        balance="even",
+        steal=False,
+        copies=False,
+        shared=(),
+    )
     cells = cells_from_cuts(box, axes, ex, [ey] * fine)
     cost = node_costs(scene, replace(spec, plan=plan), None, None, cells)
     return axes, ex, ey, cost.reshape(fine, fine)
@@ -232,8 +259,10 @@ def map_cells(scene, spec: RenderSpec, axes, ex, ey, cost) -> tuple[np.ndarray, 
     rays mostly enter its own node's cell."""
     plan, box = spec.plan, scene_box(scene)
     xcuts = _shares(ex, cost.sum(axis=0), plan.cols)
-    ycuts = [_shares(ey, cost @ _cover(ex, a, b), plan.rows)
-             for a, b in zip(xcuts[:-1], xcuts[1:], strict=True)]  # fmt: skip
+    ycuts = [
+        _shares(ey, cost @ _cover(ex, a, b), plan.rows)
+        for a, b in zip(xcuts[:-1], xcuts[1:], strict=True)
+    ]
     los, _ = node_cells(scene, box, *spec.image.size, plan.rows, plan.cols)
     if plan.cols > 1 and los[0, axes[0]] > los[1, axes[0]]:  # the image runs against x
         xcuts, ycuts = xcuts[::-1], ycuts[::-1]
@@ -256,8 +285,9 @@ def _corrected(axes, ex, ey, cost, cells, measured) -> np.ndarray:
 FAMILIES = ("shared rows", "rows per column", "work map")
 
 
-def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, overlaps=(),
-                  memory: int = 0) -> Cuts:  # fmt: skip
+def balanced_cuts(
+    scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, overlaps=(), memory: int = 0
+) -> Cuts:
     """The cuts whose simulated busiest node is the least loaded, of those each family tried
     in `rounds` re-cuts: image cuts from even ones with row cuts shared by all columns or
     with each column's own (`ys` is then a list per column), and cells cut on the work map
@@ -275,44 +305,58 @@ def balanced_cuts(scene, spec: RenderSpec, rounds: int = 2, families=FAMILIES, o
         at = _at(spec, overlap)
         tried = _tries(scene, at, rounds, families, work)
         best = min(tried, key=lambda t: t[0])
-        if overlap != plan.overlap and _too_big(scene, at, *best[1:3], best[5], memory,
-                                                too_big):  # fmt: skip
+        if overlap != plan.overlap and _too_big(scene, at, *best[1:3], best[5], memory, too_big):
             continue
         found[overlap] = best, tried
     overlap = min(found, key=lambda o: (found[o][0][0], o))  # ties: the smaller overlap
     (best, bx, by, cost, family, cells), tried = found[overlap]
     base = tried[0][0] or 1.0
     _, occupancy, holding = choose_holding(scene, _at(spec, overlap), bx, by, cells, best)
-    report = {"columns": bx, "rows": by, "family": family,
-              "simulated_busiest_vs_even": best / base,
-              "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
-                  f: min((t[0] for t in tried if t[4] == f), default=base) / base
-                  for f in families},
-              "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0,
-              **holding}
+    report = {
+        "columns": bx,
+        "rows": by,
+        "family": family,
+        "simulated_busiest_vs_even": best / base,
+        "simulated_busiest_vs_even_by_family": {  # the best of each: why this one
+            f: min((t[0] for t in tried if t[4] == f), default=base) / base for f in families
+        },
+        "simulated_imbalance": float((cost.max() - cost.min()) / cost.max()) if best else 0.0,
+        **holding,
+    }
     if overlaps:
-        report["overlap"] = _overlap_report(overlap, {o: f[0][0] for o, f in found.items()},
-                                            too_big, memory)  # fmt: skip
+        report["overlap"] = _overlap_report(
+            overlap, {o: f[0][0] for o, f in found.items()}, too_big, memory
+        )
     # the busiest node on these cuts with the map as chosen (`best` had the map)
     busiest = best if occupancy else best * holding["simulated_busiest_without_map_vs_with"]
     at = _at(spec, overlap)
-    shared, report["shared"] = choose_shared(scene, at, bx, by, cells, occupancy, busiest,
-                                             memory, _efficiency(cost))  # fmt: skip
+    shared, report["shared"] = choose_shared(
+        scene, at, bx, by, cells, occupancy, busiest, memory, _efficiency(cost)
+    )
     if report["shared"].get("tried") and family != "even":  # maybe better on even cuts
-        even_cost = (tried[0][3] if occupancy else  # even cuts were simulated with the map
-                     node_costs(scene, at, None, None, None, occupancy))  # fmt: skip
+        even_cost = (
+            tried[0][3]
+            if occupancy
+            # even cuts were simulated with the map
+            else node_costs(scene, at, None, None, None, occupancy)
+        )
         base = float(even_cost.max())
-        even, on_even = choose_shared(scene, at, None, None, None, occupancy, base, memory,
-                                      _efficiency(even_cost))  # fmt: skip
+        even, on_even = choose_shared(
+            scene, at, None, None, None, occupancy, base, memory, _efficiency(even_cost)
+        )
         if even and _best(on_even) * base < _best(report["shared"]) * busiest:
             bx = by = cells = None
-            report.update(columns=None, rows=None, family="even",
-                          simulated_busiest_vs_even=base / tried[0][0] if tried[0][0] else 1.0,
-                          simulated_imbalance=float((even_cost.max() - even_cost.min())
-                                                    / even_cost.max()) if base else 0.0)
+            report.update(
+                columns=None,
+                rows=None,
+                family="even",
+                simulated_busiest_vs_even=base / tried[0][0] if tried[0][0] else 1.0,
+                simulated_imbalance=float((even_cost.max() - even_cost.min()) / even_cost.max())
+                if base
+                else 0.0,
+            )
             shared = even
-            report["shared"] = {**on_even, "cuts": "even: they do better shared than "
-                                                   f"{family}'s"}  # fmt: skip
+            report["shared"] = {**on_even, "cuts": f"even: they do better shared than {family}'s"}
     return Cuts(bx, by, report, cells, occupancy, overlap, shared)
 
 
@@ -332,8 +376,17 @@ SHARE_BELOW = 0.95  # ... tried only below this simulated parallel efficiency (g
 # pass takes seconds a try, and its cuts already even out its work)
 
 
-def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busiest: float,
-                  memory: int = 0, efficiency: float = 0.0) -> tuple[tuple, dict]:
+def choose_shared(
+    scene,
+    spec: RenderSpec,
+    xs,
+    ys,
+    cells,
+    occupancy: bool,
+    busiest: float,
+    memory: int = 0,
+    efficiency: float = 0.0,
+) -> tuple[tuple, dict]:
     """(MeshPlan.shared, report): under copies, the cells whose engines every node also
     holds. Where the eye rays of most tiles enter one cell (a small scene under a wide
     view, a teapot on a floor), only that cell's four neighbours hold its engine, so at most
@@ -343,8 +396,11 @@ def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busie
     `memory` (0: not known) for the largest node's engines; not tried where the cuts'
     simulated `efficiency` is SHARE_BELOW or more already."""
     plan = spec.plan
-    if not plan.copies or spec.adaptive or all(len(plan.held(n)) == plan.nodes
-                                               for n in range(plan.nodes)):  # fmt: skip
+    if (
+        not plan.copies
+        or spec.adaptive
+        or all(len(plan.held(n)) == plan.nodes for n in range(plan.nodes))
+    ):
         return (), {}  # adaptive rectangles stay with their nodes; 1x2, 1x3: all held
     if efficiency >= SHARE_BELOW:
         return (), {"chosen": [], "tried": False, "simulated_efficiency": efficiency}
@@ -372,11 +428,16 @@ def choose_shared(scene, spec: RenderSpec, xs, ys, cells, occupancy: bool, busie
             if b is None or b > SHARE_GAIN * tried[chosen]:
                 break
             chosen = (*chosen, c)
-    report = {"chosen": list(chosen), "tried": True, "simulated_efficiency": efficiency,
-              "tiles_taken": taken.tolist(),
-              "simulated_busiest_vs_none": {",".join(map(str, k)) or "none": _ratio(v, busiest)
-                                            for k, v in tried.items()},
-              "too_big_for_memory": too_big}  # fmt: skip
+    report = {
+        "chosen": list(chosen),
+        "tried": True,
+        "simulated_efficiency": efficiency,
+        "tiles_taken": taken.tolist(),
+        "simulated_busiest_vs_none": {
+            ",".join(map(str, k)) or "none": _ratio(v, busiest) for k, v in tried.items()
+        },
+        "too_big_for_memory": too_big,
+    }
     return chosen, report
 
 

@@ -33,8 +33,9 @@ def splits(n: int, parts: int) -> list[int]:
     return [round(i * n / parts) for i in range(parts + 1)]
 
 
-def rectangles(width: int, height: int, rows: int, cols: int, xs=None,
-               ys=None) -> list[tuple[int, int, int, int]]:  # fmt: skip
+def rectangles(
+    width: int, height: int, rows: int, cols: int, xs=None, ys=None
+) -> list[tuple[int, int, int, int]]:
     """(x0, x1, y0, y1) of each node's part of a width x height sample grid, node = r*cols+c;
     column boundaries `xs` and row boundaries `ys` (default: even), one list for every
     column or a list per column (`column_rows`)."""
@@ -42,8 +43,7 @@ def rectangles(width: int, height: int, rows: int, cols: int, xs=None,
         raise ValueError(f"a {rows}x{cols} mesh needs at least {cols}x{rows} samples")
     xs = xs or splits(width, cols)
     yss = column_rows(ys, height, rows, cols)
-    return [(xs[c], xs[c + 1], yss[c][r], yss[c][r + 1]) for r in range(rows)
-            for c in range(cols)]  # fmt: skip
+    return [(xs[c], xs[c + 1], yss[c][r], yss[c][r + 1]) for r in range(rows) for c in range(cols)]
 
 
 def column_rows(ys, height: int, rows: int, cols: int) -> list[list[int]]:
@@ -95,8 +95,9 @@ def _cuts(view: View, width, height, bounds, lo, hi, n_parts, along, image_axis)
     return np.concatenate([[lo[along]], cuts, [hi[along]]])
 
 
-def node_cells(scene: SceneData, box, width: int, height: int, rows: int, cols: int,
-               xs=None, ys=None):  # fmt: skip
+def node_cells(
+    scene: SceneData, box, width: int, height: int, rows: int, cols: int, xs=None, ys=None
+):
     """(los, his), each (rows*cols, 3): node r*cols+c's cell of object space, cut where rays
     through the rectangles' boundaries (`xs`, `ys` as `rectangles` takes them; default even)
     meet the scene. The cells tile the scene's box."""
@@ -104,8 +105,10 @@ def node_cells(scene: SceneData, box, width: int, height: int, rows: int, cols: 
     col_axis, row_axis = cell_axes(scene.view, width, height)
     xs = xs or splits(width, cols)
     xcuts = _cuts(scene.view, width, height, xs, lo, hi, cols, col_axis, 0)
-    ycuts = [_cuts(scene.view, width, height, ys_c, lo, hi, rows, row_axis, 1)
-             for ys_c in column_rows(ys, height, rows, cols)]  # fmt: skip
+    ycuts = [
+        _cuts(scene.view, width, height, ys_c, lo, hi, rows, row_axis, 1)
+        for ys_c in column_rows(ys, height, rows, cols)
+    ]
     return cells_from_cuts(box, (col_axis, row_axis), xcuts, ycuts)
 
 
@@ -238,14 +241,18 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     rows, new_start, _, _ = segments(polys["start"], polys["count"])  # kept vertices, in order
     polys["start"] = new_start
     return replace(
-        scene, spheres=scene.spheres[parts[0]], triangles=scene.triangles[parts[1]],
-        polygons=polys, vertices=scene.vertices[rows].reshape(-1, 3),
+        scene,
+        spheres=scene.spheres[parts[0]],
+        triangles=scene.triangles[parts[1]],
+        polygons=polys,
+        vertices=scene.vertices[rows].reshape(-1, 3),
         cones=scene.cones[parts[3]],
-    )  # fmt: skip
+    )
 
 
-def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
-              occupancy: bool = True) -> tuple[Partition, np.ndarray]:  # fmt: skip
+def partition(
+    scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None, occupancy: bool = True
+) -> tuple[Partition, np.ndarray]:
     """The plan made concrete: every node's rectangles of the sample grid and its box, and
     which objects each node holds (nodes x objects, bool). Object space: one rectangle a
     node, cut at `xs`, `ys` (default even); cells (los, his) as given (cut where the work
@@ -267,12 +274,13 @@ def partition(scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None,
     occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
-        rects, owner = taker_tiles(scene, spec, cells, rects, box,
-                                   occupancy_arrays(*box, *occ))  # fmt: skip
+        rects, owner = taker_tiles(scene, spec, cells, rects, box, occupancy_arrays(*box, *occ))
         if plan.copies:
             takers, owner = owner, spread(owner, plan)
-    return (Partition.make(rects, los, his, box, owner, cells, occ, takers),
-            holders(scene, *traced(los, his)))  # fmt: skip
+    return (
+        Partition.make(rects, los, his, box, owner, cells, occ, takers),
+        holders(scene, *traced(los, his)),
+    )
 
 
 def traced(los: np.ndarray, his: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -290,8 +298,15 @@ ENGINE_BYTES_PER_RECORD_BYTE = 8  # tables and grid of a whole-scene engine (bal
 
 def engine_bytes(scene: SceneData) -> int:
     """An engine's memory, estimated from the object records it is built from."""
-    tables = (scene.spheres, scene.triangles, scene.polygons, scene.vertices, scene.cones,
-              scene.materials, scene.lights)  # fmt: skip
+    tables = (
+        scene.spheres,
+        scene.triangles,
+        scene.polygons,
+        scene.vertices,
+        scene.cones,
+        scene.materials,
+        scene.lights,
+    )
     return ENGINE_BYTES_PER_RECORD_BYTE * sum(t.nbytes for t in tables)
 
 
@@ -327,8 +342,9 @@ def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tupl
 PROBE = 256  # eye rays along the longer image side that vote for each tile's maker
 
 
-def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback, box,
-                occ: Occupancy) -> tuple[list, list]:  # fmt: skip
+def taker_tiles(
+    scene: SceneData, spec: RenderSpec, cells, fallback, box, occ: Occupancy
+) -> tuple[list, list]:
     """Object space: tiles of `plan.tile` samples, each made by the node whose cell most of
     its eye rays enter (a probe of pinhole rays votes, each from the first voxel of the
     occupancy map `occ` over the scene's `box` it meets, as nodes route them), so eye rays
@@ -340,12 +356,12 @@ def taker_tiles(scene: SceneData, spec: RenderSpec, cells, fallback, box,
     scale = max(1, max(gw, gh) // PROBE)
     cw, ch = max(1, gw // scale), max(1, gh // scale)
     probe = eye_rays(scene.view, ImageSpec(width=cw, height=ch))
-    skip_empty(probe, *(np.asarray(b, float) for b in box), *occ,
-               np.zeros(N_COUNTERS, np.int64))  # fmt: skip
+    skip_empty(probe, *(np.asarray(b, float) for b in box), *occ, np.zeros(N_COUNTERS, np.int64))
     taker = owners(probe, *cells)
     ntx, nty = -(-gw // t), -(-gh // t)
-    tile = ((np.arange(ch) * gh // ch // t)[:, None] * ntx
-            + (np.arange(cw) * gw // cw // t)[None, :]).ravel()  # fmt: skip
+    tile = (
+        (np.arange(ch) * gh // ch // t)[:, None] * ntx + (np.arange(cw) * gw // cw // t)[None, :]
+    ).ravel()
     votes = np.zeros((ntx * nty, nodes), np.int64)
     np.add.at(votes, (tile[taker >= 0], taker[taker >= 0]), 1)
     rects = tile_grid(gw, gh, t)
@@ -402,5 +418,8 @@ def static_owners(columns: int, count: int, nodes: int) -> list[int]:
 
 def tile_grid(width: int, height: int, t: int) -> list[tuple[int, int, int, int]]:
     """Tiles of t x t samples (the last of a row or column cut short), row by row."""
-    return [(x, min(x + t, width), y, min(y + t, height))
-            for y in range(0, height, t) for x in range(0, width, t)]  # fmt: skip
+    return [
+        (x, min(x + t, width), y, min(y + t, height))
+        for y in range(0, height, t)
+        for x in range(0, width, t)
+    ]

@@ -27,9 +27,15 @@ class Planned:
     seconds: float  # planning time (autofocus probe and cost pre-pass included)
 
 
-def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: MeshPlan,
-                camera: CameraSetup | None = None, overlaps=(),
-                memory: int = 0) -> Planned:  # fmt: skip
+def plan_render(
+    scene: SceneData,
+    image: ImageSpec,
+    engine: EngineSpec,
+    plan: MeshPlan,
+    camera: CameraSetup | None = None,
+    overlaps=(),
+    memory: int = 0,
+) -> Planned:
     """The render planned: `overlaps` (object space) are overlaps for the pre-pass to choose
     among, the smallest first (`host.planning.balance.balanced_cuts` searches cuts at each; on even
     cuts `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not
@@ -40,8 +46,7 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
     image = image.sized(scene.view)
     camera_spec = info = None
     if camera is not None:  # autofocus probes the scene here, before any node is configured
-        camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image,
-                                                                           engine))  # fmt: skip
+        camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image, engine))
     spec = RenderSpec(image, engine, plan, camera_spec)
     xs = ys = cells = None
     occupancy, overlap, shared = True, plan.overlap, plan.shared
@@ -49,12 +54,14 @@ def plan_render(scene: SceneData, image: ImageSpec, engine: EngineSpec, plan: Me
     t0 = time.perf_counter()
     if plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
         xs, ys, report, cells, occupancy, overlap, shared = balanced_cuts(
-            scene, spec, overlaps=overlaps, memory=memory)
+            scene, spec, overlaps=overlaps, memory=memory
+        )
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None).max()
-        overlap, occupancy, report = choose_holding(scene, spec, None, None, None, even,
-                                                    overlaps, memory)  # fmt: skip
+        overlap, occupancy, report = choose_holding(
+            scene, spec, None, None, None, even, overlaps, memory
+        )
         balance.update(report, seconds=time.perf_counter() - t0)
     if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
         spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
@@ -66,15 +73,27 @@ def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
     from host.camera.autofocus import probe_engine
 
     width, height = image.size
-    return probe_engine(scene, width, height, density=engine.density, storage=engine.storage,
-                        structure=engine.structure, max_depth=1)  # fmt: skip
+    return probe_engine(
+        scene,
+        width,
+        height,
+        density=engine.density,
+        storage=engine.storage,
+        structure=engine.structure,
+        max_depth=1,
+    )
 
 
 PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES
 
 
-def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: str = "auto",
-                override: int | None = None) -> tuple[MeshPlan, str]:  # fmt: skip
+def choose_mode(
+    plan: MeshPlan,
+    scene: SceneData,
+    memories: list[int],
+    asked: str = "auto",
+    override: int | None = None,
+) -> tuple[MeshPlan, str]:
     """The mode the nodes run, and why: what was asked, or (auto) image space when the
     whole scene's engine fits comfortably in the smallest node's memory (each node reports
     its memory at the handshake; `override` replaces the reports), object space when not or
@@ -93,10 +112,12 @@ def choose_mode(plan: MeshPlan, scene: SceneData, memories: list[int], asked: st
         return replace(plan, mode="object"), "the nodes did not report their memory"
     where = "--node-memory" if override is not None else "the smallest node's free memory"
     if need <= FITS * memory:
-        return replace(plan, mode="image"), (f"{size} fits in {where} ({_size(memory)}) "
-                                             "many times over: no rays cross the network")
-    return replace(plan, mode="object"), (f"{size} would take over {FITS:.0%} of {where} "
-                                          f"({_size(memory)}): each node holds its box")
+        return replace(plan, mode="image"), (
+            f"{size} fits in {where} ({_size(memory)}) many times over: no rays cross the network"
+        )
+    return replace(plan, mode="object"), (
+        f"{size} would take over {FITS:.0%} of {where} ({_size(memory)}): each node holds its box"
+    )
 
 
 def smallest_memory(memories: list[int], override: int | None = None) -> int:

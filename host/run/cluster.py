@@ -20,9 +20,11 @@ def parse_mesh(text: str) -> tuple[int, int]:
     if rows < 1 or cols < 1:
         raise ValueError(f"--mesh {text}: rows and columns must be at least 1")
     if rows * cols > MAX_LOCAL_NODES:
-        raise ValueError(f"--mesh {text}: a local mesh starts at most {MAX_LOCAL_NODES} node "
-                         "processes on this machine (each holds its own engine and kernels, "
-                         "~0.2 GB); a larger mesh runs on a --cluster")  # fmt: skip
+        raise ValueError(
+            f"--mesh {text}: a local mesh starts at most {MAX_LOCAL_NODES} node "
+            "processes on this machine (each holds its own engine and kernels, "
+            "~0.2 GB); a larger mesh runs on a --cluster"
+        )
     return rows, cols
 
 
@@ -50,23 +52,36 @@ def read_cluster(path) -> tuple[int, int, list[str]]:
     return rows, cols, [cells[(r, c)] for r in range(rows) for c in range(cols)]
 
 
-def statefulset_cluster(statefulset: str, service: str, rows: int, cols: int,
-                        port: int = 7700, namespace: str | None = None) -> str:  # fmt: skip
+def statefulset_cluster(
+    statefulset: str,
+    service: str,
+    rows: int,
+    cols: int,
+    port: int = 7700,
+    namespace: str | None = None,
+) -> str:
     """The cluster file of a StatefulSet's pods behind a headless Service: pod i (stable DNS
     name STATEFULSET-i.SERVICE, or its full name in `namespace`) is node (i // cols, i % cols),
     so the StatefulSet needs rows * cols replicas."""
-    for flag, name in (("--statefulset", statefulset), ("--service", service),
-                       ("--namespace", namespace)):  # fmt: skip
+    for flag, name in (
+        ("--statefulset", statefulset),
+        ("--service", service),
+        ("--namespace", namespace),
+    ):
         if name is not None and not DNS_LABEL.fullmatch(name):
-            raise ValueError(f"{flag} {name!r}: not a Kubernetes name (lower-case letters, "
-                             "digits and '-', at most 63)")  # fmt: skip
+            raise ValueError(
+                f"{flag} {name!r}: not a Kubernetes name (lower-case letters, "
+                "digits and '-', at most 63)"
+            )
     if rows < 1 or cols < 1:
         raise ValueError(f"--rows {rows} --cols {cols}: both must be at least 1")
     if not 0 < port < 65536:
         raise ValueError(f"--port {port}: not a TCP port")
     domain = f"{service}.{namespace}.svc.cluster.local" if namespace else service
-    lines = [f"# {rows}x{cols} mesh: StatefulSet {statefulset} ({rows * cols} replicas) behind "
-             f"headless Service {service}"]  # fmt: skip
+    lines = [
+        f"# {rows}x{cols} mesh: StatefulSet {statefulset} ({rows * cols} replicas) behind "
+        f"headless Service {service}"
+    ]
     for i in range(rows * cols):
         lines.append(f"{i // cols} {i % cols} {statefulset}-{i}.{domain}:{port}")
     return "\n".join(lines) + "\n"

@@ -28,10 +28,20 @@ class LocalMesh:
     (in their environment, never on a command line other users can read); `once`: nodes
     serve one render (False: until stopped, for several renders on one mesh)."""
 
-    def __init__(self, n: int, cluster: str = "meshtrace", start_timeout: float = 60.0,
-                 listen: list[str] | None = None, wrap=None, threads: int = 1,
-                 module: str = "meshnode.service.cli", options=(), env=None,
-                 secret: bytes | None = None, once: bool = True):  # fmt: skip
+    def __init__(
+        self,
+        n: int,
+        cluster: str = "meshtrace",
+        start_timeout: float = 60.0,
+        listen: list[str] | None = None,
+        wrap=None,
+        threads: int = 1,
+        module: str = "meshnode.service.cli",
+        options=(),
+        env=None,
+        secret: bytes | None = None,
+        once: bool = True,
+    ):
         self.n, self.cluster, self.timeout, self.threads = n, cluster, start_timeout, threads
         self.secret = secret
         self.once = once
@@ -42,18 +52,36 @@ class LocalMesh:
         self._sigint = None  # the SIGINT handler to restore on exit
 
     def __enter__(self) -> list[str]:
-        if threading.current_thread() is threading.main_thread() and \
-                signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # fmt: skip
+        if (
+            threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        ):
             self._sigint = signal.signal(signal.SIGINT, self._interrupted)
         try:
             with _sigint_ignored():
                 for i in range(self.n):
-                    self.procs.append(subprocess.Popen(
-                        [*self.wrap(i), sys.executable, "-m", self.module, "serve", "--listen",
-                         self.listen[i], "--cluster", self.cluster, *(["--once"] * self.once),
-                         "--threads", str(self.threads), *self.options],
-                        stdout=subprocess.PIPE, text=True, env=self._environment(),
-                    ))  # fmt: skip
+                    self.procs.append(
+                        subprocess.Popen(
+                            [
+                                *self.wrap(i),
+                                sys.executable,
+                                "-m",
+                                self.module,
+                                "serve",
+                                "--listen",
+                                self.listen[i],
+                                "--cluster",
+                                self.cluster,
+                                *(["--once"] * self.once),
+                                "--threads",
+                                str(self.threads),
+                                *self.options,
+                            ],
+                            stdout=subprocess.PIPE,
+                            text=True,
+                            env=self._environment(),
+                        )
+                    )
             return [self._address(p) for p in self.procs]
         except BaseException:
             self.__exit__(None, None, None)

@@ -50,28 +50,51 @@ async def _download(link: Link, scenes: dict[int, SceneData]) -> None:
     own, and under MeshPlan.copies each linked neighbour's)."""
     parts = []
     for m, scene in scenes.items():
-        tables = [("materials", scene.materials), ("lights", scene.lights),
-                  ("spheres", scene.spheres), ("triangles", scene.triangles),
-                  ("polygons", scene.polygons), ("vertices", scene.vertices.reshape(-1)),
-                  ("cones", scene.cones)]  # fmt: skip
-        own = [(m, n, t[i : i + OBJECT_BATCH])
-               for n, t in tables for i in range(0, len(t), OBJECT_BATCH)]  # fmt: skip
+        tables = [
+            ("materials", scene.materials),
+            ("lights", scene.lights),
+            ("spheres", scene.spheres),
+            ("triangles", scene.triangles),
+            ("polygons", scene.polygons),
+            ("vertices", scene.vertices.reshape(-1)),
+            ("cones", scene.cones),
+        ]
+        own = [
+            (m, n, t[i : i + OBJECT_BATCH])
+            for n, t in tables
+            for i in range(0, len(t), OBJECT_BATCH)
+        ]
         parts += own or [(m, "materials", scene.materials)]  # every node named at least once
     for i, (m, name, records) in enumerate(parts):
         last = i == len(parts) - 1
-        await link.send(make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(records),
-                             node=m, last=last))  # fmt: skip
+        await link.send(
+            make(Kind.OBJECTS, table=name, records=np.ascontiguousarray(records), node=m, last=last)
+        )
 
 
-async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str],
-                         plan: MeshPlan = MeshPlan(), engine: EngineSpec = EngineSpec(),
-                         camera: CameraSetup | None = None, *, cluster: str = "meshtrace",
-                         secret: bytes | None = None, progress=None, silence: float = 15.0,
-                         stall: float = 180.0, on_node_loss: str = "replan",
-                         notice=None, tls: ssl.SSLContext | None = None,
-                         mode: str | None = None, node_memory: int | None = None,
-                         overlaps=(), watch=None, ready=None,
-                         wait: float = 5.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+async def render_on_mesh(
+    scene: SceneData,
+    image: ImageSpec,
+    addresses: list[str],
+    plan: MeshPlan = MeshPlan(),
+    engine: EngineSpec = EngineSpec(),
+    camera: CameraSetup | None = None,
+    *,
+    cluster: str = "meshtrace",
+    secret: bytes | None = None,
+    progress=None,
+    silence: float = 15.0,
+    stall: float = 180.0,
+    on_node_loss: str = "replan",
+    notice=None,
+    tls: ssl.SSLContext | None = None,
+    mode: str | None = None,
+    node_memory: int | None = None,
+    overlaps=(),
+    watch=None,
+    ready=None,
+    wait: float = 5.0,
+) -> tuple[np.ndarray, dict]:
     """Render on running nodes (address i is node i); returns (image, statistics).
     `secret`: the cluster secret the nodes were started with (None: they have none);
     `progress(n)` is called as nodes report n more primary rays traced (negative when a
@@ -90,8 +113,10 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
     `wait`: seconds for every node to accept a connection (nodes still starting), then the
     first one that does not is named."""
     if len(addresses) != plan.nodes:
-        raise ValueError(f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
-                         f"got {len(addresses)}")  # fmt: skip
+        raise ValueError(
+            f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
+            f"got {len(addresses)}"
+        )
     if on_node_loss not in NODE_LOSS:
         raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
     start = time.perf_counter()
@@ -110,11 +135,22 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
         while True:
             names = [f"node {n} ({addresses[n]})" for n in alive]
             try:
-                fb, summary = await _attempt(scene, image, engine, plan, camera,
-                                             [links[n] for n in alive],
-                                             [addresses[n] for n in alive], names, progress,
-                                             silence, stall, watch, ready,
-                                             (overlaps, memory))  # fmt: skip
+                fb, summary = await _attempt(
+                    scene,
+                    image,
+                    engine,
+                    plan,
+                    camera,
+                    [links[n] for n in alive],
+                    [addresses[n] for n in alive],
+                    names,
+                    progress,
+                    silence,
+                    stall,
+                    watch,
+                    ready,
+                    (overlaps, memory),
+                )
                 break
             except MeshError as e:
                 if on_node_loss == "fail":
@@ -125,11 +161,19 @@ async def render_on_mesh(scene: SceneData, image: ImageSpec, addresses: list[str
                     raise
                 first_loss = t_loss if first_loss is None else first_loss
                 for i, reason in gone.items():
-                    lost.append({"node": alive[i], "address": addresses[alive[i]],
-                                 "reason": reason, "at_seconds": t_loss - start})  # fmt: skip
+                    lost.append(
+                        {
+                            "node": alive[i],
+                            "address": addresses[alive[i]],
+                            "reason": reason,
+                            "at_seconds": t_loss - start,
+                        }
+                    )
                     if notice is not None:
-                        notice(f"lost {names[i]}: {lost[-1]['reason']}; re-planning the frame "
-                               f"on the {len(alive) - len(gone)} nodes left")  # fmt: skip
+                        notice(
+                            f"lost {names[i]}: {lost[-1]['reason']}; re-planning the frame "
+                            f"on the {len(alive) - len(gone)} nodes left"
+                        )
                 alive = [n for i, n in enumerate(alive) if i not in gone]
                 plan = shrink(plan, len(alive))
     finally:
@@ -159,8 +203,22 @@ def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
     return replace(plan, rows=rows, cols=nodes // rows, shared=())
 
 
-async def _attempt(scene, image, engine, plan, camera, links: list[Link], addresses, names,
-                   progress, silence, stall, watch, ready, holding=((), 0)):  # fmt: skip
+async def _attempt(
+    scene,
+    image,
+    engine,
+    plan,
+    camera,
+    links: list[Link],
+    addresses,
+    names,
+    progress,
+    silence,
+    stall,
+    watch,
+    ready,
+    holding=((), 0),
+):
     """One try at the frame on `links` (node i is links[i] at addresses[i], called
     names[i] in messages): (framebuffer, summary); `holding`: (overlaps, memory) for
     `plan_render`."""
@@ -172,12 +230,25 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     chosen = spec.plan
-    dealer = (TileDealer(deal_order(planned.partition.rects, chosen.order), chosen.nodes,
-                         chosen.buffer, spec.adaptive) if chosen.dynamic else None)  # fmt: skip
+    dealer = (
+        TileDealer(
+            deal_order(planned.partition.rects, chosen.order),
+            chosen.nodes,
+            chosen.buffer,
+            spec.adaptive,
+        )
+        if chosen.dynamic
+        else None
+    )
     collector = _Collector(fb, names, progress, silence, stall, dealer, watch, ready)
     if watch is not None:
-        watch.start(fb, plan.rows, plan.cols, planned.holders.sum(axis=1).tolist(),
-                    primary_rays(spec.image, camera))  # fmt: skip
+        watch.start(
+            fb,
+            plan.rows,
+            plan.cols,
+            planned.holders.sum(axis=1).tolist(),
+            primary_rays(spec.image, camera),
+        )
     try:
         if dealer is not None:
             for n, (tiles, last) in dealer.first().items():
@@ -191,8 +262,14 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
             progress(-collector.traced)  # the frame starts again: so does the count
         raise
     ready = (collector.ready_at or time.monotonic()) - ticks
-    summary = _summary(collector.stats, planned.spec.plan, planned.holders, collector.deposits,
-                       ready, time.perf_counter() - start)  # fmt: skip
+    summary = _summary(
+        collector.stats,
+        planned.spec.plan,
+        planned.holders,
+        collector.deposits,
+        ready,
+        time.perf_counter() - start,
+    )
     summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance
@@ -206,8 +283,7 @@ async def _attempt(scene, image, engine, plan, camera, links: list[Link], addres
     return fb, summary
 
 
-async def _connect(addresses, cluster, secret, tls,
-                   wait: float) -> tuple[list[Link], list[int]]:  # fmt: skip
+async def _connect(addresses, cluster, secret, tls, wait: float) -> tuple[list[Link], list[int]]:
     """One link to every node within `wait` seconds in all, both sides proving the secret;
     and the memory each has."""
     links: list[Link] = []
@@ -216,8 +292,9 @@ async def _connect(addresses, cluster, secret, tls,
     try:
         for n, address in enumerate(addresses):
             left = max(deadline - time.monotonic(), 0.1)
-            link, theirs = await dial(address, f"node {n} ({address})", cluster, secret,
-                                      "host", tls=tls, wait=left)  # fmt: skip
+            link, theirs = await dial(
+                address, f"node {n} ({address})", cluster, secret, "host", tls=tls, wait=left
+            )
             links.append(link)
             memories.append(theirs["memory"])
     except (LinkClosed, ProtocolError) as e:
@@ -235,10 +312,18 @@ async def _configure(scene, planned: Planned, links: list[Link], addresses) -> N
     n = 0
     try:
         for n, link in enumerate(links):
-            await link.send(make(Kind.CONFIG, node=n, neighbours=neighbours, render=render,
-                                 partition=part, view=asdict(scene.view),
-                                 background=list(scene.background),
-                                 render_id=render_id))  # fmt: skip
+            await link.send(
+                make(
+                    Kind.CONFIG,
+                    node=n,
+                    neighbours=neighbours,
+                    render=render,
+                    partition=part,
+                    view=asdict(scene.view),
+                    background=list(scene.background),
+                    render_id=render_id,
+                )
+            )
         for n, link in enumerate(links):
             held = planned.spec.plan.held(n)
             await _download(link, {m: subset(scene, planned.holders[m]) for m in held})
@@ -258,8 +343,9 @@ async def _give_up(links: list[Link], error: MeshError, deadline: float) -> dict
         while (await link.recv())[0] is not Kind.ABORTED:
             pass  # what the node sent for the given-up render
 
-    waits = {asyncio.ensure_future(aborted(link)): i for i, link in enumerate(links)
-             if i not in lost}  # fmt: skip
+    waits = {
+        asyncio.ensure_future(aborted(link)): i for i, link in enumerate(links) if i not in lost
+    }
     if waits:
         done, pending = await asyncio.wait(waits, timeout=deadline)
         for t in pending:
@@ -287,9 +373,17 @@ async def _close(links: list[Link], shutdown: bool = True) -> None:
 class _Collector:
     """Pixels, progress and statistics from every node, and the watchdog over them."""
 
-    def __init__(self, fb: Framebuffer, names: list[str], progress, silence: float,
-                 stall: float, dealer: TileDealer | None = None, watch=None,
-                 on_ready=None):  # fmt: skip
+    def __init__(
+        self,
+        fb: Framebuffer,
+        names: list[str],
+        progress,
+        silence: float,
+        stall: float,
+        dealer: TileDealer | None = None,
+        watch=None,
+        on_ready=None,
+    ):
         self.fb, self.names, self.progress, self.dealer = fb, names, progress, dealer
         self.watch = watch
         self.on_ready = on_ready  # called once, when every node is first ready
@@ -314,8 +408,7 @@ class _Collector:
         try:
             while not all(t.done() for t in tasks):
                 pending = [t for t in tasks if not t.done()]
-                done, _ = await asyncio.wait([*pending, guard],
-                                             return_when=asyncio.FIRST_COMPLETED)  # fmt: skip
+                done, _ = await asyncio.wait([*pending, guard], return_when=asyncio.FIRST_COMPLETED)
                 for t in done:
                     if t.exception():
                         raise t.exception()
@@ -374,14 +467,20 @@ class _Collector:
             now = time.monotonic()
             for n in self.last_heard:
                 if n not in self.stats and now - self.last_heard[n] > self.silence:
-                    raise NodeLost(n, f"{self.name(n)}: no message for {self.silence:g} s "
-                                      "(stopped, hung or cut off)")  # fmt: skip
+                    raise NodeLost(
+                        n,
+                        f"{self.name(n)}: no message for {self.silence:g} s "
+                        "(stopped, hung or cut off)",
+                    )
             if not all(self.ready.values()):
                 self.last_work = now
             elif now - self.last_work > self.stall:
                 waiting = [n for n in self.last_heard if n not in self.stats]
-                raise MeshError(f"no node has traced anything for {self.stall:g} s and nodes "
-                                f"{waiting} have not finished (alive but stuck)")  # fmt: skip
+                raise MeshError(
+                    f"no node has traced anything for {self.stall:g} s and nodes "
+                    f"{waiting} have not finished (alive but stuck)"
+                )
+
 
 def primary_rays(image: ImageSpec, camera) -> int | None:
     """Primary rays of a sized image (None through a camera: rays lost in it are never
@@ -418,7 +517,10 @@ def _summary(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "objects_held_per_node": [int(own[plan.held(n)].sum()) for n in range(plan.nodes)],
         # the share of the scene's objects the node holding most holds, each counted once:
         # what the object-space mesh saves against image space (where it is 1)
-        "objects_held_max_share": max(float(keep[plan.held(n)].any(axis=0).mean())
-                                      for n in range(plan.nodes)) if keep.shape[1] else 1.0,
+        "objects_held_max_share": max(
+            float(keep[plan.held(n)].any(axis=0).mean()) for n in range(plan.nodes)
+        )
+        if keep.shape[1]
+        else 1.0,
         "nodes": nodes,
     }

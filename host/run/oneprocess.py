@@ -28,16 +28,29 @@ BAND_ROWS = 16  # sample rows per pinhole job: many jobs per thread, each one ke
 BAND_RAYS = 65536
 
 
-def render(scene: SceneData, image: ImageSpec = ImageSpec(),
-           engine: EngineSpec = EngineSpec(), camera: CameraSetup | None = None, *,
-           progress: bool = False, built: Engine | None = None, watch=None):  # fmt: skip
+def render(
+    scene: SceneData,
+    image: ImageSpec = ImageSpec(),
+    engine: EngineSpec = EngineSpec(),
+    camera: CameraSetup | None = None,
+    *,
+    progress: bool = False,
+    built: Engine | None = None,
+    watch=None,
+):
     """Render `scene` on one node; returns (linear float image, statistics dict).
     `built`: an engine already built for this scene and `engine` (benchmarks reuse one);
     `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
-    tracer = built or Engine(scene, density=engine.density, storage=engine.storage,
-                             structure=engine.structure, max_depth=image.depth, brute=engine.brute,
-                             announce=_compiling if progress else None)  # fmt: skip
+    tracer = built or Engine(
+        scene,
+        density=engine.density,
+        storage=engine.storage,
+        structure=engine.structure,
+        max_depth=image.depth,
+        brute=engine.brute,
+        announce=_compiling if progress else None,
+    )
     tracer.warmup()
     eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed
     job = _Job(scene, image, engine, tracer, progress, watch)
@@ -61,8 +74,11 @@ def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple
     per_row = grid_w * spp
     rows = max(1, min(BAND_ROWS, BAND_RAYS // max(per_row, 1)))
     cols = grid_w if per_row <= BAND_RAYS else max(1, BAND_RAYS // spp)
-    return [((y, min(y + rows, grid_h)), (x, min(x + cols, grid_w)))
-            for y in range(0, grid_h, rows) for x in range(0, grid_w, cols)]  # fmt: skip
+    return [
+        ((y, min(y + rows, grid_h)), (x, min(x + cols, grid_w)))
+        for y in range(0, grid_h, rows)
+        for x in range(0, grid_w, cols)
+    ]
 
 
 def _compiling(variant: str) -> None:
@@ -163,8 +179,9 @@ def _bounded_map(pool, fn, jobs, inflight: int):
 def _progress(total, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="band", desc="tracing", file=sys.stderr,
-                disable=not enabled, leave=False)  # fmt: skip
+    return tqdm(
+        total=total, unit="band", desc="tracing", file=sys.stderr, disable=not enabled, leave=False
+    )
 
 
 def _stats(job: _Job, totals, trace_seconds, threads) -> dict:

@@ -60,8 +60,9 @@ class SceneBuilder:
         r = max(abs(base_r), abs(apex_r))
         ends = np.array([base, apex], float)
         self._grow(ends.min(0) - r, ends.max(0) + r)
-        self.cones.append((self._next(1)[0], mat, tuple(ends[0]), float(base_r),
-                           tuple(ends[1]), float(apex_r)))  # fmt: skip
+        self.cones.append(
+            (self._next(1)[0], mat, tuple(ends[0]), float(base_r), tuple(ends[1]), float(apex_r))
+        )
 
     def faces(self, pts, counts, mat: int, lines, normals=None) -> None:
         """Faces as consecutive corners `pts` (n, 3), `counts` corners each, `lines` (the file
@@ -95,8 +96,11 @@ class SceneBuilder:
         for kind, (n, line) in self._fixed.items():
             if n:
                 face = "face" if n == 1 else "faces"
-                what = (f"{face} with no area dropped" if kind == "dropped"
-                        else f"{face} not in one plane cut into flat triangles")  # fmt: skip
+                what = (
+                    f"{face} with no area dropped"
+                    if kind == "dropped"
+                    else f"{face} not in one plane cut into flat triangles"
+                )
                 self.notes.append(f"{self.source}: {n} {what} (first at line {line})")
         light = np.zeros(len(self.lights), dtypes.LIGHT)
         for i, (pos, rgb) in enumerate(self.lights):
@@ -111,10 +115,18 @@ class SceneBuilder:
 
         tri, poly, vertices = polygons.flat_records(*self._flat())
         smooth = polygons.fan(*self._smooth())
-        return SceneData(view=view, background=tuple(float(c) for c in background),
-                         lights=light, materials=mat, spheres=sph,
-                         triangles=polygons.by_gid(tri, smooth), polygons=poly,
-                         vertices=vertices, cones=cone, source=self.source)  # fmt: skip
+        return SceneData(
+            view=view,
+            background=tuple(float(c) for c in background),
+            lights=light,
+            materials=mat,
+            spheres=sph,
+            triangles=polygons.by_gid(tri, smooth),
+            polygons=poly,
+            vertices=vertices,
+            cones=cone,
+            source=self.source,
+        )
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box of every object added (a unit box around the origin if none)."""
@@ -172,12 +184,17 @@ class SceneBuilder:
 
     def _flat(self):
         if not self.flat:
-            return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 2), np.int64), \
-                np.zeros((0, 3))
+            return (
+                np.zeros((0, 3)),
+                np.zeros(0, np.int64),
+                np.zeros((0, 2), np.int64),
+                np.zeros((0, 3)),
+            )
         pts = np.concatenate([b[0] for b in self.flat])
         counts = np.concatenate([b[1] for b in self.flat])
-        ids = np.concatenate([np.stack((b[2], np.full(len(b[2]), b[3])), axis=1)
-                              for b in self.flat])  # fmt: skip
+        ids = np.concatenate(
+            [np.stack((b[2], np.full(len(b[2]), b[3])), axis=1) for b in self.flat]
+        )
         return pts, counts, ids, polygons.planes(pts, counts).unit
 
     def _smooth(self):
@@ -186,6 +203,7 @@ class SceneBuilder:
         pos = np.concatenate([b[0] for b in self.smooth])
         nrm = np.concatenate([b[1] for b in self.smooth])
         counts = np.concatenate([b[2] for b in self.smooth])
-        ids = np.concatenate([np.stack((b[3], np.full(len(b[3]), b[4])), axis=1)
-                              for b in self.smooth])  # fmt: skip
+        ids = np.concatenate(
+            [np.stack((b[3], np.full(len(b[3]), b[4])), axis=1) for b in self.smooth]
+        )
         return pos, nrm, counts, ids

@@ -32,8 +32,12 @@ def read_scene(path, settings=None, note: Callable[[str], None] | None = None) -
     ext = path.suffix.lower()
     if ext == ".nff":
         if settings is not None:
-            raise SceneError(str(settings), 1, "an NFF scene has its own view, lights and "
-                             "materials: settings are for .obj, .ply and .iv")  # fmt: skip
+            raise SceneError(
+                str(settings),
+                1,
+                "an NFF scene has its own view, lights and "
+                "materials: settings are for .obj, .ply and .iv",
+            )
         from host.scene.nff import read_nff
 
         return read_nff(path)
@@ -46,5 +50,8 @@ def read_scene(path, settings=None, note: Callable[[str], None] | None = None) -
 
         return read_inventor(path, settings, note)
     known = ", ".join(FORMATS)
-    raise SceneError(str(path), 1, f"unknown scene format {path.suffix or '(no extension)'!r}:"
-                     f" the host reads {known}")  # fmt: skip
+    raise SceneError(
+        str(path),
+        1,
+        f"unknown scene format {path.suffix or '(no extension)'!r}: the host reads {known}",
+    )

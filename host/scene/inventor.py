@@ -46,19 +46,42 @@ _TOKEN = re.compile(r'(#[^\n]*)|("(?:[^"\\\n]|\\.)*")|([{}\[\]()|])|([^\s{}\[\](
 # Field kinds: 'f' one number, 'v3' three, 'rot' four (axis, angle), 'mv3' one or a [list] of
 # triples, 'mf' one or a [list] of numbers, 'mi' one or a [list] of integers, 'b' TRUE/FALSE,
 # 'enum' a word or (A | B), 'str' one or a [list] of strings.
-_CAMERA = {"position": "v3", "orientation": "rot", "heightAngle": "f", "focalDistance": "f",
-           "nearDistance": "f", "farDistance": "f", "aspectRatio": "f", "viewportMapping": "enum"}
+_CAMERA = {
+    "position": "v3",
+    "orientation": "rot",
+    "heightAngle": "f",
+    "focalDistance": "f",
+    "nearDistance": "f",
+    "farDistance": "f",
+    "aspectRatio": "f",
+    "viewportMapping": "enum",
+}
 _NODES: dict[str, dict[str, str]] = {
-    "Separator": {"renderCaching": "enum", "boundingBoxCaching": "enum",
-                  "renderCulling": "enum", "pickCulling": "enum"},
+    "Separator": {
+        "renderCaching": "enum",
+        "boundingBoxCaching": "enum",
+        "renderCulling": "enum",
+        "pickCulling": "enum",
+    },
     "Group": {},
-    "Transform": {"translation": "v3", "rotation": "rot", "scaleFactor": "v3",
-                  "scaleOrientation": "rot", "center": "v3"},
+    "Transform": {
+        "translation": "v3",
+        "rotation": "rot",
+        "scaleFactor": "v3",
+        "scaleOrientation": "rot",
+        "center": "v3",
+    },
     "Translation": {"translation": "v3"},
     "Rotation": {"rotation": "rot"},
     "Scale": {"scaleFactor": "v3"},
-    "Material": {"ambientColor": "mv3", "diffuseColor": "mv3", "specularColor": "mv3",
-                 "emissiveColor": "mv3", "shininess": "mf", "transparency": "mf"},
+    "Material": {
+        "ambientColor": "mv3",
+        "diffuseColor": "mv3",
+        "specularColor": "mv3",
+        "emissiveColor": "mv3",
+        "shininess": "mf",
+        "transparency": "mf",
+    },
     "Coordinate3": {"point": "mv3"},
     "IndexedFaceSet": {"coordIndex": "mi"},
     "Sphere": {"radius": "f"},
@@ -69,11 +92,15 @@ _NODES: dict[str, dict[str, str]] = {
     "PointLight": {"on": "b", "intensity": "f", "color": "v3", "location": "v3"},
     "DirectionalLight": {"on": "b", "intensity": "f", "color": "v3", "direction": "v3"},
     "Info": {"string": "str"},
-}  # fmt: skip
+}
 _GROUPS = ("Separator", "Group")
 _PARTS = {"Cone": {"SIDES", "BOTTOM", "ALL"}, "Cylinder": {"SIDES", "TOP", "BOTTOM", "ALL"}}
-_MATERIAL = {"diffuseColor": (0.8, 0.8, 0.8), "specularColor": (0.0, 0.0, 0.0),
-             "shininess": 0.2, "transparency": 0.0}  # fmt: skip
+_MATERIAL = {
+    "diffuseColor": (0.8, 0.8, 0.8),
+    "specularColor": (0.0, 0.0, 0.0),
+    "shininess": 0.2,
+    "transparency": 0.0,
+}
 
 
 @dataclass
@@ -95,13 +122,16 @@ def read_inventor(path, settings=None, note: Callable[[str], None] | None = None
     path = Path(path)
     text = path.read_text(encoding="latin-1")
     toml = Path(settings) if settings is not None else beside(path)
-    given = (read_settings(toml, {"resolution", "background"}) if toml is not None
-             else Settings())  # fmt: skip
+    given = read_settings(toml, {"resolution", "background"}) if toml is not None else Settings()
     return parse_inventor(text, str(path), given, note)
 
 
-def parse_inventor(text: str, source: str = "<string>", settings: Settings | None = None,
-                   note: Callable[[str], None] | None = None) -> SceneData:  # fmt: skip
+def parse_inventor(
+    text: str,
+    source: str = "<string>",
+    settings: Settings | None = None,
+    note: Callable[[str], None] | None = None,
+) -> SceneData:
     """Parse Inventor text into a scene; `source` names it in errors and notes."""
     settings = settings or Settings()
     roots = _Parser(text, source).parse()
@@ -121,8 +151,12 @@ class _Parser:
         self.source = source
         first = text.split("\n", 1)[0]
         if not HEADER.match(first):
-            raise SceneError(source, 1, "not an Open Inventor 2.1 ASCII file (the first line "
-                             "must be '#Inventor V2.1 ascii')")  # fmt: skip
+            raise SceneError(
+                source,
+                1,
+                "not an Open Inventor 2.1 ASCII file (the first line "
+                "must be '#Inventor V2.1 ascii')",
+            )
         self.toks: list[str] = []
         self.lines: list[int] = []
         line = 1
@@ -173,8 +207,7 @@ class _Parser:
         if tok not in _NODES:
             if tok in "{}[]()|" or not re.fullmatch(r"[A-Za-z_][\w]*", tok):
                 raise self.error(f"expected a node, got {tok!r}", at)
-            raise self.error(f"unknown node {tok!r} (supported: "
-                             f"{', '.join(sorted(_NODES))})", at)  # fmt: skip
+            raise self.error(f"unknown node {tok!r} (supported: {', '.join(sorted(_NODES))})", at)
         node = Node(tok, self.lines[at])
         if self.take(f"'{{' after {tok}") != "{":
             raise self.error(f"expected '{{' after {tok}", self.i - 1)
@@ -191,8 +224,9 @@ class _Parser:
             after = self.toks[self.i + 1] if self.i + 1 < len(self.toks) else None
             if nxt in ("DEF", "USE") or after == "{":
                 if tok not in _GROUPS:
-                    raise self.error(f"{tok} cannot have child nodes (only Separator and "
-                                     "Group can)")  # fmt: skip
+                    raise self.error(
+                        f"{tok} cannot have child nodes (only Separator and Group can)"
+                    )
                 node.children.append(self.node())
                 continue
             if nxt not in schema:
@@ -219,9 +253,12 @@ class _Parser:
             return tok in ("TRUE", "1")
         if kind == "enum":
             return self.enum(where)
-        one = {"mv3": lambda: tuple(self.number(where) for _ in range(3)),
-               "mf": lambda: self.number(where), "mi": lambda: self.integer(where),
-               "str": lambda: self.string(where)}[kind]  # fmt: skip
+        one = {
+            "mv3": lambda: tuple(self.number(where) for _ in range(3)),
+            "mf": lambda: self.number(where),
+            "mi": lambda: self.integer(where),
+            "str": lambda: self.string(where),
+        }[kind]
         if self.peek() != "[":
             return [one()]
         self.i += 1
@@ -353,8 +390,12 @@ class _Walk:
                 continue
             vals = node.fields[name][0]
             if len(vals) != 1:
-                raise self.error(node, f"{name} has {len(vals)} values: one material per "
-                                 "shape only (no per-face materials)", name)  # fmt: skip
+                raise self.error(
+                    node,
+                    f"{name} has {len(vals)} values: one material per "
+                    "shape only (no per-face materials)",
+                    name,
+                )
             v = vals[0]
             lo_ok = min(v) >= 0 if isinstance(v, tuple) else 0 <= v <= 1
             if not lo_ok:
@@ -363,8 +404,14 @@ class _Walk:
 
     def mat(self) -> int:
         m = self.state.material
-        row = (*m["diffuseColor"], 1.0, max(m["specularColor"]), m["shininess"] * 128.0,
-               m["transparency"], 1.0)  # fmt: skip
+        row = (
+            *m["diffuseColor"],
+            1.0,
+            max(m["specularColor"]),
+            m["shininess"] * 128.0,
+            m["transparency"],
+            1.0,
+        )
         return self.build.material(row)
 
     # -- shapes ---------------------------------------------------------------------------------
@@ -397,8 +444,11 @@ class _Walk:
         gram = lin.T @ lin
         s2 = np.trace(gram) / 3
         if np.abs(gram - s2 * np.eye(3)).max() > 1e-9 * s2:
-            raise self.error(node, "under a non-uniform scale a sphere is an ellipsoid, which "
-                             "the tracer cannot draw; scale it the same on every axis")  # fmt: skip
+            raise self.error(
+                node,
+                "under a non-uniform scale a sphere is an ellipsoid, which "
+                "the tracer cannot draw; scale it the same on every axis",
+            )
         self.build.sphere(self.points([0.0, 0.0, 0.0])[0], r * math.sqrt(s2), self.mat())
 
     def cube(self, node: Node) -> None:
@@ -433,15 +483,22 @@ class _Walk:
         parts = node.get("parts", {"ALL"})
         bad = parts - _PARTS[node.kind]
         if bad:
-            raise self.error(node, f"parts {sorted(bad)} unknown (a {node.kind} has "
-                             f"{', '.join(sorted(_PARTS[node.kind]))})", "parts")  # fmt: skip
+            raise self.error(
+                node,
+                f"parts {sorted(bad)} unknown (a {node.kind} has "
+                f"{', '.join(sorted(_PARTS[node.kind]))})",
+                "parts",
+            )
         lin = self.linear()
         ex, ey, ez = lin[:, 0], lin[:, 1], lin[:, 2]
         sx, sz = np.linalg.norm(ex), np.linalg.norm(ez)
         tol = 1e-9 * max(sx, sz, np.linalg.norm(ey))
         if abs(sx - sz) > tol or max(abs(ex @ ez), abs(ex @ ey), abs(ez @ ey)) > tol * sx:
-            raise self.error(node, "under this scale its cross-section is not a circle, "
-                             "which the tracer cannot draw; scale x and z alike")  # fmt: skip
+            raise self.error(
+                node,
+                "under this scale its cross-section is not a circle, "
+                "which the tracer cannot draw; scale x and z alike",
+            )
         everything = "ALL" in parts
         if everything or "SIDES" in parts:
             base, apex = self.points([[0.0, -h / 2, 0.0], [0.0, h / 2, 0.0]])
@@ -473,8 +530,12 @@ class _Walk:
         corners = np.delete(index, np.flatnonzero(index == -1))
         bad = np.flatnonzero((corners < 0) | (corners >= len(coords)))
         if len(bad):
-            raise self.error(node, f"coordIndex {corners[bad[0]]} is out of range (the "
-                             f"Coordinate3 has {len(coords)} points)", "coordIndex")  # fmt: skip
+            raise self.error(
+                node,
+                f"coordIndex {corners[bad[0]]} is out of range (the "
+                f"Coordinate3 has {len(coords)} points)",
+                "coordIndex",
+            )
         line = node.fields["coordIndex"][1]
         self.faces(coords[corners], counts, [line] * len(counts))
 
@@ -482,8 +543,9 @@ class _Walk:
 
     def perspectivecamera(self, node: Node) -> None:
         if self.view is not None:
-            self.notes.append(f"{self.source}:{node.line}: a second camera: the first one is "
-                              "the view")  # fmt: skip
+            self.notes.append(
+                f"{self.source}:{node.line}: a second camera: the first one is the view"
+            )
             return
         height_angle = node.get("heightAngle", math.pi / 4)
         focal = node.get("focalDistance", 5.0)
@@ -497,8 +559,15 @@ class _Walk:
         n = max(self.size)
         angle = 2 * math.degrees(math.atan(math.tan(height_angle / 2) * (n - 1) / n))
         try:
-            self.view = View(eye=_floats(eye), at=_floats(at), up=_floats(up), angle=angle,
-                             hither=0.0, width=self.size[0], height=self.size[1])  # fmt: skip
+            self.view = View(
+                eye=_floats(eye),
+                at=_floats(at),
+                up=_floats(up),
+                angle=angle,
+                hither=0.0,
+                width=self.size[0],
+                height=self.size[1],
+            )
         except ValueError as e:
             raise self.error(node, str(e)) from None
 
@@ -537,8 +606,7 @@ class _Walk:
             for line in self.notes + self.build.notes:
                 note(line)
             if used:
-                note(f"{self.source}: no {' or '.join(lacks)} in the file: using "
-                     f"{', '.join(used)}")
+                note(f"{self.source}: no {' or '.join(lacks)} in the file: using {', '.join(used)}")
         return scene
 
 

@@ -154,14 +154,20 @@ class _Scan:
             self.need(i, k, at)
         # One sum, max and min instead of k checks; an overflowing sum of finite values
         # just costs the slow look.
-        if not math.isfinite(sum(vals)) or max(vals) > MAX_COORDINATE or min(
-                vals) < -MAX_COORDINATE:  # fmt: skip
+        if (
+            not math.isfinite(sum(vals))
+            or max(vals) > MAX_COORDINATE
+            or min(vals) < -MAX_COORDINATE
+        ):
             for j, v in enumerate(vals):
                 if not math.isfinite(v):
                     raise self.error(i + j, f"non-finite number {seg[j]!r}")
                 if abs(v) > MAX_COORDINATE:
-                    raise self.error(i + j, f"{seg[j]} is beyond +-{MAX_COORDINATE:g} (the "
-                                     "tracer's products would overflow)")  # fmt: skip
+                    raise self.error(
+                        i + j,
+                        f"{seg[j]} is beyond +-{MAX_COORDINATE:g} (the "
+                        "tracer's products would overflow)",
+                    )
         return vals
 
     def is_number(self, i: int) -> bool:

@@ -20,8 +20,26 @@ from host.scene.meshfaces import MeshFaces
 # Statements that describe nothing the tracer draws: texture, grouping, materials by name,
 # smoothing groups, lines and points.
 _IGNORED = frozenset(("vt", "o", "g", "s", "usemtl", "mtllib", "l", "p", "mg", "vp"))
-_FREEFORM = frozenset(("cstype", "deg", "bmat", "step", "curv", "curv2", "surf", "parm",
-                       "trim", "hole", "scrv", "sp", "end", "con", "ctech", "stech"))  # fmt: skip
+_FREEFORM = frozenset(
+    (
+        "cstype",
+        "deg",
+        "bmat",
+        "step",
+        "curv",
+        "curv2",
+        "surf",
+        "parm",
+        "trim",
+        "hole",
+        "scrv",
+        "sp",
+        "end",
+        "con",
+        "ctech",
+        "stech",
+    )
+)
 
 
 def read_obj(path) -> MeshFaces:
@@ -53,30 +71,37 @@ def read_obj(path) -> MeshFaces:
         if key in recs:
             arity = (3, 4, 6, 7) if key == "v" else (3,)
             if len(parts) - 1 not in arity:
-                raise SceneError(source, at, f"{key!r} needs {' or '.join(map(str, arity))} "
-                                 f"numbers, got {len(parts) - 1}")  # fmt: skip
+                raise SceneError(
+                    source,
+                    at,
+                    f"{key!r} needs {' or '.join(map(str, arity))} numbers, got {len(parts) - 1}",
+                )
             recs[key][0].extend(parts[1:4])
             recs[key][1].append(at)
         elif key == "f":
             if len(parts) < 4:
-                raise SceneError(source, at, f"a face needs at least 3 corners, got "
-                                 f"{len(parts) - 1}")  # fmt: skip
+                raise SceneError(
+                    source, at, f"a face needs at least 3 corners, got {len(parts) - 1}"
+                )
             ftok.extend(parts[1:])
             counts.append(len(parts) - 1)
             lines.append(at)
             seen_v.append(len(recs["v"][1]))
             seen_n.append(len(recs["vn"][1]))
         elif key in _FREEFORM:
-            raise SceneError(source, at, f"free-form geometry ({key!r}) is not supported: "
-                             "polygons only")  # fmt: skip
+            raise SceneError(
+                source, at, f"free-form geometry ({key!r}) is not supported: polygons only"
+            )
         elif key not in _IGNORED:
             raise SceneError(source, at, f"unknown statement {key!r}")
     points, normals = (_numbers(source, key, *recs[key]) for key in ("v", "vn"))
     counts_a, lines_a = np.array(counts, np.int64), np.array(lines, np.int64)
-    corner_v, corner_n = _corners(source, ftok, counts_a, lines_a, np.array(seen_v, np.int64),
-                                  np.array(seen_n, np.int64))  # fmt: skip
-    faces = MeshFaces(points, normals if len(normals) else None, corner_v, corner_n, counts_a,
-                      lines_a)  # fmt: skip
+    corner_v, corner_n = _corners(
+        source, ftok, counts_a, lines_a, np.array(seen_v, np.int64), np.array(seen_n, np.int64)
+    )
+    faces = MeshFaces(
+        points, normals if len(normals) else None, corner_v, corner_n, counts_a, lines_a
+    )
     _check_indices(source, faces)
     return faces
 
@@ -90,8 +115,9 @@ def _numbers(source: str, key: str, toks: list[str], lines: list[int]) -> np.nda
             try:
                 float(tok)
             except ValueError:
-                raise SceneError(source, lines[i // 3], f"{key!r}: expected a number, got "
-                                 f"{tok!r}") from None  # fmt: skip
+                raise SceneError(
+                    source, lines[i // 3], f"{key!r}: expected a number, got {tok!r}"
+                ) from None
         raise
     bad = np.flatnonzero(~np.isfinite(vals).all(axis=1))
     if len(bad):
@@ -117,8 +143,12 @@ def _corners(source, toks, counts, lines, seen_v, seen_n):
                 nums = np.array(joined.replace("/", " ").split(), np.int64).reshape(len(toks), -1)
             except ValueError:
                 nums = None
-    if nums is None or nums.shape[1] != k + 1 or (nums[:, 0] == 0).any() \
-            or (k == 2 and (nums[:, 2] == 0).any()):  # fmt: skip
+    if (
+        nums is None
+        or nums.shape[1] != k + 1
+        or (nums[:, 0] == 0).any()
+        or (k == 2 and (nums[:, 2] == 0).any())
+    ):
         return _corners_slowly(source, toks, counts, lines, seen_v, seen_n)
     face = np.repeat(np.arange(len(counts)), counts)
     v = np.where(nums[:, 0] > 0, nums[:, 0] - 1, seen_v[face] + nums[:, 0])
@@ -171,10 +201,16 @@ def _check_indices(source: str, faces: MeshFaces) -> None:
     """Every corner names a vertex (and normal) that the file has."""
     face_of = np.repeat(np.arange(len(faces.counts)), faces.counts)
     nn = 0 if faces.normals is None else len(faces.normals)
-    for idx, total, what in ((faces.corner_v, len(faces.points), "vertex"),
-                             (faces.corner_n, nn, "normal")):  # fmt: skip
+    for idx, total, what in (
+        (faces.corner_v, len(faces.points), "vertex"),
+        (faces.corner_n, nn, "normal"),
+    ):
         bad = np.flatnonzero(idx >= total)
         if len(bad):
             line = int(faces.lines[face_of[bad[0]]])
-            raise SceneError(source, line, f"face names {what} {idx[bad[0]] + 1} but the "
-                             f"file has {total} {what}{'s' * (total != 1)}")  # fmt: skip
+            raise SceneError(
+                source,
+                line,
+                f"face names {what} {idx[bad[0]] + 1} but the "
+                f"file has {total} {what}{'s' * (total != 1)}",
+            )

@@ -62,23 +62,32 @@ def read_ply(path) -> MeshFaces:
         corner_v = lists.astype(np.int64).reshape(-1)
     else:
         counts = np.fromiter(map(len, lists), np.int64, len(lists))
-        corner_v = (np.concatenate(lists).astype(np.int64) if len(lists)
-                    else np.zeros(0, np.int64))  # fmt: skip
+        corner_v = np.concatenate(lists).astype(np.int64) if len(lists) else np.zeros(0, np.int64)
     rows = np.arange(len(counts))
-    lines = (header.row_line("face", 0, True) + rows if header.ascii
-             else np.full(len(counts), header.decl("face")))  # fmt: skip
-    for bad, what in ((counts < 3, "a face needs at least 3 corners"),
-                      (~np.isfinite(points).all(1), "non-finite vertex")):  # fmt: skip
+    lines = (
+        header.row_line("face", 0, True) + rows
+        if header.ascii
+        else np.full(len(counts), header.decl("face"))
+    )
+    for bad, what in (
+        (counts < 3, "a face needs at least 3 corners"),
+        (~np.isfinite(points).all(1), "non-finite vertex"),
+    ):
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             element = "face" if what.startswith("a face") else "vertex"
-            raise SceneError(source, header.row_line(element, i, header.ascii),
-                             f"{element} {i}: {what}")  # fmt: skip
+            raise SceneError(
+                source, header.row_line(element, i, header.ascii), f"{element} {i}: {what}"
+            )
     out = np.flatnonzero((corner_v < 0) | (corner_v >= len(points)))
     if len(out):
         f = int(np.searchsorted(np.cumsum(counts), out[0], side="right"))
-        raise SceneError(source, int(lines[f]), f"face {f}: vertex index {corner_v[out[0]]} "
-                         f"out of range (the file has {len(points)} vertices)")  # fmt: skip
+        raise SceneError(
+            source,
+            int(lines[f]),
+            f"face {f}: vertex index {corner_v[out[0]]} "
+            f"out of range (the file has {len(points)} vertices)",
+        )
     corner_n = corner_v if normals is not None else None
     return MeshFaces(points, normals, corner_v, corner_n, counts, lines)
 

@@ -57,8 +57,9 @@ def add_faces(build: SceneBuilder, faces: MeshFaces, mat: int) -> None:
     corners = faces.corners()
     starts = np.concatenate(([0], np.cumsum(faces.counts)))
     cuts = np.flatnonzero(np.diff(smooth.astype(np.int8))) + 1
-    for a, b in zip(np.concatenate(([0], cuts)), np.concatenate((cuts, [len(smooth)])),
-                    strict=True):  # fmt: skip
+    for a, b in zip(
+        np.concatenate(([0], cuts)), np.concatenate((cuts, [len(smooth)])), strict=True
+    ):
         sl = slice(starts[a], starts[b])
         normals = faces.normals[faces.corner_n[sl]] if smooth[a] else None
         build.faces(corners[sl], faces.counts[a:b], mat, faces.lines[a:b], normals)

@@ -31,8 +31,14 @@ from protocols.scene import View
 
 DEFAULT_ANGLE = 45.0
 DEFAULT_SIZE = 512  # pixels each way, as NFF's view without `resolution`
-DEFAULT_MATERIAL = {"colour": (0.8, 0.8, 0.8), "kd": 1.0, "ks": 0.0, "shine": 0.0, "t": 0.0,
-                    "ior": 1.0}  # fmt: skip
+DEFAULT_MATERIAL = {
+    "colour": (0.8, 0.8, 0.8),
+    "kd": 1.0,
+    "ks": 0.0,
+    "shine": 0.0,
+    "t": 0.0,
+    "ior": 1.0,
+}
 _TOP = {"resolution", "background", "view", "light", "material"}
 _VIEW = {"from": 3, "at": 3, "up": 3, "angle": 1, "hither": 1}
 _LIGHT = {"position": 3, "colour": 3, "color": 3}
@@ -124,18 +130,28 @@ class _Check:
         for k in data:
             if k not in keys:
                 where = f"[{table}]" if table else "the settings"
-                self.fail(table, k, f"unknown key {k!r} in {where} (known: "
-                          f"{', '.join(sorted(keys))})", nth)  # fmt: skip
+                self.fail(
+                    table,
+                    k,
+                    f"unknown key {k!r} in {where} (known: {', '.join(sorted(keys))})",
+                    nth,
+                )
 
     def settings(self, data: dict) -> Settings:
         self.known(None, data, self.allowed)
         out = Settings(source=self.source)
         if "resolution" in data:
             res = data["resolution"]
-            if not (isinstance(res, list) and len(res) == 2
-                    and all(type(v) is int and 0 < v <= 32768 for v in res)):  # fmt: skip
-                self.fail(None, "resolution", f"resolution must be two whole numbers from 1 "
-                          f"to 32768, got {res!r}")  # fmt: skip
+            if not (
+                isinstance(res, list)
+                and len(res) == 2
+                and all(type(v) is int and 0 < v <= 32768 for v in res)
+            ):
+                self.fail(
+                    None,
+                    "resolution",
+                    f"resolution must be two whole numbers from 1 to 32768, got {res!r}",
+                )
             out.resolution = (res[0], res[1])
         if "background" in data:
             out.background = self.numbers(None, "background", data["background"], 3)
@@ -170,8 +186,11 @@ class _Check:
 
     def material(self, mat: dict) -> dict:
         self.known("material", mat, _MATERIAL)
-        out = {k: self.numbers("material", k, v, 1)[0] for k, v in mat.items()
-               if k not in ("colour", "color")}  # fmt: skip
+        out = {
+            k: self.numbers("material", k, v, 1)[0]
+            for k, v in mat.items()
+            if k not in ("colour", "color")
+        }
         for k, v in out.items():
             if v < 0:
                 self.fail("material", k, f"material: negative {k}")
@@ -203,13 +222,20 @@ def framing(lo, hi, settings: Settings) -> View:
         eye = np.asarray(v["from"], float)
     else:
         half = math.radians(min(max(angle, 1.0), 170.0)) / 2
-        eye = at + _unit((0.3, 0.4, 1.0)) * (radius / math.sin(half) * 1.05 + float(
-            np.linalg.norm(at - centre)))  # fmt: skip
+        eye = at + _unit((0.3, 0.4, 1.0)) * (
+            radius / math.sin(half) * 1.05 + float(np.linalg.norm(at - centre))
+        )
     width, height = settings.size()
     try:
-        return View(eye=_floats(eye), at=_floats(at), up=_floats(v.get("up", (0, 1, 0))),
-                    angle=angle, hither=v.get("hither", (0.0,))[0], width=width,
-                    height=height)  # fmt: skip
+        return View(
+            eye=_floats(eye),
+            at=_floats(at),
+            up=_floats(v.get("up", (0, 1, 0))),
+            angle=angle,
+            hither=v.get("hither", (0.0,))[0],
+            width=width,
+            height=height,
+        )
     except ValueError as e:
         raise SceneError(settings.source or "<defaults>", settings.view_line, str(e)) from None
 

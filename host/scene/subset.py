@@ -17,8 +17,10 @@ def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     rows, new_start, _, _ = segments(polys["start"], polys["count"])  # kept vertices, in order
     polys["start"] = new_start
     return replace(
-        scene, spheres=scene.spheres[parts[0]], triangles=scene.triangles[parts[1]],
-        polygons=polys, vertices=scene.vertices[rows].reshape(-1, 3),
+        scene,
+        spheres=scene.spheres[parts[0]],
+        triangles=scene.triangles[parts[1]],
+        polygons=polys,
+        vertices=scene.vertices[rows].reshape(-1, 3),
         cones=scene.cones[parts[3]],
-    )  # fmt: skip
-
+    )

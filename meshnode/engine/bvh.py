@@ -215,7 +215,11 @@ def _build(lo, hi, off):
         # Second child first onto the stack: the first is built next, at index k + 1.
         todo[top, 0], todo[top, 1], todo[top, 2], todo[top, 3] = mid, end, depth + 1, k
         todo[top + 1, 0], todo[top + 1, 1], todo[top + 1, 2], todo[top + 1, 3] = (
-            start, mid, depth + 1, -1)  # fmt: skip
+            start,
+            mid,
+            depth + 1,
+            -1,
+        )
         top += 2
     return box[:count].copy(), meta[:count].copy(), prims
 
@@ -309,8 +313,9 @@ class Bvh:
     def __init__(self, lo: np.ndarray, hi: np.ndarray, offsets: np.ndarray):
         start = time.perf_counter()
         offsets = np.asarray(offsets, np.int64)
-        box, meta, prims = _build(np.ascontiguousarray(lo, np.float64),
-                                  np.ascontiguousarray(hi, np.float64), offsets)  # fmt: skip
+        box, meta, prims = _build(
+            np.ascontiguousarray(lo, np.float64), np.ascontiguousarray(hi, np.float64), offsets
+        )
         # New ids: kind by kind (the tables' layout), leaf order within a kind (stable sort),
         # so a leaf, which holds one kind, is a run of consecutive new ids.
         kind = np.searchsorted(offsets, prims, side="right") - 1
@@ -356,10 +361,13 @@ def _slabs(flat, at, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound):
     it in (t_lo, bound). nx, ny, nz pick each axis's near plane (0: lo, 3: hi, by the sign of
     the direction), so each slab is two products and no min/max; the reciprocals are finite
     (`reciprocal`), so no product is inf * 0."""
-    t0 = max((flat[at + nx] - ox) * rx, max((flat[at + 1 + ny] - oy) * ry,
-                                            (flat[at + 2 + nz] - oz) * rz))  # fmt: skip
-    t1 = min((flat[at + 3 - nx] - ox) * rx, min((flat[at + 4 - ny] - oy) * ry,
-                                                (flat[at + 5 - nz] - oz) * rz))  # fmt: skip
+    t0 = max(
+        (flat[at + nx] - ox) * rx, max((flat[at + 1 + ny] - oy) * ry, (flat[at + 2 + nz] - oz) * rz)
+    )
+    t1 = min(
+        (flat[at + 3 - nx] - ox) * rx,
+        min((flat[at + 4 - ny] - oy) * ry, (flat[at + 5 - nz] - oz) * rz),
+    )
     t1 *= SLACK
     if t0 <= t1 and t1 > t_lo and t0 < bound:
         return t0
@@ -367,15 +375,58 @@ def _slabs(flat, at, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound):
 
 
 @leaf
-def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, counters,
-             gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh):  # fmt: skip
+def bvh_walk(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    t_lo,
+    t_hi,
+    origin,
+    any_hit,
+    hint,
+    stack,
+    counters,
+    gid,
+    off,
+    sph,
+    tri,
+    poly,
+    pinfo,
+    puv,
+    pband,
+    cone,
+    bvh,
+):
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `BvhArrays` bvh:
     (t, local id or -1). Arguments as `traverse.walk`'s; `stack` is the caller's float64
     scratch of 2 * STACK (reference, entry t) pairs, one per thread. Both children's boxes
     are tested at each inner node; the nearer is visited first, the other kept on the stack
     and dropped when popped if a hit nearer than its entry was found meanwhile."""
-    t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-               sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+    t = hinted(
+        hint,
+        ox,
+        oy,
+        oz,
+        dx,
+        dy,
+        dz,
+        t_lo,
+        t_hi,
+        origin,
+        counters,
+        gid,
+        off,
+        sph,
+        tri,
+        poly,
+        pinfo,
+        puv,
+        pband,
+        cone,
+    )
     if t < t_hi:
         return t, hint
     flat, flat_refs = bvh
@@ -418,8 +469,27 @@ def bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, stack, c
             first = packed >> LEAF_BITS
             for u in range(first, first + (packed & LEAF_CAP)):
                 tests += 1
-                t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                                sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+                t = test_object(
+                    u,
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    bound,
+                    origin,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                )
                 if t < math.inf and better(t, u, best_t, best_u, gid):
                     best_t = t
                     best_u = u

@@ -82,8 +82,9 @@ def set_primary(r, ox, oy, oz, dx, dy, dz, t_min, w, pixel):
 
 
 @kernel
-def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, seed,
-                  x0, x1, y0, y1, hither):  # fmt: skip
+def fill_eye_rays(
+    out, eye, fwd, right, up, step, width, height, corners, spp, seed, x0, x1, y0, y1, hither
+):
     """Write the eye rays of sample-grid columns [x0, x1) and rows [y0, y1) into `out`.
 
     corners=True: sample (i, j) sits on a pixel corner, id j*(W+1)+i. Otherwise sample k of
@@ -116,14 +117,19 @@ def fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, s
                 dz = fwd[2] + px * right[2] + py * up[2]
                 ln = math.sqrt(dx * dx + dy * dy + dz * dz)
                 # hither is measured along the view axis
-                set_primary(out[n], eye[0], eye[1], eye[2], dx / ln, dy / ln, dz / ln,
-                            hither * ln, 1.0, sid)  # fmt: skip
+                set_primary(
+                    out[n], eye[0], eye[1], eye[2], dx / ln, dy / ln, dz / ln, hither * ln, 1.0, sid
+                )
                 n += 1
     return n
 
 
-def eye_rays(view: View, image: ImageSpec, rows: tuple[int, int] | None = None,
-             cols: tuple[int, int] | None = None):  # fmt: skip
+def eye_rays(
+    view: View,
+    image: ImageSpec,
+    rows: tuple[int, int] | None = None,
+    cols: tuple[int, int] | None = None,
+):
     """Eye rays (RAY records) of a rectangle of the image's sample grid (all of it by
     default): pixel corners under the SPD rules, else `spp` samples per pixel."""
     width, height = image.size
@@ -135,6 +141,22 @@ def eye_rays(view: View, image: ImageSpec, rows: tuple[int, int] | None = None,
     y0, y1 = rows or (0, gh)
     # Not zeroed: the kernel writes every field of every record (RAY has no padding bytes).
     out = np.empty((x1 - x0) * (y1 - y0) * spp, RAY)
-    fill_eye_rays(out, eye, fwd, right, up, step, width, height, corners, spp, image.seed,
-                  x0, x1, y0, y1, float(view.hither))  # fmt: skip
+    fill_eye_rays(
+        out,
+        eye,
+        fwd,
+        right,
+        up,
+        step,
+        width,
+        height,
+        corners,
+        spp,
+        image.seed,
+        x0,
+        x1,
+        y0,
+        y1,
+        float(view.hither),
+    )
     return out

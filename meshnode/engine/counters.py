@@ -14,10 +14,22 @@ EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED 
 TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED, INTERNAL, OCC_STEPS = range(6, 15)
 N_COUNTERS = 15
 COUNTER_NAMES = (
-    "eye_rays", "eye_hits", "reflected_rays", "refracted_rays", "shadow_rays",
-    "shadow_rays_blocked", "intersection_tests", "voxel_steps", "ray_segments", "escaped",
-    "hits", "shadow_rays_lit", "rays_forwarded", "internal_reflections", "occupancy_steps",
-)  # fmt: skip
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+    "intersection_tests",
+    "voxel_steps",
+    "ray_segments",
+    "escaped",
+    "hits",
+    "shadow_rays_lit",
+    "rays_forwarded",
+    "internal_reflections",
+    "occupancy_steps",
+)
 # The walks' work, not rays: kept apart from the ray counts in a render's statistics.
 WALK_COUNTS = ("intersection_tests", "voxel_steps", "occupancy_steps")
 # What the SPD author's published table counts: eye rays that hit, reflected rays, refracted

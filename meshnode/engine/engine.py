@@ -1,10 +1,10 @@
 """The Python-facing engine: holds one node's tables and grid, checks inputs, calls kernels.
 
-    from host.scene.nff import read_nff
-    from meshnode.engine import Engine
-    engine = Engine(read_nff("scene.nff"))
-    t, gid = engine.first_hits(origins, directions)      # nearest hit per ray
-    rgb, counts = engine.trace(rays)                     # Whitted colour per RAY record
+from host.scene.nff import read_nff
+from meshnode.engine import Engine
+engine = Engine(read_nff("scene.nff"))
+t, gid = engine.first_hits(origins, directions)      # nearest hit per ray
+rgb, counts = engine.trace(rays)                     # Whitted colour per RAY record
 """
 
 import itertools
@@ -50,16 +50,24 @@ class Variant(NamedTuple):
 
     @property
     def name(self) -> str:
-        return "/".join(["+".join(self.kinds) or "empty",
-                         "smooth" if self.smooth else "flat",
-                         "shadows" if self.shadows else "no-shadows",
-                         "refraction" if self.refraction else "no-refraction"])  # fmt: skip
+        return "/".join(
+            [
+                "+".join(self.kinds) or "empty",
+                "smooth" if self.smooth else "flat",
+                "shadows" if self.shadows else "no-shadows",
+                "refraction" if self.refraction else "no-refraction",
+            ]
+        )
 
 
 def variant_of(tables: Tables) -> Variant:
     """The variant the engine compiles for these tables: the engine's one choice function."""
-    return Variant(tuple(tables.kinds), tables.tri_normals is not None,
-                   tables.lights is not None, bool(tables.transmitters))  # fmt: skip
+    return Variant(
+        tuple(tables.kinds),
+        tables.tri_normals is not None,
+        tables.lights is not None,
+        bool(tables.transmitters),
+    )
 
 
 def all_variants() -> list[Variant]:
@@ -92,12 +100,16 @@ def choose_structure(tables: Tables, asked: str, resolution) -> tuple[Bvh | None
     if asked == "bvh":
         return bvh, "forced by flag (bvh)"
     if tests > GRID_ABOVE_TESTS:
-        return None, (f"a hierarchy would test {tests:.3g} objects per ray crossing the node "
-                      f"(above {GRID_ABOVE_TESTS:g}): the objects' boxes nest or overlap, and "
-                      "the grid's exact voxel overlap tests separate them")  # fmt: skip
-    return bvh, (f"a hierarchy tests {tests:.3g} objects per ray crossing the node (at most "
-                 f"{GRID_ABOVE_TESTS:g}): it adapts to uneven crowding and builds in a fraction "
-                 "of the grid's time")  # fmt: skip
+        return None, (
+            f"a hierarchy would test {tests:.3g} objects per ray crossing the node "
+            f"(above {GRID_ABOVE_TESTS:g}): the objects' boxes nest or overlap, and "
+            "the grid's exact voxel overlap tests separate them"
+        )
+    return bvh, (
+        f"a hierarchy tests {tests:.3g} objects per ray crossing the node (at most "
+        f"{GRID_ABOVE_TESTS:g}): it adapts to uneven crowding and builds in a fraction "
+        "of the grid's time"
+    )
 
 
 class Engine:
@@ -164,8 +176,11 @@ class Engine:
         whole = box is None and scene_box is None
         covers = bool(np.all(lo <= self.scene_lo) and np.all(hi >= self.scene_hi))
         self.holds_scene = whole or covers
-        self.occupancy = (everywhere(self.scene_lo, self.scene_hi) if occupancy is None else
-                          occupancy_arrays(self.scene_lo, self.scene_hi, *occupancy))  # fmt: skip
+        self.occupancy = (
+            everywhere(self.scene_lo, self.scene_hi)
+            if occupancy is None
+            else occupancy_arrays(self.scene_lo, self.scene_hi, *occupancy)
+        )
         # A batch's own rays walk a hierarchy in packets, on object-space nodes too: eye rays
         # are made where they enter the node's cell, and rays passed on arrive in the order
         # they left a neighbour (tetra 3x3, one node's batches traced again: 7-16% less CPU;
@@ -180,9 +195,14 @@ class Engine:
         n_lights = 0 if tb.lights is None else len(tb.lights)
         ambient = math.sqrt(max(n_lights, 1)) / (2.0 * max(n_lights, 1))
         self.shading = Shading(
-            mat=tb.mat, materials=tb.materials, tri_n=tb.tri_normals, ambient=ambient,
-            background=np.asarray(scene.background, float), max_depth=int(max_depth), t_eps=t_eps,
-        )  # fmt: skip
+            mat=tb.mat,
+            materials=tb.materials,
+            tri_n=tb.tri_normals,
+            ambient=ambient,
+            background=np.asarray(scene.background, float),
+            max_depth=int(max_depth),
+            t_eps=t_eps,
+        )
         self.transmit = (
             np.ascontiguousarray(tb.materials[:, MAT_TRANSMIT]) if tb.transmitters else None
         )
@@ -204,17 +224,21 @@ class Engine:
             "bvh": None if self.bvh is None else self.bvh.stats,
             "packet": PACKET if self.bvh is not None and self.packets else 1,
             "packet_reason": (
-                "the grid walks each ray alone" if self.bvh is None else
-                f"a batch's own rays walk the hierarchy {PACKET} neighbours together"
-                if self.packets else "asked for single rays"),
+                "the grid walks each ray alone"
+                if self.bvh is None
+                else f"a batch's own rays walk the hierarchy {PACKET} neighbours together"
+                if self.packets
+                else "asked for single rays"
+            ),
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
             "occupancy": {
                 "voxels": self.occupancy.res.tolist(),
                 "occupied": float(np.mean(self.occupancy.clear == 0)),
                 "reason": "segments leaving this node's box with only empty voxels of the "
-                          "scene ahead end here; others resume at the first occupied voxel"
-                if self.occupancy.res.prod() > 1 else "one node or whole scene: nothing "
-                "leaves the box to be skipped"},
+                "scene ahead end here; others resume at the first occupied voxel"
+                if self.occupancy.res.prod() > 1
+                else "one node or whole scene: nothing leaves the box to be skipped",
+            },
             "preprocess_seconds": self.preprocess_seconds,
         }
 
@@ -280,8 +304,7 @@ class Engine:
         """(rays regrouped by the cell that takes each on, runs' starts, rays no cell takes)
         for `cells` = (los, his), with `skip` from where each ray's work starts on the
         scene's occupancy map (`meshnode.engine.trace.routed`); `rays` stay as they were."""
-        return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy,
-                      *cells)  # fmt: skip
+        return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy, *cells)
 
     def first_hits(self, origins, directions, t_min: float = 0.0):
         """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).
@@ -292,11 +315,21 @@ class Engine:
         if o.shape != d.shape:
             raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
         counters = np.zeros(N_COUNTERS, np.int64)
-        t, gid, bad = first_hits(o, d, float(t_min), self.brute, counters, self.geometry,
-                                 self.grid_arrays, self.bvh_arrays)  # fmt: skip
+        t, gid, bad = first_hits(
+            o,
+            d,
+            float(t_min),
+            self.brute,
+            counters,
+            self.geometry,
+            self.grid_arrays,
+            self.bvh_arrays,
+        )
         if bad >= 0:
-            raise ValueError(f"ray {bad}: directions must be finite and non-zero; origins "
-                             f"finite (origin {o[bad].tolist()}, direction {d[bad].tolist()})")
+            raise ValueError(
+                f"ray {bad}: directions must be finite and non-zero; origins "
+                f"finite (origin {o[bad].tolist()}, direction {d[bad].tolist()})"
+            )
         return t, gid
 
     def trace(self, rays: np.ndarray, out_rgb: np.ndarray | None = None):
@@ -326,13 +359,26 @@ class Engine:
         rays = np.ascontiguousarray(rays)
         key = (array_key(rays), array_key(out_rgb), out is None)  # counters, out: made here
         out, n_out = self._trace_batch(
-            key, rays, out_rgb, counters, self.brute, self.geometry,
-            self.grid_arrays, self.shading, self.transmit, self.tables.lights,
+            key,
+            rays,
+            out_rgb,
+            counters,
+            self.brute,
+            self.geometry,
+            self.grid_arrays,
+            self.shading,
+            self.transmit,
+            self.tables.lights,
             # new arguments go last: numba code for this kernel ran 2x slower on tetra with two
             # more arrays early in the list (code layout), so keep the hot ones first (tetra:
             # 2-4% slower with the shading table ahead of the geometry and grid)
-            self.scene_lo, self.scene_hi, out, self.bvh_arrays, self.packets, self.occupancy,
-        )  # fmt: skip
+            self.scene_lo,
+            self.scene_hi,
+            out,
+            self.bvh_arrays,
+            self.packets,
+            self.occupancy,
+        )
         # a view, not a copy: copying records costs ~10 us a call, and the buffer was made
         # for this call alone (callers route the passed rays into new arrays at once)
         passed = None if out is None else out[:n_out]

@@ -69,15 +69,20 @@ class Grid:
         i32, i64, u8 = np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros(0, np.uint8)
         csr = self.storage == "csr"
         return GridArrays(
-            self.lo, self.cell, self.res,
+            self.lo,
+            self.cell,
+            self.res,
             self.offsets if csr else i32,
             i32 if csr else self.slots,
             i64 if csr else self.entry_voxel,
             i32 if csr else self.entry_start,
             i32 if csr else self.entry_count,
             u8 if csr else self.bits,
-            self.refs, self.macro, self.macro_res, self.macro_shift,
-        )  # fmt: skip
+            self.refs,
+            self.macro,
+            self.macro_res,
+            self.macro_shift,
+        )
 
 
 def grow_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,8 +125,7 @@ def _voxel_refs(glo, cell, res, lo, hi, geo, fill, counts, starts, refs):
         for iz in range(ijk_lo[2], ijk_hi[2] + 1):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
-                    if not _touches(u, ix, iy, iz, glo, cell, geo.off, geo.sph, geo.tri,
-                                    geo.poly):  # fmt: skip
+                    if not _touches(u, ix, iy, iz, glo, cell, geo.off, geo.sph, geo.tri, geo.poly):
                         continue
                     v = ix + nx * (iy + ny * iz)
                     if fill:
@@ -163,12 +167,36 @@ def _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
         return far >= r_in * r_in
     if tri is not None and u < off[2]:
         i = u - off[1]
-        return _plane_straddles(tri[i, 0], tri[i, 1], tri[i, 2], tri[i, 9], tri[i, 10],
-                                tri[i, 11], c0, c1, c2, h0, h1, h2)  # fmt: skip
+        return _plane_straddles(
+            tri[i, 0],
+            tri[i, 1],
+            tri[i, 2],
+            tri[i, 9],
+            tri[i, 10],
+            tri[i, 11],
+            c0,
+            c1,
+            c2,
+            h0,
+            h1,
+            h2,
+        )
     if poly is not None and u < off[3]:
         i = u - off[2]
-        return _plane_straddles(poly[i, 0], poly[i, 1], poly[i, 2], poly[i, 3], poly[i, 4],
-                                poly[i, 5], c0, c1, c2, h0, h1, h2)  # fmt: skip
+        return _plane_straddles(
+            poly[i, 0],
+            poly[i, 1],
+            poly[i, 2],
+            poly[i, 3],
+            poly[i, 4],
+            poly[i, 5],
+            c0,
+            c1,
+            c2,
+            h0,
+            h1,
+            h2,
+        )
     return True
 
 
@@ -254,8 +282,9 @@ def build_grid(
     boost = 1.0
     previous = None
     for _ in range(1 if fixed else 4):
-        trial = np.asarray(res if fixed else choose_resolution(glo, ghi, tables.n,
-                                                               density * boost)).astype(np.int64)
+        trial = np.asarray(
+            res if fixed else choose_resolution(glo, ghi, tables.n, density * boost)
+        ).astype(np.int64)
         cell, args, counts = _count(tables, glo, ghi, trial)
         occ = occupancy(counts)
         if previous is not None and (occ > 0.75 * previous[4] or counts.sum() > MAX_REFS):
@@ -298,8 +327,10 @@ def build_grid(
         "target_occupancy": target_occupancy,
         "resolution_boost": boost,
         "resolution_reason": (
-            "given by caller" if fixed else
-            f"{density:g} voxels per object over the box by side lengths, refined x{boost:.3g} "
+            "given by caller"
+            if fixed
+            else f"{density:g} voxels per object over the box by side lengths, "
+            f"refined x{boost:.3g} "
             f"toward {target_occupancy:g} objects per occupied voxel (reached {occ:.3g})"
         ),
     }
@@ -309,8 +340,9 @@ def build_grid(
     stats["macro_bytes"] = macro.nbytes
     stats["structure_bytes"] += macro.nbytes
     if chosen == "csr":
-        return Grid(glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats,
-                    macro, mres)  # fmt: skip
+        return Grid(
+            glo, cell, res, refs, offsets, None, None, None, None, None, chosen, stats, macro, mres
+        )
     # Hash storage: entries (true voxel id, refs range) grouped by slot = voxel & (M - 1).
     slot_of = occupied & (n_slots - 1)
     order = np.argsort(slot_of, kind="stable")
@@ -319,10 +351,21 @@ def build_grid(
     np.cumsum(np.bincount(slot_of, minlength=n_slots), out=slots[1:])
     bits = np.packbits(counts > 0, bitorder="little")
     return Grid(
-        glo, cell, res, refs, None, slots, entry_voxel,
-        offsets[entry_voxel].astype(np.int32), counts[entry_voxel].astype(np.int32),
-        bits, chosen, stats, macro, mres,
-    )  # fmt: skip
+        glo,
+        cell,
+        res,
+        refs,
+        None,
+        slots,
+        entry_voxel,
+        offsets[entry_voxel].astype(np.int32),
+        counts[entry_voxel].astype(np.int32),
+        bits,
+        chosen,
+        stats,
+        macro,
+        mres,
+    )
 
 
 def box_only(lo: np.ndarray, hi: np.ndarray) -> Grid:
@@ -330,7 +373,25 @@ def box_only(lo: np.ndarray, hi: np.ndarray) -> Grid:
     node's box for a node that answers rays from its hierarchy instead."""
     glo, ghi = grow_box(np.asarray(lo, float), np.asarray(hi, float))
     res = np.ones(3, np.int64)
-    stats = {"resolution": [1, 1, 1], "storage": "csr", "structure_bytes": 0,
-             "storage_reason": "box only: the node's hierarchy holds the objects"}  # fmt: skip
-    return Grid(glo, ghi - glo, res, np.zeros(0, np.int32), np.zeros(2, np.int32), None, None,
-                None, None, None, "csr", stats, np.zeros(1, np.uint8), res.copy())  # fmt: skip
+    stats = {
+        "resolution": [1, 1, 1],
+        "storage": "csr",
+        "structure_bytes": 0,
+        "storage_reason": "box only: the node's hierarchy holds the objects",
+    }
+    return Grid(
+        glo,
+        ghi - glo,
+        res,
+        np.zeros(0, np.int32),
+        np.zeros(2, np.int32),
+        None,
+        None,
+        None,
+        None,
+        None,
+        "csr",
+        stats,
+        np.zeros(1, np.uint8),
+        res.copy(),
+    )

@@ -25,8 +25,9 @@ def _cache_dir() -> str:
     here = Path(__file__).resolve().parent
     texts = {f.name: f.read_bytes() for f in here.glob("*.py")}
     kernels = [name for name, text in texts.items() if b"from meshnode.engine.jit import" in text]
-    imported = re.findall(rb"from meshnode\.engine\.(\w+) import",
-                          b"".join(texts[name] for name in kernels))  # fmt: skip
+    imported = re.findall(
+        rb"from meshnode\.engine\.(\w+) import", b"".join(texts[name] for name in kernels)
+    )
     digest = hashlib.sha256()
     for name in sorted({"jit.py", *kernels, *(m.decode() + ".py" for m in imported)}):
         digest.update(name.encode() + texts[name])

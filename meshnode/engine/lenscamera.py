@@ -123,11 +123,18 @@ def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front, hither):
         x, y, z = o[i, 0], o[i, 1], o[i, 2] - front
         a, b, c = d[i, 0], d[i, 1], d[i, 2]
         t_min = hither / c if hither > 0.0 else 0.0
-        set_primary(out[n], eye[0] + x * right[0] + y * up[0] + z * fwd[0],
-                    eye[1] + x * right[1] + y * up[1] + z * fwd[1],
-                    eye[2] + x * right[2] + y * up[2] + z * fwd[2],
-                    a * right[0] + b * up[0] + c * fwd[0], a * right[1] + b * up[1] + c * fwd[1],
-                    a * right[2] + b * up[2] + c * fwd[2], t_min, share[i], ids[i])  # fmt: skip
+        set_primary(
+            out[n],
+            eye[0] + x * right[0] + y * up[0] + z * fwd[0],
+            eye[1] + x * right[1] + y * up[1] + z * fwd[1],
+            eye[2] + x * right[2] + y * up[2] + z * fwd[2],
+            a * right[0] + b * up[0] + c * fwd[0],
+            a * right[1] + b * up[1] + c * fwd[1],
+            a * right[2] + b * up[2] + c * fwd[2],
+            t_min,
+            share[i],
+            ids[i],
+        )
         n += 1
     return n
 
@@ -171,17 +178,27 @@ def sample_offsets(s: CameraSampling, pixels: np.ndarray, ks: np.ndarray, seed: 
     n = s.per_pixel
     perm = ks
     if lens_sampled:
-        keys = _hash_uniform(seed, pixels[:, None].astype(np.uint64) * np.uint64(n)
-                             + np.arange(n, dtype=np.uint64)[None, :], 6)  # fmt: skip
+        keys = _hash_uniform(
+            seed,
+            pixels[:, None].astype(np.uint64) * np.uint64(n)
+            + np.arange(n, dtype=np.uint64)[None, :],
+            6,
+        )
         perm = np.argsort(keys, axis=1)[:, ks]
     film = unit_points(_placement(s), n, pixels, perm, seed, 4)
     film = to_area(film, s.film_area == "ellipse")
     return (pts if pts is not None else zeros), film * half
 
 
-def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndarray,
-                ks: np.ndarray | None = None,
-                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def camera_rays(
+    spec: CameraSpec,
+    view,
+    width: int,
+    height: int,
+    pixels: np.ndarray,
+    ks: np.ndarray | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
     """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x), drawn
     with the image's `seed`, and
     which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
@@ -228,8 +245,9 @@ def camera_rays(spec: CameraSpec, view, width: int, height: int, pixels: np.ndar
     eye, fwd, right, up, _ = view_basis(view, width, height)
     rays = np.zeros(int(alive.sum()), RAY)
     hither = float(view.hither) if pinhole else 0.0
-    _emit(rays, o, d, alive, share, ids, eye, right, up, fwd, float(spec.elements["z"].max()),
-          hither)  # fmt: skip
+    _emit(
+        rays, o, d, alive, share, ids, eye, right, up, fwd, float(spec.elements["z"].max()), hither
+    )
     return rays, alive2
 
 
@@ -268,8 +286,15 @@ def aim_points(spec: CameraSpec, fx, fy, lens):
     return cos * px - sin * py, sin * px + cos * py, area, a <= 0.0
 
 
-def camera_batches(spec: CameraSpec, view, width: int, height: int, pixels: np.ndarray,
-                   seed: int = 0, rays_per_batch: int = 16384):  # fmt: skip
+def camera_batches(
+    spec: CameraSpec,
+    view,
+    width: int,
+    height: int,
+    pixels: np.ndarray,
+    seed: int = 0,
+    rays_per_batch: int = 16384,
+):
     """Camera rays of `pixels` in batches of about `rays_per_batch` (bounded memory at any
     number of rays per pixel)."""
     step = max(1, rays_per_batch // spec.per_pixel)

@@ -154,19 +154,50 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
 
 
 @inline
-def work_start(ox, oy, oz, dx, dy, dz, rx, ry, rz, t_min, t_max, scene_lo, scene_hi, lo, cell,
-               res, clear, counters):  # fmt: skip
+def work_start(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    rx,
+    ry,
+    rz,
+    t_min,
+    t_max,
+    scene_lo,
+    scene_hi,
+    lo,
+    cell,
+    res,
+    clear,
+    counters,
+):
     """(t_min moved on to the first occupied voxel the ray meets inside the scene's box, or
     t_min itself where it misses the box or meets none; where it crosses the box through
     empty voxels only, a t just past its exit from the box, else -inf). rx, ry, rz: 1 /
     direction (inf for 0). A segment resumed past the box is one a node's kernel ends at
     once (escaped, or its light reached), where it would walk the box to end it."""
-    s0, s1 = box_span(ox, oy, oz, rx, ry, rz, t_min, t_max, scene_lo[0], scene_lo[1],
-                      scene_lo[2], scene_hi[0], scene_hi[1], scene_hi[2])  # fmt: skip
+    s0, s1 = box_span(
+        ox,
+        oy,
+        oz,
+        rx,
+        ry,
+        rz,
+        t_min,
+        t_max,
+        scene_lo[0],
+        scene_lo[1],
+        scene_lo[2],
+        scene_hi[0],
+        scene_hi[1],
+        scene_hi[2],
+    )
     if s0 > s1:
         return t_min, -INF
-    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear,
-                       counters)  # fmt: skip
+    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear, counters)
     if t == INF:
         return t_min, s1 + abs(s1) * 1e-9 + 1e-300
     return (t if t > t_min else t_min), -INF
@@ -185,5 +216,23 @@ def skip_empty(rays, scene_lo, scene_hi, lo, cell, res, clear, counters):
         rx = 1.0 / dx if dx != 0.0 else INF
         ry = 1.0 / dy if dy != 0.0 else INF
         rz = 1.0 / dz if dz != 0.0 else INF
-        r.t_min = work_start(ox, oy, oz, dx, dy, dz, rx, ry, rz, r.t_min, r.t_max, scene_lo,
-                             scene_hi, lo, cell, res, clear, counters)[0]  # fmt: skip
+        r.t_min = work_start(
+            ox,
+            oy,
+            oz,
+            dx,
+            dy,
+            dz,
+            rx,
+            ry,
+            rz,
+            r.t_min,
+            r.t_max,
+            scene_lo,
+            scene_hi,
+            lo,
+            cell,
+            res,
+            clear,
+            counters,
+        )[0]

@@ -78,9 +78,14 @@ def _packet_triangle(tr, i, self_gid, f, origin, n):
         qz = sx * e1y - sy * e1x
         v = (dx * qx + dy * qy + dz * qz) * inv
         t = (e2x * qx + e2y * qy + e2z * qz) * inv
-        ok = (active and det != 0.0 and not (u < 0.0 or u > 1.0)
-              and not (v < 0.0 or u + v > 1.0) and f[P_LO, k] < t < f[P_BOUND, k]
-              and origin[k] != self_gid)  # fmt: skip
+        ok = (
+            active
+            and det != 0.0
+            and not (u < 0.0 or u > 1.0)
+            and not (v < 0.0 or u + v > 1.0)
+            and f[P_LO, k] < t < f[P_BOUND, k]
+            and origin[k] != self_gid
+        )
         f[P_A, k] = t if ok else math.inf
         tested += 1 if active else 0
     return tested
@@ -96,8 +101,25 @@ def _nearest(f, row, n):
 
 
 @leaf
-def packet_walk(f, origin, best_u, n, pstack, refs, counters,
-                gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh):  # fmt: skip
+def packet_walk(
+    f,
+    origin,
+    best_u,
+    n,
+    pstack,
+    refs,
+    counters,
+    gid,
+    off,
+    sph,
+    tri,
+    poly,
+    pinfo,
+    puv,
+    pband,
+    cone,
+    bvh,
+):
     """First hits of n <= PACKET rays walked through the tree together: each visit tests
     both children's boxes for every ray in one vector loop (`_packet_slabs`), and the packet
     goes where any ray enters, nearer child first; a leaf's objects are tested for each ray
@@ -162,10 +184,27 @@ def packet_walk(f, origin, best_u, n, pstack, refs, counters,
                     if not f[P_CUR, k] < f[P_BOUND, k]:
                         continue
                     tests += 1
-                    t = test_object(u, f[P_O, k], f[P_O + 1, k], f[P_O + 2, k], f[P_D, k],
-                                    f[P_D + 1, k], f[P_D + 2, k], f[P_LO, k], f[P_BOUND, k],
-                                    origin[k], gid, off, sph, tri, poly, pinfo, puv, pband,
-                                    cone)  # fmt: skip
+                    t = test_object(
+                        u,
+                        f[P_O, k],
+                        f[P_O + 1, k],
+                        f[P_O + 2, k],
+                        f[P_D, k],
+                        f[P_D + 1, k],
+                        f[P_D + 2, k],
+                        f[P_LO, k],
+                        f[P_BOUND, k],
+                        origin[k],
+                        gid,
+                        off,
+                        sph,
+                        tri,
+                        poly,
+                        pinfo,
+                        puv,
+                        pband,
+                        cone,
+                    )
                     if t < math.inf and better(t, u, f[P_BEST, k], best_u[k], gid):
                         f[P_BEST, k] = t
                         best_u[k] = u

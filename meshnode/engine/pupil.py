@@ -127,8 +127,12 @@ def exit_pupil(elements: np.ndarray, film_z: float, film_radius: float):
         return (), 0.0, area
     radius = 1.02 * film_radius  # film-area samples reach a little beyond the corner
     edges = np.linspace(0.0, radius, BANDS + 1)
-    table = np.array([band_ellipse(elements, film_z, np.linspace(lo, hi, FILM_POINTS))
-                      for lo, hi in zip(edges[:-1], edges[1:], strict=True)])  # fmt: skip
+    table = np.array(
+        [
+            band_ellipse(elements, film_z, np.linspace(lo, hi, FILM_POINTS))
+            for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+        ]
+    )
     if covers_element(table, elements):
         return (), 0.0, area
     return tuple(float(v) for v in table.ravel()), radius, area

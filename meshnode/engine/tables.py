@@ -100,16 +100,33 @@ class Tables:
         def rows(table, k):
             return None if table is None else table[order[off[k] : off[k + 1]] - off[k]]
 
-        return replace(self, spheres=rows(self.spheres, 0), triangles=rows(self.triangles, 1),
-                       tri_normals=rows(self.tri_normals, 1), polygons=rows(self.polygons, 2),
-                       poly_info=rows(self.poly_info, 2), cones=rows(self.cones, 3),
-                       gid=self.gid[order], mat=self.mat[order], lo=self.lo[order],
-                       hi=self.hi[order])  # fmt: skip
+        return replace(
+            self,
+            spheres=rows(self.spheres, 0),
+            triangles=rows(self.triangles, 1),
+            tri_normals=rows(self.tri_normals, 1),
+            polygons=rows(self.polygons, 2),
+            poly_info=rows(self.poly_info, 2),
+            cones=rows(self.cones, 3),
+            gid=self.gid[order],
+            mat=self.mat[order],
+            lo=self.lo[order],
+            hi=self.hi[order],
+        )
 
     def geometry(self) -> Geometry:
         """The object tables as the intersection kernels take them."""
-        return Geometry(self.gid, self.offsets, self.spheres, self.triangles, self.polygons,
-                        self.poly_info, self.poly_uv, self.poly_bands, self.cones)  # fmt: skip
+        return Geometry(
+            self.gid,
+            self.offsets,
+            self.spheres,
+            self.triangles,
+            self.polygons,
+            self.poly_info,
+            self.poly_uv,
+            self.poly_bands,
+            self.cones,
+        )
 
 
 def _or_none(a: np.ndarray) -> np.ndarray | None:
@@ -151,9 +168,14 @@ def _polygon_tables(scene: SceneData):
     v = scene.vertices[rows]
     nxt = v[succ]
     # Newell's normal from all vertices: robust when the first ones are near-collinear.
-    terms = np.stack([(v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2]),
-                      (v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0]),
-                      (v[:, 0] - nxt[:, 0]) * (v[:, 1] + nxt[:, 1])], axis=1)  # fmt: skip
+    terms = np.stack(
+        [
+            (v[:, 1] - nxt[:, 1]) * (v[:, 2] + nxt[:, 2]),
+            (v[:, 2] - nxt[:, 2]) * (v[:, 0] + nxt[:, 0]),
+            (v[:, 0] - nxt[:, 0]) * (v[:, 1] + nxt[:, 1]),
+        ],
+        axis=1,
+    )
     n = np.add.reduceat(terms, at, axis=0)
     n /= np.linalg.norm(n, axis=1)[:, None]
     drop = np.argmax(np.abs(n), axis=1)  # project onto the plane of the other two axes
@@ -249,8 +271,13 @@ def build_tables(scene: SceneData) -> Tables:
     mats = scene.materials
     materials = np.empty((len(mats), MAT_COLS))
     materials[:, MAT_RGB : MAT_RGB + 3] = mats["rgb"]
-    for col, field in ((MAT_KD, "kd"), (MAT_KS, "ks"), (MAT_SHINE, "shine"),
-                       (MAT_TRANSMIT, "t"), (MAT_IOR, "ior")):  # fmt: skip
+    for col, field in (
+        (MAT_KD, "kd"),
+        (MAT_KS, "ks"),
+        (MAT_SHINE, "shine"),
+        (MAT_TRANSMIT, "t"),
+        (MAT_IOR, "ior"),
+    ):
         materials[:, col] = mats[field]
     transmits_mat = materials[:, MAT_TRANSMIT] > 0.0
 

@@ -47,8 +47,9 @@ from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 
 @inline
-def _push(so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi, kind, depth,
-          gid, light):  # fmt: skip
+def _push(
+    so, sd, sw, st, sk, sp, px, py, pz, dx, dy, dz, w0, w1, w2, t_lo, t_hi, kind, depth, gid, light
+):
     """Push a secondary ray onto the ray tree's stack (columns as the stack's arrays say);
     returns the new stack height."""
     so[sp, 0], so[sp, 1], so[sp, 2] = px, py, pz
@@ -73,9 +74,14 @@ def _load(f, origin, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi, org):
 def _packets():
     """A packet's scratch: float rows, origins, hits, pending children and their refs, and
     which ray of the batch each column holds."""
-    return (np.empty((P_ROWS, PACKET)), np.empty(PACKET, np.int64), np.empty(PACKET, np.int64),
-            np.empty((BVH_STACK, PACKET)), np.empty(BVH_STACK, np.int64),
-            np.empty(PACKET, np.int64))  # fmt: skip
+    return (
+        np.empty((P_ROWS, PACKET)),
+        np.empty(PACKET, np.int64),
+        np.empty(PACKET, np.int64),
+        np.empty((BVH_STACK, PACKET)),
+        np.empty(BVH_STACK, np.int64),
+        np.empty(PACKET, np.int64),
+    )
 
 
 @kernel
@@ -103,8 +109,9 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
         big = max(abs(dx), max(abs(dy), abs(dz)))  # scaled first: no overflow in the norm
-        if not (0.0 < big < math.inf) or not (abs(ox) < math.inf and abs(oy) < math.inf
-                                               and abs(oz) < math.inf):  # fmt: skip
+        if not (0.0 < big < math.inf) or not (
+            abs(ox) < math.inf and abs(oy) < math.inf and abs(oz) < math.inf
+        ):
             return t_out, g_out, i
         s = 1.0 / big
         k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
@@ -117,8 +124,25 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
             idx[m] = i
             m += 1
             if m == PACKET or i == n - 1:
-                e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters, gid, off,
-                                   sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+                e, v = packet_walk(
+                    f,
+                    origin,
+                    best_u,
+                    m,
+                    pstack,
+                    refs,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                    bvh,
+                )
                 for j in range(m):
                     t_out[idx[j]] = f[P_BEST, j]
                     if best_u[j] >= 0:
@@ -130,15 +154,81 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
                 packets = keep_packets(walked, entered, tested)
             continue
         if use_bvh:
-            t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, stack,
-                            counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                            bvh)  # fmt: skip
+            t, u = bvh_walk(
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                t_lo,
+                math.inf,
+                -1,
+                False,
+                -1,
+                stack,
+                counters,
+                gid,
+                off,
+                sph,
+                tri,
+                poly,
+                pinfo,
+                puv,
+                pband,
+                cone,
+                bvh,
+            )
         elif brute:
-            t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, counters,
-                               gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+            t, u = brute_force(
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                t_lo,
+                math.inf,
+                -1,
+                False,
+                counters,
+                gid,
+                off,
+                sph,
+                tri,
+                poly,
+                pinfo,
+                puv,
+                pband,
+                cone,
+            )
         else:
-            t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1, False, -1, i, mail, counters,
-                        gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid)  # fmt: skip
+            t, u = walk(
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                t_lo,
+                math.inf,
+                -1,
+                False,
+                -1,
+                i,
+                mail,
+                counters,
+                gid,
+                off,
+                sph,
+                tri,
+                poly,
+                pinfo,
+                puv,
+                pband,
+                cone,
+                grid,
+            )
         t_out[i] = t
         if u >= 0:
             g_out[i] = gid[u]
@@ -163,13 +253,42 @@ def _packet_hits(rays, on, counters, geo, bvh, out):
     for i in range(n):
         r = rays[i]
         if r.kind != SHADOW:
-            _load(f, origin, m, r.o[0], r.o[1], r.o[2], r.d[0], r.d[1], r.d[2], r.t_min,
-                  r.t_max, r.origin)  # fmt: skip
+            _load(
+                f,
+                origin,
+                m,
+                r.o[0],
+                r.o[1],
+                r.o[2],
+                r.d[0],
+                r.d[1],
+                r.d[2],
+                r.t_min,
+                r.t_max,
+                r.origin,
+            )
             idx[m] = i
             m += 1
         if m == PACKET or (i == n - 1 and m > 0):
-            e, v = packet_walk(f, origin, best_u, m, pstack, refs, counters,
-                               gid, off, sph, tri, poly, pinfo, puv, pband, cone, bvh)  # fmt: skip
+            e, v = packet_walk(
+                f,
+                origin,
+                best_u,
+                m,
+                pstack,
+                refs,
+                counters,
+                gid,
+                off,
+                sph,
+                tri,
+                poly,
+                pinfo,
+                puv,
+                pband,
+                cone,
+                bvh,
+            )
             for j in range(m):
                 first_t[idx[j]] = f[P_BEST, j]
                 first_u[idx[j]] = best_u[j]
@@ -196,8 +315,9 @@ def _span_reciprocal(d, r):
 
 
 @kernel
-def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, origin, depth,
-              kind, light):  # fmt: skip
+def _push_out(
+    out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, origin, depth, kind, light
+):
     """Write a ray that continues on another node at slot n, growing `out` when full."""
     if n == out.shape[0]:
         grown = np.empty(2 * out.shape[0] + 16, out.dtype)
@@ -213,8 +333,23 @@ def _push_out(out, n, ox, oy, oz, dx, dy, dz, wr, wg, wb, t_min, t_max, pixel, o
 
 
 @kernel
-def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, lights,
-                scene_lo, scene_hi, out, bvh, in_packets, occ):  # fmt: skip
+def trace_batch(
+    rays,
+    out_rgb,
+    counters,
+    brute,
+    geo,
+    grid,
+    shading,
+    transmit,
+    lights,
+    scene_lo,
+    scene_hi,
+    out,
+    bvh,
+    in_packets,
+    occ,
+):
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
     The objects are the `Geometry` geo in the `BvhArrays` bvh, or when that is empty the
@@ -302,23 +437,79 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     irx = 1.0 / dx if dx != 0.0 else math.inf
                     iry = 1.0 / dy if dy != 0.0 else math.inf
                     irz = 1.0 / dz if dz != 0.0 else math.inf
-                s0, s1, n0, n1 = two_spans(ox, oy, oz, irx, iry, irz, t_lo, t_hi, slo0, slo1,
-                                           slo2, shi0, shi1, shi2, glo0, glo1, glo2, ghi0,
-                                           ghi1, ghi2)  # fmt: skip
+                s0, s1, n0, n1 = two_spans(
+                    ox,
+                    oy,
+                    oz,
+                    irx,
+                    iry,
+                    irz,
+                    t_lo,
+                    t_hi,
+                    slo0,
+                    slo1,
+                    slo2,
+                    shi0,
+                    shi1,
+                    shi2,
+                    glo0,
+                    glo1,
+                    glo2,
+                    ghi0,
+                    ghi1,
+                    ghi2,
+                )
                 resume = -1.0
                 if s0 > s1:
                     n1 = math.inf  # the segment misses the scene: it ends here, below,
                     clear = True  # with nothing to walk (every object is in the scene's box)
                 elif n0 > s0 or n1 <= s0:
                     resume = s0  # not in this box where its part inside the scene starts
-                    if first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, s0, s1, occ_lo,
-                                      occ_cell, occ_res, occ_clear, counters) == math.inf:
+                    if (
+                        first_occupied(
+                            ox,
+                            oy,
+                            oz,
+                            dx,
+                            dy,
+                            dz,
+                            irx,
+                            iry,
+                            irz,
+                            s0,
+                            s1,
+                            occ_lo,
+                            occ_cell,
+                            occ_res,
+                            occ_clear,
+                            counters,
+                        )
+                        == math.inf
+                    ):
                         resume = -1.0  # nothing lies ahead: it ends here, below
                         n1 = math.inf
                         clear = True
                 if resume >= 0.0:
-                    buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb, resume, t_hi,
-                                    r.pixel, origin, depth, kind, light)  # fmt: skip
+                    buf = _push_out(
+                        buf,
+                        n_out,
+                        ox,
+                        oy,
+                        oz,
+                        dx,
+                        dy,
+                        dz,
+                        wr,
+                        wg,
+                        wb,
+                        resume,
+                        t_hi,
+                        r.pixel,
+                        origin,
+                        depth,
+                        kind,
+                        light,
+                    )
                     n_out += 1
                     counters[FORWARDED] += 1
                     continue
@@ -327,18 +518,83 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             elif in_packet:
                 t, u = first_t[i], first_u[i]
             elif brute:
-                t, u = brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, counters,
-                                   gid, off, sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+                t, u = brute_force(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    t_hi,
+                    origin,
+                    shadow,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                )
             elif use_bvh:
                 hint = blocker[light] if shadow else -1
-                t, u = bvh_walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, stack,
-                                counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                                bvh)  # fmt: skip
+                t, u = bvh_walk(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    t_hi,
+                    origin,
+                    shadow,
+                    hint,
+                    stack,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                    bvh,
+                )
             else:
                 hint = blocker[light] if shadow else -1
-                t, u = walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, shadow, hint, ray_id,
-                            mail, counters, gid, off, sph, tri, poly, pinfo, puv, pband, cone,
-                            grid)  # fmt: skip
+                t, u = walk(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    t_hi,
+                    origin,
+                    shadow,
+                    hint,
+                    ray_id,
+                    mail,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                    grid,
+                )
             root = False
             if out is not None:
                 if u >= 0 and not shadow and t > n1:
@@ -346,12 +602,45 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 if u < 0 and n1 < s1:
                     # Leaves this box inside the scene: continue on the node owning the first
                     # occupied voxel ahead; with none ahead it ends here, below.
-                    t_on = first_occupied(ox, oy, oz, dx, dy, dz, irx, iry, irz, n1, s1, occ_lo,
-                                          occ_cell, occ_res, occ_clear, counters)  # fmt: skip
+                    t_on = first_occupied(
+                        ox,
+                        oy,
+                        oz,
+                        dx,
+                        dy,
+                        dz,
+                        irx,
+                        iry,
+                        irz,
+                        n1,
+                        s1,
+                        occ_lo,
+                        occ_cell,
+                        occ_res,
+                        occ_clear,
+                        counters,
+                    )
                     if t_on < math.inf:
-                        buf = _push_out(buf, n_out, ox, oy, oz, dx, dy, dz, wr, wg, wb,
-                                        max(n1, t_on), t_hi, r.pixel, origin, depth, kind,
-                                        light)  # fmt: skip
+                        buf = _push_out(
+                            buf,
+                            n_out,
+                            ox,
+                            oy,
+                            oz,
+                            dx,
+                            dy,
+                            dz,
+                            wr,
+                            wg,
+                            wb,
+                            max(n1, t_on),
+                            t_hi,
+                            r.pixel,
+                            origin,
+                            depth,
+                            kind,
+                            light,
+                        )
                         n_out += 1
                         counters[FORWARDED] += 1
                         continue
@@ -378,8 +667,9 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
             px = ox + t * dx
             py = oy + t * dy
             pz = oz + t * dz
-            gx, gy, gz, nx, ny, nz = normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off,
-                                             sph, tri, tri_n, poly, cone)  # fmt: skip
+            gx, gy, gz, nx, ny, nz = normals(
+                u, px, py, pz, ox, oy, oz, dx, dy, dz, off, sph, tri, tri_n, poly, cone
+            )
             # Turn both normals toward the incoming ray; remember which side was hit.
             entering = gx * dx + gy * dy + gz * dz < 0.0
             if not entering:
@@ -431,10 +721,29 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                     dr = kd * cos * materials[m, MAT_RGB] + spec
                     dg = kd * cos * materials[m, MAT_RGB + 1] + spec
                     db = kd * cos * materials[m, MAT_RGB + 2] + spec
-                    sp = _push(so, sd, sw, st, sk, sp, px, py, pz, lx, ly, lz,
-                               wr * lights[li, LIGHT_RGB] * dr, wg * lights[li, LIGHT_RGB + 1] * dg,
-                               wb * lights[li, LIGHT_RGB + 2] * db, t_eps, ln, SHADOW, depth + 1,
-                               hit_gid, li)  # fmt: skip
+                    sp = _push(
+                        so,
+                        sd,
+                        sw,
+                        st,
+                        sk,
+                        sp,
+                        px,
+                        py,
+                        pz,
+                        lx,
+                        ly,
+                        lz,
+                        wr * lights[li, LIGHT_RGB] * dr,
+                        wg * lights[li, LIGHT_RGB + 1] * dg,
+                        wb * lights[li, LIGHT_RGB + 2] * db,
+                        t_eps,
+                        ln,
+                        SHADOW,
+                        depth + 1,
+                        hit_gid,
+                        li,
+                    )
             if depth >= max_depth:
                 continue
             kt = 0.0
@@ -446,17 +755,57 @@ def trace_batch(rays, out_rgb, counters, brute, geo, grid, shading, transmit, li
                 ok, tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, eta)
                 if ok:
                     counters[REFRACTED_RAYS] += 1
-                    sp = _push(so, sd, sw, st, sk, sp, px, py, pz, tx, ty, tz, wr * kt,
-                               wg * kt, wb * kt, t_eps, math.inf, REFRACTED, depth + 1,
-                               hit_gid, 0)  # fmt: skip
+                    sp = _push(
+                        so,
+                        sd,
+                        sw,
+                        st,
+                        sk,
+                        sp,
+                        px,
+                        py,
+                        pz,
+                        tx,
+                        ty,
+                        tz,
+                        wr * kt,
+                        wg * kt,
+                        wb * kt,
+                        t_eps,
+                        math.inf,
+                        REFRACTED,
+                        depth + 1,
+                        hit_gid,
+                        0,
+                    )
                 else:
                     refl += kt  # total internal reflection: the transmitted share reflects
                     counters[INTERNAL] += 1
             if ks > 0.0 or kt > 0.0:  # SPD: reflective or transmitting surfaces reflect
                 counters[REFLECTED_RAYS] += 1
-                sp = _push(so, sd, sw, st, sk, sp, px, py, pz, rx, ry, rz, wr * refl,
-                           wg * refl, wb * refl, t_eps, math.inf, REFLECTED, depth + 1,
-                           hit_gid, 0)  # fmt: skip
+                sp = _push(
+                    so,
+                    sd,
+                    sw,
+                    st,
+                    sk,
+                    sp,
+                    px,
+                    py,
+                    pz,
+                    rx,
+                    ry,
+                    rz,
+                    wr * refl,
+                    wg * refl,
+                    wb * refl,
+                    t_eps,
+                    math.inf,
+                    REFLECTED,
+                    depth + 1,
+                    hit_gid,
+                    0,
+                )
         out_rgb[i, 0] += cr
         out_rgb[i, 1] += cg
         out_rgb[i, 2] += cb
@@ -470,8 +819,22 @@ def _owner(ox, oy, oz, irx, iry, irz, t, t_max, los, his):
     best, best_exit = -1, t
     next_entry, next_box = math.inf, -1
     for b in range(los.shape[0]):
-        b0, b1 = box_span(ox, oy, oz, irx, iry, irz, t, t_max, los[b, 0], los[b, 1], los[b, 2],
-                          his[b, 0], his[b, 1], his[b, 2])  # fmt: skip
+        b0, b1 = box_span(
+            ox,
+            oy,
+            oz,
+            irx,
+            iry,
+            irz,
+            t,
+            t_max,
+            los[b, 0],
+            los[b, 1],
+            los[b, 2],
+            his[b, 0],
+            his[b, 1],
+            his[b, 2],
+        )
         if b0 <= t and b1 > best_exit:
             best_exit = b1
             best = b
@@ -497,8 +860,7 @@ def owners(rays, los, his):
         irx = 1.0 / r.d[0] if r.d[0] != 0.0 else math.inf
         iry = 1.0 / r.d[1] if r.d[1] != 0.0 else math.inf
         irz = 1.0 / r.d[2] if r.d[2] != 0.0 else math.inf
-        out[i], r.t_min = _owner(r.o[0], r.o[1], r.o[2], irx, iry, irz, r.t_min, r.t_max, los,
-                                 his)  # fmt: skip
+        out[i], r.t_min = _owner(r.o[0], r.o[1], r.o[2], irx, iry, irz, r.t_min, r.t_max, los, his)
     return out
 
 
@@ -529,9 +891,26 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
         irz = 1.0 / dz if dz != 0.0 else math.inf
         t, past = r.t_min, -math.inf
         if skip:
-            t, past = work_start(ox, oy, oz, dx, dy, dz, irx, iry, irz, t, r.t_max, scene_lo,
-                                 scene_hi, occ_lo, occ_cell, occ_res, occ_clear,
-                                 counters)  # fmt: skip
+            t, past = work_start(
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                irx,
+                iry,
+                irz,
+                t,
+                r.t_max,
+                scene_lo,
+                scene_hi,
+                occ_lo,
+                occ_cell,
+                occ_res,
+                occ_clear,
+                counters,
+            )
         b, t = _owner(ox, oy, oz, irx, iry, irz, t, r.t_max, los, his)
         if past > -math.inf:
             # Only empty voxels ahead: the cell it enters takes it as before, but from past

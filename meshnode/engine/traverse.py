@@ -32,8 +32,9 @@ def better(t, u, best_t, best_u, gid):
 
 
 @inline
-def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
+def test_object(
+    u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off, sph, tri, poly, pinfo, puv, pband, cone
+):
     """Dispatch on the local id's kind; kinds passed as None are compiled out."""
     self_hit = origin >= 0 and gid[u] == origin  # eye rays (origin -1) skip the load
     if sph is not None and u < off[1]:
@@ -45,23 +46,61 @@ def test_object(u, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
     if poly is not None and u < off[3]:
         if self_hit:
             return INF
-        return hit_polygon(poly, pinfo, puv, pband, u - off[2], ox, oy, oz, dx, dy, dz,
-                           t_lo, t_hi)
+        return hit_polygon(poly, pinfo, puv, pband, u - off[2], ox, oy, oz, dx, dy, dz, t_lo, t_hi)
     if cone is not None:
         return hit_cone(cone, u - off[3], ox, oy, oz, dx, dy, dz, t_lo, t_hi, self_hit)
     return INF
 
 
 @inline
-def hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-           sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
+def hinted(
+    hint,
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    t_lo,
+    t_hi,
+    origin,
+    counters,
+    gid,
+    off,
+    sph,
+    tri,
+    poly,
+    pinfo,
+    puv,
+    pband,
+    cone,
+):
     """Distance to the any-hit query's hint object (the last blocker towards the same light),
     tested before any walk; inf without a hint or when it misses."""
     if hint < 0:
         return INF
     counters[TESTS] += 1
-    return test_object(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, gid, off,
-                       sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+    return test_object(
+        hint,
+        ox,
+        oy,
+        oz,
+        dx,
+        dy,
+        dz,
+        t_lo,
+        t_hi,
+        origin,
+        gid,
+        off,
+        sph,
+        tri,
+        poly,
+        pinfo,
+        puv,
+        pband,
+        cone,
+    )
 
 
 @leaf
@@ -100,8 +139,28 @@ def _slab(o, r, lo, hi, t0, t1):
 
 
 @inline
-def two_spans(ox, oy, oz, rx, ry, rz, t_lo, t_hi, a_lo0, a_lo1, a_lo2, a_hi0, a_hi1, a_hi2,
-              b_lo0, b_lo1, b_lo2, b_hi0, b_hi1, b_hi2):  # fmt: skip
+def two_spans(
+    ox,
+    oy,
+    oz,
+    rx,
+    ry,
+    rz,
+    t_lo,
+    t_hi,
+    a_lo0,
+    a_lo1,
+    a_lo2,
+    a_hi0,
+    a_hi1,
+    a_hi2,
+    b_lo0,
+    b_lo1,
+    b_lo2,
+    b_hi0,
+    b_hi1,
+    b_hi2,
+):
     """`box_span` of one segment in two boxes a and b at once, exactly as two calls give
     them: a mesh node clips every segment to the scene's box and its own, and apart the
     two cost a tenth of tetra's mesh kernel (each axis's origin, reciprocal and branch
@@ -147,8 +206,32 @@ def _region_exit(o, d, inv, i_lo, i_hi, lo, cell):
 
 
 @leaf
-def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail, counters,
-         gid, off, sph, tri, poly, pinfo, puv, pband, cone, grid):  # fmt: skip
+def walk(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    t_lo,
+    t_hi,
+    origin,
+    any_hit,
+    hint,
+    ray_id,
+    mail,
+    counters,
+    gid,
+    off,
+    sph,
+    tri,
+    poly,
+    pinfo,
+    puv,
+    pband,
+    cone,
+    grid,
+):
     """First hit (or, with any_hit, any hit) in (t_lo, t_hi) through the `GridArrays` grid:
     returns (t, local id or -1). mail[u] == ray_id marks object u as tested for this ray.
 
@@ -159,8 +242,28 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
 
     In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
     the empty cube of radius k - 1 around it in one step and the walk restarts there."""
-    t = hinted(hint, ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, counters, gid, off,
-               sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+    t = hinted(
+        hint,
+        ox,
+        oy,
+        oz,
+        dx,
+        dy,
+        dz,
+        t_lo,
+        t_hi,
+        origin,
+        counters,
+        gid,
+        off,
+        sph,
+        tri,
+        poly,
+        pinfo,
+        puv,
+        pband,
+        cone,
+    )
     if t < t_hi:
         return t, hint
     glo, cell, res, offsets, slots, e_vox, e_start, e_count, bits, refs, macro, mres, mshift = grid
@@ -268,8 +371,27 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
             mail[u] = ray_id
             tests += 1
             bound = best_t if best_u < 0 else best_t * TIE
-            t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                            sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+            t = test_object(
+                u,
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                t_lo,
+                bound,
+                origin,
+                gid,
+                off,
+                sph,
+                tri,
+                poly,
+                pinfo,
+                puv,
+                pband,
+                cone,
+            )
             if t < INF and better(t, u, best_t, best_u, gid):
                 best_t = t
                 best_u = u
@@ -310,8 +432,28 @@ def walk(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, hint, ray_id, mail
 
 
 @leaf
-def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
-                gid, off, sph, tri, poly, pinfo, puv, pband, cone):  # fmt: skip
+def brute_force(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    t_lo,
+    t_hi,
+    origin,
+    any_hit,
+    counters,
+    gid,
+    off,
+    sph,
+    tri,
+    poly,
+    pinfo,
+    puv,
+    pband,
+    cone,
+):
     """Every object against the ray: the no-grid reference the grid must agree with (gid ...
     cone: a `Geometry`'s fields, as in `walk`)."""
     best_t = t_hi
@@ -320,8 +462,27 @@ def brute_force(ox, oy, oz, dx, dy, dz, t_lo, t_hi, origin, any_hit, counters,
     for u in range(n):
         counters[TESTS] += 1
         bound = best_t if best_u < 0 else best_t * TIE
-        t = test_object(u, ox, oy, oz, dx, dy, dz, t_lo, bound, origin, gid, off,
-                        sph, tri, poly, pinfo, puv, pband, cone)  # fmt: skip
+        t = test_object(
+            u,
+            ox,
+            oy,
+            oz,
+            dx,
+            dy,
+            dz,
+            t_lo,
+            bound,
+            origin,
+            gid,
+            off,
+            sph,
+            tri,
+            poly,
+            pinfo,
+            puv,
+            pband,
+            cone,
+        )
         if t < INF and better(t, u, best_t, best_u, gid):
             best_t = t
             best_u = u

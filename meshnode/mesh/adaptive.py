@@ -105,8 +105,9 @@ class AdaptiveFilm:
         kept here the same way, the rays dropped: camera rays are a pure function of camera,
         view, pixel, sample and seed, so the thief makes the very same ones."""
         samples = self.rest if refine else self.first
-        rays, alive = camera_rays(self.spec, view, width, height, self.pixels[idx], samples,
-                                  self.seed)  # fmt: skip
+        rays, alive = camera_rays(
+            self.spec, view, width, height, self.pixels[idx], samples, self.seed
+        )
         if not refine:
             self.corner_alive[idx] = alive
         self._count(idx, alive)
@@ -168,8 +169,10 @@ class AdaptiveFilm:
         edges = np.diff(np.pad(mask, ((0, 0), (1, 1))).astype(np.int8), axis=1)
         row_s, start = np.nonzero(edges == 1)
         _, end = np.nonzero(edges == -1)  # row-major order pairs each start with its end
-        return [(cx0 + a, cx0 + b, cy0 + r, cy0 + r + 1)
-                for r, a, b in zip(row_s.tolist(), start.tolist(), end.tolist(), strict=True)]
+        return [
+            (cx0 + a, cx0 + b, cy0 + r, cy0 + r + 1)
+            for r, a, b in zip(row_s.tolist(), start.tolist(), end.tolist(), strict=True)
+        ]
 
     def _count(self, idx: np.ndarray, alive: np.ndarray) -> None:
         if self.spec.sampling.adaptation == "left":

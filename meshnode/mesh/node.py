@@ -86,12 +86,20 @@ class EngineCache:
 def _engine_key(scene: SceneData, options: dict) -> bytes:
     """A digest of everything an engine is built from: objects, background, options."""
     h = hashlib.blake2b(digest_size=32)
-    for table in (scene.materials, scene.lights, scene.spheres, scene.triangles,
-                  scene.polygons, scene.vertices, scene.cones):  # fmt: skip
+    for table in (
+        scene.materials,
+        scene.lights,
+        scene.spheres,
+        scene.triangles,
+        scene.polygons,
+        scene.vertices,
+        scene.cones,
+    ):
         h.update(len(table).to_bytes(8, "little"))
         h.update(np.ascontiguousarray(table).tobytes())
-    h.update(repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))
-                  ).encode())  # fmt: skip
+    h.update(
+        repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))).encode()
+    )
     return h.digest()
 
 
@@ -102,8 +110,10 @@ def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
     x0, x1, y0, y1 = rect
     xs, ys = list(range(x0, x1, side)), list(range(y0, y1, side))
     j, i = np.divmod(np.arange(len(xs) * len(ys)), len(xs))
-    return [(xs[i[c]], min(xs[i[c]] + side, x1), ys[j[c]], min(ys[j[c]] + side, y1))
-            for c in spiral_order(i, j)]  # fmt: skip
+    return [
+        (xs[i[c]], min(xs[i[c]] + side, x1), ys[j[c]], min(ys[j[c]] + side, y1))
+        for c in spiral_order(i, j)
+    ]
 
 
 def per_cell(deposits: np.ndarray, ids_per_cell: int) -> np.ndarray:
@@ -128,12 +138,22 @@ class NodeCore:
     made in batches of about `eye_batch` (whole rows of the node's rectangle); `engines`
     keeps the engine for the next render (None: always build)."""
 
-    def __init__(self, node: int, scene: SceneData, spec: RenderSpec, part: Partition,
-                 eye_batch: int = EYE_BATCH, engines: EngineCache | None = None,
-                 copies: dict[int, SceneData] | None = None):  # fmt: skip
+    def __init__(
+        self,
+        node: int,
+        scene: SceneData,
+        spec: RenderSpec,
+        part: Partition,
+        eye_batch: int = EYE_BATCH,
+        engines: EngineCache | None = None,
+        copies: dict[int, SceneData] | None = None,
+    ):
         self.node, self.spec, self.view, self.part = node, spec, scene.view, part
-        least = IMAGE_BATCH if spec.plan.mode == "image" else (
-            COPIES_EYE_BATCH if spec.plan.copies else 0)  # fmt: skip
+        least = (
+            IMAGE_BATCH
+            if spec.plan.mode == "image"
+            else (COPIES_EYE_BATCH if spec.plan.copies else 0)
+        )
         self.eye_batch = max(eye_batch, least)
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
@@ -154,8 +174,11 @@ class NodeCore:
             self.film_at = np.full(len(part.rects), -1, np.int64)  # rectangle -> own film
             self.samples = pass_samples(spec.camera)  # (pass 1's, pass 2's sample indices)
             # rectangle -> node; under dynamic tiles -1 until the host says (`add_tiles`)
-            self.rect_owner = (np.full(len(part.rects), -1, np.int64) if self.feed is not None
-                               else np.asarray(part.owner, np.int64))  # fmt: skip
+            self.rect_owner = (
+                np.full(len(part.rects), -1, np.int64)
+                if self.feed is not None
+                else np.asarray(part.owner, np.int64)
+            )
             self.held_out: list = []  # dynamic tiles: (deposits, idx, rect) traced here ...
             self.held_in: list = []  # ... and received, for tiles of nodes not known yet
             # pass 1 routes a deposit to at most 5 tiles (its pixel's and the 4 sides')
@@ -167,10 +190,15 @@ class NodeCore:
     def _options(self, node: int) -> dict:
         """Node `node`'s engine settings: its box, and what every node shares."""
         spec, part = self.spec, self.part
-        return dict(box=(self.los[node], self.his[node]), scene_box=part.scene_box,
-                    density=spec.engine.density, storage=spec.engine.storage,
-                    structure=spec.engine.structure, max_depth=spec.image.depth,
-                    occupancy=(part.occ_res, part.occ_bits))  # fmt: skip
+        return dict(
+            box=(self.los[node], self.his[node]),
+            scene_box=part.scene_box,
+            density=spec.engine.density,
+            storage=spec.engine.storage,
+            structure=spec.engine.structure,
+            max_depth=spec.image.depth,
+            occupancy=(part.occ_res, part.occ_bits),
+        )
 
     @property
     def keeps_pixels(self) -> bool:
@@ -211,16 +239,22 @@ class NodeCore:
                 return Primaries()
             if self.spec.steals:
                 return self._adaptive_chunks(state == State.REFINE)
-            return Primaries(batch for f in self.films for batch in
-                             (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h))
+            return Primaries(
+                batch
+                for f in self.films
+                for batch in (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h)
+            )
         if state != State.TRACE:
             return Primaries()
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             chunks = [c for rect in self.owned for c in spiral_chunks(rect, side)]
             usable = self._usable()
-            return ChunkFeed(self._stealable_last(chunks, usable),
-                             lambda chunks: self.rect_batches(chunks[0]), usable=usable)
+            return ChunkFeed(
+                self._stealable_last(chunks, usable),
+                lambda chunks: self.rect_batches(chunks[0]),
+                usable=usable,
+            )
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
 
     def _stealable_last(self, chunks: list, usable) -> list:
@@ -328,8 +362,9 @@ class NodeCore:
         samples = self.samples[1 if refine else 0]
         pixels = np.concatenate([rect_pixels(c, w) for c in chunks])
         for part in split(pixels, len(samples)):
-            yield camera_rays(self.spec.camera, self.view, w, h, part, samples,
-                              self.spec.image.seed)[0]  # fmt: skip
+            yield camera_rays(
+                self.spec.camera, self.view, w, h, part, samples, self.spec.image.seed
+            )[0]
 
     def rect_batches(self, rect):
         """Every primary ray of one rectangle (no adaptive sampling), batch by batch."""
@@ -337,8 +372,9 @@ class NodeCore:
         if camera is None:
             return self._eye_batches(rect)
         w, h = image.size
-        return camera_batches(camera, self.view, w, h, rect_pixels(rect, w), image.seed,
-                              RAYS_PER_BATCH)  # fmt: skip
+        return camera_batches(
+            camera, self.view, w, h, rect_pixels(rect, w), image.seed, RAYS_PER_BATCH
+        )
 
     def add_tiles(self, tiles: list[int], last: bool, owners=()) -> dict[int, np.ndarray]:
         """Dynamic image space: tiles the host dealt (indices of the partition's rectangles),
@@ -347,8 +383,10 @@ class NodeCore:
         w, h = self.spec.image.size
         for t in tiles:
             if not 0 <= t < len(self.part.rects) or (self.adaptive and self.film_at[t] >= 0):
-                raise ValueError(f"TILES: tile {t} is not one of the {len(self.part.rects)}, "
-                                 "or was dealt here before")  # fmt: skip
+                raise ValueError(
+                    f"TILES: tile {t} is not one of the {len(self.part.rects)}, "
+                    "or was dealt here before"
+                )
             if self.adaptive:
                 self.feed.add(t, self._add_film(t).pass1(self.view, w, h))
             else:
@@ -364,8 +402,10 @@ class NodeCore:
         here (all came before, on the same link)."""
         n = len(self.part.rects)
         if len(owners) != n or (n and (owners.min() < 0 or owners.max() >= len(self.los))):
-            raise ValueError(f"TILES.owners must give each of the {n} tiles a node of the "
-                             f"{len(self.los)}, got {len(owners)} entries")  # fmt: skip
+            raise ValueError(
+                f"TILES.owners must give each of the {n} tiles a node of the "
+                f"{len(self.los)}, got {len(owners)} entries"
+            )
         if not np.array_equal(owners == self.node, self.film_at >= 0):
             raise ValueError(f"TILES.owners disagrees with the tiles dealt to node {self.node}")
         self.rect_owner = owners.astype(np.int64)
@@ -374,8 +414,7 @@ class NodeCore:
         x0, x1, y0, y1 = rect
         rows = max(1, self.eye_batch // max(1, (x1 - x0) * self.spec.image.spp))
         for y in range(y0, y1, rows):
-            yield eye_rays(self.view, self.spec.image, rows=(y, min(y + rows, y1)),
-                           cols=(x0, x1))  # fmt: skip
+            yield eye_rays(self.view, self.spec.image, rows=(y, min(y + rows, y1)), cols=(x0, x1))
 
     def trace(self, rays: np.ndarray, primary: bool = False, taker: int | None = None) -> Batch:
         """Trace a batch here, with the engine of node `taker` (this node's own when None, or
@@ -415,8 +454,13 @@ class NodeCore:
                 into = held if dest == self.node or dest in self.copies else outgoing
                 into.setdefault(dest, []).append(sent)
         counts["cpu_seconds"] = cpu
-        deposits = (deposits[0] if len(deposits) == 1 else
-                    np.concatenate(deposits) if deposits else np.zeros(0, DEPOSIT))  # fmt: skip
+        deposits = (
+            deposits[0]
+            if len(deposits) == 1
+            else np.concatenate(deposits)
+            if deposits
+            else np.zeros(0, DEPOSIT)
+        )
         routes = self.pixel_routes(deposits)
         counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
         return Batch(routes, _joined(outgoing), dict(counts), _joined(held))
@@ -451,8 +495,10 @@ class NodeCore:
         held.append((deposits, idx[~mine], rect[~mine]))
         self.held_count += int((~mine).sum())
         if self.held_count > self.held_bound:
-            raise ValueError(f"node {self.node} holds more deposits for tiles of nodes not "
-                             f"known yet than the image's pass 1 makes ({self.held_bound})")
+            raise ValueError(
+                f"node {self.node} holds more deposits for tiles of nodes not "
+                f"known yet than the image's pass 1 makes ({self.held_bound})"
+            )
         return self._release()
 
     def _add(self, deposits: np.ndarray, idx: np.ndarray, film: np.ndarray) -> None:
@@ -480,8 +526,9 @@ class NodeCore:
 
     def _routes(self, deposits, index: RectIndex):
         camera, (w, h) = self.spec.camera, self.spec.image.size
-        idx, rect = deposit_routes(deposits["pixel"], camera.per_pixel, self.samples[0], w, h,
-                                   index)  # fmt: skip
+        idx, rect = deposit_routes(
+            deposits["pixel"], camera.per_pixel, self.samples[0], w, h, index
+        )
         return idx[rect >= 0], rect[rect >= 0]
 
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:

@@ -110,8 +110,7 @@ class ChunkFeed(Primaries):
     longer be given) once its group's first batch is looked ahead. `usable(thief, chunks)`
     (None: all) says which chunks a thief can trace itself."""
 
-    def __init__(self, chunks, batches, on_give=None, usable=None, rays=None,
-                 budget: int = 0):  # fmt: skip
+    def __init__(self, chunks, batches, on_give=None, usable=None, rays=None, budget: int = 0):
         self.chunks, self.make, self.on_give = deque(chunks), batches, on_give
         self.usable, self.rays, self.budget = usable, rays, budget
         self.current = iter(())
@@ -217,8 +216,9 @@ def deal_order(rects, order: str) -> list[int]:
         return list(range(len(rects)))
     x0 = np.array([r[0] for r in rects])
     y0 = np.array([r[2] for r in rects])
-    return spiral_order(np.unique(x0, return_inverse=True)[1],
-                        np.unique(y0, return_inverse=True)[1])  # fmt: skip
+    return spiral_order(
+        np.unique(x0, return_inverse=True)[1], np.unique(y0, return_inverse=True)[1]
+    )
 
 
 class TileDealer:
@@ -284,9 +284,17 @@ class Scheduler:
     driver stops reading (it resumes once `may_read`, at a quarter of that); `passed_min`:
     queued incoming rays that go before a primary batch (PASSED_MIN)."""
 
-    def __init__(self, node: int, ring_next: int, nodes: int, threads: int = 1,
-                 incoming_high: int = INCOMING_HIGH, neighbours=(),
-                 steal: bool = False, passed_min: int = PASSED_MIN):  # fmt: skip
+    def __init__(
+        self,
+        node: int,
+        ring_next: int,
+        nodes: int,
+        threads: int = 1,
+        incoming_high: int = INCOMING_HIGH,
+        neighbours=(),
+        steal: bool = False,
+        passed_min: int = PASSED_MIN,
+    ):
         self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
         # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
         # one that had nothing is not asked again in this state, but remembers who asked
@@ -441,7 +449,8 @@ class Scheduler:
                     continue
             free = self.in_flight < self.threads
             tracing = self.state in (State.TRACE, State.REFINE) and (
-                bool(self.primaries) or self.primaries.waiting)
+                bool(self.primaries) or self.primaries.waiting
+            )
             primary = tracing and free and room and bool(self.primaries)
             if self.incoming and free and (self.incoming_rays >= self.passed_min or not primary):
                 return self._passed_batch()
@@ -472,9 +481,13 @@ class Scheduler:
         """The neighbour to ask for chunks when out of chunked primaries (TRACE, or adaptive
         sampling's REFINE) with no answer awaited: the first not yet found empty in this
         state (None: nobody to ask)."""
-        if not self.steal or self.state not in (State.TRACE, State.REFINE) or \
-                not isinstance(self.primaries, ChunkFeed) or self.primaries or \
-                self.steal_from is not None:  # fmt: skip
+        if (
+            not self.steal
+            or self.state not in (State.TRACE, State.REFINE)
+            or not isinstance(self.primaries, ChunkFeed)
+            or self.primaries
+            or self.steal_from is not None
+        ):
             return None
         return next((m for m in self.neighbours if m not in self.asked), None)
 

@@ -81,9 +81,17 @@ class Outcome:
         return dict(out)
 
 
-def simulate(scenes, spec: RenderSpec, part: Partition, seed: int = 0, delay=None,
-             eye_batch: int = EYE_BATCH, passed_min: int = PASSED_MIN, clock: str = "rounds",
-             latency: float = LATENCY) -> Outcome:  # fmt: skip
+def simulate(
+    scenes,
+    spec: RenderSpec,
+    part: Partition,
+    seed: int = 0,
+    delay=None,
+    eye_batch: int = EYE_BATCH,
+    passed_min: int = PASSED_MIN,
+    clock: str = "rounds",
+    latency: float = LATENCY,
+) -> Outcome:
     """Render on a simulated mesh; `scenes[n]` holds node n's objects. `delay` = (src, dst,
     rounds): messages on that link arrive that many rounds (clock "work": latencies) late;
     `eye_batch`: eye rays per primary batch (small ones interleave more); `passed_min`: the
@@ -106,9 +114,17 @@ class _Mesh:
     def __init__(self, cores, spec: RenderSpec, seed, delay, passed_min):
         torus = Torus(spec.plan.rows, spec.plan.cols)
         self.cores = cores
-        self.scheds = [Scheduler(n, torus.ring_next(n), torus.size, neighbours=torus.links(n),
-                                 steal=spec.steals, passed_min=passed_min)
-                       for n in range(torus.size)]  # fmt: skip
+        self.scheds = [
+            Scheduler(
+                n,
+                torus.ring_next(n),
+                torus.size,
+                neighbours=torus.links(n),
+                steal=spec.steals,
+                passed_min=passed_min,
+            )
+            for n in range(torus.size)
+        ]
         self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
         self.rng = np.random.default_rng(seed)
         self.delay = delay
@@ -144,8 +160,9 @@ class _Mesh:
             self.round += 1
             if self.round > MAX_ROUNDS:
                 states = [s.state.name for s in self.scheds]
-                raise RuntimeError(f"simulated mesh did not finish in {MAX_ROUNDS} rounds "
-                                   f"(node states {states})")  # fmt: skip
+                raise RuntimeError(
+                    f"simulated mesh did not finish in {MAX_ROUNDS} rounds (node states {states})"
+                )
             self._deliver()
             for n in self.rng.permutation(len(self.cores)):
                 self._act(int(n))
@@ -189,8 +206,7 @@ class _Mesh:
                 tiles, last = self.dealer.finished(payload[0])
                 if tiles or last:
                     owners = self.dealer.owners_with(last)
-                    self._post((self._stamp(-1), payload[0], "tiles",
-                                         (tiles, last, owners)))  # fmt: skip
+                    self._post((self._stamp(-1), payload[0], "tiles", (tiles, last, owners)))
         else:
             sched.packet_in(payload)
 
@@ -283,8 +299,9 @@ class _TimedMesh(_Mesh):
             turns += 1
             if turns > limit:
                 states = [s.state.name for s in self.scheds]
-                raise RuntimeError(f"simulated mesh did not finish in {limit} turns "
-                                   f"(node states {states})")  # fmt: skip
+                raise RuntimeError(
+                    f"simulated mesh did not finish in {limit} turns (node states {states})"
+                )
             if self.transit and (not self.awake or self.transit[0][0] <= self.awake[0][0]):
                 self._deliver_one()
                 continue
@@ -295,8 +312,9 @@ class _TimedMesh(_Mesh):
                 self.asleep.add(n)
         if not all(s.done for s in self.scheds):
             states = [s.state.name for s in self.scheds]
-            raise RuntimeError(f"simulated mesh: every node waits and nothing is in flight "
-                               f"(node states {states})")  # fmt: skip
+            raise RuntimeError(
+                f"simulated mesh: every node waits and nothing is in flight (node states {states})"
+            )
         self._finish()
         return Outcome(self.deposits, self.records, turns, float(self.clock.max()))
 

@@ -22,8 +22,13 @@ RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 # occupancy map costs four of a hierarchy's (a latency-bound chain of arithmetic and a
 # table look-up per step; fitted before its divisions became multiplies, 10-15% less a walk
 # since), a segment five (box spans, the ray's record, the stack), a test about half a step.
-UNIT_WEIGHTS = {"intersection_tests": 1, "voxel_steps": 2, "occupancy_steps": 8,
-                "ray_segments": 10, "rays_forwarded": 8}
+UNIT_WEIGHTS = {
+    "intersection_tests": 1,
+    "voxel_steps": 2,
+    "occupancy_steps": 8,
+    "ray_segments": 10,
+    "rays_forwarded": 8,
+}
 
 
 def work_units(counts: dict) -> int:
@@ -70,14 +75,20 @@ class NodeStats:
         for i, (m, s) in enumerate(sorted(links.items())):
             traffic[i] = (m, self.rays_out[m], s["bytes_out"])
         traced = sum(self.counts.get(k, 0) for k in RAY_KINDS)
-        return {"busy_ms": int(busy * 1000), "elapsed_ms": int((now - self.started) * 1000),
-                "traced": traced, "links": traffic}
+        return {
+            "busy_ms": int(busy * 1000),
+            "elapsed_ms": int((now - self.started) * 1000),
+            "traced": traced,
+            "links": traffic,
+        }
 
     def report(self, engine_stats: dict | None, links: dict[int, dict]) -> dict:
         """The STATS message's body; `links`: each neighbour link's byte counters."""
         elapsed = time.perf_counter() - self.started
-        per_link = {str(m): dict(s, rays_sent=self.rays_out[m], rays_received=self.rays_in[m])
-                    for m, s in links.items()}  # fmt: skip
+        per_link = {
+            str(m): dict(s, rays_sent=self.rays_out[m], rays_received=self.rays_in[m])
+            for m, s in links.items()
+        }
         return {
             "node": self.node,
             "objects": engine_stats["objects"] if engine_stats else 0,

@@ -13,27 +13,47 @@ def parser() -> argparse.ArgumentParser:
     """Every `meshnode` command and its options (also walked by the help test)."""
     p = argparse.ArgumentParser(prog="meshnode", description="Meshtrace mesh node.")
     sub = p.add_subparsers(dest="command", required=True)
-    w = sub.add_parser("warmup", help="compile every tracing kernel variant into the disk "
-                       "cache (a first run: many minutes; later: seconds)")  # fmt: skip
-    w.add_argument("--common", action="store_true",
-                   help="only the variant with every primitive kind, lights and refraction")
+    w = sub.add_parser(
+        "warmup",
+        help="compile every tracing kernel variant into the disk "
+        "cache (a first run: many minutes; later: seconds)",
+    )
+    w.add_argument(
+        "--common",
+        action="store_true",
+        help="only the variant with every primitive kind, lights and refraction",
+    )
     s = sub.add_parser("serve", help="serve as a mesh node")
-    s.add_argument("--listen", default="127.0.0.1:7700",
-                   help="HOST:PORT (default 127.0.0.1:7700; port 0: any free); another "
-                        "address than loopback needs a cluster secret")  # fmt: skip
-    s.add_argument("--secret-file", help="the cluster secret (default: $MESHTRACE_SECRET); "
-                   "every host and node of the cluster must prove it holds the same one")
-    s.add_argument("--insecure", action="store_true",
-                   help="listen beyond loopback without a secret: anyone who reaches the port "
-                        "can use the node")  # fmt: skip
+    s.add_argument(
+        "--listen",
+        default="127.0.0.1:7700",
+        help="HOST:PORT (default 127.0.0.1:7700; port 0: any free); another "
+        "address than loopback needs a cluster secret",
+    )
+    s.add_argument(
+        "--secret-file",
+        help="the cluster secret (default: $MESHTRACE_SECRET); "
+        "every host and node of the cluster must prove it holds the same one",
+    )
+    s.add_argument(
+        "--insecure",
+        action="store_true",
+        help="listen beyond loopback without a secret: anyone who reaches the port "
+        "can use the node",
+    )
     add_tls_options(s, "this node's")
     s.add_argument("--cluster", default="meshtrace", help="cluster id peers must match")
     s.add_argument("--once", action="store_true", help="exit after one render")
-    s.add_argument("--threads", type=int, default=0,
-                   help="tracing threads (default 0: one per core)")
-    s.add_argument("--incoming-high", type=int, default=INCOMING_HIGH,
-                   help="queued incoming rays at which the node stops reading from its "
-                        f"neighbours (default {INCOMING_HIGH}, about 100 MB)")  # fmt: skip
+    s.add_argument(
+        "--threads", type=int, default=0, help="tracing threads (default 0: one per core)"
+    )
+    s.add_argument(
+        "--incoming-high",
+        type=int,
+        default=INCOMING_HIGH,
+        help="queued incoming rays at which the node stops reading from its "
+        f"neighbours (default {INCOMING_HIGH}, about 100 MB)",
+    )
     return p
 
 
@@ -49,14 +69,23 @@ def main(argv=None) -> int:
         secret = serving_secret(args)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca)
         if tls.ca is not None and tls.cert is None:
-            raise ValueError("--tls-ca needs --tls-cert and --tls-key: a node listening with "
-                             "TLS needs its own certificate")  # fmt: skip
+            raise ValueError(
+                "--tls-ca needs --tls-cert and --tls-key: a node listening with "
+                "TLS needs its own certificate"
+            )
         tls.server()
     except (ValueError, OSError) as e:
         print(f"meshnode: {e}", file=sys.stderr)
         return 2
-    return serve(args.listen, args.cluster, args.once, args.threads, args.incoming_high,
-                 secret=secret, tls=tls)  # fmt: skip
+    return serve(
+        args.listen,
+        args.cluster,
+        args.once,
+        args.threads,
+        args.incoming_high,
+        secret=secret,
+        tls=tls,
+    )
 
 
 def _warmup(common: bool) -> int:
@@ -84,14 +113,23 @@ def serving_secret(args) -> bytes | None:
     except ValueError:
         loopback = host == "localhost"
     if secret is None and not loopback and not args.insecure:
-        raise ValueError(f"--listen {args.listen} reaches beyond this machine: give a cluster "
-                         "secret (MESHTRACE_SECRET or --secret-file), or --insecure")
+        raise ValueError(
+            f"--listen {args.listen} reaches beyond this machine: give a cluster "
+            "secret (MESHTRACE_SECRET or --secret-file), or --insecure"
+        )
     return secret
 
 
-def serve(listen: str, cluster: str, once: bool, threads: int = 0,
-          incoming_high: int = INCOMING_HIGH, service_class=None,
-          secret: bytes | None = None, tls: TlsFiles = NO_TLS) -> int:  # fmt: skip
+def serve(
+    listen: str,
+    cluster: str,
+    once: bool,
+    threads: int = 0,
+    incoming_high: int = INCOMING_HIGH,
+    service_class=None,
+    secret: bytes | None = None,
+    tls: TlsFiles = NO_TLS,
+) -> int:
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
     import logging
@@ -105,8 +143,16 @@ def serve(listen: str, cluster: str, once: bool, threads: int = 0,
     host, port = listen.rsplit(":", 1)
 
     async def main():
-        service = service_class(host, int(port), cluster, once, threads or os.cpu_count() or 1,
-                                incoming_high, secret, tls)  # fmt: skip
+        service = service_class(
+            host,
+            int(port),
+            cluster,
+            once,
+            threads or os.cpu_count() or 1,
+            incoming_high,
+            secret,
+            tls,
+        )
         try:
             bound = await service.start()
         except OSError as e:

@@ -46,7 +46,8 @@ class Config:
             raise BadFrame(f"CONFIG.view: {e}") from None
         background = np.asarray(f["background"], dtype=object)
         if background.shape != (3,) or not all(
-                isinstance(c, int | float) and np.isfinite(c) for c in background):
+            isinstance(c, int | float) and np.isfinite(c) for c in background
+        ):
             raise BadFrame("CONFIG.background must be three finite numbers")
         self.view, self.background = view, tuple(float(c) for c in background)
 
@@ -90,11 +91,16 @@ class Objects:
         tables = {name: table(name) for name in OBJECT_TABLES}
         _check_objects(tables)
         return SceneData(
-            view=view, background=background, lights=tables["lights"],
-            materials=tables["materials"], spheres=tables["spheres"],
-            triangles=tables["triangles"], polygons=tables["polygons"],
-            vertices=tables["vertices"].reshape(-1, 3), cones=tables["cones"],
-        )  # fmt: skip
+            view=view,
+            background=background,
+            lights=tables["lights"],
+            materials=tables["materials"],
+            spheres=tables["spheres"],
+            triangles=tables["triangles"],
+            polygons=tables["polygons"],
+            vertices=tables["vertices"].reshape(-1, 3),
+            cones=tables["cones"],
+        )
 
 
 def _check_objects(tables: dict) -> None:
@@ -113,6 +119,9 @@ def _check_objects(tables: dict) -> None:
         if len(mat) and (mat.min() < 0 or mat.max() >= n_mat):
             raise BadFrame(f"OBJECTS {name}: material index outside the {n_mat} materials")
     p = tables["polygons"]
-    if len(p) and (p["start"].min() < 0 or p["count"].min() < 3
-                   or (p["start"].astype(np.int64) + p["count"]).max() > n_vert):  # fmt: skip
+    if len(p) and (
+        p["start"].min() < 0
+        or p["count"].min() < 3
+        or (p["start"].astype(np.int64) + p["count"]).max() > n_vert
+    ):
         raise BadFrame(f"OBJECTS polygons: vertex ranges outside the {n_vert} vertices")

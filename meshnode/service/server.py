@@ -37,9 +37,17 @@ class NodeService:
     `secret`: the cluster secret every peer must prove (None: the empty key, loopback use);
     `tls`: certificate, key and CA files for TLS on every link (meshnode.transport.tls)."""
 
-    def __init__(self, host: str, port: int, cluster: str = "meshtrace", once: bool = False,
-                 threads: int = 1, incoming_high: int = INCOMING_HIGH,
-                 secret: bytes | None = None, tls: TlsFiles = NO_TLS):  # fmt: skip
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        cluster: str = "meshtrace",
+        once: bool = False,
+        threads: int = 1,
+        incoming_high: int = INCOMING_HIGH,
+        secret: bytes | None = None,
+        tls: TlsFiles = NO_TLS,
+    ):
         self.address, self.port, self.cluster, self.once = host, port, cluster, once
         self.secret = secret
         self.tls_server, self.tls_client = tls.server(), tls.client()
@@ -59,8 +67,11 @@ class NodeService:
         self.server: asyncio.Server | None = None
 
     async def start(self) -> int:
-        tls = {"ssl": self.tls_server, "ssl_handshake_timeout": HANDSHAKE_SECONDS} \
-            if self.tls_server else {}  # fmt: skip
+        tls = (
+            {"ssl": self.tls_server, "ssl_handshake_timeout": HANDSHAKE_SECONDS}
+            if self.tls_server
+            else {}
+        )
         self.server = await asyncio.start_server(self._accepted, self.address, self.port, **tls)
         self.port = self.server.sockets[0].getsockname()[1]
         return self.port
@@ -108,9 +119,16 @@ class NodeService:
 
     async def dial(self, m: int, address: str) -> Link:
         """Connect to neighbour m, both sides proving the cluster secret."""
-        link, theirs = await dial(address, f"node {m} ({address})", self.cluster, self.secret,
-                                  "node", self.session.node, self.tls_client,
-                                  self.session.config.render_id)  # fmt: skip
+        link, theirs = await dial(
+            address,
+            f"node {m} ({address})",
+            self.cluster,
+            self.secret,
+            "node",
+            self.session.node,
+            self.tls_client,
+            self.session.config.render_id,
+        )
         if theirs["node"] != m:
             await link.close()
             raise LinkClosed(link.peer, f"it says it is node {theirs['node']}, not node {m}")

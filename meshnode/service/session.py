@@ -40,10 +40,15 @@ class Session:
         self.node = config.node
         self.router = Router(config.torus, self.node)
         threads = min(service.threads, config.render.engine.threads or service.threads)
-        self.sched = Scheduler(self.node, config.torus.ring_next(self.node), config.torus.size,
-                               threads, service.incoming_high,
-                               neighbours=config.torus.links(self.node),
-                               steal=config.render.steals)  # fmt: skip
+        self.sched = Scheduler(
+            self.node,
+            config.torus.ring_next(self.node),
+            config.torus.size,
+            threads,
+            service.incoming_high,
+            neighbours=config.torus.links(self.node),
+            steal=config.render.steals,
+        )
         self.stats = NodeStats(self.node)
         self.objects = Objects([self.node, *config.copies])
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
@@ -79,10 +84,18 @@ class Session:
         """Primary rays just traced, and what the host's live view shows of this node."""
         links = {m: o.link.stats for m, o in self.outboxes.items()}
         objects = self.core.engine.stats["objects"] if self.core is not None else 0
-        self.host_out.post(make(Kind.PROGRESS, node=self.node, rays=rays,
-                                work=self.stats.batches, ready=self.ready,
-                                state=int(self.sched.state), objects=objects,
-                                **self.stats.live(links)))  # fmt: skip
+        self.host_out.post(
+            make(
+                Kind.PROGRESS,
+                node=self.node,
+                rays=rays,
+                work=self.stats.batches,
+                ready=self.ready,
+                state=int(self.sched.state),
+                objects=objects,
+                **self.stats.live(links),
+            )
+        )
 
     # ------------------------------------------------------------------ setup
     async def build(self) -> None:
@@ -93,12 +106,22 @@ class Session:
             scene = self.objects.scene(self.node, c.view, c.background)
             copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
             self.core = await loop.run_in_executor(
-                self.service.pool, lambda: NodeCore(self.node, scene, c.render, c.partition,
-                                                    engines=self.service.engines,
-                                                    copies=copies))  # fmt: skip
+                self.service.pool,
+                lambda: NodeCore(
+                    self.node,
+                    scene,
+                    c.render,
+                    c.partition,
+                    engines=self.service.engines,
+                    copies=copies,
+                ),
+            )
             if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
-                log.info("node %d: compiling kernels for %s, first run only", self.node,
-                         self.core.engine.variant())  # fmt: skip
+                log.info(
+                    "node %d: compiling kernels for %s, first run only",
+                    self.node,
+                    self.core.engine.variant(),
+                )
             await loop.run_in_executor(self.service.pool, self.core.warmup)
             for f in self.early_tiles:  # nothing is traced yet, so no deposit is to send
                 self.core.add_tiles(f["tiles"], f["last"], f["owners"])
@@ -195,8 +218,13 @@ class Session:
     def on_rays(self, m: int, f: dict) -> None:
         self._dest(f, "RAYS")
         r = f["rays"]
-        finite = np.isfinite(r["o"]).all() and np.isfinite(r["d"]).all() and np.isfinite(
-            r["w"]).all() and np.isfinite(r["t_min"]).all() and not np.isnan(r["t_max"]).any()
+        finite = (
+            np.isfinite(r["o"]).all()
+            and np.isfinite(r["d"]).all()
+            and np.isfinite(r["w"]).all()
+            and np.isfinite(r["t_min"]).all()
+            and not np.isnan(r["t_max"]).any()
+        )
         if not finite or (len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3)):
             raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
         self.stats.rays_in[m] += len(f["rays"])
@@ -242,8 +270,12 @@ class Session:
     def on_state(self, f: dict) -> None:
         self._dest(f, "STATE")
         n = self.config.torus.size
-        if not 0 <= f["state"] <= State.DONE or not 0 <= f["last_busy"] < n or len(
-                f["sent"]) != n or len(f["received"]) != n:  # fmt: skip
+        if (
+            not 0 <= f["state"] <= State.DONE
+            or not 0 <= f["last_busy"] < n
+            or len(f["sent"]) != n
+            or len(f["received"]) != n
+        ):
             raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
         if f["dest"] != self.node:
             self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
@@ -289,8 +321,15 @@ class Session:
             self.sched.message_out()
         elif isinstance(step, SendPacket):
             p = step.packet
-            message = make(Kind.STATE, state=p.state, last_busy=p.last_busy, round=p.round,
-                           sent=p.sent, received=p.received, dest=step.to)  # fmt: skip
+            message = make(
+                Kind.STATE,
+                state=p.state,
+                last_busy=p.last_busy,
+                round=p.round,
+                sent=p.sent,
+                received=p.received,
+                dest=step.to,
+            )
             self.outboxes[self.router.next_hop(step.to)].post(message)
         else:
             raise TypeError(f"unknown scheduler step {step!r}")
@@ -336,8 +375,9 @@ class Session:
         rays, primary = step.rays, step.primary
         try:
             loop = asyncio.get_running_loop()
-            batch = await loop.run_in_executor(self.service.pool, self.core.trace, rays,
-                                               primary, step.taker)  # fmt: skip
+            batch = await loop.run_in_executor(
+                self.service.pool, self.core.trace, rays, primary, step.taker
+            )
             self.stats.traced(batch.counts, len(rays) if primary else 0)
             self.deliver(batch)
             if primary:

@@ -35,8 +35,7 @@ def variant_scene(variant: Variant) -> SceneData:
     if "triangles" in variant.kinds:
         v = np.array([(2, 0, 0), (3, 0, 0), (2, 1, 0)], float)
         normals = np.tile((0, 0, -1.0), (3, 1))
-        scene.triangles = np.array([(gid, mat, v, normals, int(variant.smooth))],
-                                   dtypes.TRIANGLE)  # fmt: skip
+        scene.triangles = np.array([(gid, mat, v, normals, int(variant.smooth))], dtypes.TRIANGLE)
         gid, mat = gid + 1, 0
     if "polygons" in variant.kinds:
         scene.polygons = np.array([(gid, mat, 0, 4)], dtypes.POLYGON)
@@ -47,8 +46,7 @@ def variant_scene(variant: Variant) -> SceneData:
     return scene
 
 
-def warmup(variants=(ALL_KINDS,), report=None, common: bool = True,
-           kernels=KERNELS) -> float:  # fmt: skip
+def warmup(variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERNELS) -> float:
     """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
     `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
     returns the seconds. `kernels`: which of each variant's (`Engine.warmup`; a node can
@@ -97,4 +95,3 @@ def _common_warmup() -> None:
     lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
     spec = CameraSpec(lens, 0.036, 0.024, -0.051)
     camera_rays(spec, view, 1, 1, np.zeros(1, int))
-

@@ -30,9 +30,28 @@ class LinkClosed(ConnectionError):
         self.peer, self.reason = peer, reason
 
 
+class SendFailed(RuntimeError):
+    """A message could not be sent on a link that is still open (it did not encode, or its
+    frame is over the limit); says to whom and which kind of message."""
+
+    def __init__(self, peer: str, message: dict | None, cause: BaseException):
+        try:
+            kind = Kind(message["k"]).name
+        except (TypeError, KeyError, ValueError):
+            kind = "a message"
+        super().__init__(f"could not send {kind} to {peer}: {describe(cause)}")
+        self.peer, self.kind = peer, kind
+        self.__cause__ = cause
+
+
 class Link:
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: str,
-                 max_frame: int = MAX_FRAME):  # fmt: skip
+    def __init__(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        peer: str,
+        max_frame: int = MAX_FRAME,
+    ):
         self.reader, self.writer, self.peer = reader, writer, peer
         self.max_frame = max_frame
         self._decoder = FrameDecoder(max_frame)
@@ -50,16 +69,24 @@ class Link:
         return ssl_object.version() if ssl_object is not None else None
 
     @classmethod
-    async def connect(cls, address: str, peer: str, wait: float = 5.0,
-                      max_frame: int = MAX_FRAME,
-                      tls: ssl.SSLContext | None = None) -> "Link":  # fmt: skip
+    async def connect(
+        cls,
+        address: str,
+        peer: str,
+        wait: float = 5.0,
+        max_frame: int = MAX_FRAME,
+        tls: ssl.SSLContext | None = None,
+    ) -> "Link":
         """Connect to HOST:PORT (over TLS with a context: the peer's certificate must name
         HOST), retrying for `wait` seconds while the peer starts (its name may not resolve
         yet, or nothing listens yet), then giving up naming it; a TLS failure is final."""
         host, port = address.rsplit(":", 1)
         host = host.strip("[]")
-        tls_options = {"ssl": tls, "server_hostname": host,
-                       "ssl_handshake_timeout": HANDSHAKE_SECONDS} if tls else {}  # fmt: skip
+        tls_options = (
+            {"ssl": tls, "server_hostname": host, "ssl_handshake_timeout": HANDSHAKE_SECONDS}
+            if tls
+            else {}
+        )
         deadline = time.monotonic() + wait
         pause = 0.1
         while True:
@@ -70,8 +97,9 @@ class Link:
                 raise LinkClosed(peer, f"TLS with {address} failed: {e.reason or e}") from e
             except OSError as e:
                 if time.monotonic() + pause > deadline:
-                    raise LinkClosed(peer, f"cannot connect to {address} within {wait:.3g} s: "
-                                     f"{e.strerror or e}") from e  # fmt: skip
+                    raise LinkClosed(
+                        peer, f"cannot connect to {address} within {wait:.3g} s: {e.strerror or e}"
+                    ) from e
                 await asyncio.sleep(pause)
                 pause = min(2 * pause, 1.0)
 
@@ -148,6 +176,10 @@ class Outbox:
         self.ready.set()
 
     async def _run(self, on_error):
+        """Send in order; the first failure of any kind goes to `on_error` and ends the task
+        (a message that could not be sent is lost, so the render it belongs to cannot finish
+        whole: it fails by name instead of waiting for rays that never come)."""
+        message = None
         try:
             while True:
                 await self.ready.wait()
@@ -160,19 +192,30 @@ class Outbox:
                         self.sent.set()
         except LinkClosed as e:
             on_error(e)
+        except Exception as e:  # encoding: a frame too large, a field msgpack cannot pack
+            on_error(SendFailed(self.link.peer, message, e))
 
 
-async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role: str,
-               node: int = -1, tls: ssl.SSLContext | None = None, render: bytes = b"",
-               wait: float = 5.0) -> tuple[Link, dict]:  # fmt: skip
+async def dial(
+    address: str,
+    peer: str,
+    cluster: str,
+    secret: bytes | None,
+    role: str,
+    node: int = -1,
+    tls: ssl.SSLContext | None = None,
+    render: bytes = b"",
+    wait: float = 5.0,
+) -> tuple[Link, dict]:
     """Connect to a node (over TLS with a context; retrying for `wait` seconds) and prove
     the cluster secret both ways (protocols.handshake), a node naming the `render` the link
     is for; returns the link, open for whole frames, and the node's HELLO fields. LinkClosed
     names the peer and why it refused or could not be reached."""
     link = await Link.connect(address, peer, wait, max_frame=HANDSHAKE_FRAME, tls=tls)
     try:
-        theirs = await asyncio.wait_for(_dialler(link, cluster, secret or b"", role, node,
-                                                 render), HANDSHAKE_SECONDS)  # fmt: skip
+        theirs = await asyncio.wait_for(
+            _dialler(link, cluster, secret or b"", role, node, render), HANDSHAKE_SECONDS
+        )
     except (ProtocolError, LinkClosed, TimeoutError) as e:
         await link.close()
         reason = e.reason if isinstance(e, LinkClosed) else describe(e)
@@ -183,8 +226,9 @@ async def dial(address: str, peer: str, cluster: str, secret: bytes | None, role
     return link, theirs
 
 
-async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int,
-                   render: bytes) -> dict:  # fmt: skip
+async def _dialler(
+    link: Link, cluster: str, secret: bytes, role: str, node: int, render: bytes
+) -> dict:
     message = hello(cluster, role, node, nonce(), render)
     mine = parse(message)[1]
     await link.send(message)
@@ -199,15 +243,17 @@ async def _dialler(link: Link, cluster: str, secret: bytes, role: str, node: int
     return theirs
 
 
-async def answer(link: Link, cluster: str, secret: bytes | None, node: int,
-                 memory: int = 0) -> dict:  # fmt: skip
+async def answer(
+    link: Link, cluster: str, secret: bytes | None, node: int, memory: int = 0
+) -> dict:
     """The listener's side of the handshake, bounded in time and frame size: the dialler's
     HELLO fields once it has proved the secret; otherwise it is told why, the link is
     closed and ProtocolError or LinkClosed raised."""
     link.allow(HANDSHAKE_FRAME)
     try:
-        return await asyncio.wait_for(_listener(link, cluster, secret or b"", node, memory),
-                                      HANDSHAKE_SECONDS)  # fmt: skip
+        return await asyncio.wait_for(
+            _listener(link, cluster, secret or b"", node, memory), HANDSHAKE_SECONDS
+        )
     except TimeoutError:
         await link.close()
         raise LinkClosed(link.peer, f"no handshake within {HANDSHAKE_SECONDS:g} s") from None

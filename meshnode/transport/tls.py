@@ -75,5 +75,8 @@ def add_tls_options(parser, whose: str) -> None:
     `host render`."""
     parser.add_argument("--tls-cert", help=f"TLS: {whose} certificate chain (PEM)")
     parser.add_argument("--tls-key", help="TLS: the certificate's private key (PEM)")
-    parser.add_argument("--tls-ca", help="TLS: the CA bundle that signs the cluster's "
-                        "certificates; peers must present one it signs")  # fmt: skip
+    parser.add_argument(
+        "--tls-ca",
+        help="TLS: the CA bundle that signs the cluster's "
+        "certificates; peers must present one it signs",
+    )

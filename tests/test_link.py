@@ -1,0 +1,111 @@
+"""The link's send path (meshnode.transport.link) over a fake stream: any failure there, not
+only a closed connection, reaches whoever owns the outbox by name, and a session fails its
+render with it instead of waiting for rays that were never sent."""
+
+import asyncio
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from meshnode.service.config import Config
+from meshnode.service.session import Session
+from meshnode.transport.link import Link, LinkClosed, Outbox, SendFailed
+from protocols.dtypes import RAY
+from protocols.errors import FrameTooLarge
+from protocols.messages import Kind, make
+from protocols.render import MeshPlan
+from tests.test_node_service import config
+
+
+class FakeWriter:
+    """A stream writer that keeps what is written; `broken` makes every write fail as a
+    reset connection does."""
+
+    def __init__(self, broken: bool = False):
+        self.frames, self.broken = [], broken
+        self.transport = SimpleNamespace(get_write_buffer_size=lambda: 0)
+
+    def write(self, data: bytes) -> None:
+        if self.broken:
+            raise ConnectionResetError("reset by peer")
+        self.frames.append(data)
+
+    async def drain(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+    async def wait_closed(self) -> None:
+        return None
+
+
+def fake_link(peer: str, max_frame: int = 1 << 20, broken: bool = False) -> Link:
+    return Link(asyncio.StreamReader(), FakeWriter(broken), peer, max_frame)
+
+
+async def first_error(outbox_messages, link: Link) -> BaseException:
+    """Post `outbox_messages` on an outbox over `link`; the error its task reports."""
+    got = asyncio.get_running_loop().create_future()
+    outbox = Outbox(link, lambda e: got.done() or got.set_result(e))
+    for m in outbox_messages:
+        outbox.post(m)
+    error = await asyncio.wait_for(got, 5)
+    await asyncio.wait_for(outbox.task, 5)  # the task ends: it never sends past a loss
+    return error
+
+
+async def test_a_frame_over_the_limit_fails_by_peer_and_kind():
+    link = fake_link("node 3 (10.0.0.3:7700)", max_frame=4096)
+    rays = np.zeros(1000, RAY)  # about 100 kB: far over the 4 kB frame
+    ok = make(Kind.SHUTDOWN)
+    error = await first_error([ok, make(Kind.RAYS, rays=rays, dest=3), ok], link)
+    assert isinstance(error, SendFailed) and isinstance(error.__cause__, FrameTooLarge)
+    assert "could not send RAYS to node 3 (10.0.0.3:7700)" in str(error)
+    assert "exceeds the 4096 limit" in str(error)
+    assert len(link.writer.frames) == 1  # the first message went; nothing after the loss
+
+
+async def test_a_message_that_does_not_encode_fails_by_name():
+    link = fake_link("the host")
+    error = await first_error([{"k": int(Kind.ERROR), "reason": {1, 2}}], link)  # a set
+    assert isinstance(error, SendFailed) and isinstance(error.__cause__, TypeError)
+    assert str(error).startswith("could not send ERROR to the host: TypeError")
+    assert link.writer.frames == []
+
+
+async def test_a_reset_connection_is_still_a_link_closed():
+    error = await first_error([make(Kind.SHUTDOWN)], fake_link("node 1", broken=True))
+    assert isinstance(error, LinkClosed) and error.peer == "node 1"
+    assert "reset by peer" in str(error)
+
+
+async def test_a_send_error_fails_the_sessions_render_and_tells_the_host():
+    service = SimpleNamespace(threads=1, incoming_high=1 << 16, engines=None, pool=None)
+    host = fake_link("the host")
+    session = Session(service, host, Config(config(node=0, plan=MeshPlan(1, 2))))
+    try:
+        session.attach(1, fake_link("node 1 (127.0.0.1:9)", max_frame=4096))
+        session.post_data(1, Kind.RAYS, np.zeros(1000, RAY))
+        await asyncio.wait_for(session.wake.wait(), 5)
+        assert isinstance(session.error, SendFailed)
+        assert "could not send RAYS to node 1 (127.0.0.1:9)" in str(session.error)
+        await asyncio.wait_for(_until(lambda: host.writer.frames), 5)
+        sent = b"".join(host.writer.frames)
+        assert b"node 0: SendFailed: could not send RAYS to node 1" in sent
+    finally:
+        for task in list(session.tasks):
+            task.cancel()
+        for outbox in [session.host_out, *session.outboxes.values()]:
+            outbox.task.cancel()
+        await asyncio.gather(*session.tasks, return_exceptions=True)
+
+
+async def _until(ready, tries: int = 500) -> None:
+    """Yield to the loop until `ready()` holds (bounded in count; the caller bounds time)."""
+    for _ in range(tries):
+        if ready():
+            return
+        await asyncio.sleep(0)
+    pytest.fail("the host was told nothing")

@@ -11,6 +11,7 @@ import math
 
 from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS, SLACK
 from meshnode.engine.counters import STEPS, TESTS
+from meshnode.engine.intersect import EDGE_SLACK
 from meshnode.engine.jit import inline, leaf
 from meshnode.engine.traverse import TIE, better, test_object
 
@@ -81,8 +82,8 @@ def _packet_triangle(tr, i, self_gid, f, origin, n):
         ok = (
             active
             and det != 0.0
-            and not (u < 0.0 or u > 1.0)
-            and not (v < 0.0 or u + v > 1.0)
+            and not (u < -EDGE_SLACK or u > 1.0 + EDGE_SLACK)
+            and not (v < -EDGE_SLACK or u + v > 1.0 + EDGE_SLACK)
             and f[P_LO, k] < t < f[P_BOUND, k]
             and origin[k] != self_gid
         )

@@ -283,3 +283,18 @@ def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family,
         assert stats["balance"]["columns"] != [0, 20, 40, 60]  # the pre-pass moved them
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+
+
+def test_brute_force_is_honoured_on_a_mesh():
+    # EngineSpec(brute=True), the reference the structures are checked against, reaches every
+    # node (a node's copy of the spec once dropped it and built a grid): each node's engine
+    # says so, and the mesh gives one brute-force node's image and counts.
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    rs = records(width=24, height=24, threads=1, brute=True)
+    ref, ref_stats = render(scene, *rs)
+    assert ref_stats["engine"]["structure_reason"].startswith("brute force")
+    img, stats = mesh_render(scene, MeshPlan(1, 2, 1), rs)
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    reasons = [node["engine"]["structure_reason"] for node in stats["nodes"]]
+    assert len(reasons) == 2 and all(r.startswith("brute force") for r in reasons), reasons

@@ -11,6 +11,7 @@ from host.scene.subset import subset
 from meshnode.engine import Engine
 from meshnode.engine.camera import view_basis
 from meshnode.engine.tables import build_tables
+from protocols.render import EngineSpec
 
 
 def probe_rays(view, width: int, height: int, fraction: float = 0.1, grid: int = 16):
@@ -42,9 +43,11 @@ def in_probe_cone(scene, width: int, height: int, fraction: float = 0.1) -> np.n
     return (dist <= radius) | (angle - spread <= cone)
 
 
-def probe_engine(scene, width: int, height: int, **engine_options) -> Engine:
-    """An engine over the objects the probe can hit."""
-    engine = Engine(subset(scene, in_probe_cone(scene, width, height)), **engine_options)
+def probe_engine(scene, width: int, height: int, spec: EngineSpec = EngineSpec()) -> Engine:
+    """An engine over the objects the probe can hit, as the render's `spec` says (depth 1:
+    the probe only finds nearest hits)."""
+    held = subset(scene, in_probe_cone(scene, width, height))
+    engine = Engine.from_spec(held, spec, max_depth=1)
     engine.warmup(["probe"])  # it only finds nearest hits
     return engine
 

@@ -73,15 +73,7 @@ def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
     from host.camera.autofocus import probe_engine
 
     width, height = image.size
-    return probe_engine(
-        scene,
-        width,
-        height,
-        density=engine.density,
-        storage=engine.storage,
-        structure=engine.structure,
-        max_depth=1,
-    )
+    return probe_engine(scene, width, height, engine)
 
 
 PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES

@@ -42,15 +42,8 @@ def render(
     `built`: an engine already built for this scene and `engine` (benchmarks reuse one);
     `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
-    tracer = built or Engine(
-        scene,
-        density=engine.density,
-        storage=engine.storage,
-        structure=engine.structure,
-        max_depth=image.depth,
-        brute=engine.brute,
-        announce=_compiling if progress else None,
-    )
+    announce = _compiling if progress else None
+    tracer = built or Engine.from_spec(scene, engine, max_depth=image.depth, announce=announce)
     tracer.warmup()
     eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed
     job = _Job(scene, image, engine, tracer, progress, watch)

@@ -242,6 +242,23 @@ class Engine:
             "preprocess_seconds": self.preprocess_seconds,
         }
 
+    @classmethod
+    def from_spec(
+        cls, scene: SceneData, spec: EngineSpec, *, max_depth: int = SPD_DEPTH, **placement
+    ) -> "Engine":
+        """The engine `spec` describes, over `scene`: the one place an EngineSpec becomes an
+        engine, so no caller can drop one of its fields (`threads` is the caller's: how many
+        threads run it). `placement`: box, scene_box, occupancy, announce, packets."""
+        return cls(
+            scene,
+            density=spec.density,
+            storage=spec.storage,
+            structure=spec.structure,
+            brute=spec.brute,
+            max_depth=max_depth,
+            **placement,
+        )
+
     def variant(self) -> str:
         """Name of the compiled variant, e.g. 'spheres+polygons/flat/shadows/no-refraction/csr'."""
         storage = "brute-force" if self.brute else ("bvh" if self.bvh else self.grid.storage)

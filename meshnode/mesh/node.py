@@ -29,7 +29,7 @@ from meshnode.mesh.adaptive import (
 )
 from meshnode.mesh.scheduler import ChunkFeed, Primaries, TileFeed, spiral_order
 from protocols.dtypes import DEPOSIT, RAY
-from protocols.render import Partition, RenderSpec
+from protocols.render import EngineSpec, Partition, RenderSpec
 from protocols.scene import SceneData, View
 from protocols.state import State
 from protocols.topology import Torus
@@ -70,15 +70,18 @@ class EngineCache:
     def __init__(self):
         self.engines: dict[bytes, Engine] = {}  # oldest use first
 
-    def get(self, scene: SceneData, keep: int = 1, **options) -> tuple[Engine, bool]:
-        """(engine, whether it was reused) for `scene` built with `options`."""
-        key = _engine_key(scene, options)
+    def get(
+        self, scene: SceneData, keep: int = 1, spec: EngineSpec = EngineSpec(), **placement
+    ) -> tuple[Engine, bool]:
+        """(engine, whether it was reused) for `scene` built as `spec` says, at `placement`
+        (Engine.from_spec's keywords)."""
+        key = _engine_key(scene, {"spec": spec, **placement})
         engine = self.engines.pop(key, None)
         reused = engine is not None
         if engine is None:
             while len(self.engines) >= max(1, keep):  # old memory goes before the build
                 del self.engines[next(iter(self.engines))]
-            engine = Engine(scene, **options)
+            engine = Engine.from_spec(scene, spec, **placement)
         self.engines[key] = engine
         return engine, reused
 
@@ -188,14 +191,12 @@ class NodeCore:
                 self._add_film(t)
 
     def _options(self, node: int) -> dict:
-        """Node `node`'s engine settings: its box, and what every node shares."""
+        """Node `node`'s engine: the render's EngineSpec whole, at its box."""
         spec, part = self.spec, self.part
         return dict(
+            spec=spec.engine,
             box=(self.los[node], self.his[node]),
             scene_box=part.scene_box,
-            density=spec.engine.density,
-            storage=spec.engine.storage,
-            structure=spec.engine.structure,
             max_depth=spec.image.depth,
             occupancy=(part.occ_res, part.occ_bits),
         )

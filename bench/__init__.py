@@ -5,7 +5,7 @@ from pathlib import Path
 
 
 def add_scenes_option(parser) -> None:
-    """`--scenes DIR`: the folder of SPD scenes (README: where they come from), by default
+    """`--scenes DIR`: the folder of SPD scenes (docs/scenes.md: where they come from), by default
     `$MESHTRACE_SCENES` as the tests read it; required when that is unset."""
     default = os.environ.get("MESHTRACE_SCENES")
     parser.add_argument(

@@ -21,7 +21,7 @@ import time
 NODE = """
 import contextlib, sys
 from meshnode.engine import Engine, kernelcache
-from meshnode.engine.engine import Variant
+from meshnode.engine.variants import Variant
 from meshnode.service.warmup import variant_scene
 if sys.argv[1] == "own":
     kernelcache.compiling = lambda name: contextlib.nullcontext()

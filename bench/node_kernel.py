@@ -31,7 +31,7 @@ COUNTS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 
 def tiles(view, image, side: int):
     """The image's eye-ray batches, one per tile of the partition's grid (`tile_grid`)."""
-    from host.planning.partition import tile_grid
+    from host.planning.rectangles import tile_grid
     from meshnode.engine.camera import eye_rays
 
     return [
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     import numpy as np
 
-    from host.planning.partition import scene_box
+    from host.planning.cells import scene_box
     from host.scene.nff import read_nff
     from meshnode.engine import Engine
     from protocols.render import ImageSpec

@@ -66,7 +66,7 @@ def simulated(
     """(busiest node's cost, total cost, rays passed, overlap, makespan) of a simulated
     render, planned as `host render` plans it (`overlap` "auto": the pre-pass chooses, with
     no memory bound), on the simulator's `clock` (a message's `latency` in work units)."""
-    from host.planning.balance import OVERLAPS
+    from host.planning.holding import OVERLAPS
     from host.planning.plan import plan_render
     from host.scene.subset import subset
     from meshnode.mesh.simulator import simulate

@@ -29,30 +29,28 @@ into `--out`.
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 if __package__ in (None, ""):  # run as `python bench/sampling.py`
     sys.path.insert(0, str(ROOT))
 
+from bench.sampling_plot import plot  # noqa: E402 (after the path is set)
+from bench.sampling_runs import REF_SEED_OFFSET, Bench, measure, reference_error  # noqa: E402
+
 DEFAULT_SCENE = ROOT / "bench" / "scenes" / "dof.nff"
 DEFAULT_CAMERA = ROOT / "host" / "cameras" / "thin_f2.8.toml"
-METHODS = ("uniform", "jittered", "adaptive")
-REF_SEED_OFFSET = 7919  # the reference's seed: far from the measured runs'
-
-# ---------------------------------------------------------------------------- arguments
 
 
 def _floats(text: str) -> list[float]:
+    """'0.05,0.1' -> [0.05, 0.1]: a list option in one argument."""
     return [float(v) for v in text.split(",") if v.strip()]
 
 
 def _ints(text: str) -> list[int]:
+    """'1,4,9' -> [1, 4, 9]: a list option in one argument."""
     return [int(v) for v in text.split(",") if v.strip()]
 
 
@@ -102,117 +100,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-# ---------------------------------------------------------------------------- measuring
-
-
-class Bench:
-    """The scene, its engine (built and warmed once, so no run pays for preprocessing or
-    kernel loading), the camera and the options shared by every render."""
-
-    def __init__(self, args: argparse.Namespace):
-        from host.camera.lens import read_camera
-        from host.scene.nff import read_nff
-        from meshnode.engine import Engine
-
-        self.args = args
-        self.scene = read_nff(args.scene)
-        self.camera = None if args.pinhole else read_camera(args.camera)
-        self.engine = Engine(self.scene)
-        self.engine.warmup()
-        self.pixels = args.width * args.height
-
-    def settings(self, sampling: str, rays: int, seed: int, threshold: float = 0.05):
-        """Render settings: the camera's lens (or the pinhole's pixel areas) sampled with
-        `rays` rays per pixel."""
-        from host.camera.setup import CameraSetup, Focus, PinholeSetup
-        from protocols.camera import CameraSampling
-        from protocols.render import EngineSpec, ImageSpec
-
-        a = self.args
-        if a.pinhole:
-            return (
-                ImageSpec(width=a.width, height=a.height, seed=seed),
-                EngineSpec(threads=a.threads),
-                PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive" else None),
-            )
-        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
-        return (
-            ImageSpec(width=a.width, height=a.height, seed=seed),
-            EngineSpec(threads=a.threads),
-            CameraSetup(self.camera, sampled, Focus(a.focus)),
-        )
-
-    def render(self, settings, repeat: int = 1):
-        """(image, stats, best tracing seconds of `repeat` identical renders)."""
-        from host.run.oneprocess import render
-
-        best, image, stats = math.inf, None, None
-        for _ in range(repeat):
-            image, stats = render(self.scene, *settings, built=self.engine)
-            best = min(best, stats["trace_seconds"])
-        return image, stats, best
-
-    def reference(self):
-        """The many-ray jittered image, with a seed of its own."""
-        a = self.args
-        return self.render(self.settings("jittered", a.ref_rays, a.seed + REF_SEED_OFFSET))
-
-    def row(self, reference: np.ndarray, sampling: str, spp: int, threshold=None) -> dict:
-        """One measured configuration against the reference."""
-        s = self.settings(sampling, spp, self.args.seed, threshold or 0.0)
-        image, stats, seconds = self.render(s, self.args.repeat)
-        cam = stats["camera"]
-        adaptive = cam["threshold"] is not None  # adaptive with one ray is one plain ray
-        error = rms(image, reference)
-        return {
-            "method": method_name(sampling, threshold),
-            "sampling": sampling,
-            "spp": spp,
-            "threshold": cam["threshold"] if adaptive else None,
-            "rays_per_pixel": stats["rays"]["eye_rays"] / self.pixels,
-            "refined": cam.get("refined_pixels", 0) / self.pixels if adaptive else None,
-            "seconds": seconds,
-            "rms": error,
-            "merit": error * math.sqrt(seconds),
-        }
-
-
-def method_name(sampling: str, threshold) -> str:
-    return f"adaptive {threshold:g}" if sampling == "adaptive" else sampling
-
-
-def rms(image: np.ndarray, reference: np.ndarray) -> float:
-    """Root mean square difference over every pixel and channel (linear values)."""
-    return float(np.sqrt(np.mean((image - reference) ** 2)))
-
-
-def measure(bench: Bench, reference: np.ndarray) -> list[dict]:
-    """Every method at every sample count, with ratios to jittered at the same count."""
-    a = bench.args
-    plan = [("uniform", None), ("jittered", None)] + [("adaptive", t) for t in a.threshold]
-    rows = [bench.row(reference, sampling, spp, t) for sampling, t in plan for spp in a.spp]
-    jittered = {r["spp"]: r for r in rows if r["sampling"] == "jittered"}
-    for r in rows:
-        j = jittered[r["spp"]]
-        r["time_vs_jittered"] = r["seconds"] / j["seconds"] if j["seconds"] > 0 else math.nan
-        r["error_vs_jittered"] = r["rms"] / j["rms"] if j["rms"] > 0 else math.nan
-    return rows
-
-
-def reference_error(rows: list[dict], ref_rays: int) -> tuple[float, float]:
-    """(convergence rate, the reference's own RMS error): the jittered rows' error against
-    rays per pixel fitted as a power law (least squares in log-log) and extrapolated."""
-    pts = [(r["spp"], r["rms"]) for r in rows if r["sampling"] == "jittered" and r["rms"] > 0]
-    if len(pts) < 2:
-        return math.nan, math.nan
-    x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
-    slope, intercept = np.polyfit(x, y, 1)
-    return float(slope), float(np.exp(intercept + slope * math.log(ref_rays)))
-
-
-# ---------------------------------------------------------------------------- table
-
-
 def format_table(rows: list[dict]) -> str:
     """The rows as a fixed-width text table."""
     head = (
@@ -232,163 +119,15 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-# ---------------------------------------------------------------------------- plot
-
-PLOT_SIZE = (900, 620)
-MARGIN = (90, 50, 30, 70)  # left, top, right, bottom
-COLOURS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14)]
-
-
-def _font(size: int):
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=size)
-    except (TypeError, OSError):  # Pillow without FreeType: the fixed bitmap font
-        return ImageFont.load_default()
-
-
-def log_ticks(lo: float, hi: float) -> list[float]:
-    """Tick values between lo and hi: 1-2-5 per decade over short ranges, decades otherwise."""
-    mantissas = (1, 2, 5) if math.log10(hi / lo) <= 3 else (1,)
-    first, last = math.floor(math.log10(lo)), math.ceil(math.log10(hi))
-    ticks = [m * 10.0**e for e in range(first, last + 1) for m in mantissas]
-    return [t for t in ticks if lo <= t <= hi]
-
-
-def _log_range(values, pad: float = 0.08) -> tuple[float, float]:
-    """Bounds padded by `pad` of the span, in log space (at least a factor 2 wide)."""
-    lo, hi = math.log10(min(values)), math.log10(max(values))
-    mid, half = 0.5 * (lo + hi), max(0.5 * (hi - lo), math.log10(2) / 2)
-    half *= 1 + 2 * pad
-    return 10 ** (mid - half), 10 ** (mid + half)
-
-
-class LogAxes:
-    """Maps (seconds, error) onto pixel positions of the plot area, both axes logarithmic."""
-
-    def __init__(self, xs, ys):
-        self.x0, self.x1 = _log_range(xs)
-        self.y0, self.y1 = _log_range(ys)
-        w, h = PLOT_SIZE
-        left, top, right, bottom = MARGIN
-        self.box = (left, top, w - right, h - bottom)
-
-    def __call__(self, x: float, y: float) -> tuple[float, float]:
-        left, top, right, bottom = self.box
-        fx = math.log10(x / self.x0) / math.log10(self.x1 / self.x0)
-        fy = math.log10(y / self.y0) / math.log10(self.y1 / self.y0)
-        return left + fx * (right - left), bottom - fy * (bottom - top)
-
-
-def _draw_axes(draw, image, ax: LogAxes, title: str) -> None:
-    """Frame, grid lines, tick labels, axis titles and the plot title."""
-    from PIL import Image, ImageDraw
-
-    font, small = _font(16), _font(13)
-    left, top, right, bottom = ax.box
-    for x in log_ticks(ax.x0, ax.x1):
-        px, _ = ax(x, ax.y0)
-        draw.line([(px, top), (px, bottom)], fill=(225, 225, 225))
-        draw.text((px, bottom + 6), f"{x:g}", fill="black", font=small, anchor="mt")
-    for y in log_ticks(ax.y0, ax.y1):
-        _, py = ax(ax.x0, y)
-        draw.line([(left, py), (right, py)], fill=(225, 225, 225))
-        draw.text((left - 6, py), f"{y:g}", fill="black", font=small, anchor="rm")
-    draw.rectangle(ax.box, outline="black")
-    draw.text(
-        ((left + right) / 2, PLOT_SIZE[1] - 22),
-        "tracing seconds (log)",
-        fill="black",
-        font=font,
-        anchor="mm",
-    )
-    draw.text(((left + right) / 2, top / 2), title, fill="black", font=font, anchor="mm")
-    label = "RMS error vs reference (log)"
-    size = (int(draw.textlength(label, font=font)) + 4, 22)
-    text = Image.new("RGBA", size, (255, 255, 255, 0))
-    ImageDraw.Draw(text).text((2, 2), label, fill="black", font=font)
-    text = text.rotate(90, expand=True)
-    image.paste(text, (8, int((top + bottom - text.height) / 2)), text)
-
-
-def _marker(draw, xy, shape: int, colour) -> None:
-    """A filled circle, square or triangle (by index) centred on xy."""
-    x, y, r = xy[0], xy[1], 5
-    if shape % 3 == 0:
-        draw.ellipse([x - r, y - r, x + r, y + r], fill=colour, outline="black")
-    elif shape % 3 == 1:
-        draw.rectangle([x - r, y - r, x + r, y + r], fill=colour, outline="black")
-    else:
-        draw.polygon(
-            [(x, y - r - 1), (x + r + 1, y + r), (x - r - 1, y + r)], fill=colour, outline="black"
-        )
-
-
-def plot(rows: list[dict], path: Path, title: str) -> None:
-    """Log-log PNG of RMS error against tracing seconds: one line per method, points labelled
-    with their rays per pixel, and a legend."""
-    from PIL import Image, ImageDraw
-
-    image = Image.new("RGB", PLOT_SIZE, "white")
-    draw = ImageDraw.Draw(image)
-    ax = LogAxes([r["seconds"] for r in rows], [r["rms"] for r in rows])
-    _draw_axes(draw, image, ax, title)
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    small = _font(12)
-    for i, method in enumerate(methods):
-        colour = COLOURS[i % len(COLOURS)]
-        points = [(ax(r["seconds"], r["rms"]), r["spp"]) for r in rows if r["method"] == method]
-        points.sort(key=lambda p: p[1])
-        draw.line([p for p, _ in points], fill=colour, width=2)
-        for xy, spp in points:
-            _marker(draw, xy, i, colour)
-            draw.text((xy[0] + 7, xy[1] - 7), str(spp), fill=colour, font=small, anchor="lb")
-    _legend(draw, ax, methods)
-    image.save(path)
-
-
-def _legend(draw, ax: LogAxes, methods: list[str]) -> None:
-    """Method names with their colour and marker, in the top right corner of the plot area."""
-    font = _font(14)
-    width = max(draw.textlength(m, font=font) for m in methods) + 50
-    _, top, right, _ = ax.box
-    x0, y0 = right - width - 10, top + 10
-    draw.rectangle(
-        [x0, y0, right - 10, y0 + 22 * len(methods) + 8], fill="white", outline=(160, 160, 160)
-    )
-    for i, method in enumerate(methods):
-        colour, y = COLOURS[i % len(COLOURS)], y0 + 15 + 22 * i
-        draw.line([(x0 + 8, y), (x0 + 36, y)], fill=colour, width=2)
-        _marker(draw, (x0 + 22, y), i, colour)
-        draw.text((x0 + 44, y), method, fill="black", font=font, anchor="lm")
-
-
-# ---------------------------------------------------------------------------- main
-
-
 def main(argv=None) -> int:
+    """Measure every method against the reference, print the table and the reference's own
+    error, write the plot and the reference image (and the rows as JSON)."""
     args = parse_args(argv)
-    from host.run.framebuffer import write_png
-
     start = time.perf_counter()
     bench = Bench(args)
     reference, ref_stats, ref_seconds = bench.reference()
     cam = ref_stats["camera"]
-    optics = (
-        cam["source"]
-        if args.pinhole
-        else f"{cam['source']}  f/{cam['f_number']:.2f} focused at {cam['focus_distance_m']:g} m"
-    )
-    print(
-        f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
-        f"{ref_stats['threads']} threads"
-    )
-    ref_seed = args.seed + REF_SEED_OFFSET
-    print(
-        f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
-        f"  measured runs: seed {args.seed}, best of {args.repeat}"
-    )
+    print_intro(args, ref_stats, ref_seconds)
     rows = measure(bench, reference)
     print()
     print(format_table(rows))
@@ -401,21 +140,7 @@ def main(argv=None) -> int:
         f"jittered error ~ rays^{slope:.2f}; the reference's own error, extrapolated: "
         f"~{ref_error:.2g} (smallest measured {min(r['rms'] for r in rows):.2g})"
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    name = "sampling_pinhole" if args.pinhole else "sampling"
-    ref_png, plot_png = args.out / f"{name}_reference.png", args.out / f"{name}.png"
-    write_png(ref_png, reference)
-    optics = (
-        "pinhole"
-        if args.pinhole
-        else f"f/{cam['f_number']:.1f} focused at {cam['focus_distance_m']:g} m"
-    )
-    title = (
-        f"{args.scene.stem}: {optics}, {args.width}x{args.height}, reference "
-        f"{args.ref_rays} rays/pixel"
-    )
-    plot(rows, plot_png, title)
-    print(f"\nplot: {plot_png}\nreference image: {ref_png}")
+    write_images(args, cam, reference, rows)
     if args.json:
         info = {
             "scene": str(args.scene),
@@ -433,6 +158,46 @@ def main(argv=None) -> int:
         args.json.write_text(json.dumps(info, indent=2, default=str))
     print(f"whole run {time.perf_counter() - start:.1f} s")
     return 0
+
+
+def print_intro(args: argparse.Namespace, ref_stats: dict, ref_seconds: float) -> None:
+    """What was measured: scene, optics, image, threads, the reference and the seeds."""
+    cam = ref_stats["camera"]
+    optics = (
+        cam["source"]
+        if args.pinhole
+        else f"{cam['source']}  f/{cam['f_number']:.2f} focused at {cam['focus_distance_m']:g} m"
+    )
+    print(
+        f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
+        f"{ref_stats['threads']} threads"
+    )
+    ref_seed = args.seed + REF_SEED_OFFSET
+    print(
+        f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
+        f"  measured runs: seed {args.seed}, best of {args.repeat}"
+    )
+
+
+def write_images(args: argparse.Namespace, cam: dict, reference, rows: list[dict]) -> None:
+    """The reference image and the error-against-time plot into `--out`, named for the mode."""
+    from host.run.framebuffer import write_png
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    name = "sampling_pinhole" if args.pinhole else "sampling"
+    ref_png, plot_png = args.out / f"{name}_reference.png", args.out / f"{name}.png"
+    write_png(ref_png, reference)
+    optics = (
+        "pinhole"
+        if args.pinhole
+        else f"f/{cam['f_number']:.1f} focused at {cam['focus_distance_m']:g} m"
+    )
+    title = (
+        f"{args.scene.stem}: {optics}, {args.width}x{args.height}, reference "
+        f"{args.ref_rays} rays/pixel"
+    )
+    plot(rows, plot_png, title)
+    print(f"\nplot: {plot_png}\nreference image: {ref_png}")
 
 
 if __name__ == "__main__":

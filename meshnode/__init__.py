@@ -1,1 +1,2 @@
-"""A mesh node: the tracing engine (`meshnode.engine`) and, later, the asyncio service."""
+"""A mesh node: the tracing engine (`engine`), the mesh algorithm without sockets (`mesh`), the
+framed link both sides speak (`transport`) and the asyncio node service (`service`)."""

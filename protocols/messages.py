@@ -58,7 +58,7 @@ FIELDS = {
         "render": bytes,
         "memory": int,
     },
-    # render: protocols.render.RenderSpec, partition: protocols.render.Partition (wire forms);
+    # render: protocols.render.RenderSpec, partition: protocols.partition.Partition (wire forms);
     # render_id: this render's random id (a new one for every try at a frame)
     Kind.CONFIG: {
         "node": int,

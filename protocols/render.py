@@ -3,8 +3,10 @@
     ImageSpec   what picture: size, SPD rules, samples per pixel, ray depth, seed
     EngineSpec  how each engine is built: grid storage, density, threads
     MeshPlan    how the work is spread: rows x cols nodes, box overlap, image cuts
-    Partition   what the host planned from those: each node's image rectangle and box
     RenderSpec  image + engine + plan (+ camera): what the host sends every node in CONFIG
+
+What the host planned from them, each node's image rectangles and box, is the Partition
+(`protocols.partition`), sent beside them.
 
 The command line builds them (its defaults are these fields' defaults), the host sends them,
 the node reads them; `sample_grid` is the one place the SPD corner-sampling rule lives.
@@ -12,8 +14,6 @@ the node reads them; `sample_grid` is the one place the SPD corner-sampling rule
 
 from dataclasses import dataclass, replace
 from typing import ClassVar
-
-import numpy as np
 
 from protocols.camera import CameraSpec
 from protocols.spec import Spec, SpecError
@@ -25,9 +25,7 @@ MAX_SIDE = 32768  # pixels along an image side
 MAX_SPP = 65536
 MAX_DEPTH = 64
 MAX_NODES = 1024  # nodes in one mesh
-MAX_RECTS = 1 << 20  # image rectangles (tiles) in one partition
-MAX_OCC_SIDE = 256  # voxels along a side of the scene's occupancy map
-EVERYWHERE = ((1, 1, 1), b"\x80")  # an occupancy map of one occupied voxel: skips nothing
+EVERYWHERE = ((1, 1, 1), b"\x80")  # Partition's occupancy map of one occupied voxel: skips nothing
 STORAGES = ("auto", "csr", "hash")
 STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per node by content)
 BALANCES = ("even", "cost")
@@ -208,143 +206,6 @@ class MeshPlan(Spec):
     def dynamic(self) -> bool:
         """Tiles dealt while the frame is traced, by the host."""
         return self.mode == "image" and self.tiles == "dynamic"
-
-
-@dataclass(frozen=True)
-class Partition(Spec):
-    """The plan made concrete: node n's rectangles (x0, x1, y0, y1) of the sample grid (one in
-    object space, its tiles in image space; `owner[i]` is rectangle i's node), its box (lo,
-    hi: the objects it holds and the space it traces, grown by the overlap) and its cell (the
-    box before growing: cells tile the scene, and a ray is taken on by the node whose cell
-    holds it, so overlap keeps rays longer on a node without drawing them all to one), and
-    the scene's box, with its occupancy map (`occ_res` voxels along x, y, z, and `occ_bits`,
-    one bit per voxel packed as numpy's packbits does, x fastest: 1 where some object may
-    lie; nodes end or skip segments with only empty voxels ahead; the default, one occupied
-    voxel, skips nothing); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
-    eye rays on where its owner (a node holding that node's engine: a neighbour, or any
-    node for a shared cell) does not."""
-
-    rects: tuple
-    owner: tuple
-    los: tuple
-    his: tuple
-    scene_lo: tuple
-    scene_hi: tuple
-    cell_los: tuple
-    cell_his: tuple
-    occ_res: tuple = EVERYWHERE[0]
-    occ_bits: bytes = EVERYWHERE[1]
-    takers: tuple = ()
-
-    def check(self) -> None:
-        n = len(self.los) if isinstance(self.los, tuple) else -1
-        if not 1 <= n <= MAX_NODES:
-            self.fail("los", f"must list 1 to {MAX_NODES} boxes")
-        m = len(self.rects) if isinstance(self.rects, tuple) else -1
-        if not 1 <= m <= MAX_RECTS:
-            self.fail("rects", f"must list 1 to {MAX_RECTS} rectangles")
-        r = _array(self, "rects", np.int64, (m, 4))
-        if (
-            np.any(r < 0)
-            or np.any(r > MAX_SIDE + 1)
-            or np.any(r[:, 1] < r[:, 0])
-            or np.any(r[:, 3] < r[:, 2])
-        ):
-            self.fail("rects", "each must be x0 <= x1, y0 <= y1 inside the image")
-        owner = _array(self, "owner", np.int64, (m,))
-        if np.any(owner < 0) or np.any(owner >= n):
-            self.fail("owner", f"every rectangle's node must be from 0 to {n - 1}")
-        if self.takers != ():
-            takers = _array(self, "takers", np.int64, (m,))
-            if np.any(takers < 0) or np.any(takers >= n):
-                self.fail("takers", f"every rectangle's taker must be from 0 to {n - 1}")
-        los, his = _array(self, "los", float, (n, 3)), _array(self, "his", float, (n, 3))
-        if np.any(los > his):
-            self.fail("his", "every box needs lo <= hi")
-        c_lo = _array(self, "cell_los", float, (n, 3))
-        c_hi = _array(self, "cell_his", float, (n, 3))
-        if np.any(c_lo > c_hi) or np.any(c_lo < los) or np.any(c_hi > his):
-            self.fail("cell_his", "every cell needs lo <= hi inside its node's box")
-        if np.any(_array(self, "scene_lo", float, (3,)) > _array(self, "scene_hi", float, (3,))):
-            self.fail("scene_hi", "the scene box needs lo <= hi")
-        res = _array(self, "occ_res", np.int64, (3,))
-        if np.any(res < 1) or np.any(res > MAX_OCC_SIDE):
-            self.fail("occ_res", f"voxels per axis must be from 1 to {MAX_OCC_SIDE}")
-        want = -(-int(res.prod()) // 8)
-        if not isinstance(self.occ_bits, bytes) or len(self.occ_bits) != want:
-            got = (
-                f"{len(self.occ_bits)} bytes"
-                if isinstance(self.occ_bits, bytes)
-                else f"a {type(self.occ_bits).__name__}"
-            )
-            raise SpecError(
-                f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
-                f"of the {'x'.join(map(str, res.tolist()))} voxels"
-            )
-
-    @classmethod
-    def make(
-        cls, rects, los, his, scene_box, owner=None, cells=None, occupancy=EVERYWHERE, takers=()
-    ) -> "Partition":
-        """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
-        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits);
-        `takers` empty: each rectangle's owner takes its eye rays on."""
-
-        def rows(a):
-            return tuple(tuple(x) for x in np.asarray(a, float).tolist())
-
-        owner = range(len(rects)) if owner is None else owner
-        cells = (los, his) if cells is None else cells
-        return cls(
-            tuple(tuple(x) for x in np.asarray(rects).tolist()),
-            tuple(int(o) for o in owner),
-            rows(los),
-            rows(his),
-            *(tuple(np.asarray(b, float).tolist()) for b in scene_box),
-            rows(cells[0]),
-            rows(cells[1]),
-            tuple(int(v) for v in occupancy[0]),
-            bytes(occupancy[1]),
-            tuple(int(t) for t in takers),
-        )
-
-    def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
-        """The rectangles node `node` owns, in order."""
-        return [r for r, o in zip(self.rects, self.owner, strict=True) if o == node]
-
-    @classmethod
-    def decode(cls, values: dict) -> dict:
-        def tup(v):
-            return tuple(tup(x) for x in v) if isinstance(v, list | tuple) else v
-
-        return {k: tup(v) for k, v in values.items()}
-
-    @property
-    def nodes(self) -> int:
-        return len(self.los)
-
-    @property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.array(self.los, float), np.array(self.his, float)
-
-    @property
-    def cells(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.array(self.cell_los, float), np.array(self.cell_his, float)
-
-    @property
-    def scene_box(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.array(self.scene_lo, float), np.array(self.scene_hi, float)
-
-
-def _array(spec: Spec, name: str, dtype, shape) -> np.ndarray:
-    """A field of nested tuples as a finite array of `shape`, or SpecError naming it."""
-    try:
-        a = np.array(getattr(spec, name), dtype=dtype)
-    except (TypeError, ValueError, OverflowError):
-        spec.fail(name, f"must be numbers shaped {shape}")
-    if a.shape != shape or not np.all(np.isfinite(a)):
-        spec.fail(name, f"must be finite numbers shaped {shape}")
-    return a
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,12 @@ from protocols import dtypes
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData, View
+from tests import tiers
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# The SPD scenes (README: where they come from): $MESHTRACE_SCENES, else beside the checkout.
+# The SPD scenes (docs/scenes.md: where they come from): $MESHTRACE_SCENES, else beside the
+# checkout.
 SCENES = Path(os.environ.get("MESHTRACE_SCENES") or ROOT.parent / "shared" / "scenes")
 KERNEL_LOAD: dict[str, float] = {}
 
@@ -65,8 +67,8 @@ def example_variants() -> tuple[set, set]:
     from host.planning.partition import partition
     from host.scene.nff import read_nff
     from host.scene.subset import subset
-    from meshnode.engine.engine import variant_of
     from meshnode.engine.tables import build_tables
+    from meshnode.engine.variants import variant_of
     from protocols.render import MeshPlan, RenderSpec
 
     scene = read_nff(EXAMPLE)
@@ -84,8 +86,8 @@ def warm_jobs() -> list:
     kernels of the SPD scenes' variants (when present) and the README example's, and the
     mesh-node kernel of its 2x2 nodes' (`example_variants`). The probe's kernel of other
     variants compiles where a test focuses on them (`Engine.warmup`: kernels apiece)."""
-    from meshnode.engine.engine import variant_of
     from meshnode.engine.tables import build_tables
+    from meshnode.engine.variants import variant_of
     from meshnode.service.warmup import ALL_KINDS, warmup
 
     jobs = [lambda: warmup([ALL_KINDS], common=False), lambda: warmup([], common=True)]
@@ -129,6 +131,15 @@ def kernels(request):
 
 
 WORKER_LOADS: list[dict] = []
+
+
+def pytest_configure(config):
+    for name, what in tiers.MARKERS.items():
+        config.addinivalue_line("markers", f"{name}: {what}")
+
+
+def pytest_collection_modifyitems(config, items):
+    tiers.classify(items)
 
 
 @pytest.hookimpl(optionalhook=True)

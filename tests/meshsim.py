@@ -40,7 +40,7 @@ def render_mesh(
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
 
     `delay` = (src, dst, rounds): messages on that link arrive that many rounds late; `cuts`:
-    (xs, ys) as `host.planning.partition.rectangles` takes them (default even); `cells`: (los,
+    (xs, ys) as `host.planning.rectangles.rectangles` takes them (default even); `cells`: (los,
     his) of the nodes' cells (default: cut to match the rectangles); `passed_min`: the nodes'
     Scheduler's; `clock`: the simulator's ("rounds" or "work", a message's `latency` in work
     units); `outcome`: a list the simulator's Outcome is appended to; `plan`: more MeshPlan

@@ -3,16 +3,10 @@ configuration names and plan, and the goal line the benchmark's verdict rests on
 
 import pytest
 
-from bench.spd import (
-    _chosen,
-    _label,
-    compare_published,
-    config_plan,
-    default_density,
-    goal,
-    goal_line,
-    parse_published,
-)
+from bench.spd_povray import goal, goal_line
+from bench.spd_published import compare_published, parse_published
+from bench.spd_runs import _label, config_plan, default_density
+from bench.spd_scaling import _chosen
 from tests.conftest import SCENES, shared_file
 
 README = """# Scenes

@@ -156,7 +156,7 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
     single walk's is, and rays starting outside the box go on before either is read. The
     batch leads with eye rays whose directions have components exactly 0 (walked in packets,
     whose reciprocals their spans reuse: inf there, as a division-free span must give)."""
-    from host.planning.partition import holders
+    from host.planning.clip import holders
     from host.scene.subset import subset
     from meshnode.engine.trace import owners
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.camera.lens import CameraError, describe, read_camera, read_table, read_toml
+from host.camera.lens import CameraError, describe
+from host.camera.lensfile import read_camera, read_table, read_toml
 from host.cli import main
 from protocols import dtypes
 

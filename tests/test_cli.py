@@ -379,7 +379,7 @@ def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
 
 
 def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys):
-    from host.planning.balance import OVERLAPS
+    from host.planning.holding import OVERLAPS
 
     stats = tmp_path / "s.json"
     assert (

@@ -17,7 +17,7 @@ from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh, shrink
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
-from meshnode.mesh.node import EngineCache
+from meshnode.mesh.engines import EngineCache
 from meshnode.service.config import Config, Objects
 from protocols.camera import CameraSampling
 from protocols.errors import BadFrame
@@ -233,7 +233,8 @@ def test_the_pre_pass_shares_the_cell_the_work_gathers_in_within_memory():
     """mount_s1 under even cuts on 3x3: all its objects lie in one cell, so only that cell
     and its four links work. The pre-pass shares a cell, which spreads the simulated work
     over more nodes and lowers the busiest; a memory too small for it shares none."""
-    from host.planning.balance import SHARE_GAIN, choose_shared, node_costs
+    from host.planning.prepass import node_costs
+    from host.planning.shared_cells import SHARE_GAIN, choose_shared
 
     scene = read_nff(spd_scene("mount_s1.nff"))
     image = ImageSpec(width=48, height=48).sized(scene.view)

@@ -25,7 +25,8 @@ import pytest
 from hypothesis import HealthCheck, given, note, settings
 from hypothesis import strategies as st
 
-from host.camera.lens import Camera, CameraError, read_camera, read_table, read_toml
+from host.camera.lens import Camera, CameraError
+from host.camera.lensfile import read_camera, read_table, read_toml
 from host.scene.nff import SceneError, parse_nff
 from meshnode.service.config import Config
 from protocols import dtypes

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from host.camera.setup import CameraSetup
-from host.planning.partition import partition, tiles
+from host.planning.partition import partition
+from host.planning.rectangles import tiles
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from protocols.camera import CameraSampling
@@ -55,7 +56,7 @@ def test_pinhole_and_supersampled_on_every_shape_equal_one_node(tiling, spp):
 def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling, monkeypatch):
     # Chunks of pass 2 start CHUNK_RAYS rays' worth at a time: a small budget leaves
     # some unstarted on this small image, for neighbours to steal.
-    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)
+    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
@@ -82,7 +83,7 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
     # Six tiles on nine nodes: nodes 6-8 are dealt none and keep no books, but steal pass-2
     # rows from their neighbours (a small batch budget leaves some unstarted) and send the
     # deposits on to the tiles' nodes.
-    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)
+    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
@@ -205,7 +206,7 @@ def test_dynamic_tiles_over_tcp_finish_every_tile_once_and_equal_one_node():
 
 
 def test_the_dealer_deals_every_tile_once_and_closes_every_node():
-    from meshnode.mesh.scheduler import TileDealer
+    from meshnode.mesh.dealer import TileDealer
 
     for count, nodes, buffer in ((20, 3, 2), (2, 4, 3), (0, 2, 1)):
         dealer = TileDealer(range(count), nodes, buffer)
@@ -236,8 +237,8 @@ def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
     # MeshPlan.order "centre": the first tile dealt holds the image's middle, each tile is
     # no nearer the middle (in rings of tiles) than the one before, and the last are on the
     # border; "rows" deals them as the partition lists them
-    from host.planning.partition import tile_grid
-    from meshnode.mesh.scheduler import deal_order
+    from host.planning.rectangles import tile_grid
+    from meshnode.mesh.dealer import deal_order
 
     for w, h, t in ((256, 256, 32), (300, 170, 32), (64, 40, 16), (32, 32, 32)):
         rects = tile_grid(w, h, t)
@@ -292,7 +293,7 @@ def test_a_seam_deposit_held_for_a_tile_dealt_here_later_is_kept_once_in_each_fi
     owners = np.zeros(len(part.rects), np.int64)
     owners[[0, 1]] = 1
     assert core.add_tiles([1], True, owners) == {}  # tile 1 is this node's: kept here
-    film0, film1 = (core.films[core.film_at[t]] for t in (0, 1))
+    film0, film1 = (core.books.films[core.books.film_at[t]] for t in (0, 1))
     assert film0.corner[2, 4, 0].tolist() == [1.0, 2.0, 3.0]  # halo from (0, 0): once
     assert film1.corner[2, 0, 0].tolist() == [1.0, 2.0, 3.0]  # halo from (4, 0)
     assert film1.corner.sum() == film0.corner.sum() == 6.0
@@ -312,7 +313,7 @@ def test_a_dynamic_adaptive_node_refuses_owners_that_do_not_fit_its_tiles():
     with pytest.raises(ValueError, match="was dealt here before"):
         core.add_tiles([2], False, np.zeros(0, np.int64))
     # A neighbour cannot make it hold more deposits for unknown tiles than pass 1 makes.
-    flood = pass1_deposit(camera, 31, core.held_bound + 1)  # pixel (7, 2): tile 1
+    flood = pass1_deposit(camera, 31, core.books.held_bound + 1)  # pixel (7, 2): tile 1
     with pytest.raises(ValueError, match="holds more deposits for tiles of nodes not known"):
         core.keep(flood)
     right = np.zeros(n, np.int64)

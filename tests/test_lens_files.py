@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.camera.lens import Camera, CameraError, describe, read_camera, read_toml
+from host.camera.lens import Camera, CameraError, describe
+from host.camera.lensfile import read_camera, read_toml
 from host.camera.setup import CameraSetup, PinholeSetup
 from host.cli import main
 from host.run.oneprocess import render

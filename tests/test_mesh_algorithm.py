@@ -6,19 +6,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from host.planning.partition import (
-    column_rows,
-    grown,
-    holders,
-    node_cells,
-    partition,
-    rectangles,
-    scene_box,
-    subset,
-)
+from host.planning.cells import grown, node_cells, scene_box
+from host.planning.clip import holders
+from host.planning.partition import partition
+from host.planning.rectangles import column_rows, rectangles
 from host.run.framebuffer import Framebuffer
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
+from host.scene.subset import subset
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS
@@ -316,8 +311,9 @@ def test_cost_balanced_cuts_even_out_a_lopsided_scene():
     # Spheres crowded into the left third of the view: even cuts give the left column of nodes
     # nearly all the work. The pre-pass moves the cuts so the simulated busiest node carries
     # much less; the cuts stay ordered with every band non-empty.
-    from host.planning.balance import balanced_cuts, node_costs
-    from host.planning.partition import splits
+    from host.planning.balance import balanced_cuts
+    from host.planning.prepass import node_costs
+    from host.planning.rectangles import splits
 
     rng = np.random.default_rng(3)
     centres = np.column_stack(
@@ -341,7 +337,8 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     # teapot with nearly all the work (the floor reaches far beyond it); cells cut where the
     # work map puts the work share it out, and the mesh cut so still gives the single node's
     # image and counts.
-    from host.planning.balance import balanced_cuts, node_costs
+    from host.planning.balance import balanced_cuts
+    from host.planning.prepass import node_costs
 
     scene = read_nff(spd_scene("teapot_s1.nff"))
     spec = RenderSpec(
@@ -367,8 +364,9 @@ def test_each_column_cut_where_its_work_lies():
     # shared by every column leave each cluster in one node; each column cutting its own
     # rows shares them out (the pre-pass tries both and keeps the better, and says so), and
     # the mesh cut that way still gives the single node's image and counts.
-    from host.planning.balance import balanced_cuts, node_costs
-    from host.planning.partition import splits
+    from host.planning.balance import balanced_cuts
+    from host.planning.prepass import node_costs
+    from host.planning.rectangles import splits
 
     rng = np.random.default_rng(5)
     centres = np.concatenate(
@@ -482,7 +480,7 @@ def test_a_node_holds_every_object_reaching_the_space_it_traces():
     # padded box's exit and sends a ray on from there, so an object in the padding alone
     # must be held, or a ray passing it goes on beyond it (balls 2x2 at 1024x1024: four
     # shadow rays in 33 M were lit that one node found blocked).
-    from host.planning.partition import traced
+    from host.planning.cells import traced
 
     big = [((-3.0, -3.0, 0.0), 1.0, 0), ((3.0, 3.0, 0.0), 1.0, 0)]
     spec = RenderSpec(ImageSpec(width=SIZE, height=SIZE), plan=MeshPlan(1, 2, 0.0))

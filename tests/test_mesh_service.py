@@ -12,9 +12,10 @@ import pytest
 
 from host.cli import main
 from host.run.cluster import parse_mesh, read_cluster
+from host.run.errors import MeshError
 from host.run.framebuffer import read_pfm
 from host.run.localmesh import LocalMesh
-from host.run.meshclient import MeshError, render_on_mesh
+from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from protocols.render import MeshPlan

@@ -7,7 +7,8 @@ import asyncio
 import numpy as np
 import pytest
 
-from host.run.meshclient import MeshError, render_on_mesh
+from host.run.errors import MeshError
+from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from protocols.render import MeshPlan

@@ -10,7 +10,8 @@ import pytest
 from meshnode.service.server import NodeService
 from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.messages import Kind, make
-from protocols.render import ImageSpec, MeshPlan, Partition, RenderSpec
+from protocols.partition import Partition
+from protocols.render import ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import View
 
 VIEW = View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0)

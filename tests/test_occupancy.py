@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 import host.planning.partition
-from host.planning.partition import occupancy_map, scene_box
+from host.planning.cells import scene_box
+from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.counters import N_COUNTERS, OCC_STEPS, STEPS
 from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
 from meshnode.engine.traverse import box_span
-from protocols.render import EVERYWHERE, ImageSpec, MeshPlan, Partition, RenderSpec
+from protocols.partition import Partition
+from protocols.render import EVERYWHERE, ImageSpec, MeshPlan, RenderSpec
 from protocols.spec import SpecError
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
@@ -118,7 +120,8 @@ def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
     # Walking the map costs (a fractal leaves many small empty cubes to step through) and
     # saves passes; on the cuts it chose, the pre-pass simulates the mesh with and without
     # the map and keeps whichever leaves the busiest node less work, and says so.
-    from host.planning.balance import balanced_cuts, node_costs
+    from host.planning.balance import balanced_cuts
+    from host.planning.prepass import node_costs
 
     scene = read_nff(spd_scene(name))
     spec = RenderSpec(

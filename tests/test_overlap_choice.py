@@ -6,9 +6,9 @@ node's image with the same counts."""
 import numpy as np
 import pytest
 
-from host.planning.balance import FITS, OVERLAPS, largest_engine, node_costs
-from host.planning.partition import engine_bytes
+from host.planning.holding import FITS, OVERLAPS, engine_bytes, largest_engine
 from host.planning.plan import plan_render
+from host.planning.prepass import node_costs
 from host.run.framebuffer import Framebuffer
 from host.run.oneprocess import render
 from host.scene.nff import read_nff

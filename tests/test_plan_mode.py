@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from host.cli import main
-from host.planning.plan import FITS, choose_mode, engine_bytes
+from host.planning.holding import FITS, engine_bytes
+from host.planning.plan import choose_mode
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render

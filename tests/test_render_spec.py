@@ -14,7 +14,8 @@ from host.cli import _parser
 from protocols import dtypes
 from protocols.camera import CameraSampling, CameraSpec
 from protocols.framing import FrameDecoder, encode
-from protocols.render import EngineSpec, ImageSpec, MeshPlan, Partition, RenderSpec
+from protocols.partition import Partition
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.spec import SpecError, default
 
 

@@ -4,7 +4,9 @@ back, when it passes the state packet, and that a ring of one walks every state 
 import numpy as np
 
 from meshnode.mesh import scheduler
-from meshnode.mesh.scheduler import Enter, Flush, Primaries, Scheduler, SendPacket, Trace
+from meshnode.mesh.feeds import Primaries
+from meshnode.mesh.scheduler import Scheduler
+from meshnode.mesh.steps import Enter, Flush, SendPacket, Trace
 from meshnode.mesh.termination import Packet
 from protocols.dtypes import RAY
 from protocols.state import State

@@ -4,7 +4,7 @@ independent reference for the whole tracer (camera, intersections, shading rules
 
 import pytest
 
-from bench.spd import PUBLISHED_TOLERANCE, TOLERANCE, read_published
+from bench.spd_published import PUBLISHED_TOLERANCE, TOLERANCE, read_published
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine.counters import spd_counts

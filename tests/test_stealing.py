@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.camera.lens import read_camera
+from host.camera.lensfile import read_camera
 from host.camera.setup import CameraSetup
 from host.planning.plan import plan_render
 from host.run.localmesh import LocalMesh
@@ -18,8 +18,10 @@ from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.mesh.adaptive import AdaptiveFilm
-from meshnode.mesh.node import spiral_chunks
-from meshnode.mesh.scheduler import ChunkFeed, Give, Scheduler, Steal, Trace
+from meshnode.mesh.feeds import ChunkFeed
+from meshnode.mesh.scheduler import Scheduler
+from meshnode.mesh.spiral import spiral_chunks
+from meshnode.mesh.steps import Give, Steal, Trace
 from meshnode.mesh.termination import Packet
 from protocols.camera import CameraSampling
 from protocols.dtypes import RAY
@@ -203,7 +205,7 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
     the books, so every pixel is divided by the rays it got, exactly as on one node (passed
     rays first as they come, so nodes fall behind and steal at this size: see above; chunks
     start CHUNK_RAYS rays' worth at a time, and a small budget leaves some to steal)."""
-    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)
+    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene, image, setup, spec = adaptive_setup(30, 24)
     ref, st = render(scene, image, EngineSpec(threads=1), setup)
     given = {"TRACE": 0, "REFINE": 0}

@@ -10,8 +10,9 @@ import pytest
 import trustme
 
 from host.cli import main
+from host.run.errors import MeshError
 from host.run.localmesh import LocalMesh
-from host.run.meshclient import MeshError, render_on_mesh
+from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.transport.tls import TlsFiles

@@ -8,8 +8,8 @@ import sys
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from meshnode.engine.engine import all_variants, variant_of
 from meshnode.engine.tables import build_tables
+from meshnode.engine.variants import all_variants, variant_of
 from meshnode.service.warmup import variant_scene
 from tests.conftest import make_scene
 

@@ -62,7 +62,7 @@ def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():
 
 
 def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(monkeypatch):
-    monkeypatch.setattr("meshnode.mesh.node.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
+    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))

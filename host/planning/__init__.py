@@ -1,2 +1,3 @@
-"""Planning a mesh render: image rectangles and object cells (partition), cost cuts,
-copies and holdings (balance), and the choice of mode and plan."""
+"""Planning a mesh render: image rectangles and object cells (partition), cost cuts (balance,
+from the pre-pass), copies and holdings (shared_cells, holding), and the choice of mode and
+plan."""

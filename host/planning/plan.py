@@ -11,9 +11,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from host.camera.setup import CameraSetup
-from host.planning.balance import FITS, balanced_cuts, choose_holding, node_costs
-from host.planning.partition import engine_bytes, partition
-from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, Partition, RenderSpec
+from host.planning.balance import balanced_cuts
+from host.planning.holding import FITS, choose_holding, engine_bytes
+from host.planning.partition import partition
+from host.planning.prepass import node_costs
+from protocols.partition import Partition
+from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import SceneData
 
 

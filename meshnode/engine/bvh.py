@@ -10,6 +10,10 @@ engine renumbers its objects in leaf order, so a leaf is a run of local ids whos
 side by side. Each object sits in exactly one leaf, so no mailbox is needed; equal distances
 go to the lower gid as in the grid (`traverse.better`), so the first hit is the grid's and
 brute force's whatever the order of tests.
+
+Over the 400 lines a module may have, on purpose: the build and the walk share the node row
+layout, and the walk is a hot kernel inlined with its box tests; split, the layout would be
+written twice.
 """
 
 import math

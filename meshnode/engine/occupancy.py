@@ -1,5 +1,5 @@
 """The scene's occupancy map on an object-space node: which coarse voxels of the whole scene
-any object touches (the host rasterises every object's padded bounds, `host.planning.partition.
+any object touches (the host rasterises every object's padded bounds, `host.planning.occupancy.
 occupancy_map`; each node gets the same map with its partition).
 
 A segment leaving a node's box goes on to the node whose cell holds it; when the rest of its

@@ -4,6 +4,11 @@ Each input ray's tree is traced depth-first on a small local stack. Colour flows
 carries its weight, every hit deposits `weight * ambient`, spawns one shadow ray per light the
 surface faces (carrying the light's diffuse + specular share, deposited only if the light is
 reached) and reflected / refracted rays carrying `weight * Ks` and `weight * T`.
+
+Over the 400 lines a module may have, on purpose: numba inlines only what one compilation unit
+sees, and each kernel here is compiled once per variant (minutes on a cold cache), so the
+driver, the segment walk and the routing stay together where their shared helpers inline
+instead of being called across modules on every ray segment.
 """
 
 import math

@@ -5,6 +5,10 @@ step takes the axis with the smallest `nxt`. Every object is tested at most once
 (mailbox stamped with the ray id); equal distances go to the lower gid, so the first hit never
 depends on the order of tests (grid, storage or node). A hit beyond the current voxel is kept,
 but the walk goes on until the voxel that contains it: a nearer hit may still come (DESIGN.md 4).
+
+Over the 400 lines a module may have, on purpose: the walk, the mailbox, brute force and the
+tie rule are the innermost loop of every ray, kept in one module so numba inlines them into
+one another (a call between modules costs reference counting per array argument per step).
 """
 
 import math

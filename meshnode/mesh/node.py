@@ -4,32 +4,27 @@ both wrap this.
 A node holds the objects touching its box and every node's box (in image space: the whole
 scene, and every box is the scene's). It makes the primary rays of its rectangles (one in
 object space, its tiles in image space) for each state of the ring that has them, traces
-batches, says where each batch's deposits and leaving rays go, and under adaptive sampling
-keeps the books of its own pixels until the frame is flushed.
+batches and says where each batch's deposits and leaving rays go; under adaptive sampling its
+books (`books.NodeBooks`) keep its own pixels until the frame is flushed.
 """
 
-import hashlib
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
-from meshnode.mesh.adaptive import (
-    RAYS_PER_BATCH,
-    AdaptiveFilm,
-    RectIndex,
-    deposit_routes,
-    pass_samples,
-    split,
-)
-from meshnode.mesh.scheduler import ChunkFeed, Primaries, TileFeed, spiral_order
+from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
+from meshnode.mesh.books import NodeBooks
+from meshnode.mesh.engines import EngineCache
+from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
+from meshnode.mesh.spiral import spiral_chunks
 from protocols.dtypes import DEPOSIT, RAY
-from protocols.render import EngineSpec, Partition, RenderSpec
+from protocols.partition import Partition
+from protocols.render import RenderSpec
 from protocols.scene import SceneData, View
 from protocols.state import State
 from protocols.topology import Torus
@@ -42,11 +37,6 @@ IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows 
 # each, /tmp script), the nodes' summed tracing CPU best / median: 4096 0.824 / 0.868 s,
 # 16384 0.653 / 0.782 s, 65536 0.713 / 0.764 s
 COPIES_EYE_BATCH = 16384
-# Stolen or stealable chunks (adaptive sampling's refined runs, a few hundred rays each) start
-# this many rays' worth at a time: one kernel call and one deposit message per run cost
-# dynamic tiles on balls 2x2 20% more CPU than static; 16384 left a 3x3's pass 2 too coarse
-# to steal evenly (bench.mesh --camera, balls 3x3 dynamic: work 6.81 against 7.74 at 4096).
-CHUNK_RAYS = 4096
 
 
 @dataclass
@@ -58,65 +48,6 @@ class Batch:
     counts: dict[str, int] = field(default_factory=dict)
     # node -> RAY records its engine, held here (this node's own or a copy), takes on later
     held: dict[int, np.ndarray] = field(default_factory=dict)
-
-
-class EngineCache:
-    """The engines this node built for its last render, kept for the next render of the same
-    objects in the same box with the same engine settings (a user re-rendering a scene at
-    another size, sampling or camera on a running cluster pays no build). At most `keep`
-    engines (one, or one per box held under MeshPlan.copies), least recently used dropped
-    first: bounded memory."""
-
-    def __init__(self):
-        self.engines: dict[bytes, Engine] = {}  # oldest use first
-
-    def get(
-        self, scene: SceneData, keep: int = 1, spec: EngineSpec = EngineSpec(), **placement
-    ) -> tuple[Engine, bool]:
-        """(engine, whether it was reused) for `scene` built as `spec` says, at `placement`
-        (Engine.from_spec's keywords)."""
-        key = _engine_key(scene, {"spec": spec, **placement})
-        engine = self.engines.pop(key, None)
-        reused = engine is not None
-        if engine is None:
-            while len(self.engines) >= max(1, keep):  # old memory goes before the build
-                del self.engines[next(iter(self.engines))]
-            engine = Engine.from_spec(scene, spec, **placement)
-        self.engines[key] = engine
-        return engine, reused
-
-
-def _engine_key(scene: SceneData, options: dict) -> bytes:
-    """A digest of everything an engine is built from: objects, background, options."""
-    h = hashlib.blake2b(digest_size=32)
-    for table in (
-        scene.materials,
-        scene.lights,
-        scene.spheres,
-        scene.triangles,
-        scene.polygons,
-        scene.vertices,
-        scene.cones,
-    ):
-        h.update(len(table).to_bytes(8, "little"))
-        h.update(np.ascontiguousarray(table).tobytes())
-    h.update(
-        repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))).encode()
-    )
-    return h.digest()
-
-
-def spiral_chunks(rect, side: int) -> list[tuple[int, int, int, int]]:
-    """`rect` (x0, x1, y0, y1) cut into chunks of `side` pixels, ordered from the centre
-    outward: ring by ring (Chebyshev distance of the chunk from the middle one), each ring
-    walked round by angle. Traced from the front, stolen from the back (DESIGN.md 6)."""
-    x0, x1, y0, y1 = rect
-    xs, ys = list(range(x0, x1, side)), list(range(y0, y1, side))
-    j, i = np.divmod(np.arange(len(xs) * len(ys)), len(xs))
-    return [
-        (xs[i[c]], min(xs[i[c]] + side, x1), ys[j[c]], min(ys[j[c]] + side, y1))
-        for c in spiral_order(i, j)
-    ]
 
 
 def per_cell(deposits: np.ndarray, ids_per_cell: int) -> np.ndarray:
@@ -170,25 +101,7 @@ class NodeCore:
         # traces here the segments m would take on, to the same bits. (A simulated mesh sets
         # the very engines its other cores trace with.)
         self.copies = {m: engines.get(c, keep, **self._options(m))[0] for m, c in copies.items()}
-        self.films: list[AdaptiveFilm] = []
-        self.adaptive = spec.adaptive
-        if self.adaptive:
-            self.every_rect = RectIndex(part.rects, spec.image.size[0])
-            self.film_at = np.full(len(part.rects), -1, np.int64)  # rectangle -> own film
-            self.samples = pass_samples(spec.camera)  # (pass 1's, pass 2's sample indices)
-            # rectangle -> node; under dynamic tiles -1 until the host says (`add_tiles`)
-            self.rect_owner = (
-                np.full(len(part.rects), -1, np.int64)
-                if self.feed is not None
-                else np.asarray(part.owner, np.int64)
-            )
-            self.held_out: list = []  # dynamic tiles: (deposits, idx, rect) traced here ...
-            self.held_in: list = []  # ... and received, for tiles of nodes not known yet
-            # pass 1 routes a deposit to at most 5 tiles (its pixel's and the 4 sides')
-            self.held_bound = 5 * len(self.samples[0]) * int(np.prod(spec.image.size))
-            self.held_count = 0
-            for t in np.flatnonzero(self.rect_owner == node).tolist():
-                self._add_film(t)
+        self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box."""
@@ -204,15 +117,7 @@ class NodeCore:
     @property
     def keeps_pixels(self) -> bool:
         """Adaptive sampling: this node keeps the books of its own pixels."""
-        return self.adaptive
-
-    def _add_film(self, tile: int) -> AdaptiveFilm:
-        """Books for an own rectangle (or a dealt tile) of the adaptive render."""
-        w, h = self.spec.image.size
-        film = AdaptiveFilm(self.spec.camera, self.part.rects[tile], w, h, self.spec.image.seed)
-        self.film_at[tile] = len(self.films)
-        self.films.append(film)
-        return film
+        return self.books is not None
 
     def warmup(self) -> None:
         """Compile or load every kernel a render will call, before any is timed."""
@@ -229,22 +134,12 @@ class NodeCore:
 
     def primaries(self, state: State) -> Primaries:
         """Batches of this node's primary rays for a state of the ring: every eye or camera
-        ray in TRACE, or adaptive sampling's first pass (corner rays) in TRACE and second (the
-        rest, where the corners differ) in REFINE; under dynamic tiles, the feed the host's
-        tiles arrive in. Made one batch at a time."""
-        w, h = self.spec.image.size
+        ray in TRACE, or adaptive sampling's two passes (`NodeBooks.primaries`); under
+        dynamic tiles, the feed the host's tiles arrive in. Made one batch at a time."""
         if state == State.TRACE and self.feed is not None:
             return self.feed
-        if self.adaptive:
-            if state not in (State.TRACE, State.REFINE):
-                return Primaries()
-            if self.spec.steals:
-                return self._adaptive_chunks(state == State.REFINE)
-            return Primaries(
-                batch
-                for f in self.films
-                for batch in (f.pass1 if state == State.TRACE else f.pass2)(self.view, w, h)
-            )
+        if self.books is not None:
+            return self.books.primaries(state)
         if state != State.TRACE:
             return Primaries()
         if self.spec.plan.steal:
@@ -290,83 +185,6 @@ class NodeCore:
 
         return usable
 
-    def _adaptive_chunks(self, refine: bool) -> ChunkFeed:
-        """Adaptive sampling with stealing: one pass over chunks of the own rectangles in
-        spiral order; in pass 2 (REFINE) a chunk's refined pixels, as runs along its rows
-        (`AdaptiveFilm.refined_runs`). An own chunk's books are kept once, by this node,
-        when it is traced here or given away (`AdaptiveFilm.make`), whichever comes first: a
-        stolen chunk may be passed on, or even come back. The node that traces a chunk makes
-        its rays; their deposits go to the pixels' owner, as every deposit does. Chunks are
-        started as many at a time as make CHUNK_RAYS rays (a refined run makes a few
-        hundred), own ones with books still to keep apart from the rest."""
-        side = self.spec.plan.tile
-        chunks = []
-        for film in self.films:
-            if refine:
-                film.start_refine()
-            for c in spiral_chunks(film.rect, side):
-                chunks.extend(film.refined_runs(c) if refine else [c])
-        counted: set = set()
-
-        def own(chunk) -> AdaptiveFilm | None:
-            """The film of an own chunk whose books are still to keep (now taken on)."""
-            film = self._film_of(chunk)
-            if film is None or chunk in counted:
-                return None
-            counted.add(chunk)
-            return film
-
-        def give(chunk) -> None:
-            if (film := own(chunk)) is not None:
-                for _ in self._film_batches(film, [chunk], refine):
-                    pass  # books kept; the thief makes these same rays
-
-        def batches(group):
-            mine: dict[int, tuple[AdaptiveFilm, list]] = {}
-            theirs = []
-            for chunk in group:  # once per chunk started, a few hundred rays each
-                film = own(chunk)
-                if film is None:
-                    theirs.append(chunk)
-                else:
-                    mine.setdefault(id(film), (film, []))[1].append(chunk)
-            for film, own_chunks in mine.values():
-                yield from self._film_batches(film, own_chunks, refine)
-            if theirs:
-                yield from self._stolen_batches(theirs, refine)
-
-        per_pixel = len(self.samples[1 if refine else 0])
-
-        def rays(chunk) -> int:
-            x0, x1, y0, y1 = chunk
-            return (x1 - x0) * (y1 - y0) * per_pixel
-
-        return ChunkFeed(chunks, batches, give, rays=rays, budget=CHUNK_RAYS)
-
-    def _film_of(self, chunk) -> AdaptiveFilm | None:
-        """The film of the own rectangle holding `chunk`, None for a neighbour's chunk."""
-        x0, _, y0, _ = chunk
-        t = int(self.every_rect(np.array([y0 * self.spec.image.size[0] + x0]))[0])
-        i = int(self.film_at[t]) if t >= 0 else -1
-        return self.films[i] if i >= 0 else None
-
-    def _film_batches(self, film: AdaptiveFilm, chunks: list, refine: bool):
-        """Own chunks' rays for one adaptive pass, their books kept as they are made."""
-        w, h = self.spec.image.size
-        idx = np.concatenate([film.index_of(c) for c in chunks])
-        for part in split(idx, len(film.rest if refine else film.first)):
-            yield film.make(part, refine, self.view, w, h)
-
-    def _stolen_batches(self, chunks: list, refine: bool):
-        """The rays of chunks whose books their owner keeps, for one adaptive pass."""
-        w, h = self.spec.image.size
-        samples = self.samples[1 if refine else 0]
-        pixels = np.concatenate([rect_pixels(c, w) for c in chunks])
-        for part in split(pixels, len(samples)):
-            yield camera_rays(
-                self.spec.camera, self.view, w, h, part, samples, self.spec.image.seed
-            )[0]
-
     def rect_batches(self, rect):
         """Every primary ray of one rectangle (no adaptive sampling), batch by batch."""
         image, camera = self.spec.image, self.spec.camera
@@ -380,36 +198,21 @@ class NodeCore:
     def add_tiles(self, tiles: list[int], last: bool, owners=()) -> dict[int, np.ndarray]:
         """Dynamic image space: tiles the host dealt (indices of the partition's rectangles),
         whether it will deal no more, and then under adaptive sampling every tile's node
-        (`owners`). Returns deposits to send on, by node (`keep`)."""
-        w, h = self.spec.image.size
+        (`owners`). Returns deposits to send on, by node (`NodeBooks.keep`)."""
+        books = self.books
         for t in tiles:
-            if not 0 <= t < len(self.part.rects) or (self.adaptive and self.film_at[t] >= 0):
+            if not 0 <= t < len(self.part.rects) or (books is not None and books.dealt(t)):
                 raise ValueError(
                     f"TILES: tile {t} is not one of the {len(self.part.rects)}, "
                     "or was dealt here before"
                 )
-            if self.adaptive:
-                self.feed.add(t, self._add_film(t).pass1(self.view, w, h))
-            else:
-                self.feed.add(t, self.rect_batches(self.part.rects[t]))
-        if last and self.adaptive:
-            self._learn_owners(np.asarray(owners))
+            rays = books.deal(t) if books is not None else self.rect_batches(self.part.rects[t])
+            self.feed.add(t, rays)
+        if last and books is not None:
+            books.learn_owners(np.asarray(owners))
         if last:
             self.feed.close()
-        return self._release() if self.adaptive else {}
-
-    def _learn_owners(self, owners: np.ndarray) -> None:
-        """Every tile's node, from the host's last TILES: checked against the tiles dealt
-        here (all came before, on the same link)."""
-        n = len(self.part.rects)
-        if len(owners) != n or (n and (owners.min() < 0 or owners.max() >= len(self.los))):
-            raise ValueError(
-                f"TILES.owners must give each of the {n} tiles a node of the "
-                f"{len(self.los)}, got {len(owners)} entries"
-            )
-        if not np.array_equal(owners == self.node, self.film_at >= 0):
-            raise ValueError(f"TILES.owners disagrees with the tiles dealt to node {self.node}")
-        self.rect_owner = owners.astype(np.int64)
+        return books.release() if books is not None else {}
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect
@@ -468,69 +271,17 @@ class NodeCore:
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning
-        each deposit's pixel (and pass-1 ones to the owners of its side neighbours)."""
+        each deposit's pixel (`NodeBooks.routes`)."""
         if len(deposits) == 0:
             return {}
-        if not self.adaptive:
+        if self.books is None:
             return {HOST: per_cell(deposits, self.spec.ids_per_cell)}
-        if self.feed is not None:  # tiles' nodes are learnt as the host deals: `keep` routes
-            return {self.node: deposits}
-        idx, rect = self._routes(deposits, self.every_rect)
-        return _once_per_node(deposits, idx, self.rect_owner[rect])
+        return self.books.routes(deposits)
 
     def keep(self, deposits: np.ndarray, traced_here: bool = False) -> dict[int, np.ndarray]:
-        """Deposits routed to this node under adaptive sampling: into the film of each own
-        rectangle that holds their pixel, or has it in its halo. Under dynamic tiles a batch
-        traced here comes whole (`pixel_routes`, on a pool thread, cannot know which tiles
-        are dealt here by the time it is kept): what it holds for other tiles goes on to
-        their nodes, returned by node, once the host has said which those are (`add_tiles`);
-        a received deposit for a tile not known to be this node's waits for that too.
-        Returns deposits to send on, by node."""
-        idx, rect = self._routes(deposits, self.every_rect)
-        film = self.film_at[rect]
-        mine = film >= 0
-        self._add(deposits, idx[mine], film[mine])
-        if self.feed is None or mine.all():
-            return {}
-        held = self.held_out if traced_here else self.held_in
-        held.append((deposits, idx[~mine], rect[~mine]))
-        self.held_count += int((~mine).sum())
-        if self.held_count > self.held_bound:
-            raise ValueError(
-                f"node {self.node} holds more deposits for tiles of nodes not "
-                f"known yet than the image's pass 1 makes ({self.held_bound})"
-            )
-        return self._release()
-
-    def _add(self, deposits: np.ndarray, idx: np.ndarray, film: np.ndarray) -> None:
-        for i in np.unique(film).tolist():
-            mine = idx[film == i]
-            self.films[i].add(deposits["pixel"][mine], deposits["rgb"][mine])
-
-    def _release(self) -> dict[int, np.ndarray]:
-        """Once every tile's node is known: held deposits kept for this node's tiles (tiles
-        dealt here after they were traced), the rest of those traced here sent on, each to
-        a node once however many of its tiles they touch (a received one for another node's
-        tile came to this node for a tile of its own; its tracer sent it there too)."""
-        if self.feed is None or self.feed.open or not (self.held_out or self.held_in):
-            return {}  # closed with every tile's node learnt (`_learn_owners`)
-        out: dict[int, list] = {}
-        for deposits, idx, rect in self.held_in + self.held_out:
-            film = self.film_at[rect]
-            self._add(deposits, idx[film >= 0], film[film >= 0])
-        for deposits, idx, rect in self.held_out:
-            away = self.film_at[rect] < 0
-            for n, d in _once_per_node(deposits, idx[away], self.rect_owner[rect[away]]).items():
-                out.setdefault(n, []).append(d)
-        self.held_in, self.held_out, self.held_count = [], [], 0
-        return {n: np.concatenate(ds) for n, ds in out.items()}
-
-    def _routes(self, deposits, index: RectIndex):
-        camera, (w, h) = self.spec.camera, self.spec.image.size
-        idx, rect = deposit_routes(
-            deposits["pixel"], camera.per_pixel, self.samples[0], w, h, index
-        )
-        return idx[rect >= 0], rect[rect >= 0]
+        """Deposits for this node's own pixels into its books (`NodeBooks.keep`); returns
+        deposits to send on, by node."""
+        return self.books.keep(deposits, traced_here)
 
     def route(self, rays: np.ndarray) -> dict[int, np.ndarray]:
         """Rays grouped by the node that takes each on from its t_min: the one whose cell
@@ -546,23 +297,11 @@ class NodeCore:
     def finished_pixels(self):
         """Adaptive sampling, once every deposit is in: DEPOSIT batches of this node's
         finished pixels for the host (none otherwise)."""
-        for film in self.films:
-            pixels, rgb = film.finish()
-            for i in range(0, len(pixels), RAYS_PER_BATCH):
-                d = np.zeros(len(pixels[i : i + RAYS_PER_BATCH]), DEPOSIT)
-                d["pixel"], d["rgb"] = pixels[i : i + RAYS_PER_BATCH], rgb[i : i + RAYS_PER_BATCH]
-                yield d
+        return self.books.finished_pixels() if self.books is not None else iter(())
 
     @property
     def refined_pixels(self) -> int:
-        return sum(int(f.refined.sum()) for f in self.films)
-
-
-def _once_per_node(deposits: np.ndarray, idx: np.ndarray, node: np.ndarray) -> dict:
-    """Deposits `idx` by node `node` (pairs), each deposit once per node however many of
-    that node's tiles it touches."""
-    keep = np.unique(node * len(deposits) + idx)
-    return _group(deposits[keep % len(deposits)], keep // len(deposits))
+        return self.books.refined_pixels if self.books is not None else 0
 
 
 def _joined(parts: dict[int, list]) -> dict[int, np.ndarray]:
@@ -578,14 +317,3 @@ def _runs(rays: np.ndarray, starts: np.ndarray, last: int | None = None) -> dict
     if last is not None and bounds[last + 1] > bounds[last]:
         nodes.append(last)
     return {n: rays[bounds[n] : bounds[n + 1]] for n in nodes}
-
-
-def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:
-    """Records grouped by destination node (one sort, no loop per record)."""
-    if len(records) == 0:
-        return {}
-    order = np.argsort(dest, kind="stable")
-    nodes, starts = np.unique(dest[order], return_index=True)
-    groups = np.split(records[order], starts[1:])
-    pairs = zip(nodes.tolist(), groups, strict=True)
-    return {n: np.ascontiguousarray(g) for n, g in pairs}

@@ -1,5 +1,6 @@
 """A mesh simulated in one process: every node's NodeCore driven by its own Scheduler, as on
-a real mesh, with messages held in a queue instead of sent on sockets.
+a real mesh (through the `driver.Driver` the service subclasses too), with messages held in a
+queue instead of sent on sockets.
 
 Each round, every node (in a seeded random order) acts until it has traced one batch or has
 nothing to do; messages sent in a round arrive at the start of the next (or `delay` rounds
@@ -21,22 +22,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.mesh.node import EYE_BATCH, HOST, EngineCache, NodeCore
-from meshnode.mesh.scheduler import (
-    PASSED_MIN,
-    Enter,
-    Flush,
-    Give,
-    Scheduler,
-    SendPacket,
-    Steal,
-    TileDealer,
-    Trace,
-    deal_order,
-)
+from meshnode.mesh.dealer import TileDealer, deal_order
+from meshnode.mesh.driver import Driver
+from meshnode.mesh.engines import EngineCache
+from meshnode.mesh.node import EYE_BATCH, NodeCore
+from meshnode.mesh.scheduler import PASSED_MIN, Scheduler
 from meshnode.mesh.stats import add_counts, work_units
-from protocols.render import Partition, RenderSpec
-from protocols.state import State
+from meshnode.mesh.steps import Trace
+from meshnode.mesh.termination import Packet
+from protocols.partition import Partition
+from protocols.render import RenderSpec
 from protocols.topology import Torus
 
 MAX_ROUNDS = 1_000_000
@@ -126,6 +121,7 @@ class _Mesh:
             for n in range(torus.size)
         ]
         self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
+        self.nodes = [_Node(self, n) for n in range(torus.size)]
         self.rng = np.random.default_rng(seed)
         self.delay = delay
         self.transit: list = []  # (arrival round, destination, kind, payload)
@@ -175,11 +171,6 @@ class _Mesh:
         if kind != "state":
             self.scheds[src].message_out()
 
-    def _pixels(self, src: int, routes: dict) -> None:
-        """Deposits a node's adaptive books send on (`NodeCore.keep`)."""
-        for dest, deposits in routes.items():
-            self._send(src, dest, "pixels", deposits)
-
     def _deliver(self) -> None:
         due = [m for m in self.transit if m[0] <= self.round]
         self.transit = [m for m in self.transit if m[0] > self.round]
@@ -194,9 +185,9 @@ class _Mesh:
             sched.rays_in(payload)
         elif kind == "pixels":
             sched.message_in()
-            self._pixels(dst, self.cores[dst].keep(payload))
+            self.nodes[dst].send_pixels(self.cores[dst].keep(payload))
         elif kind == "tiles":
-            self._pixels(dst, self.cores[dst].add_tiles(*payload))
+            self.nodes[dst].send_pixels(self.cores[dst].add_tiles(*payload))
         elif kind == "steal":
             sched.steal_request(payload)
         elif kind == "give":
@@ -212,56 +203,58 @@ class _Mesh:
 
     def _act(self, n: int) -> bool:
         """Node n acts until it has traced one batch (True) or must wait (False)."""
-        sched = self.scheds[n]
-        while (step := sched.next()) is not None:
-            if isinstance(step, Enter):
-                self._enter(n, step.state)
-            elif isinstance(step, SendPacket):
-                self.records[n].packet_visits += 1
-                self._send(n, step.to, "state", step.packet)
-            elif isinstance(step, Steal):
-                self._send(n, step.to, "steal", n)
-            elif isinstance(step, Give):
-                self._send(n, step.to, "give", (n, step.chunks))
-            elif isinstance(step, Trace):
-                feed = self.cores[n].feed
-                if step.primary and feed is not None and feed.finished:
-                    self._post((self._stamp(n), -1, "done", (n, feed.finished)))
-                    feed.finished = []
-                self._trace(n, step)
+        node = self.nodes[n]
+        while (step := node.sched.next()) is not None:
+            node.act(step)
+            if isinstance(step, Trace):
                 return True
-            elif not isinstance(step, Flush):
-                raise TypeError(f"unknown scheduler step {step!r}")
         return False
 
-    def _enter(self, n: int, state: State) -> None:
-        sched, core = self.scheds[n], self.cores[n]
-        if state in (State.TRACE, State.REFINE):
-            sched.primaries = core.primaries(state)
-        elif state == State.FLUSH:
-            self.deposits.extend(core.finished_pixels())
 
-    def _trace(self, n: int, step: Trace) -> None:
-        rec, core, sched = self.records[n], self.cores[n], self.scheds[n]
-        batch = core.trace(step.rays, step.primary, step.taker)
+class _Node(Driver):
+    """Node n of a simulated mesh: traces a batch at once, and its messages go into the
+    mesh's network (`_Mesh._send`; counted ones are counted there)."""
+
+    def __init__(self, mesh: _Mesh, n: int):
+        super().__init__(n, mesh.scheds[n], mesh.cores[n])
+        self.mesh, self.record = mesh, mesh.records[n]
+
+    def start(self, step: Trace) -> None:
+        rec = self.record
+        batch = self.core.trace(step.rays, step.primary, step.taker)
         rec.batches += 1
         before = rec.cost
         add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
-        self._worked(n, rec.cost - before)  # what it sends leaves once the batch is done
-        for dest, deposits in batch.deposits.items():
-            if dest == HOST:
-                self.deposits.append(deposits)
-            elif dest == n:
-                self._pixels(n, core.keep(deposits, traced_here=True))
-            else:
-                self._send(n, dest, "pixels", deposits)
-        for dest, passed in batch.outgoing.items():
-            rec.rays_sent += len(passed)
-            rec.sent_to[dest] += len(passed)
-            self._send(n, dest, "rays", passed)
-        for taker, rays in batch.held.items():
-            sched.rays_in(rays, message=False, taker=taker)
-        sched.batch_done()
+        self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done
+        self.deliver(batch)
+        self.sched.batch_done()
+
+    def post_rays(self, dest: int, rays) -> None:
+        self.record.rays_sent += len(rays)
+        self.record.sent_to[dest] += len(rays)
+        self.mesh._send(self.node, dest, "rays", rays)
+
+    def post_pixels(self, dest: int, deposits) -> None:
+        self.mesh._send(self.node, dest, "pixels", deposits)
+
+    def post_steal(self, to: int) -> None:
+        self.mesh._send(self.node, to, "steal", self.node)
+
+    def post_give(self, to: int, chunks: list) -> None:
+        self.mesh._send(self.node, to, "give", (self.node, chunks))
+
+    def post_packet(self, packet: Packet, to: int) -> None:
+        self.record.packet_visits += 1
+        self.mesh._send(self.node, to, "state", packet)
+
+    def post_tiles_done(self, tiles: list[int]) -> None:
+        self.mesh._post((self.mesh._stamp(self.node), -1, "done", (self.node, tiles)))
+
+    def for_host(self, deposits) -> None:
+        self.mesh.deposits.append(deposits)
+
+    def finished(self, batches) -> None:
+        self.mesh.deposits.extend(batches)
 
 
 class _TimedMesh(_Mesh):

@@ -89,7 +89,7 @@ def main(argv=None) -> int:
 
 
 def _warmup(common: bool) -> int:
-    from meshnode.engine.engine import all_variants
+    from meshnode.engine.variants import all_variants
     from meshnode.service.warmup import ALL_KINDS, warmup
 
     def report(i, n, name):

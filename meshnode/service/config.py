@@ -12,7 +12,8 @@ import numpy as np
 from protocols.errors import BadFrame
 from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
-from protocols.render import Partition, RenderSpec
+from protocols.partition import Partition
+from protocols.render import RenderSpec
 from protocols.scene import SceneData, View
 from protocols.spec import SpecError
 from protocols.topology import Torus

@@ -11,7 +11,7 @@ import contextlib
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
-from meshnode.mesh.node import EngineCache
+from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.scheduler import INCOMING_HIGH
 from meshnode.mesh.stats import available_memory
 from meshnode.service.session import Config, Session

@@ -3,9 +3,10 @@
 The session reads its configuration and objects, builds its NodeCore off the event loop, links
 to its neighbours, and then lets the Scheduler decide: it traces the batches it is told to on
 the service's thread pool (kernels release the GIL, so links keep flowing), posts rays and
-deposits toward the nodes that take them, and forwards the state packet. Every send goes
-through a per-link Outbox; new primary rays start only while the outboxes are below a
-high-water mark, which bounds the rays in flight (and so the memory).
+deposits toward the nodes that take them, and forwards the state packet; what neighbours send
+is checked first (`inbound`). Every send goes through a per-link Outbox; new primary rays start
+only while the outboxes are below a high-water mark, which bounds the rays in flight (and so
+the memory).
 """
 
 import asyncio
@@ -14,11 +15,14 @@ import time
 
 import numpy as np
 
-from meshnode.mesh.node import HOST, NodeCore
-from meshnode.mesh.scheduler import Enter, Flush, Give, Scheduler, SendPacket, Steal, Trace
+from meshnode.mesh.driver import Driver
+from meshnode.mesh.node import NodeCore
+from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.stats import NodeStats
+from meshnode.mesh.steps import Trace
 from meshnode.mesh.termination import Packet
 from meshnode.service.config import Config, Objects
+from meshnode.service.inbound import check_pixels, check_rays, check_state, checked_chunks
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
@@ -31,28 +35,29 @@ DEPOSIT_BATCH = 32768  # deposits per pixel packet
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
 
 
-class Session:
-    """One render on this node; `service` gives the thread pool, the cluster id, the number
-    of tracing threads and the links neighbours opened to this node."""
+class Session(Driver):
+    """One render on this node, driving its Scheduler over the links (`Driver`); `service`
+    gives the thread pool, the cluster id, the number of tracing threads and the links
+    neighbours opened to this node."""
 
     def __init__(self, service, host: Link, config: Config):
         self.service, self.host, self.config = service, host, config
-        self.node = config.node
-        self.router = Router(config.torus, self.node)
+        node = config.node
         threads = min(service.threads, config.render.engine.threads or service.threads)
-        self.sched = Scheduler(
-            self.node,
-            config.torus.ring_next(self.node),
+        sched = Scheduler(
+            node,
+            config.torus.ring_next(node),
             config.torus.size,
             threads,
             service.incoming_high,
-            neighbours=config.torus.links(self.node),
+            neighbours=config.torus.links(node),
             steal=config.render.steals,
         )
+        super().__init__(node, sched)
+        self.router = Router(config.torus, node)
         self.stats = NodeStats(self.node)
         self.objects = Objects([self.node, *config.copies])
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
-        self.core: NodeCore | None = None
         self.outboxes: dict[int, Outbox] = {}
         self.wake = asyncio.Event()
         self.drained = asyncio.Event()
@@ -161,11 +166,6 @@ class Session:
         self.sched.message_out()
         self.outboxes[hop].post(message, records.nbytes)
 
-    def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
-        """Adaptive deposits the node's books send on, each toward its tile's node."""
-        for dest, deposits in routes.items():
-            self.post_data(dest, Kind.PIXELS, deposits)
-
     def to_host(self, deposits: np.ndarray) -> None:
         """Deposits toward the host: in object space straight from node 0, from others
         through node 0 over the torus; in image space, where nothing else travels the torus,
@@ -195,7 +195,7 @@ class Session:
                 elif kind is Kind.STEAL:
                     self.sched.steal_request(m)
                 elif kind is Kind.GIVE:
-                    self.sched.given(m, self._chunks(f["chunks"]))
+                    self.sched.given(m, checked_chunks(f["chunks"], self.config.render))
                 else:
                     raise BadFrame(f"unexpected {kind.name} from a neighbour")
                 self.wake.set()
@@ -208,25 +208,8 @@ class Session:
             log.exception("node %d: reading from node %d failed", self.node, m)
             self.fail(LinkClosed(f"node {m}", describe(e)))
 
-    def _dest(self, f: dict, kind: str) -> int:
-        """A message's destination node, checked: a neighbour cannot route outside the mesh."""
-        dest = f["dest"]
-        if not 0 <= dest < self.config.torus.size:
-            raise BadFrame(f"{kind}.dest = {dest}: no such node")
-        return dest
-
     def on_rays(self, m: int, f: dict) -> None:
-        self._dest(f, "RAYS")
-        r = f["rays"]
-        finite = (
-            np.isfinite(r["o"]).all()
-            and np.isfinite(r["d"]).all()
-            and np.isfinite(r["w"]).all()
-            and np.isfinite(r["t_min"]).all()
-            and not np.isnan(r["t_max"]).any()
-        )
-        if not finite or (len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3)):
-            raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
+        check_rays(f, self.config.torus.size)
         self.stats.rays_in[m] += len(f["rays"])
         if f["dest"] == self.node:
             self.sched.rays_in(np.array(f["rays"]))
@@ -235,9 +218,7 @@ class Session:
             self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
 
     def on_pixels(self, f: dict) -> None:
-        self._dest(f, "PIXELS")
-        if not np.isfinite(f["deposits"]["rgb"]).all():
-            raise BadFrame("PIXELS: colours must be finite")
+        check_pixels(f, self.config.torus.size)
         self.sched.message_in()
         deposits = np.array(f["deposits"])
         if f["dest"] != self.node:
@@ -246,16 +227,6 @@ class Session:
             self.send_pixels(self.core.keep(deposits))
         else:
             self.to_host(deposits)
-
-    def _chunks(self, chunks: list) -> list:
-        """A neighbour's GIVE checked: chunks inside the image (the message kind checked
-        their shape), and only when stealing was asked for."""
-        if not self.config.render.steals:
-            raise BadFrame("GIVE in a render without stealing")
-        w, h = self.config.render.sample_grid
-        if any(c[1] > w or c[3] > h for c in chunks):
-            raise BadFrame(f"GIVE: a chunk reaches beyond the {w}x{h} sample grid")
-        return chunks
 
     def on_tiles(self, f: dict) -> None:
         """Tiles the host dealt (dynamic image space); kept until the engine is built."""
@@ -268,15 +239,7 @@ class Session:
         self.wake.set()
 
     def on_state(self, f: dict) -> None:
-        self._dest(f, "STATE")
-        n = self.config.torus.size
-        if (
-            not 0 <= f["state"] <= State.DONE
-            or not 0 <= f["last_busy"] < n
-            or len(f["sent"]) != n
-            or len(f["received"]) != n
-        ):
-            raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
+        check_state(f, self.config.torus.size)
         if f["dest"] != self.node:
             self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
             return
@@ -300,59 +263,6 @@ class Session:
         except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
             log.exception("node %d: work loop failed", self.node)
             self.fail(e)
-
-    def act(self, step) -> None:
-        if isinstance(step, Trace):
-            self.start(step)
-            feed = self.core.feed
-            if step.primary and feed is not None and feed.finished:
-                self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=feed.finished))
-                feed.finished = []
-        elif isinstance(step, Enter):
-            self.enter(step.state)
-        elif isinstance(step, Flush):
-            self.flush()
-        elif isinstance(step, Steal):
-            self.outboxes[step.to].post(make(Kind.STEAL, node=self.node))
-            self.sched.message_out()
-        elif isinstance(step, Give):
-            chunks = [list(map(int, c)) for c in step.chunks]
-            self.outboxes[step.to].post(make(Kind.GIVE, chunks=chunks))
-            self.sched.message_out()
-        elif isinstance(step, SendPacket):
-            p = step.packet
-            message = make(
-                Kind.STATE,
-                state=p.state,
-                last_busy=p.last_busy,
-                round=p.round,
-                sent=p.sent,
-                received=p.received,
-                dest=step.to,
-            )
-            self.outboxes[self.router.next_hop(step.to)].post(message)
-        else:
-            raise TypeError(f"unknown scheduler step {step!r}")
-
-    def enter(self, state: State) -> None:
-        """Act on a state the packet brought."""
-        if state in (State.TRACE, State.REFINE):
-            self.sched.primaries = self.core.primaries(state)
-        elif state == State.FLUSH and self.core.keeps_pixels:
-            for d in self.core.finished_pixels():
-                self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
-            self.stats.counts["refined_pixels"] = self.core.refined_pixels
-        elif state == State.DONE:
-            links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
-            report = self.stats.report(self.core.engine.stats, links)
-            report["packet_visits"] = self.sched.term.visits
-            report["engine_reused"] = self.core.engine_reused
-            report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
-            report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
-            report["chunks_taken"] = self.sched.chunks_taken
-            report["chunks_given_by_state"] = dict(self.sched.given_in)
-            report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
-            self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 
     def flush(self) -> None:
         """Buffered deposits toward the host, in packets of DEPOSIT_BATCH."""
@@ -391,21 +301,61 @@ class Session:
                 self.stats.turn_idle()
             self.wake.set()
 
-    def deliver(self, batch) -> None:
-        """A traced batch's deposits and leaving rays, each toward the node that takes it."""
-        for dest, deposits in batch.deposits.items():
-            if dest == HOST:
-                self.deposits.append(deposits)
-                if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
-                    self.flush()
-            elif dest == self.node:
-                self.send_pixels(self.core.keep(deposits, traced_here=True))
-            else:
-                self.post_data(dest, Kind.PIXELS, deposits)
-        for dest, passed in batch.outgoing.items():
-            self.post_data(dest, Kind.RAYS, passed)
-        for taker, rays in batch.held.items():
-            self.sched.rays_in(rays, message=False, taker=taker)
+    # ------------------------------------------------------------------ the driver's sends
+    def post_rays(self, dest: int, rays: np.ndarray) -> None:
+        self.post_data(dest, Kind.RAYS, rays)
+
+    def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
+        self.post_data(dest, Kind.PIXELS, deposits)
+
+    def post_steal(self, to: int) -> None:
+        self.outboxes[to].post(make(Kind.STEAL, node=self.node))
+        self.sched.message_out()
+
+    def post_give(self, to: int, chunks: list) -> None:
+        chunks = [list(map(int, c)) for c in chunks]
+        self.outboxes[to].post(make(Kind.GIVE, chunks=chunks))
+        self.sched.message_out()
+
+    def post_packet(self, packet: Packet, to: int) -> None:
+        message = make(
+            Kind.STATE,
+            state=packet.state,
+            last_busy=packet.last_busy,
+            round=packet.round,
+            sent=packet.sent,
+            received=packet.received,
+            dest=to,
+        )
+        self.outboxes[self.router.next_hop(to)].post(message)
+
+    def post_tiles_done(self, tiles: list[int]) -> None:
+        self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=tiles))
+
+    def for_host(self, deposits: np.ndarray) -> None:
+        """Buffered, and sent in packets of DEPOSIT_BATCH (`flush`)."""
+        self.deposits.append(deposits)
+        if sum(len(d) for d in self.deposits) >= DEPOSIT_BATCH:
+            self.flush()
+
+    def finished(self, batches) -> None:
+        """Adaptive sampling's finished pixels, straight to the host."""
+        for d in batches:
+            self.host_out.post(make(Kind.PIXELS, deposits=d, dest=-1), d.nbytes)
+        self.stats.counts["refined_pixels"] = self.core.refined_pixels
+
+    def report(self) -> None:
+        """The node's STATS to the host."""
+        links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
+        report = self.stats.report(self.core.engine.stats, links)
+        report["packet_visits"] = self.sched.term.visits
+        report["engine_reused"] = self.core.engine_reused
+        report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
+        report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
+        report["chunks_taken"] = self.sched.chunks_taken
+        report["chunks_given_by_state"] = dict(self.sched.given_in)
+        report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
+        self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 
     async def close(self) -> None:
         """Cancel and await every task of this render, then drop its neighbour links: the

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from meshnode.engine.engine import KERNELS, Variant
+from meshnode.engine.variants import KERNELS, Variant
 from protocols import dtypes
 from protocols.scene import SceneData, View
 

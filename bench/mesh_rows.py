@@ -1,0 +1,172 @@
+"""A row of the `bench.mesh` table: the figures of one mesh render against one node's (kept
+for JSON), the printed line and the per-node load plot, apart from the runs that measure them."""
+
+import statistics
+from pathlib import Path
+
+COUNTS = (
+    "eye_rays",
+    "eye_hits",
+    "reflected_rays",
+    "refracted_rays",
+    "shadow_rays",
+    "shadow_rays_blocked",
+)
+
+
+def work(rays: dict) -> int:
+    """Work in the engine's own units, as the simulated mesh counts it
+    (`meshnode.mesh.stats.work_units`): the same on any machine, at any load."""
+    from meshnode.mesh.stats import work_units
+
+    return work_units(rays)
+
+
+def link_bytes(stats):
+    """(mean, max) bytes sent over one directed link: the traffic a mesh costs."""
+    sizes = [link["bytes_out"] for n in stats["nodes"] for link in n["links"].values()]
+    return (sum(sizes) / len(sizes), max(sizes)) if sizes else (0, 0)
+
+
+def figures(key: dict, got: tuple, image, camera) -> dict:
+    """The row's figures (`key`: scene, mesh, mode, overlap, node_threads, cuts, steal, copies,
+    tile, order) from `got`, what `on_mesh` returned: speedups of every kind, balance, setup,
+    traffic and the counts the single node's are checked against."""
+    wall, st, (wall1, s1) = got
+    cpu1 = s1["trace_cpu_seconds"]
+    work1 = work(
+        {
+            **s1["rays"],
+            "intersection_tests": s1["intersection_tests"],
+            "voxel_steps": s1["voxel_steps"],
+        }
+    )
+    work_busiest = max(work(n["rays"]) for n in st["nodes"])
+    busiest = st["busiest_node_cpu_seconds"]
+    together = (
+        statistics.median(
+            w["one_node_cpu_seconds"] / w["busiest_cpu_seconds"] for w in st["together"]
+        )
+        if st["together"]
+        else float("nan")
+    )
+    mean, top = link_bytes(st)
+    return {
+        "scene": key["scene"],
+        "mesh": key["mesh"],
+        "mode": key["mode"],
+        "overlap": key["overlap"],
+        "overlap_used": st["mesh"]["overlap"],  # the pre-pass's choice under "auto"
+        "node_threads": key["node_threads"],
+        "cuts": key["cuts"],
+        "steal": key["steal"],
+        "copies": key["copies"],
+        "shared": list(st["mesh"].get("shared", ())),
+        "objects_held_max_share": st["objects_held_max_share"],
+        "tile": key["tile"],
+        "order": key["order"],
+        "wall_seconds": wall,
+        "busiest_cpu_seconds": busiest,
+        "speedup": cpu1 / busiest,
+        "wall_speedup": wall1 / wall,
+        "batch_speedup": cpu1 / max(st["busiest_node_batch_cpu_seconds"], 1e-9),
+        "node_batch_cpu_seconds": [n["batch_cpu_seconds"] for n in st["nodes"]],
+        "together": st["together"],
+        "together_speedup": together,
+        "paired_speedups": st["paired_speedups"],
+        "work_speedup": work1 / work_busiest,
+        "parallel_efficiency": st["parallel_efficiency"],
+        "setup_seconds": st["setup_seconds"],
+        "imbalance": st["imbalance"],
+        "setup_reused_seconds": st["setup_reused_seconds"],
+        "rays_passed": st["rays_passed"],
+        "bytes_per_link_mean": mean,
+        "bytes_per_link_max": top,
+        "single_cpu_seconds": cpu1,
+        "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
+        "node_batches": [n["batches"] for n in st["nodes"]],
+        "balance": st.get("balance"),
+        "counts": {k: st["rays"][k] for k in COUNTS},
+        "image": image.to_wire(),
+        "camera": None if camera is None else camera.sampling.to_wire(),
+    }
+
+
+def print_header(name: str, image, camera, wall1: float, cpu1: float) -> None:
+    """The scene's line (its image, sampling and one node's figures) and the column names."""
+    rate = (
+        f"{image.spp} spp"
+        if camera is None
+        else f"{camera.sampling.rays} {camera.sampling.sampling} lens rays"
+    )
+    print(
+        f"\n== {name}: {image.width}x{image.height} at {rate}, 1x1 in process  "
+        f"wall {wall1:.2f} s  tracing CPU {cpu1:.3f} s (each row: one node again, "
+        "taking turns with the mesh)"
+    )
+    print(
+        f"{'mesh':>5} {'mode':>6} {'overlap':>7} {'thr':>3} {'cuts':>18} {'wall s':>7} "
+        f"{'one node CPU s':>14} {'busiest CPU s':>13} {'speedup':>7} {'median':>6} "
+        f"{'at once':>7} {'batch':>5} "
+        f"{'work':>5} {'wall':>5} "
+        f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
+        f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared"
+    )
+
+
+def shown_overlap(row: dict) -> str:
+    """The overlap as printed: the pre-pass's choice as `a:<chosen>` under "auto"."""
+    overlap = row["overlap"]
+    return f"a:{row['overlap_used']:g}" if overlap == "auto" else f"{overlap:g}"
+
+
+def print_row(row: dict) -> None:
+    """The row's line of the table, under `print_header`'s columns."""
+    rows, cols = row["mesh"].split("x")
+    print(
+        f"{rows}x{cols:<3} {row['mode']:>6} {shown_overlap(row):>7} {row['node_threads']:>3} "
+        f"{row['cuts']:>18} {row['wall_seconds']:>7.2f} "
+        f"{row['single_cpu_seconds']:>14.3f} {row['busiest_cpu_seconds']:>13.3f} "
+        f"{row['speedup']:>7.2f} "
+        f"{statistics.median(row['paired_speedups']):>6.2f} {row['together_speedup']:>7.2f} "
+        f"{row['batch_speedup']:>5.2f} "
+        f"{row['work_speedup']:>5.2f} "
+        f"{row['wall_speedup']:>5.2f} {row['parallel_efficiency']:>5.2f} "
+        f"{row['imbalance']:>9.2f} {row['setup_seconds']:>7.2f} "
+        f"{row['rays_passed']:>11} {row['bytes_per_link_mean']:>15,.0f} "
+        f"{row['bytes_per_link_max']:>11,} "
+        f"{row['objects_held_max_share']:>4.0%} "
+        f"{','.join(map(str, row['shared'])) or '-'}"
+    )
+
+
+def plot_row(folder: Path, row: dict, stats: dict) -> None:
+    """The row's per-node load plot in `folder`, named after the row."""
+    tag = (
+        f"{row['scene']}-{row['mesh']}-{row['mode']}-{row['cuts']}-{shown_overlap(row)}"
+        f"-t{row['node_threads']}"
+    )
+    load_plot(
+        folder / f"{tag}.png",
+        f"{tag}: speedup {row['speedup']:.2f}, efficiency {stats['parallel_efficiency']:.2f}",
+        stats,
+    )
+
+
+def load_plot(path: Path, title: str, stats: dict) -> None:
+    """Each node's tracing CPU seconds as a bar against the busiest node's (PNG, Pillow)."""
+    from PIL import Image, ImageDraw
+
+    busy = [n["busy_cpu_seconds"] for n in stats["nodes"]]
+    top = max(max(busy), 1e-9)
+    w, row = 480, 18
+    img = Image.new("RGB", (w, 30 + row * len(busy)), "white")
+    d = ImageDraw.Draw(img)
+    d.text((6, 6), title, fill="black")
+    for i, b in enumerate(busy):
+        y = 26 + i * row
+        d.rectangle([70, y, 70 + (w - 150) * b / top, y + row - 5], fill=(70, 120, 200))
+        d.rectangle([70, y, w - 80, y + row - 5], outline=(160, 160, 160))
+        d.text((6, y), f"node {i}", fill="black")
+        d.text((w - 74, y), f"{b:.2f} s", fill="black")
+    img.save(path)

@@ -1,0 +1,111 @@
+"""Renders on a local mesh of `meshnode` processes, taking turns with one node in this process
+or measured at the same time as it: this machine's speed moves by the minute and each core's
+by the second, so both sides of a speedup must share the same spells."""
+
+import asyncio
+import statistics
+import time
+
+from bench.mesh_reference import single
+
+
+def on_mesh(
+    scene,
+    image,
+    rows,
+    cols,
+    overlap,
+    threads=1,
+    balance="even",
+    mode="object",
+    tiles="static",
+    steal=False,
+    repeat=1,
+    tile=32,
+    copies=False,
+    together=0,
+    order="rows",
+    camera=None,
+):
+    """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
+    renders on the same running nodes, the one whose busiest node traced least; its
+    `setup_seconds` are the first render's (engines built), `setup_reused_seconds` its own
+    (engines kept). One node renders in this process before each mesh render, taking turns
+    with it, and the best of those runs is the row's reference: this machine's speed moves
+    by up to 1.6x for minutes at a time, so the two sides are measured over the same span.
+    Then `together` times both at once (`at_once`): the stats' `together` holds each
+    window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds."""
+    from host.planning.holding import OVERLAPS
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
+    from protocols.render import MeshPlan
+
+    auto = overlap == "auto"  # the pre-pass chooses (`--overlap auto`)
+    plan = MeshPlan(
+        rows,
+        cols,
+        OVERLAPS[0] if auto else overlap,
+        balance,
+        mode,
+        tiles,
+        tile=tile,
+        steal=steal,
+        copies=copies,
+        order=order,
+    )
+    runs, singles, windows = [], [], []
+
+    def mesh_render():
+        start = time.perf_counter()
+        _, stats = asyncio.run(
+            render_on_mesh(
+                scene, image, addresses, plan, camera=camera, overlaps=OVERLAPS if auto else ()
+            )
+        )
+        if stats["lost_nodes"]:  # re-planned on fewer nodes: not the row's mesh
+            raise RuntimeError(f"{rows}x{cols}: nodes lost {stats['lost_nodes']}")
+        return start, time.perf_counter(), stats
+
+    with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
+        for _ in range(repeat):
+            singles.append(single(scene, image, warm=False, camera=camera))
+            start, end, stats = mesh_render()
+            runs.append((end - start, stats))
+        for _ in range(together):
+            windows.append(
+                at_once(lambda: single(scene, image, warm=False, camera=camera), mesh_render)
+            )
+    wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
+    best["together"] = windows
+    best["setup_reused_seconds"] = best["setup_seconds"]
+    best["setup_seconds"] = runs[0][1]["setup_seconds"]
+    best["paired_speedups"] = [
+        one[1]["trace_cpu_seconds"] / run[1]["busiest_node_cpu_seconds"]
+        for one, run in zip(singles, runs, strict=True)
+    ]
+    return wall, best, min(singles, key=lambda r: r[1]["trace_cpu_seconds"])
+
+
+def at_once(one_node, mesh_render) -> dict:
+    """One node and the mesh measured over the same seconds: one node renders on a thread of
+    this process while the mesh renders again and again, until one node is done; the mesh
+    renders that ended by then (at least the first) give the mean busiest-node CPU seconds.
+    This machine's cores change speed by up to 25% within seconds, each on its own, so one
+    node measured before or after the mesh can land on a fast spell and the mesh on a slow
+    one; at once, both share the same spells of both cores and the same load (every core
+    busy, the tracing threads time-shared)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        ref = pool.submit(lambda: (one_node(), time.perf_counter()))
+        renders = [mesh_render()]
+        while not ref.done():
+            renders.append(mesh_render())
+        (_, stats), ended = ref.result()
+    inside = [r for r in renders if r[1] <= ended] or renders[:1]
+    busiest = [r[2]["busiest_node_cpu_seconds"] for r in inside]
+    return {
+        "one_node_cpu_seconds": stats["trace_cpu_seconds"],
+        "busiest_cpu_seconds": statistics.fmean(busiest),
+        "mesh_renders": len(inside),
+    }

@@ -1,0 +1,117 @@
+"""The sampling benchmark's measurements: one scene and engine built and warmed once, each
+camera-ray sampling method rendered at each ray count and compared with a many-ray reference,
+so methods differ only in how they place their rays."""
+
+import argparse
+import math
+
+import numpy as np
+
+METHODS = ("uniform", "jittered", "adaptive")
+REF_SEED_OFFSET = 7919  # the reference's seed: far from the measured runs'
+
+
+class Bench:
+    """The scene, its engine (built and warmed once, so no run pays for preprocessing or
+    kernel loading), the camera and the options shared by every render."""
+
+    def __init__(self, args: argparse.Namespace):
+        from host.camera.lensfile import read_camera
+        from host.scene.nff import read_nff
+        from meshnode.engine import Engine
+
+        self.args = args
+        self.scene = read_nff(args.scene)
+        self.camera = None if args.pinhole else read_camera(args.camera)
+        self.engine = Engine(self.scene)
+        self.engine.warmup()
+        self.pixels = args.width * args.height
+
+    def settings(self, sampling: str, rays: int, seed: int, threshold: float = 0.05):
+        """Render settings: the camera's lens (or the pinhole's pixel areas) sampled with
+        `rays` rays per pixel."""
+        from host.camera.setup import CameraSetup, Focus, PinholeSetup
+        from protocols.camera import CameraSampling
+        from protocols.render import EngineSpec, ImageSpec
+
+        a = self.args
+        if a.pinhole:
+            return (
+                ImageSpec(width=a.width, height=a.height, seed=seed),
+                EngineSpec(threads=a.threads),
+                PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive" else None),
+            )
+        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
+        return (
+            ImageSpec(width=a.width, height=a.height, seed=seed),
+            EngineSpec(threads=a.threads),
+            CameraSetup(self.camera, sampled, Focus(a.focus)),
+        )
+
+    def render(self, settings, repeat: int = 1):
+        """(image, stats, best tracing seconds of `repeat` identical renders)."""
+        from host.run.oneprocess import render
+
+        best, image, stats = math.inf, None, None
+        for _ in range(repeat):
+            image, stats = render(self.scene, *settings, built=self.engine)
+            best = min(best, stats["trace_seconds"])
+        return image, stats, best
+
+    def reference(self):
+        """The many-ray jittered image, with a seed of its own."""
+        a = self.args
+        return self.render(self.settings("jittered", a.ref_rays, a.seed + REF_SEED_OFFSET))
+
+    def row(self, reference: np.ndarray, sampling: str, spp: int, threshold=None) -> dict:
+        """One measured configuration against the reference."""
+        s = self.settings(sampling, spp, self.args.seed, threshold or 0.0)
+        image, stats, seconds = self.render(s, self.args.repeat)
+        cam = stats["camera"]
+        adaptive = cam["threshold"] is not None  # adaptive with one ray is one plain ray
+        error = rms(image, reference)
+        return {
+            "method": method_name(sampling, threshold),
+            "sampling": sampling,
+            "spp": spp,
+            "threshold": cam["threshold"] if adaptive else None,
+            "rays_per_pixel": stats["rays"]["eye_rays"] / self.pixels,
+            "refined": cam.get("refined_pixels", 0) / self.pixels if adaptive else None,
+            "seconds": seconds,
+            "rms": error,
+            "merit": error * math.sqrt(seconds),
+        }
+
+
+def method_name(sampling: str, threshold) -> str:
+    """A row's method: its sampling, with the threshold when adaptive (one set per threshold)."""
+    return f"adaptive {threshold:g}" if sampling == "adaptive" else sampling
+
+
+def rms(image: np.ndarray, reference: np.ndarray) -> float:
+    """Root mean square difference over every pixel and channel (linear values)."""
+    return float(np.sqrt(np.mean((image - reference) ** 2)))
+
+
+def measure(bench: Bench, reference: np.ndarray) -> list[dict]:
+    """Every method at every sample count, with ratios to jittered at the same count."""
+    a = bench.args
+    plan = [("uniform", None), ("jittered", None)] + [("adaptive", t) for t in a.threshold]
+    rows = [bench.row(reference, sampling, spp, t) for sampling, t in plan for spp in a.spp]
+    jittered = {r["spp"]: r for r in rows if r["sampling"] == "jittered"}
+    for r in rows:
+        j = jittered[r["spp"]]
+        r["time_vs_jittered"] = r["seconds"] / j["seconds"] if j["seconds"] > 0 else math.nan
+        r["error_vs_jittered"] = r["rms"] / j["rms"] if j["rms"] > 0 else math.nan
+    return rows
+
+
+def reference_error(rows: list[dict], ref_rays: int) -> tuple[float, float]:
+    """(convergence rate, the reference's own RMS error): the jittered rows' error against
+    rays per pixel fitted as a power law (least squares in log-log) and extrapolated."""
+    pts = [(r["spp"], r["rms"]) for r in rows if r["sampling"] == "jittered" and r["rms"] > 0]
+    if len(pts) < 2:
+        return math.nan, math.nan
+    x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    slope, intercept = np.polyfit(x, y, 1)
+    return float(slope), float(np.exp(intercept + slope * math.log(ref_rays)))

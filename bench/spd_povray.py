@@ -1,0 +1,149 @@
+"""POV-Ray 3.7 beside our default engine on the scenes that have a pov/NAME.pov, the two
+taking turns, and the project's goal (POV-Ray's trace time over ours) judged from the ratios."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from bench.spd_runs import build, default_density, default_storage, run_config
+
+GOAL_SCENES = ("balls", "tetra", "gears", "rings", "teapot", "tree")
+GOAL_RATIO = 2.0  # the project's goal: POV-Ray's trace time over our default's
+
+
+def find_povray() -> str | None:
+    """Path of `povray`, installing the Debian package first if missing and allowed."""
+    exe = shutil.which("povray")
+    if exe or os.geteuid() != 0 or not shutil.which("apt-get"):
+        return exe
+    print("povray not found: installing it with apt-get ...", flush=True)
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    for cmd in (["apt-get", "update"], ["apt-get", "install", "-y", "povray"]):
+        if subprocess.run(cmd, env=env, capture_output=True).returncode != 0:
+            return None
+    return shutil.which("povray")
+
+
+_POV_PATTERNS = {
+    "trace_seconds": r"Trace Time:.*\(([\d.]+) seconds\)",
+    "rays": r"^Rays:\s+(\d+)",
+    "shadow_rays": r"Shadow Ray Tests:\s+(\d+)",
+    "shadow_rays_blocked": r"Shadow Ray Tests:\s+\d+\s+Succeeded:\s+(\d+)",
+    "reflected_rays": r"Reflected Rays:\s+(\d+)",
+    "refracted_rays": r"Refracted Rays:\s+(\d+)",
+}
+
+
+def parse_povray(text: str) -> dict:
+    """Trace time and ray statistics from POV-Ray's console output (absent counters: 0)."""
+    out = {}
+    for key, pattern in _POV_PATTERNS.items():
+        m = re.search(pattern, text, re.MULTILINE)
+        out[key] = (float(m.group(1)) if key == "trace_seconds" else int(m.group(1))) if m else 0
+    if "Trace Time:" not in text:
+        raise RuntimeError("no 'Trace Time:' in POV-Ray output:\n" + text[-2000:])
+    return out
+
+
+def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
+    """Render `pov` at 512x512 on one thread `repeats` times; best trace time and counts.
+    `between()`, if given, runs after each POV-Ray run and returns our trace seconds: the two
+    tracers take turns, so a slow spell of this shared machine falls on both alike."""
+    runs, ours = [], []
+    with tempfile.TemporaryDirectory(prefix="bench-pov-") as tmp:
+        cmd = [
+            exe,
+            f"+I{pov}",
+            f"+O{Path(tmp) / pov.stem}.png",
+            "+W512",
+            "+H512",
+            "-A",
+            "+MV3.7",
+            "-D",
+            "+WT1",
+            "+FN",
+        ]
+        for _ in range(repeats):
+            done = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True)
+            if done.returncode != 0:
+                raise RuntimeError(f"povray failed ({done.returncode}):\n{done.stderr[-2000:]}")
+            runs.append(parse_povray(done.stderr + done.stdout))
+            if between is not None:
+                ours.append(between())
+    best = min(runs, key=lambda r: r["trace_seconds"])
+    out = {**best, "trace_seconds_all": [r["trace_seconds"] for r in runs]}
+    if ours:
+        out["ours_default_seconds"] = min(ours)
+        out["ours_default_seconds_all"] = ours
+    return out
+
+
+def default_runner(path: Path):
+    """A function tracing `path` once with the default engine (built here, once) and returning
+    its trace seconds: our turns between POV-Ray's."""
+    from host.scene.nff import read_nff
+
+    scene = read_nff(path)
+    storage, density = default_storage(), default_density()
+    engine = build(scene, "auto", storage, density)
+    return lambda: run_config(scene, "auto", storage, density, 1, built=engine)["trace_seconds"]
+
+
+def pov_file(scenes: Path, name: str) -> Path | None:
+    """The POV-Ray version of scene `name` (<scenes>/pov/NAME.pov), if there is one."""
+    pov = scenes / "pov" / f"{name}.pov"
+    return pov if pov.exists() else None
+
+
+def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
+    """POV-Ray figures (best of `repeat`) and pov/ours ratios for every scene of `results`
+    that has a POV-Ray version."""
+    wanted = [r for r in results if pov_file(scenes, r["scene"])]
+    if not wanted:
+        return {}
+    exe = find_povray()
+    if exe is None:
+        print("\nPOV-Ray: unavailable (not on PATH and cannot install); no ratios.")
+        return {"available": False}
+    out = {"available": True, "executable": exe, "repeat": repeat, "scenes": {}}
+    for r in wanted:
+        print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
+        ours = default_runner(Path(r["file"]))
+        pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat, between=ours)
+        pov["ratio_best"] = pov["trace_seconds"] / r["best_trace_seconds"]
+        pov["ratio_default"] = pov["trace_seconds"] / pov["ours_default_seconds"]
+        out["scenes"][r["scene"]] = pov
+    return out
+
+
+def goal(pov: dict) -> dict:
+    """Which of GOAL_SCENES meet the goal (POV-Ray over our default >= GOAL_RATIO), which
+    miss it, and which were not measured: {"met"|"missed": {scene: ratio}, "absent": [...]}."""
+    measured = pov.get("scenes", {}) if pov else {}
+    out = {"ratio": GOAL_RATIO, "met": {}, "missed": {}, "absent": []}
+    for name in GOAL_SCENES:
+        if name not in measured:
+            out["absent"].append(name)
+        else:
+            ratio = measured[name]["ratio_default"]
+            out["met" if ratio >= GOAL_RATIO else "missed"][name] = ratio
+    return out
+
+
+def goal_line(g: dict) -> str:
+    """The goal in one line, e.g. 'goal POV-Ray/default >= 2.0: met on balls 2.31; not met
+    on gears 1.52; not measured: tree'."""
+    line = (
+        f"goal POV-Ray/default >= {g['ratio']:.1f}: met on {_ratios(g['met'])}; "
+        f"not met on {_ratios(g['missed'])}"
+    )
+    return line + (f"; not measured: {', '.join(g['absent'])}" if g["absent"] else "")
+
+
+def _ratios(by_scene: dict) -> str:
+    """'balls 2.31, tetra 3.02', or 'none'."""
+    return ", ".join(f"{k} {v:.2f}" for k, v in by_scene.items()) or "none"

@@ -1,0 +1,93 @@
+"""Which objects each node holds: the scene's shapes clipped against every node's box.
+
+Conservative by design: a node may hold an object it never meets, never miss one it does,
+so correctness never depends on how tight the test is, only the memory and the work do.
+"""
+
+import numpy as np
+
+from meshnode.engine.tables import build_tables, segments
+from protocols.scene import SceneData
+
+
+def _flat_shapes(scene: SceneData, tb):
+    """Triangles then polygons as one vertex list: (vertices, first vertex, count) per shape.
+    A polygon's vertices are moved along its dropped axis onto the plane the engine hits it
+    on (through the first vertex, Newell normal): for a polygon that is not quite flat, that
+    is the shape the engine tests, not the outline of the vertices."""
+    tri = scene.triangles["v"].reshape(-1, 3)
+    poly = scene.polygons
+    n_vert = poly["count"].astype(np.int64)
+    counts = np.concatenate([np.full(len(scene.triangles), 3), n_vert]).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    rows, _, owner, _ = segments(poly["start"], n_vert)
+    pv = scene.vertices[rows].reshape(-1, 3).copy()
+    if len(pv):
+        p0, n = tb.polygons[owner, :3], tb.polygons[owner, 3:6]
+        info = tb.poly_info[owner]
+        drop = 3 - info[:, 2] - info[:, 3]  # the axis that is neither u nor v
+        at = np.arange(len(pv))
+        off = ((pv - p0) * n).sum(axis=1)  # distance off the plane, times |n| = 1
+        pv[at, drop] -= off / n[at, drop]
+    return np.concatenate([tri, pv]), starts, counts
+
+
+def _edges_separate(verts, starts, counts, lo, hi) -> np.ndarray:
+    """Per shape: does some axis edge x box-axis separate it from the box [lo, hi]?"""
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    _, _, shape_of, nxt = segments(starts, counts)
+    edges = verts[nxt] - verts  # edge j of its shape, one per vertex
+    # Every (edge, vertex of the same shape) pair: each edge's axes project its whole shape.
+    per_edge = counts[shape_of]
+    pair_vert, edge_first, pair_edge, _ = segments(np.repeat(starts, counts), per_edge)
+    rel = verts[pair_vert] - centre
+    apart = np.zeros(len(verts), np.bool_)
+    for k in range(3):
+        axis = np.cross(edges, np.eye(3)[k])
+        reach = (np.abs(axis) @ half) * (1 + 1e-9) + 1e-12  # a zero axis separates nothing
+        proj = (rel * axis[pair_edge]).sum(axis=1)
+        apart |= np.minimum.reduceat(proj, edge_first) > reach
+        apart |= np.maximum.reduceat(proj, edge_first) < -reach
+    return np.logical_or.reduceat(apart, starts)
+
+
+def _edge_separated(scene: SceneData, tb, los, his, candidates: np.ndarray) -> np.ndarray:
+    """(boxes, flat shapes) bool: the separating-axis tests that bounds and plane tests leave
+    out (edges crossed with the box axes), run only on each box's remaining candidates. With
+    those, exact for triangles and convex polygons; a concave polygon may be kept needlessly."""
+    verts, starts, counts = _flat_shapes(scene, tb)
+    separated = np.zeros(candidates.shape, np.bool_)
+    for b in range(len(los)):  # one pass per node box, over the shapes its bounds admit
+        idx = np.flatnonzero(candidates[b])
+        if len(idx):
+            rows, first, _, _ = segments(starts[idx], counts[idx])
+            separated[b, idx] = _edges_separate(verts[rows], first, counts[idx], los[b], his[b])
+    return separated
+
+
+def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
+    """(boxes, objects) bool: which boxes each object touches, objects in the engine's local
+    order (spheres, triangles, polygons, cones). Bounds must overlap; spheres must also reach
+    the box; triangles and polygons must pass the separating-axis tests (their plane, and
+    their edges crossed with the box axes); cones only their bounds (conservative: a node may
+    hold an object it never meets, never miss one it does)."""
+    tb = build_tables(scene)
+    touch = (tb.lo[None] <= his[:, None]) & (tb.hi[None] >= los[:, None])
+    touch = touch.all(axis=2)
+    centre, half = (los + his) / 2, (his - los) / 2
+    if tb.spheres is not None:
+        s = tb.spheres
+        gap = np.maximum(np.abs(s[None, :, :3] - centre[:, None]) - half[:, None], 0.0)
+        reach = (gap**2).sum(axis=2) <= (s[None, :, 3] * (1 + 1e-9)) ** 2
+        touch[:, : len(s)] &= reach
+    for table, first, n_col in ((tb.triangles, tb.offsets[1], 9), (tb.polygons, tb.offsets[2], 3)):
+        if table is None:
+            continue
+        p0, n = table[:, :3], table[:, n_col : n_col + 3]
+        dist = np.abs(((centre[:, None] - p0[None]) * n[None]).sum(axis=2))
+        reach = (np.abs(n)[None] * half[:, None]).sum(axis=2)
+        touch[:, first : first + len(table)] &= dist <= reach * (1 + 1e-9) + 1e-12
+    a, b = tb.offsets[1], tb.offsets[3]  # triangles and polygons
+    if b > a:
+        touch[:, a:b] &= ~_edge_separated(scene, tb, los, his, touch[:, a:b])
+    return touch

@@ -1,0 +1,112 @@
+"""What each node holds and whether it fits: the overlap its box is grown by (`--overlap auto`
+chooses among candidates within the nodes' memory), whether it gets the occupancy map, and the
+memory an engine takes. A wider overlap keeps rays longer on a node at the price of objects
+held twice, so the choice is simulated, never guessed.
+"""
+
+from dataclasses import replace
+
+from host.planning.prepass import coarse_mesh, node_costs
+from protocols.render import RenderSpec
+from protocols.scene import SceneData
+
+FITS = 0.25  # the share of a node's memory its engine may take (image space when the whole
+# scene's does; `--overlap auto` picks among the overlaps whose largest node's does)
+OVERLAPS = (2.0, 30.0, 60.0, 100.0)  # `--overlap auto`'s candidates, percent
+
+ENGINE_BYTES_PER_RECORD_BYTE = 8  # tables and grid of a whole-scene engine (balls: 1.4 MB of
+# grid and 0.6 MB of tables over 0.3 MB of records; gears, tetra and teapot alike or less)
+
+
+def engine_bytes(scene: SceneData) -> int:
+    """An engine's memory, estimated from the object records it is built from."""
+    tables = (
+        scene.spheres,
+        scene.triangles,
+        scene.polygons,
+        scene.vertices,
+        scene.cones,
+        scene.materials,
+        scene.lights,
+    )
+    return ENGINE_BYTES_PER_RECORD_BYTE * sum(t.nbytes for t in tables)
+
+
+def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:
+    """Bytes of the largest node's engines with these cuts (`engine_bytes`): its own, and
+    under MeshPlan.copies its linked neighbours' too."""
+    own = [engine_bytes(s) for s in coarse_mesh(scene, spec, xs, ys, cells)[2]]
+    return max(sum(own[m] for m in spec.plan.held(n)) for n in range(spec.plan.nodes))
+
+
+def choose_holding(
+    scene, spec: RenderSpec, xs, ys, cells, busiest: float, overlaps=(), memory: int = 0
+) -> tuple[float, bool, dict]:
+    """(overlap, occupancy map, report) for the nodes on these cuts, whose busiest node
+    simulates at `busiest` with the plan's overlap and the map: the plan's overlap, or
+    of `overlaps` (with the plan's) the one whose busiest node simulates least among
+    those whose largest node's engine takes at most FITS of `memory` (0: not known, every
+    overlap); with the map or without, whichever lightens the busiest node (the map's walk
+    costs, in a fractal of many small empty cubes, more than the passes it saves)."""
+    plan = spec.plan
+    tried, too_big = {}, []
+    for overlap in sorted({plan.overlap, *overlaps}):
+        at = at_overlap(spec, overlap)
+        if overlap != plan.overlap and too_big_for_memory(
+            scene, at, xs, ys, cells, memory, too_big
+        ):
+            continue
+        with_map = (
+            busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys, cells).max()
+        )
+        tried[overlap, True] = float(with_map)
+        tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
+    # ties: the smaller overlap (less held), then the map (fewer rays passed)
+    (overlap, occupancy), _ = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
+    report = {
+        "occupancy_map": occupancy,
+        "simulated_busiest_without_map_vs_with": ratio(tried[overlap, False], tried[overlap, True]),
+    }
+    if overlaps:
+        report["overlap"] = overlap_report(
+            overlap, {o: b for (o, m), b in tried.items() if m == occupancy}, too_big, memory
+        )
+    return overlap, occupancy, report
+
+
+def at_overlap(spec: RenderSpec, overlap: float) -> RenderSpec:
+    """The render with its plan at `overlap`: each candidate is simulated as a render."""
+    return replace(spec, plan=replace(spec.plan, overlap=overlap))
+
+
+def too_big_for_memory(scene, spec: RenderSpec, xs, ys, cells, memory: int, refused: list) -> bool:
+    """Whether the largest node's engine would take more than FITS of `memory` (noted in
+    `refused`); never when the memory is not known (0)."""
+    if not memory:
+        return False
+    held = largest_engine(scene, spec, xs, ys, cells)
+    if held <= FITS * memory:
+        return False
+    refused.append(
+        {"overlap": spec.plan.overlap, "shared": list(spec.plan.shared), "largest_node_bytes": held}
+    )
+    return True
+
+
+def overlap_report(chosen: float, busiest: dict, too_big: list, memory: int) -> dict:
+    """What the statistics say of an overlap choice: each overlap's simulated busiest node
+    (work units) and against the chosen one's, and those refused for memory."""
+    return {
+        "chosen": chosen,
+        "simulated_busiest": {f"{o:g}": b for o, b in busiest.items()},
+        "simulated_busiest_vs_chosen": {
+            f"{o:g}": ratio(b, busiest[chosen]) for o, b in busiest.items()
+        },
+        "too_big_for_memory": too_big,
+        "memory_bytes": memory,
+    }
+
+
+def ratio(a: float, b: float) -> float:
+    """a / b for the statistics, 1 where there is nothing to compare against."""
+    return float(a / b) if b else 1.0

@@ -1,0 +1,38 @@
+"""The scene's occupancy map as the host makes it for object-space nodes: every node gets the
+same map with its partition and ends a segment whose path ahead crosses only empty voxels,
+instead of passing it through every cell ahead (`meshnode.engine.occupancy`).
+"""
+
+import numpy as np
+
+from meshnode.engine.tables import build_tables
+from protocols.partition import MAX_OCC_SIDE
+from protocols.scene import SceneData
+
+OCC_VOXELS = 64**3  # voxels in the occupancy map (32^3 skipped less: teapot 3x3 5.78 vs 5.91)
+
+
+def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:
+    """(voxels per axis, packed bits) of the scene's occupancy map over `box`: about
+    `voxels` near-cubic voxels (a flat scene gets layers too), a voxel set where some
+    object's bounds, padded as the grid pads a box, reach it (`meshnode.engine.occupancy`:
+    conservative, so a node that skips what the map calls empty misses nothing). Every
+    object's range of voxels is marked at its eight corners and summed along the three
+    axes: no loop per object."""
+    tb = build_tables(scene)
+    lo, hi = (np.asarray(b, float) for b in box)
+    ext = hi - lo
+    thick = np.maximum(ext, 1e-3 * ext.max())
+    res = np.clip(np.round(thick * (voxels / thick.prod()) ** (1 / 3)), 1, MAX_OCC_SIDE)
+    res = res.astype(np.int64)
+    diff = np.zeros(tuple((res + 1)[::-1]), np.int64)  # z, y, x: x fastest once flattened
+    if tb.n:
+        pad = 1e-6 * float(ext.max()) + 1e-12 * np.maximum(np.abs(tb.lo), np.abs(tb.hi))
+        cell = ext / res
+        first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, res - 1).astype(np.int64)
+        last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, res - 1).astype(np.int64) + 1
+        for corner in range(8):
+            at = [np.where(corner >> a & 1, last[:, a], first[:, a]) for a in range(3)]
+            np.add.at(diff, (at[2], at[1], at[0]), (-1) ** bin(corner).count("1"))
+    full = diff.cumsum(0).cumsum(1).cumsum(2)[:-1, :-1, :-1] > 0
+    return tuple(res.tolist()), np.packbits(full.ravel()).tobytes()

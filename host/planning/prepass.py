@@ -1,0 +1,74 @@
+"""The cost pre-pass: the mesh simulated in this process on a coarse image, to measure where
+the work lies before any cut is chosen.
+
+A node's work is the rays it traces inside its box, wherever they came from, so the pre-pass
+runs the mesh itself: the simulated mesh of `meshnode.mesh.simulator`, whose nodes decide with
+the same scheduler as real ones, each node's cost counted as its intersection tests, voxel
+steps and segments, with each segment sent on weighted (`meshnode.mesh.stats.work_units`).
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from host.planning.partition import partition
+from host.planning.rectangles import bands, splits
+from host.scene.subset import subset
+from meshnode.mesh.simulator import simulate
+from protocols.camera import CameraSampling, Generation
+from protocols.render import ImageSpec, RenderSpec
+
+COARSE = 64  # coarse samples along the longer image axis
+
+
+def _coarse(bounds: list, n: int, coarse_n: int) -> list:
+    """Boundaries on an n-sample axis scaled to a coarse_n-sample one (a list of them: each)."""
+    if len(bounds) and isinstance(bounds[0], list):
+        return [_coarse(b, n, coarse_n) for b in bounds]
+    return bands([round(b * coarse_n / n) for b in bounds[1:-1]], coarse_n)
+
+
+def coarse_spec(spec: RenderSpec) -> RenderSpec:
+    """The render at COARSE samples across, pixel centres, one centre ray through a camera:
+    where work lies, at a fraction of the cost; its tiles (stealing's chunks, the tiles
+    dealt under copies) scaled with it, so it deals as many as the render (at 32 samples
+    a tile, a 768-sample render's coarse pass had 4 tiles to spread over a 3x3)."""
+    width, height = spec.sample_grid
+    scale = COARSE / max(width, height)
+    plan = replace(spec.plan, tile=max(1, round(spec.plan.tile * scale)))
+    image = ImageSpec(
+        width=max(plan.cols, round(width * scale)),
+        height=max(plan.rows, round(height * scale)),
+        depth=spec.image.depth,
+    )
+    camera = spec.camera
+    if camera is not None:
+        camera = replace(
+            camera,
+            sampling=CameraSampling(generation=Generation.CENTRE, rays=1, sampling="uniform"),
+        )
+    return RenderSpec(image, spec.engine, plan, camera)
+
+
+def node_costs(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True) -> np.ndarray:
+    """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
+    grid; None: even), its cells `cells` (None: from the image cuts), with or without the
+    occupancy map: the mesh simulated in this process."""
+    coarse, part, scenes = coarse_mesh(scene, spec, xs, ys, cells, occupancy)
+    return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
+
+
+def coarse_mesh(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
+    """(coarse spec, partition, each node's objects) of the mesh `node_costs` simulates."""
+    coarse = coarse_spec(spec)
+    (width, height), (cw, ch) = spec.sample_grid, coarse.sample_grid
+    xs, ys = xs or splits(width, spec.plan.cols), ys or splits(height, spec.plan.rows)
+    part, keep = partition(
+        scene, coarse, _coarse(xs, width, cw), _coarse(ys, height, ch), cells, occupancy
+    )
+    return coarse, part, [subset(scene, keep[n]) for n in range(part.nodes)]
+
+
+def efficiency(cost: np.ndarray) -> float:
+    """Sum of node costs / (nodes x busiest): 1 when every node works as long."""
+    return float(cost.sum() / (len(cost) * cost.max())) if cost.max() > 0 else 1.0

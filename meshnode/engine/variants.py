@@ -1,0 +1,61 @@
+"""The compiled variants of the kernels: numba compiles a kernel once per combination of
+argument types, and the engine passes an absent kind, lights or transmitters as None, so
+each scene's mix of objects selects one variant. `meshnode warmup` compiles them all ahead;
+the engine, the warm-up and the tests name them from here."""
+
+import itertools
+from typing import NamedTuple
+
+from meshnode.engine.tables import Tables
+
+# Primitive kinds in local-id order, as `build_tables` names them in `Tables.kinds` (kept here:
+# a change in tables.py, which kernels import, empties everyone's kernel cache).
+KINDS = ("spheres", "triangles", "polygons", "cones")
+# What `Engine.warmup` compiles, one numba specialisation each: one node's tracing kernel, a
+# mesh node's (segments clipped to its box, those leaving it returned), the probe's nearest hits.
+KERNELS = ("trace", "passing", "probe")
+
+
+class Variant(NamedTuple):
+    """What one compiled variant of the kernels holds code for: numba compiles a kernel once
+    per combination of argument types, and an absent kind, lights or transmitters is None.
+    (Grid storage and brute force are values, not types: they share a variant.)"""
+
+    kinds: tuple[str, ...]  # primitive kinds present, in KINDS order
+    smooth: bool  # some triangle has vertex normals
+    shadows: bool  # there are lights
+    refraction: bool  # some object transmits
+
+    @property
+    def name(self) -> str:
+        return "/".join(
+            [
+                "+".join(self.kinds) or "empty",
+                "smooth" if self.smooth else "flat",
+                "shadows" if self.shadows else "no-shadows",
+                "refraction" if self.refraction else "no-refraction",
+            ]
+        )
+
+
+def variant_of(tables: Tables) -> Variant:
+    """The variant the engine compiles for these tables: the engine's one choice function."""
+    return Variant(
+        tuple(tables.kinds),
+        tables.tri_normals is not None,
+        tables.lights is not None,
+        bool(tables.transmitters),
+    )
+
+
+def all_variants() -> list[Variant]:
+    """Every variant `variant_of` can choose: any set of kinds, smooth only with triangles,
+    refraction only with some object; lights or not (what `meshnode warmup` compiles)."""
+    out = []
+    for n in range(len(KINDS) + 1):
+        for kinds in itertools.combinations(KINDS, n):
+            for smooth, shadows, refraction in itertools.product((False, True), repeat=3):
+                if (smooth and "triangles" not in kinds) or (refraction and not kinds):
+                    continue
+                out.append(Variant(kinds, smooth, shadows, refraction))
+    return out

@@ -1,0 +1,114 @@
+"""The part of a Scheduler's driver that does not depend on how messages travel: what each step
+means and where a traced batch's output goes.
+
+The asyncio session (`meshnode.service.session`) and the simulated mesh (`simulator`) both
+subclass Driver and say only how a message goes and when a batch is traced: so the two decide
+alike by construction, and a simulated mesh predicts what a real one does (DESIGN.md 6).
+"""
+
+import numpy as np
+
+from meshnode.mesh.node import HOST, Batch, NodeCore
+from meshnode.mesh.scheduler import Scheduler
+from meshnode.mesh.steps import Enter, Flush, Give, SendPacket, Steal, Trace
+from meshnode.mesh.termination import Packet
+from protocols.state import State
+
+
+class Driver:
+    """Acts on node `node`'s scheduler's steps with its NodeCore (`core`, set once built).
+    Subclasses send: RAYS, PIXELS, STEAL and GIVE are counted messages, so their `post_*`
+    tell the scheduler (`Scheduler.message_out`); the state packet is not."""
+
+    def __init__(self, node: int, sched: Scheduler, core: NodeCore | None = None):
+        self.node, self.sched, self.core = node, sched, core
+
+    def act(self, step) -> None:
+        """Do one step `Scheduler.next()` decided."""
+        if isinstance(step, Trace):
+            feed = self.core.feed
+            if step.primary and feed is not None and feed.finished:
+                self.post_tiles_done(feed.finished)  # the host deals the next ones meanwhile
+                feed.finished = []
+            self.start(step)
+        elif isinstance(step, Enter):
+            self.enter(step.state)
+        elif isinstance(step, Flush):
+            self.flush()
+        elif isinstance(step, Steal):
+            self.post_steal(step.to)
+        elif isinstance(step, Give):
+            self.post_give(step.to, step.chunks)
+        elif isinstance(step, SendPacket):
+            self.post_packet(step.packet, step.to)
+        else:
+            raise TypeError(f"unknown scheduler step {step!r}")
+
+    def enter(self, state: State) -> None:
+        """Act on a state the packet brought: set up its primaries, hand adaptive sampling's
+        finished pixels over, or report."""
+        if state in (State.TRACE, State.REFINE):
+            self.sched.primaries = self.core.primaries(state)
+        elif state == State.FLUSH and self.core.keeps_pixels:
+            self.finished(self.core.finished_pixels())
+        elif state == State.DONE:
+            self.report()
+
+    def deliver(self, batch: Batch) -> None:
+        """A traced batch's deposits and leaving rays, each toward the node that takes it;
+        segments for an engine held here are queued here."""
+        for dest, deposits in batch.deposits.items():
+            if dest == HOST:
+                self.for_host(deposits)
+            elif dest == self.node:
+                self.send_pixels(self.core.keep(deposits, traced_here=True))
+            else:
+                self.post_pixels(dest, deposits)
+        for dest, passed in batch.outgoing.items():
+            self.post_rays(dest, passed)
+        for taker, rays in batch.held.items():
+            self.sched.rays_in(rays, message=False, taker=taker)
+
+    def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
+        """Adaptive deposits the node's books send on, each toward its pixel's node."""
+        for dest, deposits in routes.items():
+            self.post_pixels(dest, deposits)
+
+    # ------------------------------------------------------------------ transport
+    def start(self, step: Trace) -> None:
+        """Trace the batch (now, or on a thread), then `deliver` it and tell the scheduler
+        (`batch_done`)."""
+        raise NotImplementedError
+
+    def post_rays(self, dest: int, rays: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def post_steal(self, to: int) -> None:
+        raise NotImplementedError
+
+    def post_give(self, to: int, chunks: list) -> None:
+        raise NotImplementedError
+
+    def post_packet(self, packet: Packet, to: int) -> None:
+        raise NotImplementedError
+
+    def post_tiles_done(self, tiles: list[int]) -> None:
+        """Tell the host these dealt tiles have all their batches handed out."""
+        raise NotImplementedError
+
+    def for_host(self, deposits: np.ndarray) -> None:
+        """A batch's deposits for the host (no adaptive sampling)."""
+        raise NotImplementedError
+
+    def finished(self, batches) -> None:
+        """Adaptive sampling's finished pixels (DEPOSIT batches) for the host."""
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        """Nothing is being traced: send what `for_host` buffered (nothing by default)."""
+
+    def report(self) -> None:
+        """The render is done: report statistics (nothing by default)."""

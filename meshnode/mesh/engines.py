@@ -1,0 +1,57 @@
+"""The engines a node built, kept across renders: building a grid or hierarchy for millions
+of objects costs seconds, and a user re-rendering the same scene on a running cluster (another
+size, sampling or camera) should not pay it again."""
+
+import hashlib
+
+import numpy as np
+
+from meshnode.engine import Engine
+from protocols.render import EngineSpec
+from protocols.scene import SceneData
+
+
+class EngineCache:
+    """The engines this node built for its last render, kept for the next render of the same
+    objects in the same box with the same engine settings (a user re-rendering a scene at
+    another size, sampling or camera on a running cluster pays no build). At most `keep`
+    engines (one, or one per box held under MeshPlan.copies), least recently used dropped
+    first: bounded memory."""
+
+    def __init__(self):
+        self.engines: dict[bytes, Engine] = {}  # oldest use first
+
+    def get(
+        self, scene: SceneData, keep: int = 1, spec: EngineSpec = EngineSpec(), **placement
+    ) -> tuple[Engine, bool]:
+        """(engine, whether it was reused) for `scene` built as `spec` says, at `placement`
+        (Engine.from_spec's keywords)."""
+        key = _engine_key(scene, {"spec": spec, **placement})
+        engine = self.engines.pop(key, None)
+        reused = engine is not None
+        if engine is None:
+            while len(self.engines) >= max(1, keep):  # old memory goes before the build
+                del self.engines[next(iter(self.engines))]
+            engine = Engine.from_spec(scene, spec, **placement)
+        self.engines[key] = engine
+        return engine, reused
+
+
+def _engine_key(scene: SceneData, options: dict) -> bytes:
+    """A digest of everything an engine is built from: objects, background, options."""
+    h = hashlib.blake2b(digest_size=32)
+    for table in (
+        scene.materials,
+        scene.lights,
+        scene.spheres,
+        scene.triangles,
+        scene.polygons,
+        scene.vertices,
+        scene.cones,
+    ):
+        h.update(len(table).to_bytes(8, "little"))
+        h.update(np.ascontiguousarray(table).tobytes())
+    h.update(
+        repr((tuple(scene.background), sorted((k, repr(v)) for k, v in options.items()))).encode()
+    )
+    return h.digest()

@@ -1,0 +1,58 @@
+"""What a Scheduler tells its driver to do next: one frozen record per kind of step.
+
+`Scheduler.next()` returns one of these (or None: wait for the next event); the driver acts on
+it and reports back through the scheduler's events.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshnode.mesh.termination import Packet
+from protocols.state import State
+
+
+@dataclass(frozen=True)
+class Enter:
+    """The ring moved to `state`: the driver sets up its primaries (`Scheduler.primaries`),
+    flushes finished pixels or reports statistics."""
+
+    state: State
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Trace this batch (with the engine of node `taker`: this node's own when None, or a
+    copy it holds); call `batch_done` when it is."""
+
+    rays: np.ndarray
+    primary: bool
+    taker: int | None = None
+
+
+@dataclass(frozen=True)
+class Flush:
+    """Nothing is being traced: send buffered output (deposits) now."""
+
+
+@dataclass(frozen=True)
+class Steal:
+    """Ask neighbour `to` for unstarted chunks (this node has run out of primary rays)."""
+
+    to: int
+
+
+@dataclass(frozen=True)
+class Give:
+    """Answer neighbour `to`'s STEAL with these chunks (maybe none)."""
+
+    to: int
+    chunks: list
+
+
+@dataclass(frozen=True)
+class SendPacket:
+    """Send the state packet to node `to` (the next on the ring)."""
+
+    packet: Packet
+    to: int

@@ -1,0 +1,66 @@
+"""What a neighbour may send during a render: each RAYS, PIXELS, STATE and GIVE checked before
+the session acts on it (DESIGN.md 5: everything a peer sends is validated and bounded before
+anything is allocated). A bad message raises BadFrame naming the message and its field; the
+session reports it as that neighbour's link failing.
+"""
+
+import numpy as np
+
+from protocols.errors import BadFrame
+from protocols.render import RenderSpec
+from protocols.state import State
+
+
+def check_dest(f: dict, kind: str, nodes: int) -> int:
+    """A message's destination node, checked: a neighbour cannot route outside the mesh."""
+    dest = f["dest"]
+    if not 0 <= dest < nodes:
+        raise BadFrame(f"{kind}.dest = {dest}: no such node")
+    return dest
+
+
+def check_rays(f: dict, nodes: int) -> None:
+    """RAYS: rays the engine can trace (finite, of a known kind, depth >= 1) for a node of
+    the mesh; a NaN would poison every batch it joins."""
+    check_dest(f, "RAYS", nodes)
+    r = f["rays"]
+    finite = (
+        np.isfinite(r["o"]).all()
+        and np.isfinite(r["d"]).all()
+        and np.isfinite(r["w"]).all()
+        and np.isfinite(r["t_min"]).all()
+        and not np.isnan(r["t_max"]).any()
+    )
+    if not finite or (len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3)):
+        raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
+
+
+def check_pixels(f: dict, nodes: int) -> None:
+    """PIXELS: finite colours for a node of the mesh (they are summed into the image)."""
+    check_dest(f, "PIXELS", nodes)
+    if not np.isfinite(f["deposits"]["rgb"]).all():
+        raise BadFrame("PIXELS: colours must be finite")
+
+
+def check_state(f: dict, nodes: int) -> None:
+    """STATE: a known state, a last busy node and one pair of counters per node of the mesh
+    (termination indexes them by node)."""
+    check_dest(f, "STATE", nodes)
+    if (
+        not 0 <= f["state"] <= State.DONE
+        or not 0 <= f["last_busy"] < nodes
+        or len(f["sent"]) != nodes
+        or len(f["received"]) != nodes
+    ):
+        raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
+
+
+def checked_chunks(chunks: list, render: RenderSpec) -> list:
+    """A neighbour's GIVE checked: chunks inside the image (the message kind checked
+    their shape), and only when stealing was asked for."""
+    if not render.steals:
+        raise BadFrame("GIVE in a render without stealing")
+    w, h = render.sample_grid
+    if any(c[1] > w or c[3] > h for c in chunks):
+        raise BadFrame(f"GIVE: a chunk reaches beyond the {w}x{h} sample grid")
+    return chunks

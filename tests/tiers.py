@@ -22,6 +22,8 @@ PRIMITIVES = (
     "webdriver",
     "faultnode",
     "docker",
+    '"--mesh"',  # the CLI starting a local mesh (1x1 too: cheap to misfile, dear to miss)
+    '"--cluster"',
 )
 MARKERS = {
     "spawn": "starts processes (meshnode nodes, the CLI, a browser) or network namespaces",
@@ -37,6 +39,7 @@ def _source(obj) -> str:
 
 
 def _mentions(text: str, names) -> bool:
+    """Whether `text` names any of `names` (whole names, not parts of dotted ones)."""
     return any(re.search(rf"(?<![\w.]){re.escape(n)}", text) for n in names)
 
 

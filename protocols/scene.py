@@ -68,6 +68,11 @@ def _empty(dtype):
     return field(default_factory=lambda: np.zeros(0, dtype))
 
 
+# The primitive tables of a scene, in the order gids and engine-local ids follow: the one list of
+# object kinds every reader, the download, the node's checks and the engine's variants use.
+OBJECT_KINDS = ("spheres", "triangles", "polygons", "cones")
+
+
 @dataclass
 class SceneData:
     """Every entity of a scene as record arrays of `protocols.dtypes` types."""
@@ -86,5 +91,5 @@ class SceneData:
     @property
     def n_objects(self) -> int:
         """Number of NFF primitives (distinct gids)."""
-        gids = [t["gid"] for t in (self.spheres, self.triangles, self.polygons, self.cones)]
+        gids = [getattr(self, kind)["gid"] for kind in OBJECT_KINDS]
         return len(np.unique(np.concatenate(gids))) if any(len(g) for g in gids) else 0

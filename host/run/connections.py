@@ -17,7 +17,7 @@ from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.errors import ProtocolError, describe
 from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
-from protocols.scene import SceneData
+from protocols.scene import OBJECT_KINDS, SceneData
 
 OBJECT_BATCH = 20000  # records per OBJECTS message
 
@@ -78,11 +78,8 @@ async def download(link: Link, scenes: dict[int, SceneData]) -> None:
         tables = [
             ("materials", scene.materials),
             ("lights", scene.lights),
-            ("spheres", scene.spheres),
-            ("triangles", scene.triangles),
-            ("polygons", scene.polygons),
+            *((kind, getattr(scene, kind)) for kind in OBJECT_KINDS),
             ("vertices", scene.vertices.reshape(-1)),
-            ("cones", scene.cones),
         ]
         own = [
             (m, n, t[i : i + OBJECT_BATCH])

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from protocols.scene import SceneData
+from protocols.scene import OBJECT_KINDS, SceneData
 
 SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 8, 10
 # Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v.
@@ -312,7 +312,7 @@ def build_tables(scene: SceneData) -> Tables:
         lights = np.empty((len(scene.lights), LIGHT_COLS))
         lights[:, LIGHT_POS : LIGHT_POS + 3] = scene.lights["pos"]
         lights[:, LIGHT_RGB : LIGHT_RGB + 3] = scene.lights["rgb"] * scale
-    names = ("spheres", "triangles", "polygons", "cones")
+    names = OBJECT_KINDS
     return Tables(
         spheres=_or_none(sph),
         triangles=_or_none(tri),

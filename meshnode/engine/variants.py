@@ -7,10 +7,8 @@ import itertools
 from typing import NamedTuple
 
 from meshnode.engine.tables import Tables
+from protocols.scene import OBJECT_KINDS
 
-# Primitive kinds in local-id order, as `build_tables` names them in `Tables.kinds` (kept here:
-# a change in tables.py, which kernels import, empties everyone's kernel cache).
-KINDS = ("spheres", "triangles", "polygons", "cones")
 # What `Engine.warmup` compiles, one numba specialisation each: one node's tracing kernel, a
 # mesh node's (segments clipped to its box, those leaving it returned), the probe's nearest hits.
 KERNELS = ("trace", "passing", "probe")
@@ -21,7 +19,7 @@ class Variant(NamedTuple):
     per combination of argument types, and an absent kind, lights or transmitters is None.
     (Grid storage and brute force are values, not types: they share a variant.)"""
 
-    kinds: tuple[str, ...]  # primitive kinds present, in KINDS order
+    kinds: tuple[str, ...]  # primitive kinds present, in OBJECT_KINDS order
     smooth: bool  # some triangle has vertex normals
     shadows: bool  # there are lights
     refraction: bool  # some object transmits
@@ -52,8 +50,8 @@ def all_variants() -> list[Variant]:
     """Every variant `variant_of` can choose: any set of kinds, smooth only with triangles,
     refraction only with some object; lights or not (what `meshnode warmup` compiles)."""
     out = []
-    for n in range(len(KINDS) + 1):
-        for kinds in itertools.combinations(KINDS, n):
+    for n in range(len(OBJECT_KINDS) + 1):
+        for kinds in itertools.combinations(OBJECT_KINDS, n):
             for smooth, shadows, refraction in itertools.product((False, True), repeat=3):
                 if (smooth and "triangles" not in kinds) or (refraction and not kinds):
                     continue

@@ -14,7 +14,7 @@ from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
 from protocols.partition import Partition
 from protocols.render import RenderSpec
-from protocols.scene import SceneData, View
+from protocols.scene import OBJECT_KINDS, SceneData, View
 from protocols.spec import SpecError
 from protocols.topology import Torus
 
@@ -115,7 +115,7 @@ def _check_objects(tables: dict) -> None:
     if len(tables["vertices"]) % 3:
         raise BadFrame("OBJECTS vertices: a whole number of (x, y, z) points")
     n_mat, n_vert = len(tables["materials"]), len(tables["vertices"]) // 3
-    for name in ("spheres", "triangles", "polygons", "cones"):
+    for name in OBJECT_KINDS:
         mat = tables[name]["mat"]
         if len(mat) and (mat.min() < 0 or mat.max() >= n_mat):
             raise BadFrame(f"OBJECTS {name}: material index outside the {n_mat} materials")

@@ -181,8 +181,7 @@ class Session(Driver):
             while True:
                 kind, f = await link.recv()
                 if kind is Kind.RAYS:
-                    self.on_rays(m, f)
-                    if self.sched.incoming_rays > self.sched.incoming_high:
+                    if self.on_rays(m, f):
                         # Stop reading: TCP pushes back on the sender, whose work loop goes
                         # on (its sends are queued), so this cannot deadlock.
                         self.drained.clear()
@@ -208,14 +207,16 @@ class Session(Driver):
             log.exception("node %d: reading from node %d failed", self.node, m)
             self.fail(LinkClosed(f"node {m}", describe(e)))
 
-    def on_rays(self, m: int, f: dict) -> None:
+    def on_rays(self, m: int, f: dict) -> bool:
+        """Queue rays for this node, or pass them on toward theirs; True when the scheduler
+        says to stop reading (the one place that decides: `Scheduler.rays_in`)."""
         check_rays(f, self.config.torus.size)
         self.stats.rays_in[m] += len(f["rays"])
         if f["dest"] == self.node:
-            self.sched.rays_in(np.array(f["rays"]))
-        else:
-            self.sched.message_in()
-            self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+            return self.sched.rays_in(np.array(f["rays"]))
+        self.sched.message_in()
+        self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+        return False
 
     def on_pixels(self, f: dict) -> None:
         check_pixels(f, self.config.torus.size)

@@ -13,9 +13,9 @@ import numpy as np
 
 from meshnode.engine.variants import KERNELS, Variant
 from protocols import dtypes
-from protocols.scene import SceneData, View
+from protocols.scene import OBJECT_KINDS, SceneData, View
 
-ALL_KINDS = Variant(("spheres", "triangles", "polygons", "cones"), True, True, True)
+ALL_KINDS = Variant(OBJECT_KINDS, True, True, True)
 
 
 def variant_scene(variant: Variant) -> SceneData:

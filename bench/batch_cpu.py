@@ -6,12 +6,14 @@ occupancy map, the cell that takes it, grouped by node), deposits (`lit_deposits
 once to compile and load, then timed on this thread.
 
     python -m bench.batch_cpu [--scenes DIR] [--only tetra,balls] [--mesh 3x3] [--overlap 100]
-                              [--size 384] [--spp 32] [--json FILE]
+                              [--size 384] [--spp 32] [--copies-eye-batch N] [--json FILE]
 
 Printed per scene: the nodes' summed CPU seconds in each part, each part's share, and the
 whole batches' CPU over the kernels' (what `bench.mesh`'s "batch" column divides out: the
 speedup counted on the kernels alone, as one node's is, over that counted on whole
 batches). The mesh's hits, escapes and shadow rays are checked against one node's.
+`--copies-eye-batch N` sets how many eye rays a node makes a batch under copies
+(`meshnode.mesh.node.COPIES_EYE_BATCH`), to measure that choice.
 """
 
 import argparse
@@ -69,7 +71,12 @@ def timed_parts(run):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.batch_cpu", description=__doc__.split("\n\n")[0])
     add_simulated_mesh_options(p, only="tetra,balls", size=384, spp=32)
+    p.add_argument("--copies-eye-batch", type=int, help="eye rays per batch under copies")
     args = p.parse_args(argv)
+    if args.copies_eye_batch:
+        from meshnode.mesh import node
+
+        node.COPIES_EYE_BATCH = args.copies_eye_batch
     from host.planning.plan import plan_render
     from host.run.oneprocess import render
     from host.scene.nff import read_nff

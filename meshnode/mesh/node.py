@@ -34,8 +34,10 @@ EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with 
 IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows at once
 # ... in object space under copies, where few are passed and a batch splits into a kernel
 # call per engine held: tetra 2x2 simulated in one process (256x256 at 62 spp, four turns
-# each, /tmp script), the nodes' summed tracing CPU best / median: 4096 0.824 / 0.868 s,
-# 16384 0.653 / 0.782 s, 65536 0.713 / 0.764 s
+# each), the nodes' summed tracing CPU best / median: 4096 0.824 / 0.868 s, 16384 0.653 /
+# 0.782 s, 65536 0.713 / 0.764 s (`python -m bench.batch_cpu --only tetra --mesh 2x2
+# --size 256 --spp 62 --copies-eye-batch N` measures it: its "batches s" column, one turn
+# each on a loaded machine, 1.42 / 1.22 / 1.38 s for 4096 / 16384 / 65536)
 COPIES_EYE_BATCH = 16384
 
 

@@ -7,6 +7,7 @@ summary. Wiring only: the camera policy is `host.camera.policy`, the output path
 import asyncio
 import json
 import os
+import re
 import secrets
 import sys
 
@@ -41,8 +42,9 @@ def command(args) -> int:
             print(f"host: {line}", file=sys.stderr)
 
     try:
+        _check_inputs(args)
         scene = read_scene(args.scene, args.settings, note)
-    except SceneError as e:
+    except (ValueError, SceneError) as e:  # a bad option's file, or the scene file:line
         print(f"host: {e}", file=sys.stderr)
         return 2
     except OSError as e:
@@ -57,7 +59,7 @@ def command(args) -> int:
         live = _serve(args)
         img, stats = _run(scene, image, engine, camera, args, live and live.monitor)
     except (ValueError, OSError) as e:  # SpecError, CameraError and LiveError included
-        return _failed(live, str(e), 2, args)
+        return _failed(live, in_user_terms(str(e)), 2, args)
     except MeshError as e:
         return _failed(live, f"render failed: {e}", 1, args)
     except BaseException:  # Ctrl-C mid-render: the live view goes too
@@ -168,6 +170,45 @@ def _linger(live, args) -> None:
         print("host: live view stopped", file=sys.stderr)
     finally:
         live.stop()
+
+
+# Files an option names, each read during the render: checked before any work.
+INPUT_FILES = {
+    "camera": "--camera",
+    "cluster": "--cluster",
+    "settings": "--settings",
+    "secret_file": "--secret-file",
+    "tls_cert": "--tls-cert",
+    "tls_key": "--tls-key",
+    "tls_ca": "--tls-ca",
+}
+
+
+def _check_inputs(args) -> None:
+    """Every file an option names exists (one line naming the option, not an errno), and
+    options that contradict each other are refused by name."""
+    for name, flag in INPUT_FILES.items():
+        path = getattr(args, name, None)
+        if path and not os.path.isfile(path):
+            what = "a folder, not a file" if os.path.isdir(path) else "no such file"
+            raise ValueError(f"{flag} {path}: {what}")
+    if args.cluster and args.mesh != "auto":
+        raise ValueError(
+            f"--mesh {args.mesh} and --cluster: choose one (the cluster file gives the mesh)"
+        )
+
+
+def in_user_terms(message: str) -> str:
+    """`message` with every record field it names ("ImageSpec.spp") as the option that
+    sets it ("--spp"): users type options, not records."""
+    for field, flag in sorted(FLAGS.items(), key=lambda kv: -len(kv[0])):
+        message = re.sub(
+            rf"\b{re.escape(field)}\b( = )?",
+            lambda m, flag=flag: flag + (" " if m.group(1) else ""),
+            message,
+            flags=re.IGNORECASE,
+        )
+    return message
 
 
 def _records(args):

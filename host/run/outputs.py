@@ -3,7 +3,7 @@ format this run can write, a folder that exists and can be written), so a render
 lost to a bad path or a missing library; then each image is written in its suffix's format.
 """
 
-import os
+import tempfile
 from pathlib import Path
 
 from host.run.framebuffer import exr_missing, write_exr, write_pfm, write_png
@@ -23,9 +23,9 @@ def output_paths(
         float_path = out.with_suffix(".pfm")
     stats = Path(stats) if stats else None
     _check_formats(out, float_path)
-    for path in (out, float_path, stats):
+    for path, flag in ((out, "-o"), (float_path, "--float"), (stats, "--stats")):
         if path is not None:
-            _check_writable(path)
+            _check_writable(path, flag)
     return out, float_path, stats
 
 
@@ -44,13 +44,22 @@ def _check_formats(out: Path, float_path: Path | None) -> None:
             raise ValueError(f"{flag} {path}: {exr_missing()}")
 
 
-def _check_writable(path: Path) -> None:
-    """`path`'s folder exists and it can be written there."""
+def _check_writable(path: Path, flag: str) -> None:
+    """`path`'s folder exists and a file can be made there: tried, not inferred from
+    permission bits (root passes every access check, yet cannot write in /proc)."""
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
-        raise ValueError(f"cannot write {path}: no folder {folder}")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"cannot write {path}: permission denied")
+        raise ValueError(f"{flag} {path}: no folder {folder}")
+    if path.is_dir():
+        raise ValueError(f"{flag} {path}: a folder, not a file")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".meshtrace-probe-"):
+            pass
+        if path.exists():
+            with open(path, "ab"):
+                pass
+    except OSError as e:
+        raise ValueError(f"{flag} {path}: cannot write there ({e.strerror or e})") from None
 
 
 def write_images(img, *paths: Path | None) -> None:

@@ -116,14 +116,30 @@ def check_auth(
         )
 
 
+# The shortest cluster secret taken: a short one can be guessed offline from one recorded
+# handshake (its proofs are HMACs of public nonces). `openssl rand -hex 32` gives 64.
+MIN_SECRET = 32
+
+
 def read_secret(path=None, environ=None) -> bytes | None:
     """The cluster secret: the file at `path` (surrounding white space dropped), else the
-    MESHTRACE_SECRET environment variable, else None (no secret: loopback only)."""
+    MESHTRACE_SECRET environment variable, else None (no secret: loopback only). A secret
+    under MIN_SECRET characters is refused, naming where it came from (a compose file or a
+    Kubernetes Secret passes it on as it is)."""
     if path is not None:
         with open(path, "rb") as f:
             secret = f.read().strip()
         if not secret:
             raise ValueError(f"{path}: the secret file is empty")
-        return secret
+        return _long_enough(secret, str(path))
     value = (os.environ if environ is None else environ).get("MESHTRACE_SECRET", "")
-    return value.encode() or None
+    return _long_enough(value.encode(), "MESHTRACE_SECRET") if value else None
+
+
+def _long_enough(secret: bytes, where: str) -> bytes:
+    if len(secret) < MIN_SECRET:
+        raise ValueError(
+            f"{where}: the cluster secret has {len(secret)} characters, at least {MIN_SECRET} "
+            "are needed (openssl rand -hex 32 makes one)"
+        )
+    return secret

@@ -18,7 +18,7 @@ from protocols.handshake import auth, check_auth, hello, nonce, read_secret
 from protocols.messages import Kind, make, parse
 from tests.test_node_service import config, host_link
 
-SECRET = b"correct horse battery staple"
+SECRET = b"correct horse battery staple, twice as long"
 
 
 async def serving(secret=SECRET) -> NodeService:
@@ -189,11 +189,17 @@ def test_only_loopback_may_listen_without_a_secret(tmp_path, monkeypatch):
     )
     assert cli.serving_secret(cli.parse(["serve"])) is None  # the default: loopback
     f = tmp_path / "secret"
-    f.write_text("  s3cret\n")
+    f.write_text("  " + "s3cret" * 6 + "\n")
     args = cli.parse(["serve", "--listen", "0.0.0.0:7700", "--secret-file", str(f)])
-    assert cli.serving_secret(args) == b"s3cret"
-    monkeypatch.setenv("MESHTRACE_SECRET", "from-env")
-    assert read_secret() == b"from-env"
+    assert cli.serving_secret(args) == b"s3cret" * 6
+    monkeypatch.setenv("MESHTRACE_SECRET", "from-env" * 4)
+    assert read_secret() == b"from-env" * 4
+    monkeypatch.setenv("MESHTRACE_SECRET", "abc")  # what compose would pass on as it is
+    with pytest.raises(ValueError, match="MESHTRACE_SECRET: the cluster secret has 3 char"):
+        read_secret()
+    f.write_text("x" * 31)
+    with pytest.raises(ValueError, match="has 31 characters, at least 32"):
+        read_secret(f)
     f.write_text("\n")
     with pytest.raises(ValueError, match="empty"):
         read_secret(f)

@@ -434,7 +434,7 @@ def test_check_hello_accepts_only_a_matching_hello(base, data):
         assert fields["role"] in ROLES and len(fields["nonce"]) == NONCE_BYTES
 
 
-SECRET = b"fuzz secret"
+SECRET = b"fuzz secret, as long as a cluster needs it"
 DIALLER = parse(hello("meshtrace", "host", -1, b"\3" * 32))[1]
 LISTENER_NONCE = b"\4" * 32
 

@@ -19,7 +19,7 @@ from meshnode.transport.tls import TlsFiles
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 
-SECRET = b"tls test secret"
+SECRET = b"tls test secret, long enough for a cluster"
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +110,6 @@ def test_tls_options_are_checked_before_work(pki, tmp_path, capsys):
         )
         == 2
     )
-    assert "cannot use the TLS files" in capsys.readouterr().err
+    assert f"--tls-ca {tmp_path / 'missing.pem'}: no such file" in capsys.readouterr().err
     assert main(["render", scene, "-o", out, "--mesh", "1x2", "--tls-ca", pki["ca"]]) == 2
     assert "are for nodes of a --cluster" in capsys.readouterr().err

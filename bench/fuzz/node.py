@@ -16,7 +16,7 @@ from host.run.meshclient import render_on_mesh
 from protocols import dtypes
 from protocols.render import ImageSpec, MeshPlan
 
-SECRET = b"fuzz-node secret"
+SECRET = b"fuzz-node secret, as long as a cluster needs"
 CLUSTER = "meshtrace"
 
 

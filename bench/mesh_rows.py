@@ -4,14 +4,9 @@ for JSON), the printed line and the per-node load plot, apart from the runs that
 import statistics
 from pathlib import Path
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+from meshnode.engine.counters import RAY_COUNTS
+
+COUNTS = RAY_COUNTS
 
 
 def work(rays: dict) -> int:

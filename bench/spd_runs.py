@@ -5,15 +5,10 @@ POV-Ray side so every other part of the benchmark reuses the same measurement.""
 import time
 from pathlib import Path
 
+from meshnode.engine.counters import RAY_COUNTS
+
 STORAGES = ("csr", "hash")
-COUNT_KEYS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNT_KEYS = RAY_COUNTS
 COUNT_LABELS = ("eye", "hits", "reflected", "refracted", "shadow", "blocked")
 
 

@@ -31,15 +31,9 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from meshnode.engine.counters import RAY_COUNTS
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 
 
 def vm_hwm(pid: int) -> int:

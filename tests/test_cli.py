@@ -12,17 +12,11 @@ from PIL import Image
 
 from host.cli import main
 from host.run.framebuffer import Framebuffer, read_pfm, to_srgb8, write_pfm
+from meshnode.engine.counters import RAY_COUNTS
 from tests.conftest import spd_scene
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
-STAT_KEYS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+STAT_KEYS = RAY_COUNTS
 
 
 def test_render_writes_png_pfm_and_stats(tmp_path):

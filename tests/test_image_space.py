@@ -11,20 +11,14 @@ from host.planning.partition import partition
 from host.planning.rectangles import tiles
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
+from meshnode.engine.counters import RAY_COUNTS
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
 from tests.test_sampling import dof_scene, thin_camera
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 SHAPES = [(1, 2), (2, 2), (3, 3), (2, 3)]
 TILINGS = [
     dict(tiles="none"),

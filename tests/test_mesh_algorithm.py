@@ -16,7 +16,7 @@ from host.scene.nff import read_nff
 from host.scene.subset import subset
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.counters import N_COUNTERS
+from meshnode.engine.counters import N_COUNTERS, RAY_COUNTS
 from meshnode.engine.occupancy import occupancy_arrays, skip_empty
 from meshnode.engine.trace import owners
 from meshnode.mesh.node import NodeCore, lit_deposits, per_cell
@@ -26,14 +26,7 @@ from tests.conftest import make_scene, spd_scene
 from tests.meshsim import render_mesh
 from tests.test_grid import lit_glass_scene
 
-SPD_COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+SPD_COUNTS = RAY_COUNTS
 SIZE = 36
 
 

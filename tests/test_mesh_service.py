@@ -18,17 +18,11 @@ from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
+from meshnode.engine.counters import RAY_COUNTS
 from protocols.render import MeshPlan
 from tests.conftest import records, spd_scene
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 
 
 def on_mesh(scene, rs, addresses, plan: MeshPlan, **kw):

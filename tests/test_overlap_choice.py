@@ -13,18 +13,12 @@ from host.run.framebuffer import Framebuffer
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from host.scene.subset import subset
+from meshnode.engine.counters import RAY_COUNTS
 from meshnode.mesh.simulator import simulate
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 
 
 def planned(scene, image, memory=0, balance="cost"):

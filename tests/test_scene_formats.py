@@ -17,18 +17,12 @@ from host.scene.formats import SceneError, read_scene
 from host.scene.inventor import CAP_SIDES, parse_inventor
 from host.scene.nff import parse_nff
 from host.scene.settings import Settings
+from meshnode.engine.counters import RAY_COUNTS
 from protocols.render import EngineSpec, ImageSpec
 from tests.meshsim import render_mesh
 
 SIZE = 48
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 
 # The settings every mesh below shares, in TOML and in NFF.
 SETTINGS = """resolution = [48, 48]

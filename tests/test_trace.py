@@ -11,19 +11,13 @@ import pytest
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
+from meshnode.engine.counters import RAY_COUNTS
 from protocols import dtypes
 from protocols.scene import View
 from tests.conftest import make_scene, records, spd_scene
 from tests.test_grid import lit_glass_scene
 
-COUNTS = (
-    "eye_rays",
-    "eye_hits",
-    "reflected_rays",
-    "refracted_rays",
-    "shadow_rays",
-    "shadow_rays_blocked",
-)
+COUNTS = RAY_COUNTS
 
 
 def small(scene, **kw):

@@ -30,6 +30,9 @@ COUNTER_NAMES = (
     "internal_reflections",
     "occupancy_steps",
 )
+# Rays by kind, the six counts any two renders of one scene must agree on (one node and a mesh,
+# grid and hierarchy, one process and another): what the tests and benchmarks compare.
+RAY_COUNTS = COUNTER_NAMES[:6]
 # The walks' work, not rays: kept apart from the ray counts in a render's statistics.
 WALK_COUNTS = ("intersection_tests", "voxel_steps", "occupancy_steps")
 # What the SPD author's published table counts: eye rays that hit, reflected rays, refracted

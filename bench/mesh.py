@@ -3,6 +3,7 @@ process.
 
     python -m bench.mesh [--scenes DIR] [--only balls,tetra] [--meshes 2x2,3x3]
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
+                         [--max-share 0.5,0.25]
                          [--modes object,image] [--tiles static] [--tile 32]
                          [--size 512 --spp 1] [--camera FILE --lens-rays 16
                          --sampling adaptive] [--min-trace 5] [--repeat 3] [--together 1]
@@ -35,9 +36,13 @@ load), and "at once" is the median of those windows' one-node CPU / busiest-node
 `--overlaps 2,auto` compares a fixed overlap with the one the cost pre-pass chooses
 (`--overlap auto`: the row shows `a:<chosen>`); `--node-threads 1,2` runs every row with
 nodes tracing on that many threads, side by side;
-`--balance even,cost` compares the image cuts likewise; `--tiles static,dynamic` the image
-space tilings, `--tile 32,64` their tile sides (samples) and `--orders rows,centre` the
-order dynamic tiles are dealt in. `--plots DIR` writes a
+`--balance even,cost,objects` compares the cuts likewise; `--max-share` gives object space
+a memory budget per mesh (`MeshPlan.max_share`: the plan gives up what breaks it), and the
+rows show it ("budget") beside the share the fullest node held ("held"), the speedup on the
+busiest node's whole process CPU for the frame ("frame": in turns; "frame@once": at once,
+against one node's tracing thread, so understated) and rays passed per ray traced;
+`--tiles static,dynamic` the image space tilings, `--tile 32,64` their tile sides (samples)
+and `--orders rows,centre` the order dynamic tiles are dealt in. `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The
 machine has 2 cores, so meshes of 4 and more processes share them: wall time shows that;
 CPU seconds show the division of work.
@@ -68,7 +73,15 @@ def parser() -> argparse.ArgumentParser:
         help="object space overlaps (percent; auto: the pre-pass chooses)",
     )
     p.add_argument("--node-threads", default="1", help="tracing threads per node to compare")
-    p.add_argument("--balance", default="even", help="image cuts to compare: even,cost")
+    p.add_argument(
+        "--balance", default="even", help="cuts to compare: even,cost,objects (MeshPlan.balance)"
+    )
+    p.add_argument(
+        "--max-share",
+        default="1",
+        help="object space's budget: the share of the objects a node may hold, one for every "
+        "mesh or one per mesh of --meshes (e.g. 0.5,0.25,0.15)",
+    )
     p.add_argument(
         "--modes",
         default="object",
@@ -169,10 +182,23 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
     ref = {k: s1["rays"][k] for k in COUNTS}
     print_header(name, image, camera, wall1, s1["trace_cpu_seconds"])
     runs = row_plan(args, overlaps)
-    for rows, cols in meshes:
+    shares = [float(v) for v in args.max_share.split(",")]
+    shares = shares * len(meshes) if len(shares) == 1 else shares
+    for (rows, cols), share in zip(meshes, shares, strict=True):
         for mode, overlap, thr, cut, (steal, copy) in runs:
             got, cut, side, order = run_row(
-                args, scene, image, camera, (rows, cols), mode, overlap, thr, cut, steal, copy
+                args,
+                scene,
+                image,
+                camera,
+                (rows, cols),
+                mode,
+                overlap,
+                thr,
+                cut,
+                steal,
+                copy,
+                share if mode == "object" else 1.0,
             )
             key = {
                 "scene": name,
@@ -223,7 +249,7 @@ def row_plan(args, overlaps) -> list[tuple]:
     ]
 
 
-def run_row(args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, copy):
+def run_row(args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, copy, share=1.0):
     """(what `on_mesh` returned, the row's cuts label, tile side, order) of one row: image
     space renders its tiling (overlap and cuts do not apply), object space its cuts."""
     rows, cols = mesh
@@ -262,6 +288,7 @@ def run_row(args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, co
         copies=copy,
         together=args.together,
         camera=camera,
+        max_share=share,
     )
     return got, cut + ("+steal" if steal else "") + ("+copies" if copy else ""), None, None
 

@@ -5,6 +5,7 @@ import statistics
 from pathlib import Path
 
 from meshnode.engine.counters import RAY_COUNTS
+from meshnode.mesh.stats import RAY_KINDS
 
 COUNTS = RAY_COUNTS
 
@@ -45,6 +46,14 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         if st["together"]
         else float("nan")
     )
+    frame_together = (
+        statistics.median(
+            w["one_node_cpu_seconds"] / w["busiest_frame_cpu_seconds"] for w in st["together"]
+        )
+        if st["together"]
+        else float("nan")
+    )
+    traced = sum(st["rays"][k] for k in RAY_KINDS)
     mean, top = link_bytes(st)
     return {
         "scene": key["scene"],
@@ -70,6 +79,14 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "together_speedup": together,
         "paired_speedups": st["paired_speedups"],
         "work_speedup": work1 / work_busiest,
+        # on whole processes' CPU for the frame (kernels, routing, framing, event loop): in
+        # turns, one process's frame CPU over the busiest node's; at once (`together`), one
+        # process's tracing thread over the busiest node's whole process
+        "frame_speedup": s1["frame_cpu_seconds"] / max(st["busiest_node_frame_cpu_seconds"], 1e-9),
+        "frame_together_speedup": frame_together,
+        "busiest_frame_cpu_seconds": st["busiest_node_frame_cpu_seconds"],
+        "passes_per_ray": st["rays_passed"] / max(traced, 1),
+        "max_share": st["mesh"].get("max_share", 1.0),
         "parallel_efficiency": st["parallel_efficiency"],
         "setup_seconds": st["setup_seconds"],
         "imbalance": st["imbalance"],
@@ -105,7 +122,8 @@ def print_header(name: str, image, camera, wall1: float, cpu1: float) -> None:
         f"{'at once':>7} {'batch':>5} "
         f"{'work':>5} {'wall':>5} "
         f"{'effic':>5} {'imbalance':>9} {'setup s':>7} {'rays passed':>11} "
-        f"{'bytes/link mean':>15} {'max':>11} {'held':>4} shared"
+        f"{'bytes/link mean':>15} {'max':>11} {'held':>4} {'budget':>6} {'frame':>5} "
+        f"{'frame@once':>10} {'pass/ray':>8} shared"
     )
 
 
@@ -130,7 +148,9 @@ def print_row(row: dict) -> None:
         f"{row['imbalance']:>9.2f} {row['setup_seconds']:>7.2f} "
         f"{row['rays_passed']:>11} {row['bytes_per_link_mean']:>15,.0f} "
         f"{row['bytes_per_link_max']:>11,} "
-        f"{row['objects_held_max_share']:>4.0%} "
+        f"{row['objects_held_max_share']:>4.0%} {row['max_share']:>6.0%} "
+        f"{row['frame_speedup']:>5.2f} {row['frame_together_speedup']:>10.2f} "
+        f"{row['passes_per_ray']:>8.3f} "
         f"{','.join(map(str, row['shared'])) or '-'}"
     )
 

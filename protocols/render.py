@@ -28,7 +28,7 @@ MAX_NODES = 1024  # nodes in one mesh
 EVERYWHERE = ((1, 1, 1), b"\x80")  # Partition's occupancy map of one occupied voxel: skips nothing
 STORAGES = ("auto", "csr", "hash")
 STRUCTURES = ("auto", "grid", "bvh")  # the engine's structure (auto: chosen per node by content)
-BALANCES = ("even", "cost")
+BALANCES = ("even", "cost", "objects")
 MODES = ("object", "image")
 TILINGS = ("none", "static", "dynamic")
 ORDERS = ("rows", "centre")  # dynamic tiles: dealt row by row, or from the image's centre out
@@ -131,7 +131,12 @@ class MeshPlan(Spec):
     (with copies): cells whose engines every node holds besides (the cost pre-pass picks the
     cells most of the work is traced in, within the nodes' memory): any node then makes and
     traces the tiles whose eye rays those cells take on, so the work gathered in one cell
-    spreads over the whole mesh, not only over that cell's four neighbours."""
+    spreads over the whole mesh, not only over that cell's four neighbours.
+    balance "objects" (object space): cells cut in three axes so each holds about 1/N of the
+    objects, whatever the view (`host.planning.objectcells`). `max_share` and `node_bytes`
+    are a memory budget (object space): no node holds more than `max_share` of the scene's
+    objects, its copies counted, nor engines over `node_bytes` bytes (0: no bound); the
+    host plans within them and every node checks its own engines against `node_bytes`."""
 
     rows: int = 1
     cols: int = 1
@@ -145,6 +150,8 @@ class MeshPlan(Spec):
     steal: bool = False
     copies: bool = False
     shared: tuple = ()
+    max_share: float = 1.0
+    node_bytes: int = 0
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -166,6 +173,10 @@ class MeshPlan(Spec):
         if self.copies and self.mode != "object":
             self.fail("copies", "neighbours' copies are object space's (image space holds all)")
         self._check_shared()
+        self.want_number("max_share", 0.0, 1.0, open_lo=True)
+        self.want_int("node_bytes", 0, 1 << 60)
+        if self.mode == "image" and (self.max_share < 1 or self.node_bytes):
+            self.fail("max_share", "a memory budget is object space's (image space holds all)")
         if self.mode == "image" and self.balance != "even":
             self.fail("balance", "image-space tiles need no cost cuts (balance 'even')")
 

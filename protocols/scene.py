@@ -71,6 +71,8 @@ def _empty(dtype):
 # The primitive tables of a scene, in the order gids and engine-local ids follow: the one list of
 # object kinds every reader, the download, the node's checks and the engine's variants use.
 OBJECT_KINDS = ("spheres", "triangles", "polygons", "cones")
+# every record array of a scene: what its memory is counted from
+SCENE_TABLES = (*OBJECT_KINDS, "vertices", "materials", "lights")
 
 
 @dataclass

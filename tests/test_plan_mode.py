@@ -36,9 +36,14 @@ def test_choose_mode_weighs_the_engine_against_the_smallest_node():
     assert asked == (MeshPlan(2, 2, mode="object"), "asked for with --mode object")
 
 
-@pytest.mark.parametrize("node_memory,mode", [(None, "image"), (1000, "object")])
-def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(node_memory, mode):
-    scene = read_nff(spd_scene("balls_s1.nff"))  # ~0.3 MB of engine: fits in any node
+@pytest.mark.parametrize(
+    "name,node_memory,mode",
+    # balls_s1: a few KB of engine, fits in any node; tetra: about 1.8 MB, over a quarter of
+    # 4 MiB, while half of it (and the occupancy map) stays within 4 MiB on each of two nodes
+    [("balls_s1.nff", None, "image"), ("tetra.nff", 4 << 20, "object")],
+)
+def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(name, node_memory, mode):
+    scene = read_nff(spd_scene(name))
     rs = records(width=32, height=32, threads=1)
     ref, ref_stats = render(scene, *rs)
     notices: list[str] = []
@@ -58,12 +63,15 @@ def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(node_
     assert all(m > 64 << 20 for m in stats["mode"]["node_memory_bytes"])  # real reports
     assert notices[0].startswith(f"plan: {mode} space on 1x2 (")
     assert (stats["rays_passed"] > 0) == (mode == "object")
+    if node_memory:  # in object space --node-memory bounds each node's engines
+        assert stats["mesh"]["node_bytes"] == node_memory
+        assert all(0 < n["engine_bytes_held"] <= node_memory for n in stats["nodes"])
     assert stats["rays"]["eye_rays"] == ref_stats["rays"]["eye_rays"]
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
 
 
 def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
-    scene = str(spd_scene("tetra_s1.nff"))
+    scene = str(spd_scene("tetra.nff"))  # about 1.8 MB of engine: over a quarter of 4M
     out = str(tmp_path / "t.png")
     assert (
         main(
@@ -79,7 +87,7 @@ def test_the_cli_says_which_plan_it_chose_first(tmp_path, capsys):
                 "--height",
                 "16",
                 "--node-memory",
-                "1K",
+                "4M",
             ]
         )
         == 0

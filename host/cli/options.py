@@ -176,6 +176,18 @@ def memory_size(text: str) -> int:
     return int(value)
 
 
+def share(text: str) -> float:
+    """A share of the scene: a number above 0 and at most 1, or a percentage ('25%')."""
+    t = text.strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a share (e.g. 0.25 or 25%)") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: a share must be above 0 and at most 1")
+    return value
+
+
 def focus_distance(text: str):
     """Metres as a number; words as they are (Focus says which words it takes)."""
     try:

@@ -14,6 +14,7 @@ from host.cli.options import (
     overlap,
     record_option,
     sampling_options,
+    share,
 )
 from host.planning.holding import OVERLAPS
 from host.planning.plan import PLAN_MODES
@@ -238,8 +239,19 @@ def _plan_options(r) -> None:
     r.add_argument(
         "--node-memory",
         type=memory_size,
-        help="plan --mode auto as if every node had "
-        "this much memory (e.g. 512M, 8G) instead of what the nodes report",
+        help="the memory each node gives its engines (e.g. 512M, 8G), instead of what the "
+        "nodes report: --mode auto picks image space when the whole scene's engine takes a "
+        "quarter of it at most; in object space no node's engines may exceed it",
+    )
+    record_option(
+        r,
+        "--max-share",
+        MeshPlan,
+        "max_share",
+        "object space: no node may hold more than this share of the scene's objects (its "
+        "copies counted, e.g. 0.25); the plan gives up what breaks it, or fails before any "
+        "work naming the smallest share it reached",
+        type=share,
     )
 
 

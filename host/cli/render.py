@@ -14,6 +14,7 @@ import sys
 from host.camera.policy import fit_aspect, lens_camera, pinhole
 from host.camera.setup import Focus
 from host.cli.options import FLAGS, given_fields
+from host.planning.budget import check_divisible
 from host.planning.holding import OVERLAPS
 from host.run.cluster import parse_mesh, read_cluster
 from host.run.errors import MeshError
@@ -24,7 +25,7 @@ from host.run.outputs import output_paths, write_images
 from host.scene.formats import SceneError, read_scene
 from meshnode.transport.tls import TlsFiles
 from protocols.camera import CameraSampling
-from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 
 CAMERA_ONLY = (CameraSampling, Focus)
 PINHOLE_TOO = ("sampling", "threshold")  # CameraSampling fields the pinhole takes as well
@@ -256,6 +257,7 @@ def _run(scene, image, engine, camera, args, watch=None):
 
         rows, cols, addresses = read_cluster(args.cluster)
         plan = _plan(rows, cols, args)
+        check_divisible(scene, RenderSpec(image.sized(scene.view), engine, plan))
         secret = read_secret(args.secret_file)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
         img, stats = _mesh(
@@ -270,6 +272,7 @@ def _run(scene, image, engine, camera, args, watch=None):
         )
     rows, cols = parse_mesh(args.mesh)
     plan = _plan(rows, cols, args)
+    check_divisible(scene, RenderSpec(image.sized(scene.view), engine, plan))  # before any node
     if plan.nodes == 1:
         why = AUTO_WHY if args.mesh == "auto" else "asked for with --mesh 1x1"
         threads = engine.threads or os.cpu_count() or 1

@@ -17,7 +17,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from host.planning.budget import budgeted, holdings, within
+from host.planning.cells import scene_box
 from host.planning.holding import at_overlap, choose_holding, overlap_report, too_big_for_memory
+from host.planning.objectcells import object_cells
+from host.planning.partition import partition
 from host.planning.prepass import efficiency, node_costs
 from host.planning.rectangles import bands, column_rows, splits
 from host.planning.shared_cells import busiest_vs_none, choose_shared
@@ -60,7 +64,7 @@ def _even_out(seen: list, n: int) -> list[int]:
     )
 
 
-FAMILIES = ("shared rows", "rows per column", "work map")
+FAMILIES = ("shared rows", "rows per column", "work map", "objects")
 
 
 def balanced_cuts(
@@ -82,12 +86,19 @@ def balanced_cuts(
     for overlap in sorted({plan.overlap, *overlaps}):
         at = at_overlap(spec, overlap)
         tried = _tries(scene, at, rounds, families, work)
-        best = min(tried, key=lambda t: t[0])
+        # cuts that break the memory budget are no candidates (the even ones stay the base)
+        fits = [t for t in tried if not budgeted(plan) or _within(scene, at, t)]
+        if not fits:
+            continue
+        best = min(fits, key=lambda t: t[0])
         if overlap != plan.overlap and too_big_for_memory(
             scene, at, *best[1:3], best[5], memory, too_big
         ):
             continue
         found[overlap] = best, tried
+    if not found:  # nothing within the budget: the plan's retreats decide (`plan_render`)
+        cells = object_cells(scene, scene_box(scene), plan.rows, plan.cols)
+        return Cuts(None, None, {"family": "objects", "within_budget": False}, cells)
     overlap = min(found, key=lambda o: (found[o][0][0], o))  # ties: the smaller overlap
     (best, bx, by, cost, family, cells), tried = found[overlap]
     base = tried[0][0] or 1.0
@@ -123,6 +134,14 @@ def balanced_cuts(
     return Cuts(bx, by, report, cells, occupancy, overlap, shared)
 
 
+def _within(scene, spec: RenderSpec, attempt: tuple) -> bool:
+    """Whether the cuts of a try (busiest, xs, ys, costs, family, cells) keep every node
+    within the plan's memory budget (`host.planning.budget`)."""
+    _, xs, ys, _, _, cells = attempt
+    part, keep = partition(scene, spec, xs, ys, cells)
+    return within(spec.plan, holdings(scene, spec, part, keep))
+
+
 def _shared_on_even(
     scene, spec: RenderSpec, even_try: tuple, occupancy: bool, memory: int, busiest, chosen
 ) -> tuple[tuple, dict] | None:
@@ -156,6 +175,10 @@ def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[t
     for family in families:
         if family == "work map":
             tried += map_tries(scene, spec, rounds, work)
+        elif family == "objects":  # cells that divide the objects, whatever the work
+            cells = object_cells(scene, scene_box(scene), plan.rows, plan.cols)
+            cost = node_costs(scene, spec, None, None, cells)
+            tried.append((float(cost.max()), None, None, cost, "objects", cells))
         elif family == "shared rows" or plan.rows > 1 and plan.cols > 1:
             tried += _image_tries(scene, spec, rounds, family == "rows per column", even)
     return tried

@@ -6,30 +6,29 @@ held twice, so the choice is simulated, never guessed.
 
 from dataclasses import replace
 
+import numpy as np
+
 from host.planning.prepass import coarse_mesh, node_costs
+from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
-from protocols.scene import SceneData
+from protocols.scene import SCENE_TABLES, SceneData
 
 FITS = 0.25  # the share of a node's memory its engine may take (image space when the whole
 # scene's does; `--overlap auto` picks among the overlaps whose largest node's does)
 OVERLAPS = (2.0, 30.0, 60.0, 100.0)  # `--overlap auto`'s candidates, percent
 
-ENGINE_BYTES_PER_RECORD_BYTE = 8  # tables and grid of a whole-scene engine (balls: 1.4 MB of
-# grid and 0.6 MB of tables over 0.3 MB of records; gears, tetra and teapot alike or less)
+HIERARCHY_BYTES_PER_OBJECT = 128  # a hierarchy has fewer inner nodes than objects, one row each
+ENGINE_FIXED_BYTES = 4096  # an engine's small arrays (boxes, offsets, the map's corners)
 
 
 def engine_bytes(scene: SceneData) -> int:
-    """An engine's memory, estimated from the object records it is built from."""
-    tables = (
-        scene.spheres,
-        scene.triangles,
-        scene.polygons,
-        scene.vertices,
-        scene.cones,
-        scene.materials,
-        scene.lights,
-    )
-    return ENGINE_BYTES_PER_RECORD_BYTE * sum(t.nbytes for t in tables)
+    """An engine's memory (`Engine.nbytes`) over these objects, before anything is built:
+    the records, the kernels' tables built from them, and a hierarchy's rows at most (a
+    node under a byte budget builds the hierarchy: `MeshPlan.node_bytes`)."""
+    tables = build_tables(scene)
+    own = sum(a.nbytes for a in vars(tables).values() if isinstance(a, np.ndarray))
+    records = sum(getattr(scene, t).nbytes for t in SCENE_TABLES)
+    return int(own + records + HIERARCHY_BYTES_PER_OBJECT * tables.n + ENGINE_FIXED_BYTES)
 
 
 def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:

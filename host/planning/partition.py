@@ -13,6 +13,7 @@ import numpy as np
 
 from host.planning.cells import grown, node_cells, scene_box, traced
 from host.planning.clip import holders
+from host.planning.objectcells import object_cells
 from host.planning.occupancy import occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from meshnode.engine.occupancy import occupancy_arrays
@@ -28,7 +29,8 @@ def partition(
     """The plan made concrete: every node's rectangles of the sample grid and its box, and
     which objects each node holds (nodes x objects, bool). Object space: one rectangle a
     node, cut at `xs`, `ys` (default even); cells (los, his) as given (cut where the work
-    lies: `host.planning.workmap`), else cut to match the rectangles; the scene's occupancy map
+    lies: `host.planning.workmap`), else cut by the objects under balance "objects"
+    (`host.planning.objectcells`), else cut to match the rectangles; the scene's occupancy map
     unless `occupancy` is False (where walking it costs more than the passes it saves:
     `host.planning.holding`). Image space: tiles, every box the scene's, every object on every
     node."""
@@ -40,7 +42,9 @@ def partition(
         los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
         keep = np.ones((plan.nodes, build_tables(scene).n), bool)
         return Partition.make(rects, los, his, box, owner), keep
-    if cells is None:
+    if cells is None and plan.balance == "objects":
+        cells = object_cells(scene, box, plan.rows, plan.cols)
+    elif cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
     occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE

@@ -12,6 +12,7 @@ import numpy as np
 
 from host.camera.setup import CameraSetup
 from host.planning.balance import balanced_cuts
+from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
@@ -69,7 +70,44 @@ def plan_render(
     if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
         spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
     part, keep = partition(scene, spec, xs, ys, cells, occupancy)
+    if budgeted(spec.plan):
+        spec, part, keep, balance["budget"] = _within_budget(scene, spec, part, keep)
+        balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
+
+
+def _within_budget(scene: SceneData, spec: RenderSpec, part, keep):
+    """(spec, partition, holders, report) keeping every node within the plan's memory
+    budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
+    that keeps it; BudgetError naming the smallest share reached when none does. Under a byte
+    bound the nodes build hierarchies (their memory is known before they are built; a
+    grid's is not: shells' took 260 MB for 1.5 MB of objects)."""
+    gave_up = []
+    if spec.plan.node_bytes and spec.engine.structure == "auto":
+        spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
+        gave_up.append("structure auto: a hierarchy's memory is known before it is built")
+    held = holdings(scene, spec, part, keep)
+    for fallback in retreats(spec.plan):
+        if within(spec.plan, held):
+            break
+        gave_up.append(f"{_difference(spec.plan, fallback)}: fullest node {max(held['share']):.1%}")
+        spec = replace(spec, plan=fallback)
+        part, keep = partition(scene, spec)
+        held = holdings(scene, spec, part, keep)
+    if not within(spec.plan, held):
+        raise refusal(scene, spec.plan, held)
+    return spec, part, keep, report(spec.plan, held, gave_up)
+
+
+def _difference(was: MeshPlan, now: MeshPlan) -> str:
+    """What a retreat gave up, in the user's terms."""
+    if was.balance != now.balance:
+        return f"--balance {was.balance} (cells cut by the objects instead)"
+    if was.shared != now.shared:
+        return "shared cells"
+    if was.copies != now.copies:
+        return "--copies"
+    return f"--overlap {was.overlap:g} (0 instead)"
 
 
 def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
@@ -100,6 +138,8 @@ def choose_mode(
     size = f"the whole scene's engine (about {_size(need)})"
     if plan.balance != "even":
         return replace(plan, mode="object"), f"--balance {plan.balance} cuts object space"
+    if plan.max_share < 1:
+        return replace(plan, mode="object"), "--max-share divides the scene: object space"
     if plan.steal or plan.copies:
         lever = "--steal" if plan.steal else "--copies"
         return replace(plan, mode="object"), f"{lever} is object space's lever"

@@ -85,6 +85,8 @@ async def render_on_mesh(
     why = f"MeshPlan.mode = {plan.mode}"
     if mode is not None:
         plan, why = choose_mode(plan, scene, memories, mode, node_memory)
+    if node_memory is not None and plan.mode == "object" and not plan.node_bytes:
+        plan = replace(plan, node_bytes=node_memory)  # the engines' budget (host.planning.budget)
     if notice is not None:
         notice(f"plan: {plan.mode} space on {plan.rows}x{plan.cols} ({why})")
     lost: list[dict] = []

@@ -23,6 +23,9 @@ def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "setup_seconds": setup,  # planned, configured, every engine built and link up
         "wall_seconds": wall,
         "busiest_node_cpu_seconds": max(busy),
+        # the whole process's CPU for the frame (kernels, routing, deposits, framing, the
+        # event loop): what a speedup counts; a simulated node reports none
+        "busiest_node_frame_cpu_seconds": max(s.get("frame_cpu_seconds", 0.0) for s in nodes),
         # with routing rays and deposits around the kernels: what a node's batches cost
         "busiest_node_batch_cpu_seconds": max(s.get("batch_cpu_seconds", 0.0) for s in nodes),
         # sum of node tracing CPU / (nodes x busiest): 1 when every node works as long
@@ -31,6 +34,8 @@ def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "objects_per_node": own.tolist(),
         # with the neighbours' copies (MeshPlan.copies)
         "objects_held_per_node": [int(own[plan.held(n)].sum()) for n in range(plan.nodes)],
+        # bytes of every engine each node built (its own and its copies), as it reports them
+        "engine_bytes_held_per_node": [s.get("engine_bytes_held", 0) for s in nodes],
         # the share of the scene's objects the node holding most holds, each counted once:
         # what the object-space mesh saves against image space (where it is 1)
         "objects_held_max_share": max(

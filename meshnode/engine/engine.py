@@ -26,7 +26,7 @@ from meshnode.engine.trace import first_hits, routed, trace_batch
 from meshnode.engine.variants import KERNELS, variant_of
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
-from protocols.scene import SceneData
+from protocols.scene import SCENE_TABLES, SceneData
 from protocols.spec import default
 
 # Above this many objects tested per ray crossing the node (the hierarchy's surface area
@@ -187,6 +187,29 @@ class Engine:
             },
             "preprocess_seconds": self.preprocess_seconds,
         }
+        self.stats["engine_bytes"] = self.nbytes()
+
+    def nbytes(self) -> int:
+        """Bytes of every array this engine keeps (its tables, structure, occupancy map and
+        the records it was built from): what a node's memory budget bounds
+        (`MeshPlan.node_bytes`)."""
+        seen: dict[int, int] = {}
+        parts = (
+            self.tables.__dict__.values(),
+            self.geometry,
+            self.shading,
+            self.grid_arrays,
+            self.bvh_arrays,
+            self.occupancy,
+            (getattr(self.scene, k) for k in SCENE_TABLES),
+        )
+        for part in parts:
+            for a in part:
+                while isinstance(a, np.ndarray) and isinstance(a.base, np.ndarray):
+                    a = a.base  # a view (the hierarchy's references) counts as its array
+                if isinstance(a, np.ndarray):
+                    seen[id(a)] = a.nbytes  # an array shared by two parts counts once
+        return int(sum(seen.values()))
 
     @classmethod
     def from_spec(

@@ -8,7 +8,7 @@ import numpy as np
 
 from meshnode.engine import Engine
 from protocols.render import EngineSpec
-from protocols.scene import SceneData
+from protocols.scene import SCENE_TABLES, SceneData
 
 
 class EngineCache:
@@ -40,15 +40,7 @@ class EngineCache:
 def _engine_key(scene: SceneData, options: dict) -> bytes:
     """A digest of everything an engine is built from: objects, background, options."""
     h = hashlib.blake2b(digest_size=32)
-    for table in (
-        scene.materials,
-        scene.lights,
-        scene.spheres,
-        scene.triangles,
-        scene.polygons,
-        scene.vertices,
-        scene.cones,
-    ):
+    for table in (getattr(scene, t) for t in SCENE_TABLES):
         h.update(len(table).to_bytes(8, "little"))
         h.update(np.ascontiguousarray(table).tobytes())
     h.update(

@@ -23,6 +23,7 @@ from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
 from protocols.dtypes import DEPOSIT, RAY
+from protocols.errors import BadFrame
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData, View
@@ -103,6 +104,13 @@ class NodeCore:
         # traces here the segments m would take on, to the same bits. (A simulated mesh sets
         # the very engines its other cores trace with.)
         self.copies = {m: engines.get(c, keep, **self._options(m))[0] for m, c in copies.items()}
+        held = (self.engine, *self.copies.values())
+        self.engine_bytes = sum(e.stats["engine_bytes"] for e in held)
+        if spec.plan.node_bytes and self.engine_bytes > spec.plan.node_bytes:
+            raise BadFrame(
+                f"node {node}'s engines take {self.engine_bytes} bytes, over the plan's budget "
+                f"of {spec.plan.node_bytes} (MeshPlan.node_bytes)"
+            )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
 
     def _options(self, node: int) -> dict:

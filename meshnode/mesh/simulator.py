@@ -45,6 +45,7 @@ class NodeRecord:
     """What one simulated node did."""
 
     objects: int = 0
+    engine_bytes: int = 0  # of every engine it holds (its own, copies), as the engines count
     batches: int = 0
     rays_sent: int = 0
     sent_to: dict = field(default_factory=lambda: defaultdict(int))  # node -> rays sent it
@@ -120,7 +121,13 @@ class _Mesh:
             )
             for n in range(torus.size)
         ]
-        self.records = [NodeRecord(objects=c.engine.stats["objects"]) for c in cores]
+        self.records = [
+            NodeRecord(
+                objects=c.engine.stats["objects"],
+                engine_bytes=sum(e.stats["engine_bytes"] for e in (c.engine, *c.copies.values())),
+            )
+            for c in cores
+        ]
         self.nodes = [_Node(self, n) for n in range(torus.size)]
         self.rng = np.random.default_rng(seed)
         self.delay = delay

@@ -67,6 +67,7 @@ class Session(Driver):
         self.ready = False  # engine built and every neighbour linked
         self.created = time.perf_counter()
         self.setup_seconds = 0.0
+        self.frame_cpu_start = time.process_time()  # moved to the frame's start once built
         self.tasks: set[asyncio.Task] = set()
         self.spawn(self.heartbeat())
 
@@ -137,6 +138,7 @@ class Session(Driver):
             self.setup_seconds = time.perf_counter() - self.created
             self.ready = True
             self.progress(0)
+            self.frame_cpu_start = time.process_time()
             self.spawn(self.work())
         except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
             self.fail(e)
@@ -356,6 +358,10 @@ class Session(Driver):
         report["chunks_taken"] = self.sched.chunks_taken
         report["chunks_given_by_state"] = dict(self.sched.given_in)
         report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
+        report["engine_bytes_held"] = self.core.engine_bytes  # its own engine and copies
+        # the whole process's CPU from the frame's start (kernels, routing, deposits,
+        # framing, the event loop): what a node's speedup counts
+        report["frame_cpu_seconds"] = time.process_time() - self.frame_cpu_start
         self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
 
     async def close(self) -> None:

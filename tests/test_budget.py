@@ -1,0 +1,161 @@
+"""Object space under a memory budget (`MeshPlan.max_share`, `node_bytes`): cells that divide
+the objects whatever the view, a plan that keeps every node within its budget (asserted from
+the nodes' own reports) and still gives the single node's image and ray counts, and a scene
+that cannot be divided refused before any work, naming the smallest share reached."""
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from bench.generate import tetra
+from host.cli import main
+from host.planning.budget import BudgetError
+from host.planning.cells import grown, node_cells, scene_box, traced
+from host.planning.clip import holders
+from host.planning.holding import engine_bytes
+from host.planning.objectcells import object_cells
+from host.planning.plan import plan_render
+from host.run.framebuffer import Framebuffer
+from host.run.localmesh import LocalMesh
+from host.run.meshclient import render_on_mesh
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
+from host.scene.subset import subset
+from meshnode.engine.counters import RAY_COUNTS
+from meshnode.mesh.simulator import simulate
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from tests.conftest import spd_scene
+
+SIZE = 32
+ONE = EngineSpec(threads=1)
+
+
+def single(scene, size=SIZE):
+    img, stats = render(scene, ImageSpec(width=size, height=size), ONE, progress=False)
+    return img, {k: stats["rays"][k] for k in RAY_COUNTS}
+
+
+def planned_render(scene, plan: MeshPlan, size=SIZE):
+    """(image, counts, per-node records, the plan made) of a simulated mesh render planned
+    as the host plans a real one (`plan_render`: budget, retreats, cuts)."""
+    planned = plan_render(scene, ImageSpec(width=size, height=size), ONE, plan)
+    part = planned.partition
+    scenes = [subset(scene, planned.holders[n]) for n in range(part.nodes)]
+    out = simulate(scenes, planned.spec, part)
+    w, h = planned.spec.image.size
+    fb = Framebuffer(w, h, planned.spec.corners, planned.spec.image.spp)
+    for d in out.deposits:
+        fb.add(d["pixel"], d["rgb"])
+    totals = out.totals()
+    return fb.image(), {k: totals[k] for k in RAY_COUNTS}, out.nodes, planned
+
+
+def test_object_cells_tile_the_scene_and_divide_the_objects():
+    # Cells cut from the image follow the view: teapot 2x2 left one node 90% of the
+    # objects, tetra 54%. Cut by the objects, the fullest holds near 1/N plus what its cuts
+    # cross, on every mesh shape, and the cells tile the scene's box exactly.
+    for name, limits in (("tetra.nff", (0.3, 0.15, 0.1)), ("teapot.nff", (0.3, 0.16, 0.11))):
+        scene = read_nff(spd_scene(name))
+        box = scene_box(scene)
+        for (rows, cols), limit in zip(((2, 2), (3, 3), (4, 4)), limits, strict=True):
+            los, his = object_cells(scene, box, rows, cols)
+            assert np.all(los <= his)
+            assert np.prod(his - los, axis=1).sum() == pytest.approx(np.prod(box[1] - box[0]))
+            inside = (los >= box[0] - 1e-12) & (his <= box[1] + 1e-12)
+            assert inside.all()
+            share = holders(scene, *traced(*grown(los, his, 1.0))).mean(axis=1)
+            view = node_cells(scene, box, 512, 512, rows, cols)
+            by_view = holders(scene, *traced(*grown(*view, 1.0))).mean(axis=1)
+            assert share.max() <= limit < by_view.max(), (name, rows, cols)
+
+
+@pytest.mark.parametrize(
+    "name,shape,max_share,extra",
+    [
+        ("tetra_s3.nff", (1, 2), 0.8, {}),
+        ("tetra_s3.nff", (2, 2), 0.55, {}),
+        ("tetra_s3.nff", (2, 3), 0.4, {"overlap": 5.0}),
+        ("tetra_s3.nff", (3, 3), 0.4, {"balance": "cost"}),
+        ("balls_s2.nff", (2, 2), 0.5, {"copies": True}),
+        ("balls_s2.nff", (3, 3), 0.2, {"balance": "objects", "overlap": 0.0}),
+        ("teapot_s1.nff", (2, 3), 0.5, {"steal": True}),
+    ],
+)
+def test_a_budgeted_mesh_gives_the_single_node_image_within_its_budget(
+    name, shape, max_share, extra
+):
+    scene = read_nff(spd_scene(name))
+    ref, ref_counts = single(scene)
+    plan = MeshPlan(*shape, max_share=max_share, **extra)
+    img, counts, nodes, planned = planned_render(scene, plan)
+    assert counts == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    # the nodes' own reports: objects in the engines they built, each counted once
+    total = planned.holders.shape[1]
+    assert max(n.objects for n in nodes) <= max_share * total
+    budget = planned.balance["budget"]
+    assert [n.objects for n in nodes] == budget["objects_held"] or planned.spec.plan.copies
+    assert max(budget["share_held"]) <= max_share
+
+
+def test_a_byte_budget_holds_on_every_node_and_builds_hierarchies():
+    scene = read_nff(spd_scene("tetra.nff"))  # 4,096 triangles, about 1.8 MB of engine
+    ref, ref_counts = single(scene)
+    plan = MeshPlan(2, 2, node_bytes=1_000_000)
+    img, counts, nodes, planned = planned_render(scene, plan)
+    assert counts == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert planned.spec.engine.structure == "bvh"
+    assert all(0 < n.engine_bytes <= 1_000_000 for n in nodes)
+    # the host's estimate is what each node then counts, within the engine's small arrays
+    est = planned.balance["budget"]["engine_bytes"]
+    assert all(0 <= e - n.engine_bytes <= 0.2 * e for e, n in zip(est, nodes, strict=True))
+
+
+def test_a_scene_that_cannot_be_divided_is_refused_naming_the_smallest_share():
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    with pytest.raises(BudgetError, match=r"fullest node (\d+\.\d)% of the objects") as e:
+        plan_render(scene, ImageSpec(width=SIZE, height=SIZE), ONE, MeshPlan(2, 2, max_share=0.1))
+    reached = float(str(e.value).split("fullest node ")[1].split("%")[0]) / 100
+    assert 0.1 < reached < 0.5  # the objects' cells at overlap 0: about a quarter
+    with pytest.raises(BudgetError, match="--node-memory 1000 bytes"):
+        plan_render(scene, ImageSpec(width=SIZE, height=SIZE), ONE, MeshPlan(2, 2, node_bytes=1000))
+
+
+def test_the_cli_refuses_an_impossible_budget_before_starting_any_node(capsys, monkeypatch):
+    started = []
+    monkeypatch.setattr(LocalMesh, "__enter__", lambda self: started.append(self))
+    scene = str(spd_scene("balls_s2.nff"))
+    rc = main(["render", scene, "--mesh", "2x2", "--max-share", "5%", "-o", "/tmp/never.png"])
+    err = capsys.readouterr().err
+    assert rc == 2 and not started
+    assert "cannot divide the scene over 2x2 nodes within --max-share 0.05" in err
+    assert "fullest node" in err and "Traceback" not in err
+
+
+def test_a_scene_no_node_can_hold_renders_on_real_nodes_within_their_memory():
+    # A generated 16,384-triangle tetra (about 7 MB of engine) on 3x3 nodes each allowed a
+    # quarter of that: no single node could hold it, the mesh renders it, every node within
+    # its budget by its own report, and the image is one unbudgeted node's.
+    scene = tetra(7)
+    budget = engine_bytes(scene) // 4
+    ref, ref_stats = render(scene, ImageSpec(width=24, height=24), ONE, progress=False)
+    with LocalMesh(9) as addresses:
+        coro = render_on_mesh(
+            scene,
+            ImageSpec(width=24, height=24),
+            addresses,
+            MeshPlan(3, 3),
+            ONE,
+            mode="auto",
+            node_memory=budget,
+        )
+        img, stats = asyncio.run(asyncio.wait_for(coro, 240))
+    assert stats["mesh"]["mode"] == "object" and stats["mesh"]["node_bytes"] == budget
+    assert all(0 < n["engine_bytes_held"] <= budget for n in stats["nodes"])
+    assert all(n["frame_cpu_seconds"] > 0 for n in stats["nodes"])
+    assert {k: stats["rays"][k] for k in RAY_COUNTS} == {
+        k: ref_stats["rays"][k] for k in RAY_COUNTS
+    }
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

@@ -12,7 +12,8 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 8  # 8: MeshPlan.shared (7: TILES.owners; 6: MeshPlan.order; 5: OBJECTS name)
+PROTOCOL_VERSION = 9  # 9: arrays after the map, MeshPlan.max_share, node_bytes (8: MeshPlan.shared;
+# 7: TILES.owners; 6: MeshPlan.order; 5: OBJECTS name)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 

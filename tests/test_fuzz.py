@@ -33,7 +33,7 @@ from protocols import dtypes
 from protocols.camera import CameraSpec
 from protocols.dtypes import WIRE_DTYPES
 from protocols.errors import BadFrame, FrameTooLarge, ProtocolError
-from protocols.framing import HEADER, MAX_FRAME, FrameDecoder, decode_payload, encode
+from protocols.framing import HEADER, MAP, MAX_FRAME, FrameDecoder, decode_payload, encode
 from protocols.handshake import NONCE_BYTES, ROLES, auth, check_auth, check_hello, hello, proof
 from protocols.messages import FIELDS, OBJECT_TABLES, PROTOCOL_VERSION, Kind, make, parse
 from protocols.render import MeshPlan
@@ -346,8 +346,9 @@ def test_length_prefix_over_the_limit_is_refused_on_its_last_byte(size, max_fram
 
 @st.composite
 def payloads(draw):
-    """msgpack documents (maps or not, ARRAY_EXT and other extensions, bad array headers,
-    non-string keys), truncated or with a byte flipped, or plain noise."""
+    """Payloads of msgpack documents (maps or not, ARRAY_EXT and other extensions, bad array
+    headers, non-string keys) with a right or wrong map length and bytes for arrays after
+    them, truncated or with a byte flipped, or plain noise."""
     ext = st.builds(
         msgpack.ExtType,
         st.sampled_from([1, 1, 0, 2, 127]),
@@ -369,6 +370,9 @@ def payloads(draw):
         max_leaves=6,
     )
     raw = msgpack.packb(draw(doc), use_bin_type=True, default=lambda a: a.tobytes())
+    # a payload: the map's length, the map, then the bytes its arrays' records would be
+    raw = MAP.pack(draw(st.sampled_from([len(raw), len(raw), 0, 2**32 - 1]))) + raw
+    raw += draw(st.binary(max_size=96))
     how = draw(st.sampled_from(["as is", "cut", "flip", "noise"]))
     if how == "cut":
         raw = raw[: draw(st.integers(0, len(raw)))]

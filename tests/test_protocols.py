@@ -7,7 +7,7 @@ import pytest
 
 from protocols import dtypes
 from protocols.errors import BadFrame, FrameTooLarge, ProtocolError, UnknownKind, VersionMismatch
-from protocols.framing import FrameDecoder, encode
+from protocols.framing import ALIGN, FrameDecoder, encode
 from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make, parse
 from protocols.topology import Router, Torus
@@ -67,6 +67,31 @@ def test_array_with_wrong_length_is_refused():
     frame[-1:] = b""  # drop one byte of the array, fix the prefix
     frame[:4] = (len(frame) - 4).to_bytes(4, "big")
     with pytest.raises(BadFrame):
+        FrameDecoder().feed(bytes(frame))
+
+
+def test_arrays_follow_the_map_aligned_and_arrive_as_writable_views():
+    # Records travel after the map (copied once into the frame, once into the payload on
+    # the other side): each starts ALIGN bytes in, whatever the map's length, and decodes to
+    # an aligned, writable array the kernels can take as they are.
+    for reason in ("", "x", "xyz" * 7):
+        message = {
+            "k": int(Kind.ERROR),
+            "reason": reason,
+            "a": ray_batch(3),
+            "b": np.zeros(0, dtypes.DEPOSIT),
+            "c": np.arange(5, dtype=dtypes.WIRE_DTYPES["i8"]),
+        }
+        (got,) = FrameDecoder().feed(encode(message))
+        for key in "abc":
+            a = got[key]
+            np.testing.assert_array_equal(a, message[key])
+            assert a.flags.aligned and a.flags.writeable
+            assert a.ctypes.data % ALIGN == 0
+    frame = bytearray(encode(make(Kind.RAYS, rays=ray_batch(2), dest=0)))
+    frame += b"\0" * 8  # bytes after the arrays: refused, never ignored
+    frame[:4] = (len(frame) - 4).to_bytes(4, "big")
+    with pytest.raises(BadFrame, match="bytes after the map's arrays"):
         FrameDecoder().feed(bytes(frame))
 
 

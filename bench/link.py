@@ -1,13 +1,18 @@
 """Link throughput: rays per second over one TCP link between two processes, end to end
 (encode a RAY batch into a frame, send, receive, decode back into a RAY array), next to a raw
-socket copy of the same bytes between two processes (the machine's limit).
+socket copy of the same bytes between two processes (the machine's limit), in turns (link, raw,
+link, raw ...: this machine's speed moves by the minute, so each pair shares its spell), each
+pair's ratio and their median printed. Beside it, what a passed ray costs: the CPU of both
+processes per ray through the link, against the CPU of one traced segment (one node tracing a
+generated tetra and balls in this process).
 
-    python -m bench.link [--rays-per-batch 65536] [--batches 200]
+    python -m bench.link [--rays-per-batch 65536] [--batches 200] [--runs 3]
 """
 
 import argparse
 import asyncio
 import socket
+import statistics
 import subprocess
 import sys
 import time
@@ -45,7 +50,7 @@ def receiver(mode: str) -> None:
                 break
             start = start or time.perf_counter()
             total += n
-        print(total, time.perf_counter() - start, flush=True)
+        print(total, time.perf_counter() - start, time.process_time(), flush=True)
         return
 
     async def main():
@@ -70,7 +75,7 @@ def receiver(mode: str) -> None:
         server = await asyncio.start_server(accept, "127.0.0.1", 0)
         print(server.sockets[0].getsockname()[1], flush=True)
         await done.wait()
-        print(result["rays"], result["seconds"], flush=True)
+        print(result["rays"], result["seconds"], time.process_time(), flush=True)
 
     _loop_run(main())
 
@@ -85,12 +90,14 @@ def _spawn(mode):
     return p, int(p.stdout.readline())
 
 
-def run_link(batch: np.ndarray, batches: int) -> float:
-    """Rays per second through Link: the sender encodes every batch afresh."""
+def run_link(batch: np.ndarray, batches: int) -> tuple[float, float]:
+    """(rays per second, CPU seconds of both processes) through Link: the sender encodes
+    every batch afresh."""
     from meshnode.transport.link import Link
     from protocols.messages import Kind, make
 
     proc, port = _spawn("link")
+    cpu = time.process_time()
 
     async def send():
         link = await Link.connect(f"127.0.0.1:{port}", "receiver")
@@ -101,9 +108,10 @@ def run_link(batch: np.ndarray, batches: int) -> float:
         await link.close()
 
     _loop_run(send())
-    rays, seconds = proc.stdout.readline().split()
+    cpu = time.process_time() - cpu
+    rays, seconds, theirs = proc.stdout.readline().split()
     proc.wait()
-    return int(rays) / float(seconds)
+    return int(rays) / float(seconds), cpu + float(theirs)
 
 
 def run_raw(frame: bytes, batches: int, rays_per_batch: int) -> float:
@@ -112,10 +120,26 @@ def run_raw(frame: bytes, batches: int, rays_per_batch: int) -> float:
     with socket.create_connection(("127.0.0.1", port)) as s:
         for _ in range(batches):
             s.sendall(frame)
-    total, seconds = proc.stdout.readline().split()
+    total, seconds, _ = proc.stdout.readline().split()
     proc.wait()
     assert int(total) == len(frame) * batches
     return rays_per_batch * batches / float(seconds)
+
+
+def segment_ns() -> dict[str, float]:
+    """CPU nanoseconds of one traced segment, one node in this process (after a warm run),
+    on generated SPD scenes: what a pass must cost well under."""
+    from bench.generate import balls, tetra
+    from host.run.oneprocess import render
+    from protocols.render import EngineSpec, ImageSpec
+
+    out = {}
+    for name, scene in (("tetra 6", tetra(6)), ("balls 3", balls(3))):
+        image = ImageSpec(width=256, height=256)
+        render(scene, image, EngineSpec(threads=1), progress=False)
+        _, stats = render(scene, image, EngineSpec(threads=1), progress=False)
+        out[name] = 1e9 * stats["trace_cpu_seconds"] / stats["rays"]["ray_segments"]
+    return out
 
 
 def main(argv=None) -> int:
@@ -123,6 +147,7 @@ def main(argv=None) -> int:
     p.add_argument("--role", choices=("link", "raw"), help=argparse.SUPPRESS)
     p.add_argument("--rays-per-batch", type=int, default=65536)
     p.add_argument("--batches", type=int, default=200)
+    p.add_argument("--runs", type=int, default=3, help="link / raw pairs, in turns")
     args = p.parse_args(argv)
     if args.role:
         receiver(args.role)
@@ -135,16 +160,35 @@ def main(argv=None) -> int:
     batch["d"] = (0.0, 0.0, 1.0)
     batch["pixel"] = np.arange(len(batch))
     frame = encode(make(Kind.RAYS, rays=batch, dest=1))
-    link = run_link(batch, args.batches)
-    raw = run_raw(frame, args.batches, args.rays_per_batch)
     mb = len(frame) * args.batches / 1e6
+    rays = args.batches * args.rays_per_batch
     print(
         f"{args.batches} batches of {args.rays_per_batch} rays ({len(frame):,} bytes a frame, "
-        f"{mb:,.0f} MB in all)"
+        f"{mb:,.0f} MB in all), {args.runs} pairs in turns"
     )
-    print(f"meshnode link (encode, send, receive, decode): {link / 1e6:6.2f} M rays/s")
-    print(f"raw socket copy of the same bytes:             {raw / 1e6:6.2f} M rays/s")
-    print(f"link / raw = {link / raw:.2f}; goal 5 M rays/s: {'met' if link >= 5e6 else 'NOT met'}")
+    print(
+        f"{'run':>3} {'link M rays/s':>13} {'raw M rays/s':>12} {'link/raw':>8} {'CPU ns/ray':>10}"
+    )
+    ratios, costs = [], []
+    for run in range(args.runs):
+        link, cpu = run_link(batch, args.batches)
+        raw = run_raw(frame, args.batches, args.rays_per_batch)
+        ratios.append(link / raw)
+        costs.append(1e9 * cpu / rays)
+        print(
+            f"{run + 1:>3} {link / 1e6:>13.2f} {raw / 1e6:>12.2f} {link / raw:>8.2f} "
+            f"{costs[-1]:>10.0f}"
+        )
+    print(
+        f"link / raw: median {statistics.median(ratios):.2f}, least {min(ratios):.2f} "
+        f"(goal at least 0.6 in every run: {'met' if min(ratios) >= 0.6 else 'NOT met'})"
+    )
+    pass_ns = statistics.median(costs)
+    for name, ns in segment_ns().items():
+        print(
+            f"a pass (both ends' CPU) {pass_ns:.0f} ns against a traced segment of {name} "
+            f"{ns:.0f} ns: {pass_ns / ns:.2f} segments"
+        )
     return 0
 
 

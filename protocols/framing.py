@@ -122,6 +122,24 @@ class FrameDecoder:
         """Bytes received but not yet part of a whole frame."""
         return len(self._head) + self._filled
 
+    def buffer(self, least: int) -> memoryview:
+        """Where the next bytes may be written: the rest of a payload still arriving, when at
+        least `least` bytes of it are missing (a reader then receives a large frame's records
+        straight into their place: the one copy on this side); else None, and they come
+        through `feed`."""
+        if self._body is not None and len(self._body) - self._filled >= least:
+            return memoryview(self._body[self._filled :])
+        return None
+
+    def wrote(self, n: int) -> list[dict]:
+        """`n` bytes were written into `buffer()`: the frame they complete, if any."""
+        self._filled += n
+        if self._filled < len(self._body):
+            return []
+        body, self._body, self._filled = self._body, None, 0
+        self._head.clear()
+        return [decode_payload(body)]
+
     def feed(self, data) -> list[dict]:
         view, out, at = memoryview(data).cast("B"), [], 0
         while at < len(view):

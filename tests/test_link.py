@@ -109,3 +109,56 @@ async def _until(ready, tries: int = 500) -> None:
             return
         await asyncio.sleep(0)
     pytest.fail("the host was told nothing")
+
+
+class FakeTransport:
+    """What `_Receiver` calls on a transport: pausing and resuming reading, counted."""
+
+    def __init__(self):
+        self.paused = 0
+        self.resumed = 0
+
+    def pause_reading(self):
+        self.paused += 1
+
+    def resume_reading(self):
+        self.resumed += 1
+
+
+def _deliver(receiver, data: bytes, piece: int) -> int:
+    """Feed `data` as a transport does (into whatever buffer the receiver offers, at most
+    `piece` bytes a read); the number of reads that went straight into a frame's payload."""
+    direct, at = 0, 0
+    while at < len(data):
+        buf = receiver.get_buffer(-1)
+        n = min(len(buf), piece, len(data) - at)
+        buf[:n] = data[at : at + n]
+        direct += receiver.direct
+        receiver.buffer_updated(n)
+        at += n
+    return direct
+
+
+def test_large_frames_are_received_in_place_and_reading_pauses_until_taken():
+    from meshnode.transport.link import READ_HIGH, _Receiver
+    from protocols.framing import FrameDecoder, encode
+
+    transport = FakeTransport()
+    receiver = _Receiver(None, transport, FrameDecoder(), b"")
+    rays = np.zeros(40_000, RAY)  # about 4 MB a frame: most of it read straight into place
+    rays["pixel"] = np.arange(len(rays))
+    frames = [encode(make(Kind.RAYS, rays=rays, dest=k)) for k in range(3)]
+    small = encode(make(Kind.SHUTDOWN))
+    direct = _deliver(receiver, b"".join([frames[0], small, frames[1], frames[2]]), 65536)
+    assert direct > 0.9 * 3 * len(frames[0]) / 65536  # not through the scratch buffer
+    assert len(receiver.ready) == 4 and transport.paused == 1  # over READ_HIGH: paused once
+    assert 3 * rays.nbytes > READ_HIGH
+    got = []
+    while receiver.ready:
+        got.append(receiver.ready.popleft())
+        receiver.taken()
+    assert transport.resumed == 1
+    assert [m["k"] for m in got] == [Kind.RAYS, Kind.SHUTDOWN, Kind.RAYS, Kind.RAYS]
+    for k, m in zip((0, 1, 2), (got[0], got[2], got[3]), strict=True):
+        assert m["dest"] == k
+        np.testing.assert_array_equal(m["rays"], rays)

@@ -214,10 +214,12 @@ class Session(Driver):
         says to stop reading (the one place that decides: `Scheduler.rays_in`)."""
         check_rays(f, self.config.torus.size)
         self.stats.rays_in[m] += len(f["rays"])
+        # the frame's records as they arrived: aligned, writable, this message's own
+        # (`protocols.framing`), so taken on without another copy
         if f["dest"] == self.node:
-            return self.sched.rays_in(np.array(f["rays"]))
+            return self.sched.rays_in(f["rays"])
         self.sched.message_in()
-        self.post_data(f["dest"], Kind.RAYS, np.array(f["rays"]))
+        self.post_data(f["dest"], Kind.RAYS, f["rays"])
         return False
 
     def on_pixels(self, f: dict) -> None:

@@ -21,6 +21,7 @@ from host.planning.budget import budgeted, holdings, within
 from host.planning.cells import scene_box
 from host.planning.holding import at_overlap, choose_holding, overlap_report, too_big_for_memory
 from host.planning.objectcells import object_cells
+from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
 from host.planning.prepass import efficiency, node_costs
 from host.planning.rectangles import bands, column_rows, splits
@@ -175,9 +176,8 @@ def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[t
     for family in families:
         if family == "work map":
             tried += map_tries(scene, spec, rounds, work)
-        elif family == "objects":  # cells that divide the objects, whatever the work
-            cells = object_cells(scene, scene_box(scene), plan.rows, plan.cols)
-            cost = node_costs(scene, spec, None, None, cells)
+        elif family == "objects":  # cells that divide the objects, then the work
+            cells, cost, _ = balanced_object_cells(scene, spec, object_limit(scene, plan))
             tried.append((float(cost.max()), None, None, cost, "objects", cells))
         elif family == "shared rows" or plan.rows > 1 and plan.cols > 1:
             tried += _image_tries(scene, spec, rounds, family == "rows per column", even)

@@ -9,9 +9,11 @@ of them), so the two halves of every cut land on two halves of the torus and mos
 a cell enter a neighbour's. Cells may be any boxes: a ray is handed to whichever node's cell
 holds it and routed there over as many links as it takes (`meshnode.engine.trace.owners`).
 
-An object is counted where the centre of its bounds lies; one straddling a cut is held by both
-sides, so the fullest node holds about 1/N of the objects plus those its cuts cross (and the
-overlap's).
+An object straddling a cut is held by both sides, so the fullest node holds about 1/N of the
+objects plus those its cuts cross (and the overlap's). With a work estimate per object (the
+cost pre-pass's, `host.planning.objectwork`), each cut instead evens the work of the two sides
+per node, among the cuts that keep each side's objects per node within a limit (the memory
+budget's, or a little over the fewest the cut could leave): memory first, then work.
 """
 
 import numpy as np
@@ -19,64 +21,91 @@ import numpy as np
 from meshnode.engine.tables import build_tables
 from protocols.scene import SceneData
 
+CANDIDATES = 64  # cut positions tried on each axis
+SLACK = 1.25  # without a limit, a work-evening cut may leave this much over the fewest objects
 
-def object_cells(scene: SceneData, box, rows: int, cols: int):
-    """(los, his), each (rows*cols, 3): node r*cols+c's cell, the cells tiling `box`, cut so
-    that the node holding most objects (its cell's, those crossing its cuts included) holds
-    as few as the cuts can make it."""
+
+def object_cells(scene: SceneData, box, rows: int, cols: int, weight=None, limit=None):
+    """(los, his), each (rows*cols, 3): node r*cols+c's cell, the cells tiling `box`. Without
+    `weight`, cut so that the node holding most objects (its cell's, and those crossing its
+    cuts) holds as few as the cuts can make it; with `weight` (work per object of
+    `build_tables(scene)`), so that the nodes' work is even, each side of a cut holding at
+    most `limit` objects per node (None: SLACK times the fewest that cut could leave)."""
     tb = build_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
+    w = None if weight is None else np.asarray(weight, float)
     los, his = np.empty((rows * cols, 3)), np.empty((rows * cols, 3))
-    _bisect(bounds, np.arange(tb.n), lo, hi, (0, rows, 0, cols), cols, los, his)
+    cut = _Cutter(bounds, w, limit)
+    cut.bisect(np.arange(tb.n), lo, hi, (0, rows, 0, cols), cols, los, his)
     return los, his
 
 
-def _bisect(bounds, idx, lo, hi, block, cols, los, his) -> None:
-    """Cut the box (lo, hi), which holds the objects `idx`, among the nodes of `block` (rows
-    r0..r1, columns c0..c1 of the mesh): halve the block's longer side, and the box where
-    the objects divide as the two halves' node counts do."""
-    r0, r1, c0, c1 = block
-    if (r1 - r0) * (c1 - c0) == 1:
-        los[r0 * cols + c0], his[r0 * cols + c0] = lo, hi
-        return
-    if c1 - c0 >= r1 - r0:
-        k = c0 + (c1 - c0) // 2
-        first, second, nodes = (r0, r1, c0, k), (r0, r1, k, c1), (k - c0, c1 - k)
-    else:
-        k = r0 + (r1 - r0) // 2
-        first, second, nodes = (r0, k, c0, c1), (k, r1, c0, c1), (k - r0, r1 - k)
-    olo, ohi = bounds[0][idx], bounds[1][idx]
-    axis, cut = _cut(olo, ohi, lo, hi, nodes)
-    mid_hi, mid_lo = hi.copy(), lo.copy()
-    mid_hi[axis] = mid_lo[axis] = cut
-    _bisect(bounds, idx[olo[:, axis] <= cut], lo, mid_hi, first, cols, los, his)
-    _bisect(bounds, idx[ohi[:, axis] >= cut], mid_lo, hi, second, cols, los, his)
+class _Cutter:
+    """The recursive bisection's inputs: every object's bounds, its work (or None) and the
+    objects a node may hold (or None)."""
+
+    def __init__(self, bounds, weight, limit):
+        self.lo, self.hi = bounds
+        self.weight, self.limit = weight, limit
+
+    def bisect(self, idx, lo, hi, block, cols, los, his) -> None:
+        """Cut the box (lo, hi), which holds the objects `idx`, among the nodes of `block`
+        (rows r0..r1, columns c0..c1 of the mesh): halve the block's longer side, and the box
+        where the objects (or their work) divide as the halves' node counts do."""
+        r0, r1, c0, c1 = block
+        if (r1 - r0) * (c1 - c0) == 1:
+            los[r0 * cols + c0], his[r0 * cols + c0] = lo, hi
+            return
+        if c1 - c0 >= r1 - r0:
+            k = c0 + (c1 - c0) // 2
+            first, second, nodes = (r0, r1, c0, k), (r0, r1, k, c1), (k - c0, c1 - k)
+        else:
+            k = r0 + (r1 - r0) // 2
+            first, second, nodes = (r0, k, c0, c1), (k, r1, c0, c1), (k - r0, r1 - k)
+        olo, ohi = self.lo[idx], self.hi[idx]
+        w = None if self.weight is None else self.weight[idx]
+        axis, cut = _cut(olo, ohi, w, lo, hi, nodes, self.limit)
+        mid_hi, mid_lo = hi.copy(), lo.copy()
+        mid_hi[axis] = mid_lo[axis] = cut
+        self.bisect(idx[olo[:, axis] <= cut], lo, mid_hi, first, cols, los, his)
+        self.bisect(idx[ohi[:, axis] >= cut], mid_lo, hi, second, cols, los, his)
 
 
-CANDIDATES = 64  # cut positions tried on each axis, between the centres' quantiles
-
-
-def _cut(olo: np.ndarray, ohi: np.ndarray, lo, hi, nodes: tuple[int, int]) -> tuple[int, float]:
-    """(axis, position) of the cut whose fuller side, per node, holds fewest objects: the
-    objects below it (those crossing it too) shared by `nodes[0]` nodes, those above by
-    `nodes[1]`. Tried at CANDIDATES quantiles of the objects' centres on each axis (an object
-    crossing the cut is held on both sides, so the cut that divides the count best is not
-    always the one at the count's quantile: a tree's long branches)."""
+def _cut(olo, ohi, w, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, float]:
+    """(axis, position) of one cut, tried at CANDIDATES quantiles of the objects' centres on
+    each axis: the one whose fuller side per node holds fewest objects (the objects below
+    it, those crossing it too, shared by `nodes[0]` nodes, those above by `nodes[1]`: an
+    object crossing the cut is held on both sides, so the cut at the count's quantile is not
+    always the best: a tree's long branches); with work `w`, among the cuts within the
+    objects' limit, the one whose busier side per node has least work."""
     if not len(olo):
         axis = int(np.argmax(hi - lo))
         return axis, float(lo[axis] + nodes[0] / sum(nodes) * (hi[axis] - lo[axis]))
     share = nodes[0] / sum(nodes)
-    q = np.clip(share + np.linspace(-0.5, 0.5, CANDIDATES) * min(share, 1 - share), 0, 1)
-    best = (np.inf, 0, 0.0)
+    if w is None:
+        q = np.clip(share + np.linspace(-0.5, 0.5, CANDIDATES) * min(share, 1 - share), 0, 1)
+    else:
+        q = np.linspace(0.0, 1.0, CANDIDATES + 2)[1:-1]
+    tries = []  # (objects score, work score, axis, position)
     for axis in range(3):
         centres = 0.5 * (olo[:, axis] + ohi[:, axis])
         cuts = np.clip(np.quantile(centres, q), lo[axis], hi[axis])
         below = np.searchsorted(np.sort(olo[:, axis]), cuts, side="right")
         above = len(olo) - np.searchsorted(np.sort(ohi[:, axis]), cuts, side="left")
-        score = np.maximum(below / nodes[0], above / nodes[1])
-        score += 1e-9 * np.abs(q - share)  # ties: nearest the even share
-        i = int(np.argmin(score))
-        if score[i] < best[0]:
-            best = (float(score[i]), axis, float(cuts[i]))
-    return best[1], best[2]
+        held = np.maximum(below / nodes[0], above / nodes[1])
+        if w is None:
+            work = np.abs(q - share)  # ties: nearest the even share
+        else:
+            order = np.argsort(centres, kind="stable")
+            cum = np.concatenate([[0.0], np.cumsum(w[order])])
+            left = cum[np.searchsorted(centres[order], cuts, side="right")]
+            work = np.maximum(left / nodes[0], (cum[-1] - left) / nodes[1])
+        tries += zip(held.tolist(), work.tolist(), [axis] * len(cuts), cuts.tolist(), strict=True)
+    fewest = min(t[0] for t in tries)
+    if w is None:
+        best = min(tries, key=lambda t: (t[0], t[1]))
+    else:
+        cap = max(fewest, limit if limit is not None else SLACK * fewest)
+        best = min((t for t in tries if t[0] <= cap), key=lambda t: (t[1], t[0]))
+    return best[2], float(best[3])

@@ -14,6 +14,7 @@ from host.camera.setup import CameraSetup
 from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.holding import FITS, choose_holding, engine_bytes
+from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
 from protocols.partition import Partition
@@ -61,6 +62,9 @@ def plan_render(
             scene, spec, overlaps=overlaps, memory=memory
         )
         balance.update(report, seconds=time.perf_counter() - t0)
+    elif plan.mode == "object" and plan.nodes > 1 and plan.balance == "objects":
+        cells, _, report = balanced_object_cells(scene, spec, object_limit(scene, plan))
+        balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None).max()
         overlap, occupancy, report = choose_holding(
@@ -92,11 +96,23 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep):
             break
         gave_up.append(f"{_difference(spec.plan, fallback)}: fullest node {max(held['share']):.1%}")
         spec = replace(spec, plan=fallback)
-        part, keep = partition(scene, spec)
-        held = holdings(scene, spec, part, keep)
+        part, keep, held = _objects_within(scene, spec)
     if not within(spec.plan, held):
         raise refusal(scene, spec.plan, held)
     return spec, part, keep, report(spec.plan, held, gave_up)
+
+
+def _objects_within(scene: SceneData, spec: RenderSpec):
+    """(partition, holders, holdings) of cells cut by the objects: evened on the pre-pass's
+    work within the budget's objects per node (`host.planning.objectwork`), or where those
+    still break the budget, cut for the fewest objects alone."""
+    cells, _, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))
+    part, keep = partition(scene, spec, cells=cells)
+    held = holdings(scene, spec, part, keep)
+    if not within(spec.plan, held):
+        part, keep = partition(scene, spec)
+        held = holdings(scene, spec, part, keep)
+    return part, keep, held
 
 
 def _difference(was: MeshPlan, now: MeshPlan) -> str:

@@ -35,7 +35,8 @@ def coarse_spec(spec: RenderSpec) -> RenderSpec:
     a tile, a 768-sample render's coarse pass had 4 tiles to spread over a 3x3)."""
     width, height = spec.sample_grid
     scale = COARSE / max(width, height)
-    plan = replace(spec.plan, tile=max(1, round(spec.plan.tile * scale)))
+    # (the byte budget is the planner's to check, on the plan it makes: not each try's)
+    plan = replace(spec.plan, tile=max(1, round(spec.plan.tile * scale)), node_bytes=0)
     image = ImageSpec(
         width=max(plan.cols, round(width * scale)),
         height=max(plan.rows, round(height * scale)),

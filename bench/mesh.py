@@ -175,6 +175,7 @@ def main(argv=None) -> int:
 def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, bad: list) -> None:
     """One scene: one node sized and measured here, then every row of `row_plan` on every
     mesh; rows go to `results`, count mismatches to `bad`."""
+    from host.planning.budget import BudgetError
     from host.scene.nff import read_nff
 
     scene = read_nff(args.scenes / f"{name}.nff")
@@ -186,20 +187,25 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
     shares = shares * len(meshes) if len(shares) == 1 else shares
     for (rows, cols), share in zip(meshes, shares, strict=True):
         for mode, overlap, thr, cut, (steal, copy) in runs:
-            got, cut, side, order = run_row(
-                args,
-                scene,
-                image,
-                camera,
-                (rows, cols),
-                mode,
-                overlap,
-                thr,
-                cut,
-                steal,
-                copy,
-                share if mode == "object" else 1.0,
-            )
+            try:
+                got, cut, side, order = run_row(
+                    args,
+                    scene,
+                    image,
+                    camera,
+                    (rows, cols),
+                    mode,
+                    overlap,
+                    thr,
+                    cut,
+                    steal,
+                    copy,
+                    share if mode == "object" else 1.0,
+                )
+            except BudgetError as e:  # a budget this scene cannot be divided within
+                print(f"{rows}x{cols:<3} refused: {e}")
+                results.append({"scene": name, "mesh": f"{rows}x{cols}", "refused": str(e)})
+                continue
             key = {
                 "scene": name,
                 "mesh": f"{rows}x{cols}",

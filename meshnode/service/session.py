@@ -169,14 +169,12 @@ class Session(Driver):
         self.outboxes[hop].post(message, records.nbytes)
 
     def to_host(self, deposits: np.ndarray) -> None:
-        """Deposits toward the host: in object space straight from node 0, from others
-        through node 0 over the torus; in image space, where nothing else travels the torus,
-        straight from every node (through node 0 its pixels left node 0's row no time to
-        trace: 0.01-0.05 s of tracing CPU against 1.1 s on a 3x3)."""
-        if self.node == 0 or self.config.render.plan.mode == "image":
-            self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
-        else:
-            self.post_data(0, Kind.PIXELS, deposits)
+        """Deposits straight to the host, from every node: through node 0 over the torus
+        (DESIGN.md 5's pixel packets) node 0 decoded and sent on every other node's, which
+        in image space left it no time to trace (0.01-0.05 s of tracing CPU against 1.1 s on
+        a 3x3) and in object space made it the busiest node by frame CPU (balls 3x3: 0.39 s
+        against the others' 0.21-0.33)."""
+        self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
 
     async def read(self, m: int, link: Link) -> None:
         try:

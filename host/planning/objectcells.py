@@ -10,8 +10,9 @@ a cell enter a neighbour's. Cells may be any boxes: a ray is handed to whichever
 holds it and routed there over as many links as it takes (`meshnode.engine.trace.owners`).
 
 An object straddling a cut is held by both sides, so the fullest node holds about 1/N of the
-objects plus those its cuts cross (and the overlap's). With a work estimate per object (the
-cost pre-pass's, `host.planning.objectwork`), each cut instead evens the work of the two sides
+objects plus those its cuts cross (and the overlap's). With an estimate of where in space the
+work lies (the cost pre-pass's, `host.planning.objectwork`), each cut instead evens the work of
+the two sides
 per node, among the cuts that keep each side's objects per node within a limit (the memory
 budget's, or a little over the fewest the cut could leave): memory first, then work.
 """
@@ -25,29 +26,58 @@ CANDIDATES = 64  # cut positions tried on each axis
 SLACK = 1.25  # without a limit, a work-evening cut may leave this much over the fewest objects
 
 
-def object_cells(scene: SceneData, box, rows: int, cols: int, weight=None, limit=None):
+def object_cells(scene: SceneData, box, rows: int, cols: int, work=None, limit=None):
     """(los, his), each (rows*cols, 3): node r*cols+c's cell, the cells tiling `box`. Without
-    `weight`, cut so that the node holding most objects (its cell's, and those crossing its
-    cuts) holds as few as the cuts can make it; with `weight` (work per object of
-    `build_tables(scene)`), so that the nodes' work is even, each side of a cut holding at
-    most `limit` objects per node (None: SLACK times the fewest that cut could leave)."""
+    `work`, cut so that the node holding most objects (its cell's, and those crossing its
+    cuts) holds as few as the cuts can make it; with `work` (a `WorkGrid`: where in space
+    the work lies), so that the nodes' work is even, each side of a cut holding at most
+    `limit` objects per node (None: SLACK times the fewest that cut could leave)."""
     tb = build_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
-    w = None if weight is None else np.asarray(weight, float)
     los, his = np.empty((rows * cols, 3)), np.empty((rows * cols, 3))
-    cut = _Cutter(bounds, w, limit)
+    cut = _Cutter(bounds, work, limit)
     cut.bisect(np.arange(tb.n), lo, hi, (0, rows, 0, cols), cols, los, his)
     return los, his
 
 
-class _Cutter:
-    """The recursive bisection's inputs: every object's bounds, its work (or None) and the
-    objects a node may hold (or None)."""
+class WorkGrid:
+    """Where in space the work lies: work per voxel of a grid over the scene's box (`lo`,
+    `hi`, `density` indexed x, y, z). Work is spatial, not only per object: a teapot's floor
+    is one object whose work (eye rays, shadow rays) spreads over the whole floor."""
 
-    def __init__(self, bounds, weight, limit):
+    def __init__(self, lo, hi, density: np.ndarray):
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.density = np.asarray(density, float)
+        self.edges = [
+            np.linspace(self.lo[a], self.hi[a], self.density.shape[a] + 1) for a in range(3)
+        ]
+
+    def fractions(self, lo, hi) -> np.ndarray:
+        """The share of every voxel inside the box (lo, hi)."""
+        parts = []
+        for a, e in enumerate(self.edges):
+            inside = np.minimum(e[1:], hi[a]) - np.maximum(e[:-1], lo[a])
+            parts.append(np.clip(inside / np.maximum(np.diff(e), 1e-300), 0.0, 1.0))
+        return parts[0][:, None, None] * parts[1][None, :, None] * parts[2][None, None, :]
+
+    def below(self, lo, hi, axis: int, cuts: np.ndarray) -> tuple[np.ndarray, float]:
+        """(work of the box (lo, hi) below each cut on `axis`, the box's whole work), the
+        work spread evenly inside each voxel."""
+        mass = self.density * self.fractions(lo, hi)
+        profile = mass.sum(axis=tuple(a for a in range(3) if a != axis))
+        e = np.clip(self.edges[axis], lo[axis], hi[axis])
+        cum = np.concatenate([[0.0], np.cumsum(profile)])
+        return np.interp(cuts, e, cum), float(cum[-1])
+
+
+class _Cutter:
+    """The recursive bisection's inputs: every object's bounds, where the work lies (a
+    `WorkGrid`, or None) and the objects a node may hold (or None)."""
+
+    def __init__(self, bounds, work, limit):
         self.lo, self.hi = bounds
-        self.weight, self.limit = weight, limit
+        self.work, self.limit = work, limit
 
     def bisect(self, idx, lo, hi, block, cols, los, his) -> None:
         """Cut the box (lo, hi), which holds the objects `idx`, among the nodes of `block`
@@ -64,46 +94,48 @@ class _Cutter:
             k = r0 + (r1 - r0) // 2
             first, second, nodes = (r0, k, c0, c1), (k, r1, c0, c1), (k - r0, r1 - k)
         olo, ohi = self.lo[idx], self.hi[idx]
-        w = None if self.weight is None else self.weight[idx]
-        axis, cut = _cut(olo, ohi, w, lo, hi, nodes, self.limit)
+        axis, cut = _cut(olo, ohi, self.work, lo, hi, nodes, self.limit)
         mid_hi, mid_lo = hi.copy(), lo.copy()
         mid_hi[axis] = mid_lo[axis] = cut
         self.bisect(idx[olo[:, axis] <= cut], lo, mid_hi, first, cols, los, his)
         self.bisect(idx[ohi[:, axis] >= cut], mid_lo, hi, second, cols, los, his)
 
 
-def _cut(olo, ohi, w, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, float]:
-    """(axis, position) of one cut, tried at CANDIDATES quantiles of the objects' centres on
-    each axis: the one whose fuller side per node holds fewest objects (the objects below
-    it, those crossing it too, shared by `nodes[0]` nodes, those above by `nodes[1]`: an
-    object crossing the cut is held on both sides, so the cut at the count's quantile is not
-    always the best: a tree's long branches); with work `w`, among the cuts within the
-    objects' limit, the one whose busier side per node has least work."""
+def _cut(olo, ohi, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, float]:
+    """(axis, position) of one cut of the box (lo, hi) holding the objects (olo, ohi): the
+    one whose fuller side per node holds fewest objects (the objects below it, those crossing
+    it too, shared by `nodes[0]` nodes, those above by `nodes[1]`: an object crossing the cut
+    is held on both sides, so the cut at the count's quantile is not always the best: a
+    tree's long branches), tried at CANDIDATES quantiles of the objects' centres on each
+    axis; with `work` (a WorkGrid), among the cuts within the objects' limit (those
+    quantiles, and CANDIDATES even steps across the box), the one whose busier side per
+    node has least work."""
     if not len(olo):
         axis = int(np.argmax(hi - lo))
         return axis, float(lo[axis] + nodes[0] / sum(nodes) * (hi[axis] - lo[axis]))
     share = nodes[0] / sum(nodes)
-    if w is None:
+    if work is None:
         q = np.clip(share + np.linspace(-0.5, 0.5, CANDIDATES) * min(share, 1 - share), 0, 1)
     else:
         q = np.linspace(0.0, 1.0, CANDIDATES + 2)[1:-1]
     tries = []  # (objects score, work score, axis, position)
     for axis in range(3):
         centres = 0.5 * (olo[:, axis] + ohi[:, axis])
-        cuts = np.clip(np.quantile(centres, q), lo[axis], hi[axis])
+        cuts = np.quantile(centres, q)
+        if work is not None:
+            cuts = np.concatenate([cuts, lo[axis] + q * (hi[axis] - lo[axis])])
+        cuts = np.clip(cuts, lo[axis], hi[axis])
         below = np.searchsorted(np.sort(olo[:, axis]), cuts, side="right")
         above = len(olo) - np.searchsorted(np.sort(ohi[:, axis]), cuts, side="left")
         held = np.maximum(below / nodes[0], above / nodes[1])
-        if w is None:
-            work = np.abs(q - share)  # ties: nearest the even share
+        if work is None:
+            busier = np.abs(q - share)  # ties: nearest the even share
         else:
-            order = np.argsort(centres, kind="stable")
-            cum = np.concatenate([[0.0], np.cumsum(w[order])])
-            left = cum[np.searchsorted(centres[order], cuts, side="right")]
-            work = np.maximum(left / nodes[0], (cum[-1] - left) / nodes[1])
-        tries += zip(held.tolist(), work.tolist(), [axis] * len(cuts), cuts.tolist(), strict=True)
+            left, total = work.below(lo, hi, axis, cuts)
+            busier = np.maximum(left / nodes[0], (total - left) / nodes[1])
+        tries += zip(held.tolist(), busier.tolist(), [axis] * len(cuts), cuts.tolist(), strict=True)
     fewest = min(t[0] for t in tries)
-    if w is None:
+    if work is None:
         best = min(tries, key=lambda t: (t[0], t[1]))
     else:
         cap = max(fewest, limit if limit is not None else SLACK * fewest)

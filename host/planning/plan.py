@@ -91,6 +91,10 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep):
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
         gave_up.append("structure auto: a hierarchy's memory is known before it is built")
     held = holdings(scene, spec, part, keep)
+    if not within(spec.plan, held) and spec.plan.balance == "objects":
+        gave_up.append(f"cells evened on the work: fullest node {max(held['share']):.1%}")
+        part, keep = partition(scene, spec)  # cut for the fewest objects alone
+        held = holdings(scene, spec, part, keep)
     for fallback in retreats(spec.plan):
         if within(spec.plan, held):
             break

@@ -181,3 +181,27 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     planned = plan_render(scene, ImageSpec(width=128, height=128), ONE, plan)
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
+
+
+def test_shared_cells_are_chosen_only_within_the_budget():
+    # Under copies the pre-pass may share the hottest cells with every node; under a budget
+    # only those that keep every node within it. With the budget at what the copies alone
+    # hold, every candidate is refused for it (and named so); without a budget the same
+    # candidates are tried on their simulated work alone.
+    from host.planning.budget import holdings
+    from host.planning.partition import partition
+    from host.planning.shared_cells import choose_shared
+    from protocols.render import RenderSpec
+
+    scene = read_nff(spd_scene("tetra.nff"))
+    image = ImageSpec(width=96, height=96).sized(scene.view)
+    open_plan = MeshPlan(4, 4, 1.0, copies=True)
+    spec = RenderSpec(image, plan=open_plan)
+    held = holdings(scene, spec, *partition(scene, spec))
+    tight = RenderSpec(image, plan=MeshPlan(4, 4, 1.0, copies=True, max_share=max(held["share"])))
+    chosen, report = choose_shared(scene, tight, None, None, None, True, 1.0, efficiency=0.0)
+    assert chosen == () and report["tried"]
+    refused = [r for r in report["too_big_for_memory"] if r.get("over")]
+    assert refused and all(r["over"] == "the plan's memory budget" for r in refused)
+    _, free = choose_shared(scene, spec, None, None, None, True, 1.0, efficiency=0.0)
+    assert len(free["simulated_busiest_vs_none"]) > 1  # without a budget they were simulated

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from host.planning.budget import budgeted, holdings, within
 from host.planning.holding import ratio, too_big_for_memory
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
@@ -35,8 +36,9 @@ def choose_shared(
     five nodes share its work whatever is stolen. Each of the SHARE_TRIES cells taking the
     most tiles is simulated shared on its own, the best kept if it lowers the busiest node
     by SHARE_GAIN, and then the next ones added while each does so; never past FITS of
-    `memory` (0: not known) for the largest node's engines; not tried where the cuts'
-    simulated `efficiency` is SHARE_BELOW or more already."""
+    `memory` (0: not known) for the largest node's engines, nor past the plan's memory
+    budget (`host.planning.budget`: the hottest cells that fit are shared); not tried where
+    the cuts' simulated `efficiency` is SHARE_BELOW or more already."""
     plan = spec.plan
     if (
         not plan.copies
@@ -54,6 +56,11 @@ def choose_shared(
     def cost(shared: tuple) -> float | None:
         at = replace(spec, plan=replace(plan, shared=shared))
         if too_big_for_memory(scene, at, xs, ys, cells, memory, too_big):
+            return None
+        if budgeted(plan) and not within(
+            plan, holdings(scene, at, *partition(scene, at, xs, ys, cells))
+        ):
+            too_big.append({"shared": list(shared), "over": "the plan's memory budget"})
             return None
         tried[shared] = float(node_costs(scene, at, xs, ys, cells, occupancy).max())
         return tried[shared]

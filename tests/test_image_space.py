@@ -116,6 +116,23 @@ def test_tiles_cover_every_pixel_exactly_once_and_are_dealt_round_robin():
         assert band_owner == list(range(n)) and sum(y1 - y0 for *_, y0, y1 in bands) == h
 
 
+def test_dynamic_tiles_dealt_last_are_half_size_and_cover_the_image_once():
+    # The tiles dealt last decide how evenly the nodes finish: in the last rows (at least
+    # nodes x buffer tiles) they are half the side; the rest stay whole; every sample once.
+    for w, h, tile, rows, cols, buffer in ((512, 512, 32, 4, 4, 2), (100, 70, 16, 2, 2, 1)):
+        plan = MeshPlan(rows, cols, mode="image", tiles="dynamic", tile=tile, buffer=buffer)
+        rects, _ = tiles(w, h, plan)
+        cover = np.zeros((h, w), int)
+        for x0, x1, y0, y1 in rects:
+            cover[y0:y1, x0:x1] += 1
+        assert (cover == 1).all()
+        sides = np.array([max(x1 - x0, y1 - y0) for x0, x1, y0, y1 in rects])
+        small = np.flatnonzero(sides <= tile // 2)
+        assert len(small) >= plan.nodes * buffer and small.min() > 0
+        assert (np.diff(small) == 1).all() and small[-1] == len(rects) - 1  # dealt last
+        assert (sides[: small.min()] > tile // 2).all()
+
+
 def test_static_tiles_spread_each_node_over_the_columns_and_rows():
     # Plain round-robin where the tile columns divide the nodes gave each node one column
     # of the image; every node must take tiles of many columns, as many as any other +- 1.

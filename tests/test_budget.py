@@ -174,13 +174,18 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     scene = read_nff(spd_scene(name))
     plan = MeshPlan(3, 3, balance="objects", max_share=0.25)
     spec = RenderSpec(ImageSpec(width=128, height=128).sized(scene.view), plan=plan)
-    cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan))
+    cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan), rounds=3)
     counted = node_costs(scene, spec, None, None, object_cells(scene, scene_box(scene), 3, 3))
     assert cost.max() <= 0.75 * counted.max()
     assert report["simulated_busiest_by_round"][0] == pytest.approx(counted.max())
     planned = plan_render(scene, ImageSpec(width=128, height=128), ONE, plan)
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
+    # the plan's own pre-pass is bounded by the render it plans: 128 x 128 at one sample
+    # is 4 coarse passes' samples, so a tenth of it affords no re-cut, and says so
+    assert planned.balance["rounds"] == 0 and "of 3" in planned.balance["rounds_reason"]
+    big = plan_render(scene, ImageSpec(width=256, height=256, spp=64), ONE, plan)
+    assert big.balance["rounds"] == 3
 
 
 def test_shared_cells_are_chosen_only_within_the_budget():

@@ -7,29 +7,38 @@ image (`host.planning.prepass`) and the cells re-cut where the measured work say
 kept within the objects a node may hold (`host.planning.objectcells`).
 """
 
+import time
+
 import numpy as np
 
 from host.planning.cells import scene_box
 from host.planning.objectcells import WorkGrid, object_cells
-from host.planning.prepass import node_costs
+from host.planning.prepass import coarse_pass, coarse_spec, costs, node_costs
 from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
 
-ROUNDS = 3  # re-cuts on the pre-pass's measured work
+ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
+PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
 GRID = 16  # voxels along each axis of the grid the measured work is spread on
 
 
-def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=ROUNDS):
+def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=None):
     """(cells, costs, report): cells cut by the objects (`object_cells`), then re-cut
     `rounds` times on the work the cost pre-pass measured (`node_costs`: the mesh simulated
     on a coarse image), each node's measured work spread over its cell on a grid of where
     the work was thought to lie (`WorkGrid`); the cuts whose simulated busiest node is least
     are kept. `limit`: the objects a node may hold (the budget's), else a little over the
-    fewest."""
+    fewest. `rounds` None: up to ROUNDS, as many as keep the pre-pass within PREPASS_SHARE
+    of the render's own tracing (`_affordable`: the report says how many and why)."""
     plan, box = spec.plan, scene_box(scene)
     cells = object_cells(scene, box, plan.rows, plan.cols, limit=limit)
-    cost = node_costs(scene, spec, None, None, cells)
+    began = time.process_time()
+    first = coarse_pass(scene, spec, None, None, cells)
+    cost, one = costs(first), time.process_time() - began
+    why = f"asked for {rounds}"
+    if rounds is None:
+        rounds, why = _affordable(spec, one, sum(r.cpu for r in first.nodes))
     tried = [(float(cost.max()), cells, cost)]
     grid = WorkGrid(*box, _object_density(scene, box))
     for _ in range(rounds):
@@ -43,8 +52,27 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
         cost,
         {
             "simulated_busiest_by_round": [t[0] for t in tried],
+            "rounds": rounds,
+            "rounds_reason": why,
+            "prepass_cpu_seconds": time.process_time() - began,
             "simulated_busiest_vs_objects_only": busiest / tried[0][0] if tried[0][0] else 1.0,
         },
+    )
+
+
+def _affordable(spec: RenderSpec, one: float, kernels: float) -> tuple[int, str]:
+    """(re-cuts, why): as many of ROUNDS as keep the pre-pass (each round a coarse pass of
+    `one` CPU seconds) within PREPASS_SHARE of the render's own tracing, estimated as the
+    coarse pass's kernels' CPU (`kernels`, all nodes: more than one node's, as passed rays
+    are traced again) scaled by the render's samples over the coarse pass's."""
+    per = spec.camera.sampling.rays if spec.camera is not None else spec.image.spp
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * per
+    coarse = coarse_spec(spec)
+    trace = kernels * samples / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
+    rounds = int(min(ROUNDS, max(0.0, (PREPASS_SHARE * trace - one) // max(one, 1e-9))))
+    return rounds, (
+        f"{rounds} of {ROUNDS}: a coarse pass takes {one:.2f} s of CPU and the render's "
+        f"tracing about {trace:.2f} s; the pre-pass may take {PREPASS_SHARE:.0%} of it"
     )
 
 

@@ -55,8 +55,18 @@ def node_costs(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True) -> n
     """Cost of every node on a coarse image cut at `xs`, `ys` (given on the full sample
     grid; None: even), its cells `cells` (None: from the image cuts), with or without the
     occupancy map: the mesh simulated in this process."""
+    return costs(coarse_pass(scene, spec, xs, ys, cells, occupancy))
+
+
+def coarse_pass(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
+    """The simulated mesh's Outcome on the coarse image (`node_costs`' arguments)."""
     coarse, part, scenes = coarse_mesh(scene, spec, xs, ys, cells, occupancy)
-    return np.array([r.cost for r in simulate(scenes, coarse, part).nodes], float)
+    return simulate(scenes, coarse, part)
+
+
+def costs(outcome) -> np.ndarray:
+    """Every simulated node's cost, in work units."""
+    return np.array([r.cost for r in outcome.nodes], float)
 
 
 def coarse_mesh(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):

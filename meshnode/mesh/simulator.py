@@ -46,6 +46,7 @@ class NodeRecord:
 
     objects: int = 0
     engine_bytes: int = 0  # of every engine it holds (its own, copies), as the engines count
+    cpu: float = 0.0  # seconds its batches spent in the kernels (the tracing threads' CPU)
     batches: int = 0
     rays_sent: int = 0
     sent_to: dict = field(default_factory=lambda: defaultdict(int))  # node -> rays sent it
@@ -231,6 +232,7 @@ class _Node(Driver):
         batch = self.core.trace(step.rays, step.primary, step.taker)
         rec.batches += 1
         before = rec.cost
+        rec.cpu += batch.counts.get("cpu_seconds", 0.0)
         add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
         self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done
         self.deliver(batch)

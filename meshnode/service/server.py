@@ -14,6 +14,13 @@ from concurrent.futures import ThreadPoolExecutor
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.scheduler import INCOMING_HIGH
 from meshnode.mesh.stats import available_memory
+from meshnode.service.admission import (
+    ADMIT_SECONDS,
+    AUTHENTICATED,
+    PER_ADDRESS,
+    Admission,
+    RefusalLog,
+)
 from meshnode.service.session import Config, Session
 from meshnode.transport.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
 from meshnode.transport.tls import NO_TLS, TlsFiles
@@ -21,7 +28,6 @@ from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
 
 log = logging.getLogger("meshnode")
-MAX_CONNECTIONS = 64  # links open at once (a mesh node needs its host and four neighbours)
 # A host that renders again at once can reach a node still closing the last render's session
 # (its tasks cancelled and awaited, its links dropped): it waits this long for that, not
 # refused as "rendering for another host" (a bench's back-to-back renders lost node 0 so and
@@ -65,6 +71,8 @@ class NodeService:
         self.stopped = asyncio.Event()
         self.tasks: set[asyncio.Task] = set()
         self.server: asyncio.Server | None = None
+        self.admission = Admission()  # who may be proving the secret, and how many hosts
+        self.refusals = RefusalLog(log)
 
     async def start(self) -> int:
         tls = (
@@ -152,22 +160,46 @@ class NodeService:
             await self.links_ready.wait()
 
     async def accept(self, reader, writer) -> None:
-        peer = "{}:{}".format(*writer.get_extra_info("peername")[:2])
+        """A new connection: admitted to the handshake (`meshnode.service.admission`: a
+        small pool, a few an address, a short deadline), then a neighbour's link kept for
+        its session or a host's served, within the authenticated capacity."""
+        address, port = writer.get_extra_info("peername")[:2]
+        peer = f"{address}:{port}"
         link = Link(reader, writer, peer)
-        if len(self.tasks) > MAX_CONNECTIONS:
-            log.warning("refused %s: %d links open already", peer, MAX_CONNECTIONS)
-            await link.close()
+        admitted, dropped = self.admission.arrive(link, address)
+        for old in dropped:
+            old.abort()
+            self.refusals.refused(old.peer, "the handshake pool is full: the oldest goes")
+        if not admitted:
+            link.abort()
+            self.refusals.refused(
+                peer, f"{PER_ADDRESS} connections from {address} are proving the secret already"
+            )
             return
         me = self.session.node if self.session else -1
         try:
-            fields = await answer(link, self.cluster, self.secret, me, available_memory())
-        except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
-            log.warning("refused %s: %s", peer, describe(e))
+            fields = await asyncio.wait_for(
+                answer(link, self.cluster, self.secret, me, available_memory()), ADMIT_SECONDS
+            )
+        except TimeoutError:
+            link.abort()
+            self.refusals.refused(peer, f"no proof of the secret within {ADMIT_SECONDS:g} s")
             return
+        except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
+            self.refusals.refused(peer, describe(e))
+            return
+        finally:
+            self.admission.leave(link)
         if fields["role"] == "node":
             self.neighbour(fields["node"], fields["render"], link)
             return
-        await self.serve_host(link)
+        if not self.admission.authenticate():
+            await self._refuse(link, f"node saturated: {AUTHENTICATED} hosts' links open")
+            return
+        try:
+            await self.serve_host(link)
+        finally:
+            self.admission.closed()
 
     def neighbour(self, m: int, render: bytes, link: Link) -> None:
         """Keep a link a neighbour opened until its session takes it: only the current

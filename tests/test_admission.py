@@ -1,0 +1,74 @@
+"""A stranger without the secret cannot stop a render (issue 41): connections still proving
+the secret share a small pool, a few from any one address, under a short deadline, and never
+take the capacity of authenticated links; refusals are logged at a bounded rate."""
+
+import asyncio
+import logging
+import socket
+
+from meshnode.service.admission import PER_ADDRESS, Admission, RefusalLog
+from tests.test_auth import serving, still_serves
+
+
+def test_the_pool_refuses_an_address_past_its_share_and_makes_room_from_the_oldest():
+    pool = Admission(handshaking=6, per_address=2)
+    assert pool.arrive("a1", "10.0.0.1") == (True, [])
+    assert pool.arrive("a2", "10.0.0.1") == (True, [])
+    assert pool.arrive("a3", "10.0.0.1") == (False, [])  # its address's share is taken
+    for i in range(4):
+        assert pool.arrive(f"b{i}", f"10.0.1.{i}") == (True, [])
+    assert pool.arrive("host", "10.0.9.9") == (True, ["a1"])  # full: the oldest goes
+    assert pool.arrive("a4", "10.0.0.1") == (True, ["a2"])  # a1 went: a share came free
+    pool.leave("host")
+    pool.leave("host")  # twice is harmless
+    assert len(pool.waiting) == 5 and pool.from_address["10.0.0.1"] == 1
+
+
+def test_refusals_are_logged_once_an_interval_with_a_count(caplog):
+    now = [0.0]
+    log = RefusalLog(logging.getLogger("meshnode"), every=10.0, clock=lambda: now[0])
+    with caplog.at_level(logging.WARNING, "meshnode"):
+        for i in range(1000):  # a flood within one interval: one line
+            now[0] = i * 0.001
+            log.refused(f"10.0.0.{i % 250}:1", "no proof of the secret")
+        now[0] = 12.0
+        log.refused("10.0.0.1:2", "no proof of the secret")
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2
+    assert lines[1].endswith("(999 more refused in the last 12 s)")
+
+
+async def _idle_sockets(port: int, sources: list[str], each: int) -> list[socket.socket]:
+    """Connections that never speak: `each` from every loopback source address."""
+    socks = []
+    for source in sources:
+        for _ in range(each):
+            s = socket.socket()
+            s.bind((source, 0))
+            s.setblocking(False)
+            try:
+                s.connect(("127.0.0.1", port))
+            except BlockingIOError:
+                pass
+            socks.append(s)
+    await asyncio.sleep(0)  # let the connects go out; the node accepts them as they come
+    return socks
+
+
+async def test_a_stranger_holding_idle_sockets_does_not_stop_a_host():
+    # Before: 80 idle sockets from one client made every real render fail in 2-3 s (a node
+    # took 64 connections, unauthenticated ones counted). One address now holds at most
+    # PER_ADDRESS; twenty addresses fill the pool, whose oldest makes room for the host.
+    service = await serving()
+    socks = []
+    try:
+        socks += await _idle_sockets(service.port, ["127.0.0.2"], 80)
+        await asyncio.wait_for(still_serves(service), 20)
+        assert service.admission.from_address["127.0.0.2"] <= PER_ADDRESS
+        socks += await _idle_sockets(service.port, [f"127.0.1.{i}" for i in range(1, 21)], 4)
+        await asyncio.wait_for(still_serves(service), 20)
+        assert len(service.admission.waiting) <= service.admission.handshaking
+    finally:
+        for s in socks:
+            s.close()
+        await asyncio.wait_for(service.shutdown(), 10)

@@ -26,6 +26,11 @@ class AuthFailed(ProtocolError):
     """The peer could not prove it holds the cluster secret (or this side could not)."""
 
 
+class Saturated(ProtocolError):
+    """The peer proved the secret, but the node has no room for another link of its kind
+    now (its hosts' links all taken); the dialler may try again."""
+
+
 def describe(error: BaseException) -> str:
     """`Type: message`; with an empty message (`str(TimeoutError())` is ""), the type and
     its cause, so no report ever ends in nothing."""

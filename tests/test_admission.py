@@ -72,3 +72,27 @@ async def test_a_stranger_holding_idle_sockets_does_not_stop_a_host():
         for s in socks:
             s.close()
         await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_saturated_node_says_so_and_the_host_tries_again_within_its_wait():
+    from host.run.connections import close_all, connect_all
+    from tests.test_auth import SECRET
+
+    service = await serving()
+    answers = iter([False, False, True])  # saturated twice, then a host's link is free
+    service.admission.authenticate = lambda: next(answers)
+    try:
+        links, memories = await asyncio.wait_for(
+            connect_all([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 10.0), 20
+        )
+        assert len(links) == 1 and memories[0] > 0
+        await close_all(links, shutdown=False)
+        service.admission.authenticate = lambda: False  # never free: refused by name
+        try:
+            await connect_all([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 0.5)
+        except Exception as e:  # noqa: BLE001 - the message is what is checked
+            assert "node saturated" in str(e)
+        else:
+            raise AssertionError("a saturated node was not refused")
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)

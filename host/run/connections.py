@@ -30,16 +30,31 @@ async def connect_all(addresses, cluster, secret, tls, wait: float) -> tuple[lis
     deadline = time.monotonic() + wait
     try:
         for n, address in enumerate(addresses):
-            left = max(deadline - time.monotonic(), 0.1)
-            link, theirs = await dial(
-                address, f"node {n} ({address})", cluster, secret, "host", tls=tls, wait=left
-            )
+            link, theirs = await _dial_within(deadline, address, n, cluster, secret, tls)
             links.append(link)
             memories.append(theirs["memory"])
     except (LinkClosed, ProtocolError) as e:
         await close_all(links, shutdown=False)
         raise MeshError(f"setting up the mesh: {describe(e)}") from e
     return links, memories
+
+
+SATURATED_PAUSE = 0.2  # seconds between tries of a node that says it is saturated
+
+
+async def _dial_within(deadline: float, address, n: int, cluster, secret, tls):
+    """`dial` node n, again while it says it is saturated (its hosts' links all taken:
+    `meshnode.service.admission`) and the deadline allows; then its refusal, by name."""
+    while True:
+        left = max(deadline - time.monotonic(), 0.1)
+        try:
+            return await dial(
+                address, f"node {n} ({address})", cluster, secret, "host", tls=tls, wait=left
+            )
+        except LinkClosed as e:
+            if "saturated" not in e.reason or time.monotonic() + SATURATED_PAUSE > deadline:
+                raise
+        await asyncio.sleep(SATURATED_PAUSE)
 
 
 async def configure(scene, planned: Planned, links: list[Link], addresses) -> None:

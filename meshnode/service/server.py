@@ -24,7 +24,7 @@ from meshnode.service.admission import (
 from meshnode.service.session import Config, Session
 from meshnode.transport.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
 from meshnode.transport.tls import NO_TLS, TlsFiles
-from protocols.errors import BadFrame, ProtocolError, describe
+from protocols.errors import BadFrame, ProtocolError, Saturated, describe
 from protocols.messages import Kind, make
 
 log = logging.getLogger("meshnode")
@@ -177,24 +177,34 @@ class NodeService:
             )
             return
         me = self.session.node if self.session else -1
+        hosts = []  # a host's link admitted into the authenticated capacity
+
+        def admit(fields: dict) -> None:
+            if fields["role"] == "host":
+                if not self.admission.authenticate():
+                    raise Saturated(f"node saturated: {AUTHENTICATED} hosts' links open")
+                hosts.append(True)
+
         try:
             fields = await asyncio.wait_for(
-                answer(link, self.cluster, self.secret, me, available_memory()), ADMIT_SECONDS
+                answer(link, self.cluster, self.secret, me, available_memory(), admit),
+                ADMIT_SECONDS,
             )
         except TimeoutError:
+            if hosts:
+                self.admission.closed()
             link.abort()
             self.refusals.refused(peer, f"no proof of the secret within {ADMIT_SECONDS:g} s")
             return
         except (ProtocolError, LinkClosed) as e:  # a bad handshake closes just this link
+            if hosts:  # admitted, then the handshake failed after all
+                self.admission.closed()
             self.refusals.refused(peer, describe(e))
             return
         finally:
             self.admission.leave(link)
         if fields["role"] == "node":
             self.neighbour(fields["node"], fields["render"], link)
-            return
-        if not self.admission.authenticate():
-            await self._refuse(link, f"node saturated: {AUTHENTICATED} hosts' links open")
             return
         try:
             await self.serve_host(link)

@@ -379,15 +379,16 @@ async def _dialler(
 
 
 async def answer(
-    link: Link, cluster: str, secret: bytes | None, node: int, memory: int = 0
+    link: Link, cluster: str, secret: bytes | None, node: int, memory: int = 0, admit=None
 ) -> dict:
     """The listener's side of the handshake, bounded in time and frame size: the dialler's
-    HELLO fields once it has proved the secret; otherwise it is told why, the link is
-    closed and ProtocolError or LinkClosed raised."""
+    HELLO fields once it has proved the secret (and `admit(fields)`, if given, raised no
+    Saturated); otherwise it is told why, the link is closed and ProtocolError or
+    LinkClosed raised."""
     link.allow(HANDSHAKE_FRAME)
     try:
         return await asyncio.wait_for(
-            _listener(link, cluster, secret or b"", node, memory), HANDSHAKE_SECONDS
+            _listener(link, cluster, secret or b"", node, memory, admit), HANDSHAKE_SECONDS
         )
     except TimeoutError:
         await link.close()
@@ -404,12 +405,14 @@ async def answer(
         raise
 
 
-async def _listener(link: Link, cluster: str, secret: bytes, node: int, memory: int) -> dict:
+async def _listener(link: Link, cluster: str, secret: bytes, node: int, memory: int, admit) -> dict:
     dialler = check_hello(await link.recv_raw(), cluster)
     mine = nonce()
     await link.send(hello(cluster, "node", node, mine, memory=memory))
     await link.send(auth(secret, "listener", dialler, mine))
     check_auth(await link.recv_raw(), secret, "dialler", dialler, mine)
+    if admit is not None:
+        admit(dialler)  # Saturated: the dialler hears why instead of WELCOME
     await link.send(make(Kind.WELCOME))
     link.allow(MAX_FRAME)
     return dialler

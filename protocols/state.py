@@ -10,3 +10,15 @@ class State(IntEnum):
     REFINE = 2  # adaptive sampling's second pass (a pass-through otherwise)
     FLUSH = 3  # last pixel packets on their way to the host
     DONE = 4
+
+
+EVERY_STATE = tuple(State)
+
+
+def states_of(adaptive: bool) -> tuple[State, ...]:
+    """The states a render goes through: REFINE (the second pass) and FLUSH (the kept
+    pixels' last packets) only under adaptive sampling; without it they would hold nothing,
+    yet each would cost the state packet its rounds of the ring (two of about three per
+    state: the simulated 8x8 image space spent more of its frame ending states than
+    tracing)."""
+    return EVERY_STATE if adaptive else (State.DOWNLOAD, State.TRACE, State.DONE)

@@ -19,7 +19,7 @@ import numpy as np
 from meshnode.mesh.feeds import ChunkFeed, Primaries
 from meshnode.mesh.steps import Enter, Flush, Give, SendPacket, Steal, Trace
 from meshnode.mesh.termination import Packet, Termination
-from protocols.state import State
+from protocols.state import EVERY_STATE, State
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
 PASSED_BATCH = 4096  # queued incoming messages merged into one batch of up to this many rays
@@ -45,6 +45,7 @@ class Scheduler:
         neighbours=(),
         steal: bool = False,
         passed_min: int = PASSED_MIN,
+        states: tuple = EVERY_STATE,
     ):
         self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
         # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
@@ -62,7 +63,7 @@ class Scheduler:
         self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
         self.passed_min = passed_min
-        self.term = Termination(node)
+        self.term = Termination(node, states)  # the states this render goes through
         self.state = State.DOWNLOAD
         self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
         # Queued rays by the engine that takes them (None: this node's own), and the engines

@@ -32,6 +32,7 @@ from meshnode.mesh.steps import Trace
 from meshnode.mesh.termination import Packet
 from protocols.partition import Partition
 from protocols.render import RenderSpec
+from protocols.state import states_of
 from protocols.topology import Torus
 
 MAX_ROUNDS = 1_000_000
@@ -119,6 +120,7 @@ class _Mesh:
                 neighbours=torus.links(n),
                 steal=spec.steals,
                 passed_min=passed_min,
+                states=states_of(spec.adaptive),
             )
             for n in range(torus.size)
         ]

@@ -36,9 +36,11 @@ class Packet:
 
 @dataclass
 class Termination:
-    """One node's side of the protocol."""
+    """One node's side of the protocol; `states`: the states the render goes through, in
+    order (`protocols.state.states_of`)."""
 
     node: int
+    states: tuple = tuple(State)
     sent: int = 0
     received: int = 0
     dirty: bool = True  # active since the packet last left; a node starts out busy
@@ -67,7 +69,7 @@ class Termination:
             self.dirty = False
         elif packet.last_busy == self.node and packet.balanced():
             if packet.state < State.DONE:
-                packet.state += 1
+                packet.state = int(next(x for x in self.states if x > packet.state))
                 self.advances.append(packet.state)
         packet.round += 1
         return packet

@@ -27,7 +27,7 @@ from meshnode.service.inbound import check_pixels, check_rays, check_state, chec
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
-from protocols.state import State
+from protocols.state import State, states_of
 from protocols.topology import Router
 
 log = logging.getLogger("meshnode")
@@ -53,6 +53,7 @@ class Session(Driver):
             service.incoming_high,
             neighbours=config.torus.links(node),
             steal=config.render.steals,
+            states=states_of(config.render.adaptive),
         )
         super().__init__(node, sched)
         self.router = Router(config.torus, node)

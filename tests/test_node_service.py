@@ -139,6 +139,9 @@ async def _heartbeat(link: Link) -> None:
         ("spheres", {"radius": float("nan")}, "must be finite"),
         ("polygons", {"count": 2**31 - 1}, "vertex ranges"),
         ("lights", {"pos": float("nan")}, "must be finite"),
+        # the scene readers refuse numbers beyond 1e100; so does a node, whoever sends them
+        ("spheres", {"radius": 1e300}, "radius = 1e+300 is beyond +-1e+100"),
+        ("triangles", {"v": -1e308}, "v = 1e+308 is beyond"),
     ],
 )
 async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, change, what):

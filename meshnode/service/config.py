@@ -14,7 +14,7 @@ from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
 from protocols.partition import Partition
 from protocols.render import RenderSpec
-from protocols.scene import OBJECT_KINDS, SceneData, View
+from protocols.scene import MAX_COORDINATE, OBJECT_KINDS, SceneData, View
 from protocols.spec import SpecError
 from protocols.topology import Torus
 
@@ -110,8 +110,16 @@ def _check_objects(tables: dict) -> None:
         fields = records.dtype.names or (None,)
         for f in fields:
             column = records if f is None else records[f]
-            if column.dtype.kind == "f" and not np.all(np.isfinite(column)):
+            if column.dtype.kind != "f" or not column.size:
+                continue
+            if not np.all(np.isfinite(column)):
                 raise BadFrame(f"OBJECTS {name}: {f or 'values'} must be finite")
+            worst = float(np.abs(column).max())
+            if worst > MAX_COORDINATE:  # the scene readers' bound, whoever sent the objects
+                raise BadFrame(
+                    f"OBJECTS {name}: {f or 'values'} = {worst:.3g} is beyond "
+                    f"+-{MAX_COORDINATE:g}, as the scene readers refuse it"
+                )
     if len(tables["vertices"]) % 3:
         raise BadFrame("OBJECTS vertices: a whole number of (x, y, z) points")
     n_mat, n_vert = len(tables["materials"]), len(tables["vertices"]) // 3

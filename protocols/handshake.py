@@ -110,9 +110,16 @@ def check_auth(
         raise AuthFailed(f"expected AUTH from the {speaker}, got {kind.name}")
     want = proof(secret, speaker, dialler, listener_nonce)
     if not hmac.compare_digest(fields["proof"], want):
+        # Each side knows only that the proofs differ, and whether it has a secret itself:
+        # with none here, the other side proves one (two empty keys would agree).
+        if not secret:
+            raise AuthFailed(
+                f"this side has no cluster secret and the {speaker} proves one (set "
+                "MESHTRACE_SECRET or --secret-file here)"
+            )
         raise AuthFailed(
-            f"the {speaker} does not hold this cluster's secret (wrong or missing "
-            "MESHTRACE_SECRET / --secret-file)"
+            f"the {speaker} does not hold this side's secret: it has another one or none "
+            "(the two sides' MESHTRACE_SECRET / --secret-file differ)"
         )
 
 

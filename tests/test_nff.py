@@ -261,6 +261,14 @@ def test_non_finite_number(tok):
     assert_error(HEAD + f"s 0 0\n0\n{tok}\n", 9, "non-finite", repr(tok))
 
 
+def test_a_huge_token_is_quoted_short_with_its_length():
+    # A 10 MB number (or word) in a scene file was echoed whole in the error.
+    for tok in ("7" * 1_000_000, "x" * 1_000_000):
+        e = error_of(HEAD + f"s 0 0\n0 {tok}\n")
+        assert e.line == 8 and len(str(e)) < 200
+        assert "(1,000,00" in str(e) and tok[:40] in str(e)  # its length, quotes and all
+
+
 def test_next_entity_where_a_number_belongs():
     assert_error(HEAD + "s 0 0 0\ns 0 0 0 1\n", 8, "expected a number", "'s'")
 

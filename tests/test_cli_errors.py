@@ -53,3 +53,23 @@ def test_a_refused_value_is_named_by_its_option(capsys, flags, said):
 def test_record_fields_become_options_in_any_case():
     assert in_user_terms("IMAGESPEC.SPP = 0: too few") == "--spp 0: too few"
     assert in_user_terms("EngineSpec.threads must be whole") == "--threads must be whole"
+
+
+def test_a_local_node_that_dies_before_listening_is_named_in_one_line(tmp_path, capsys):
+    # Killed before it printed `listening` (or exiting on its own), a local node gave a
+    # RuntimeError traceback; now a MeshError names the node and how it ended, and the CLI
+    # prints it as one line, every other node stopped.
+    import pytest
+
+    from host.run.errors import MeshError
+    from host.run.localmesh import LocalMesh
+
+    def killed(i):
+        return ["sh", "-c", "kill -9 $$", "--"] if i == 1 else []
+
+    with pytest.raises(MeshError, match=r"local node 1 \(pid \d+\) was killed by signal 9"):
+        with LocalMesh(2, wrap=killed):
+            pass
+    with pytest.raises(MeshError, match="local node 0 .* exited with code 1 before"):
+        with LocalMesh(1, module="no_such_module_here"):
+            pass

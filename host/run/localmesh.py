@@ -17,6 +17,8 @@ import sys
 import threading
 from contextlib import contextmanager
 
+from host.run.errors import MeshError
+
 
 class LocalMesh:
     """`with LocalMesh(n) as addresses:` n node processes on 127.0.0.1, each tracing on
@@ -82,7 +84,7 @@ class LocalMesh:
                             env=self._environment(),
                         )
                     )
-            return [self._address(p) for p in self.procs]
+            return [self._address(i, p) for i, p in enumerate(self.procs)]
         except BaseException:
             self.__exit__(None, None, None)
             raise
@@ -94,13 +96,25 @@ class LocalMesh:
             env["MESHTRACE_SECRET"] = self.secret.decode()
         return env
 
-    def _address(self, proc: subprocess.Popen) -> str:
-        """The address a node prints once bound; waiting at most `timeout` seconds for it."""
+    def _address(self, n: int, proc: subprocess.Popen) -> str:
+        """The address node `n` prints once bound, waiting at most `timeout` seconds for it;
+        MeshError in one line when it exits (killed, a bad option) or stays silent."""
         ready, _, _ = select.select([proc.stdout], [], [], self.timeout)
         line = proc.stdout.readline() if ready else ""
-        if not line.startswith("listening "):
-            raise RuntimeError(f"meshnode did not start (pid {proc.pid}): {line!r}")
-        return line.split()[1]
+        if line.startswith("listening "):
+            return line.split()[1]
+        try:
+            code = proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        if code is None:
+            why = f"did not say it was listening within {self.timeout:g} s"
+        elif code < 0:
+            why = f"was killed by signal {-code} before it was listening"
+        else:
+            why = f"exited with code {code} before it was listening"
+        said = f" (it said {line.strip()[:80]!r})" if line.strip() else ""
+        raise MeshError(f"local node {n} (pid {proc.pid}) {why}{said}")
 
     def _stop(self) -> None:
         """SIGTERM to every node still running."""

@@ -177,3 +177,49 @@ async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, cha
         assert f"OBJECTS {table}" in f["reason"] and what in f["reason"]
     finally:
         await asyncio.wait_for(service.shutdown(), 10)
+
+
+async def test_a_finished_render_leaves_nothing_but_the_engine_cache(monkeypatch):
+    # 1,668 MB stayed after an authenticated render that peaked at 1,996 MB (issue 41): the
+    # finished session (its objects, queues, books) stayed referenced until the next render,
+    # and the heap kept what batches freed. Now the session goes, the heap is trimmed, and
+    # only the engine cache is kept for a render of the same scene.
+    import gc
+    import weakref
+
+    from host.run.meshclient import render_on_mesh
+    from meshnode.service import server as server_module
+    from meshnode.service.session import Session
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+    from tests.conftest import make_scene
+
+    sessions, trimmed = [], []
+    original = Session.__init__
+
+    def remember(self, *a, **k):
+        original(self, *a, **k)
+        sessions.append(weakref.ref(self))
+
+    monkeypatch.setattr(Session, "__init__", remember)
+    monkeypatch.setattr(server_module, "give_back", lambda: trimmed.append(True) or True)
+    service = await started()
+    try:
+        scene = make_scene()
+        await render_on_mesh(
+            scene,
+            ImageSpec(width=16, height=16),
+            [f"127.0.0.1:{service.port}"],
+            MeshPlan(1, 1),
+            EngineSpec(threads=1),
+        )
+        await asyncio.wait_for(service.free.wait(), 10)
+        for _ in range(200):  # the host link's task finishes its `finally` (bounded turns)
+            if trimmed:
+                break
+            await asyncio.sleep(0)
+        gc.collect()
+        assert trimmed and len(sessions) == 1 and sessions[0]() is None
+        assert service.leaving is None and service.session is None
+        assert len(service.engines.engines) == 1  # kept for the next render of this scene
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)

@@ -34,3 +34,13 @@ def keep_freed_memory() -> bool:
         libc.mallopt(M_TRIM_THRESHOLD, TRIM_ABOVE)
     )
     return _done
+
+
+def give_back() -> bool:
+    """Return the freed memory the heap keeps (`keep_freed_memory`) to the system, as a node
+    does once a render is over: kept for the next batch while a render runs, it is not for
+    the idle hours after (glibc's malloc_trim; elsewhere nothing). Returns whether any was."""
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    return bool(libc.malloc_trim(0))

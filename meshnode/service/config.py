@@ -9,6 +9,7 @@ wrong; the service sends that back to the host.
 
 import numpy as np
 
+from meshnode.mesh.stats import available_memory
 from protocols.errors import BadFrame
 from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
@@ -18,7 +19,8 @@ from protocols.scene import MAX_COORDINATE, OBJECT_KINDS, SceneData, View
 from protocols.spec import SpecError
 from protocols.topology import Torus
 
-MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node
+MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node, at most ...
+OBJECT_SHARE = 0.5  # ... and at most this share of the node's free memory when it starts
 
 
 class Config:
@@ -64,6 +66,8 @@ class Objects:
 
     def __init__(self, nodes=()):
         self.nodes = frozenset(nodes)
+        free = available_memory()
+        self.most = min(MAX_OBJECT_BYTES, int(OBJECT_SHARE * free)) if free else MAX_OBJECT_BYTES
         self.tables: dict[tuple[int, str], list] = {}
         self.seen: set[int] = set()
         self.bytes = 0
@@ -73,8 +77,11 @@ class Objects:
             whose = ", ".join(map(str, sorted(self.nodes)))
             raise BadFrame(f"OBJECTS.node = {node}: this render downloads objects of {whose}")
         self.bytes += records.nbytes
-        if self.bytes > MAX_OBJECT_BYTES:
-            raise BadFrame(f"OBJECTS: more than {MAX_OBJECT_BYTES >> 20} MiB of objects")
+        if self.bytes > self.most:
+            raise BadFrame(
+                f"OBJECTS: more than {self.most >> 20} MiB of objects ({OBJECT_SHARE:.0%} of "
+                f"this node's free memory, at most {MAX_OBJECT_BYTES >> 30} GiB)"
+            )
         self.seen.add(node)
         self.tables.setdefault((node, table), []).append(np.array(records))
 

@@ -8,9 +8,11 @@ waits for them. `shutdown()` closes every link and awaits every task the service
 
 import asyncio
 import contextlib
+import gc
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
+from meshnode.engine.heap import give_back
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.scheduler import INCOMING_HIGH
 from meshnode.mesh.stats import available_memory
@@ -33,6 +35,15 @@ log = logging.getLogger("meshnode")
 # refused as "rendering for another host" (a bench's back-to-back renders lost node 0 so and
 # re-planned on the other 8 of a 3x3).
 CLOSING_WAIT = 10.0
+
+
+def memory_back() -> None:
+    """After a render: what it allocated and left in reference cycles is collected, and the
+    heap's freed memory goes back to the system (`meshnode.engine.heap.give_back`); a node
+    keeps only its engine cache for the next render (issue 41: 1,668 MB stayed after an
+    authenticated render that peaked at 1,996 MB)."""
+    gc.collect()
+    give_back()
 
 
 class NodeService:
@@ -278,7 +289,9 @@ class NodeService:
         finally:
             self.leaving = session
             await self._end(session)
+            self.leaving = session = None  # the render's objects, queues and books go now
             await link.close()
+            memory_back()
             if self.once:
                 self.stopped.set()
 

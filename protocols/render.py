@@ -268,6 +268,12 @@ class RenderSpec(Spec):
         return self.image.corners(self.camera is not None)
 
     @property
+    def rays_per_pixel(self) -> int:
+        """Primary rays a pixel gets: its pinhole samples (ImageSpec.spp) or, through a
+        camera, CameraSampling.rays (at most: adaptive sampling may trace fewer)."""
+        return self.camera.sampling.rays if self.camera is not None else self.image.spp
+
+    @property
     def ids_per_cell(self) -> int:
         """Deposit ids per framebuffer cell: a pixel's `spp` pinhole samples (ids pixel * spp
         + s); one under the SPD corners (a cell is a corner) and through a camera (its rays

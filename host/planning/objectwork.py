@@ -65,8 +65,7 @@ def _affordable(spec: RenderSpec, one: float, kernels: float) -> tuple[int, str]
     `one` CPU seconds) within PREPASS_SHARE of the render's own tracing, estimated as the
     coarse pass's kernels' CPU (`kernels`, all nodes: more than one node's, as passed rays
     are traced again) scaled by the render's samples over the coarse pass's."""
-    per = spec.camera.sampling.rays if spec.camera is not None else spec.image.spp
-    samples = spec.sample_grid[0] * spec.sample_grid[1] * per
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
     coarse = coarse_spec(spec)
     trace = kernels * samples / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
     rounds = int(min(ROUNDS, max(0.0, (PREPASS_SHARE * trace - one) // max(one, 1e-9))))

@@ -65,7 +65,7 @@ def retreats(plan):
     if plan.shared:
         tried.append(replace(tried[-1], shared=()))
     if plan.copies:
-        tried.append(replace(tried[-1], copies=False, steal=plan.steal))
+        tried.append(replace(tried[-1], copies=False))
     if plan.overlap > 0:
         tried.append(replace(tried[-1], overlap=0.0))
     return tried[1:]

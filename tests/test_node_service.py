@@ -223,3 +223,50 @@ async def test_a_finished_render_leaves_nothing_but_the_engine_cache(monkeypatch
         assert len(service.engines.engines) == 1  # kept for the next render of this scene
     finally:
         await asyncio.wait_for(service.shutdown(), 10)
+
+
+@pytest.mark.parametrize("speaks", [b"HTTP/1.1 400 Bad Request\r\n\r\n", b"\x00\x00\x00\x05hello"])
+async def test_a_neighbour_address_that_is_another_service_fails_by_name(speaks):
+    # A CONFIG whose neighbour address points at some other service (issue 41 item 8): the
+    # node dials it, gets no HELLO but whatever that service says, and the host hears which
+    # neighbour and why in one ERROR, at once; nothing hangs.
+    from meshnode.service.warmup import ALL_KINDS, variant_scene
+    from protocols.messages import OBJECT_TABLES
+
+    async def other_service(reader, writer):
+        writer.write(speaks)
+        await writer.drain()
+        await reader.read(1 << 16)
+        writer.close()
+
+    foreign = await asyncio.start_server(other_service, "127.0.0.1", 0)
+    address = f"127.0.0.1:{foreign.sockets[0].getsockname()[1]}"
+    scene = variant_scene(ALL_KINDS)
+    service = await started()
+    try:
+        link = await host_link(service.port)
+        message = config(plan=MeshPlan(1, 2))
+        message["neighbours"] = {"0": f"127.0.0.1:{service.port}", "1": address}
+        await link.send(message)
+        for name in OBJECT_TABLES:
+            data = getattr(scene, name)
+            data = data.reshape(-1) if name == "vertices" else data
+            await link.send(
+                make(
+                    Kind.OBJECTS,
+                    node=0,
+                    table=name,
+                    records=np.ascontiguousarray(data),
+                    last=name == "lights",
+                )
+            )
+        for _ in range(100):  # heartbeats, then the error naming the neighbour (bounded)
+            kind, f = await asyncio.wait_for(link.recv(), 15)
+            if kind is Kind.ERROR:
+                break
+        assert kind is Kind.ERROR
+        assert f"node 1 ({address})" in f["reason"] and "handshake failed" in f["reason"]
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+        foreign.close()
+        await foreign.wait_closed()

@@ -75,8 +75,10 @@ class RefusalLog:
         self.log, self.every, self.clock = log, every, clock
         self.since = -float("inf")
         self.held = 0
+        self.total = 0  # refusals since the node started
 
     def refused(self, peer: str, why: str) -> None:
+        self.total += 1
         now = self.clock()
         if now - self.since < self.every:
             self.held += 1

@@ -16,7 +16,7 @@ from protocols.errors import AuthFailed
 from protocols.framing import FrameDecoder
 from protocols.handshake import auth, check_auth, hello, nonce, read_secret
 from protocols.messages import Kind, make, parse
-from tests.test_node_service import config, host_link
+from tests.test_node_service import config, host_link, send_objects
 
 SECRET = b"correct horse battery staple, twice as long"
 
@@ -137,7 +137,6 @@ async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node
     # dials it, the stranger cannot prove the secret, the render fails naming that address,
     # and the node takes the next render (ABORT, then a new CONFIG on the same link).
     from meshnode.service.warmup import ALL_KINDS, variant_scene
-    from protocols.messages import OBJECT_TABLES
     from protocols.render import MeshPlan
 
     async def stranger(reader, writer):
@@ -154,18 +153,7 @@ async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node
         message["neighbours"]["1"] = address
         await host.send(message)
         scene = variant_scene(ALL_KINDS)
-        for name in OBJECT_TABLES:
-            data = getattr(scene, name)
-            data = data.reshape(-1) if name == "vertices" else data
-            await host.send(
-                make(
-                    Kind.OBJECTS,
-                    node=0,
-                    table=name,
-                    records=np.ascontiguousarray(data),
-                    last=name == "lights",
-                )
-            )
+        await send_objects(host, scene)
         while (answer := await asyncio.wait_for(host.recv(), 30))[0] is not Kind.ERROR:
             pass  # heartbeats while it builds and dials
         assert address in answer[1]["reason"] and "handshake failed" in answer[1]["reason"]

@@ -46,6 +46,25 @@ async def host_link(
     return link
 
 
+async def send_objects(link: Link, scene, node: int = 0, **tables) -> None:
+    """Every object table of `scene` (or of `tables`, by name, instead) as OBJECTS for
+    `node`, the last one marked last: what a host downloads."""
+    from protocols.messages import OBJECT_TABLES
+
+    for name in OBJECT_TABLES:
+        data = tables[name] if name in tables else getattr(scene, name)
+        data = data.reshape(-1) if name == "vertices" else data
+        await link.send(
+            make(
+                Kind.OBJECTS,
+                node=node,
+                table=name,
+                records=np.ascontiguousarray(data),
+                last=name == "lights",
+            )
+        )
+
+
 async def started(secret: bytes | None = None) -> NodeService:
     service = NodeService("127.0.0.1", 0, secret=secret)
     await service.start()
@@ -148,7 +167,6 @@ async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, cha
     # Found by bench/fuzz_node.py: a bad material index read outside an array in a kernel
     # (a segfault), a NaN kept a ray walking forever, a huge polygon count asked for 16 GiB.
     from meshnode.service.warmup import ALL_KINDS, variant_scene
-    from protocols.messages import OBJECT_TABLES
 
     scene = variant_scene(ALL_KINDS)
     records = getattr(scene, table).copy()
@@ -158,18 +176,7 @@ async def test_objects_that_would_crash_or_hang_an_engine_are_refused(table, cha
     try:
         link = await host_link(service.port)
         await link.send(config())
-        for name in OBJECT_TABLES:
-            data = records if name == table else getattr(scene, name)
-            data = data.reshape(-1) if name == "vertices" else data
-            await link.send(
-                make(
-                    Kind.OBJECTS,
-                    node=0,
-                    table=name,
-                    records=np.ascontiguousarray(data),
-                    last=name == "lights",
-                )
-            )
+        await send_objects(link, scene, **{table: records})
         while True:  # heartbeats, then the error naming the table
             kind, f = await asyncio.wait_for(link.recv(), 10)
             if kind is Kind.ERROR:
@@ -231,7 +238,6 @@ async def test_a_neighbour_address_that_is_another_service_fails_by_name(speaks)
     # node dials it, gets no HELLO but whatever that service says, and the host hears which
     # neighbour and why in one ERROR, at once; nothing hangs.
     from meshnode.service.warmup import ALL_KINDS, variant_scene
-    from protocols.messages import OBJECT_TABLES
 
     async def other_service(reader, writer):
         writer.write(speaks)
@@ -248,18 +254,7 @@ async def test_a_neighbour_address_that_is_another_service_fails_by_name(speaks)
         message = config(plan=MeshPlan(1, 2))
         message["neighbours"] = {"0": f"127.0.0.1:{service.port}", "1": address}
         await link.send(message)
-        for name in OBJECT_TABLES:
-            data = getattr(scene, name)
-            data = data.reshape(-1) if name == "vertices" else data
-            await link.send(
-                make(
-                    Kind.OBJECTS,
-                    node=0,
-                    table=name,
-                    records=np.ascontiguousarray(data),
-                    last=name == "lights",
-                )
-            )
+        await send_objects(link, scene)
         for _ in range(100):  # heartbeats, then the error naming the neighbour (bounded)
             kind, f = await asyncio.wait_for(link.recv(), 15)
             if kind is Kind.ERROR:

@@ -144,7 +144,7 @@ def test_large_frames_are_received_in_place_and_reading_pauses_until_taken():
     from protocols.framing import FrameDecoder, encode
 
     transport = FakeTransport()
-    receiver = _Receiver(None, transport, FrameDecoder(), b"")
+    receiver = _Receiver(None, transport, FrameDecoder(), b"", {"bytes_in": 0})
     rays = np.zeros(40_000, RAY)  # about 4 MB a frame: most of it read straight into place
     rays["pixel"] = np.arange(len(rays))
     frames = [encode(make(Kind.RAYS, rays=rays, dest=k)) for k in range(3)]

@@ -108,7 +108,7 @@ def check_divisible(scene: SceneData, spec: RenderSpec) -> None:
     plan = spec.plan
     if plan.mode != "object" or plan.max_share >= 1.0:
         return
-    last = replace(plan, balance="objects", shared=(), copies=False, steal=False, overlap=0.0)
+    last = ([plan, *retreats(plan)])[-1]  # what the plan gives up last is given up here
     at = replace(spec, plan=replace(last, node_bytes=0))
     part, keep = partition(scene, at)
     held = holdings(scene, at, part, keep)

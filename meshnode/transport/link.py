@@ -59,10 +59,12 @@ class _Receiver(asyncio.BufferedProtocol):
     (back-pressure) stops the sender through TCP. Writing's flow control and the close
     stay with the stream protocol it replaces (`writer.drain`, `wait_closed`)."""
 
-    def __init__(self, stream: asyncio.BaseProtocol, transport, decoder: FrameDecoder, held):
+    def __init__(
+        self, stream: asyncio.BaseProtocol, transport, decoder: FrameDecoder, held, stats: dict
+    ):
         self.stream, self.transport, self.decoder = stream, transport, decoder
-        self.ready: deque = deque()  # (message, payload bytes) decoded, not yet taken
-        self.queued = 0
+        self.stats = stats  # the link's: bytes_in counts what arrives, as it arrives
+        self.ready: deque = deque()  # messages decoded, not yet taken
         self.error: BaseException | None = None
         self.closed = False
         self.waiter: asyncio.Future | None = None
@@ -80,6 +82,7 @@ class _Receiver(asyncio.BufferedProtocol):
         return target if self.direct else self.scratch
 
     def buffer_updated(self, nbytes: int) -> None:
+        self.stats["bytes_in"] += nbytes
         try:
             if self.direct:
                 self._take(self.decoder.wrote(nbytes))
@@ -91,10 +94,8 @@ class _Receiver(asyncio.BufferedProtocol):
         self._wake()
 
     def _take(self, messages: list) -> None:
-        for m in messages:
-            self.ready.append(m)
-        self.queued = len(self.ready)
-        if self.queued and self._queued_bytes() > READ_HIGH and not self.paused:
+        self.ready.extend(messages)
+        if messages and not self.paused and self._queued_bytes() > READ_HIGH:
             self.paused = True
             self.transport.pause_reading()
 
@@ -161,9 +162,9 @@ class Link:
         held = bytes(getattr(self.reader, "_buffer", b""))
         if held:
             self.reader._buffer.clear()
-        receiver = _Receiver(stream, transport, self._decoder, held)
-        transport.set_protocol(receiver)
         self.stats["bytes_in"] += len(held)
+        receiver = _Receiver(stream, transport, self._decoder, held, self.stats)
+        transport.set_protocol(receiver)
         return receiver
 
     def allow(self, max_frame: int) -> None:
@@ -272,7 +273,6 @@ class Link:
             await r.waiter
         message = r.ready.popleft()
         self.stats["messages_in"] += 1
-        self.stats["bytes_in"] += _nbytes(message)
         r.taken()
         return message
 

@@ -7,7 +7,7 @@ from bench.spd_povray import goal, goal_line
 from bench.spd_published import compare_published, parse_published
 from bench.spd_runs import _label, config_plan, default_density
 from bench.spd_scaling import _chosen
-from tests.conftest import SCENES, shared_file
+from tests.conftest import spd_readme
 
 README = """# Scenes
 
@@ -51,7 +51,7 @@ def test_published_table_is_parsed_and_only_it():
 
 
 def test_published_table_of_the_scenes_folder_has_the_six_scenes():
-    table = parse_published(shared_file(SCENES / "README.md").read_text())
+    table = parse_published(spd_readme().read_text())
     assert set(table) == {"balls", "gears", "rings", "teapot", "tetra", "tree"}
     assert all(
         set(c) == {"eye_hits", "reflected_rays", "refracted_rays", "shadow_rays"}

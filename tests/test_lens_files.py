@@ -1,7 +1,7 @@
-"""Lens files as users bring them (the common prescription format, shipped unedited in
-../shared/lenses), the exit pupil, ellipsoidal caps and the pinhole's samplers, each against a
-reference of its own: a y-nu paraxial trace written here, the thin lens of the same f-number,
-the Cartesian oval, the scene's own pinhole rays and a many-ray image."""
+"""Lens files as users bring them (the common prescription format: the shared lens files, else
+the same tables in tests/data), the exit pupil, ellipsoidal caps and the pinhole's samplers,
+each against a reference of its own: a y-nu paraxial trace written here, the thin lens of the
+same f-number, the Cartesian oval, the scene's own pinhole rays and a many-ray image."""
 
 import json
 import math
@@ -21,17 +21,16 @@ from protocols import dtypes
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData, View
-from tests.conftest import shared_file
+from tests.conftest import lens_file
 from tests.test_optics import stack
 
 ROOT = Path(__file__).resolve().parents[1]
-LENSES = ROOT.parent / "shared" / "lenses"
 SHIPPED = ("dgauss.50mm.dat", "wide.22mm.dat")
 
 
 def shared_lens(name: str) -> Path:
-    """A lens file as shipped (tests.conftest.shared_file: skipped or failed without it)."""
-    return shared_file(LENSES / name)
+    """A lens file as users bring it (tests.conftest.lens_file)."""
+    return lens_file(name)
 
 
 def paraxial_efl(path: Path) -> float:

@@ -4,18 +4,18 @@ independent reference for the whole tracer (camera, intersections, shading rules
 
 import pytest
 
-from bench.spd_published import PUBLISHED_TOLERANCE, TOLERANCE, read_published
+from bench.spd_published import PUBLISHED_TOLERANCE, TOLERANCE, parse_published
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine.counters import spd_counts
 from protocols.render import EngineSpec, ImageSpec
-from tests.conftest import SCENES, spd_scene
+from tests.conftest import spd_readme, spd_scene
 
 
 @pytest.mark.parametrize("name", ["balls", "gears", "rings", "teapot", "tetra", "tree"])
 def test_default_scene_counts_match_the_published_table(name):
     scene = read_nff(spd_scene(f"{name}.nff"))
-    published = read_published(SCENES)[name]
+    published = parse_published(spd_readme().read_text())[name]
     _, stats = render(scene, ImageSpec(spd=True), EngineSpec())
     ours = spd_counts(stats["rays"])
     tolerance = PUBLISHED_TOLERANCE.get(name, TOLERANCE)

@@ -12,7 +12,8 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 9  # 9: arrays after the map, MeshPlan.max_share, node_bytes (8: MeshPlan.shared;
+PROTOCOL_VERSION = 10  # 10: termination waves (STATE down the tree, ECHO up); 9: arrays after
+# the map, MeshPlan.max_share, node_bytes (8: MeshPlan.shared;
 # 7: TILES.owners; 6: MeshPlan.order; 5: OBJECTS name)
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
@@ -25,7 +26,7 @@ class Kind(IntEnum):
     # MeshPlan.copies, a linked neighbour's: `node` says whose)
     RAYS = 4  # a batch of rays (eye, reflected, refracted or shadow) entering a node's box
     PIXELS = 5  # deposits on their way to node 0 and the host (adaptive: to the pixel's owner)
-    STATE = 6  # the state packet circulating on the ring
+    STATE = 6  # a termination wave's probe, parent to child down the tree: wave, state
     STATS = 7  # a node's statistics
     SHUTDOWN = 8  # stop and close every link
     ERROR = 9  # the sender hit an error; `reason` says what
@@ -43,6 +44,7 @@ class Kind(IntEnum):
     # the node sent for it, so the host knows what follows belongs to the next render
     STEAL = 17  # node to neighbour (MeshPlan.steal): I have run out, give me unstarted chunks
     GIVE = 18  # neighbour's answer: chunks [x0, x1, y0, y1] of its rectangle, maybe none
+    ECHO = 19  # child to parent: its subtree's answer to a wave (meshnode.mesh.termination)
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -73,14 +75,8 @@ FIELDS = {
     Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
-    Kind.STATE: {
-        "state": int,
-        "last_busy": int,
-        "round": int,
-        "sent": np.dtype("<i8"),
-        "received": np.dtype("<i8"),
-        "dest": int,
-    },
+    Kind.STATE: {"wave": int, "state": int},
+    Kind.ECHO: {"wave": int, "dirty": bool, "sent": int, "received": int},
     Kind.STATS: {"node": int, "stats": dict},
     Kind.SHUTDOWN: {},
     Kind.ERROR: {"reason": str},

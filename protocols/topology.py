@@ -1,4 +1,4 @@
-"""The torus of mesh nodes: coordinates, neighbours, the ring of the state packet, and
+"""The torus of mesh nodes: coordinates, neighbours, the spanning tree of termination waves, and
 shortest routes that alternate between equally short ones. Pure; no sockets.
 
 Node n sits at row n // cols, column n % cols; rows and columns wrap around. With two columns
@@ -7,7 +7,6 @@ the node itself (no link).
 """
 
 from dataclasses import dataclass
-from functools import cached_property
 
 DIRECTIONS = ("north", "south", "west", "east")
 
@@ -48,19 +47,27 @@ class Torus:
         """Distinct other nodes this node has a TCP link to."""
         return sorted(set(self.neighbours(node).values()) - {node})
 
-    @cached_property
-    def ring(self) -> tuple[int, ...]:
-        """The state packet's ring: rows in snake order, so consecutive nodes are neighbours
-        (the closing step back to node 0 may take more than one hop)."""
-        order = []
-        for r in range(self.rows):
-            cols = range(self.cols) if r % 2 == 0 else range(self.cols - 1, -1, -1)
-            order.extend(self.node(r, c) for c in cols)
-        return tuple(order)
+    def parent(self, node: int) -> int | None:
+        """The termination waves' spanning tree (DESIGN.md 5): node 0 is the root, its
+        column the spine, and each row branches both ways from the spine; every edge is a
+        torus link and no node is more than `tree_depth` hops from the root. None for
+        the root."""
+        r, c = self.coords(node)
+        if c:
+            return self.node(r, c - 1 if c <= self.cols // 2 else c + 1)
+        if r:
+            return self.node(r - 1 if r <= self.rows // 2 else r + 1, 0)
+        return None
 
-    def ring_next(self, node: int) -> int:
-        i = self.ring.index(node)
-        return self.ring[(i + 1) % self.size]
+    def children(self, node: int) -> tuple[int, ...]:
+        """The nodes whose parent is `node` (among its links, since tree edges are links)."""
+        return tuple(m for m in self.links(node) if self.parent(m) == node)
+
+    @property
+    def tree_depth(self) -> int:
+        """Hops from the root to the farthest node of the tree: a wave down and back up
+        takes twice this many message flights, against the size of the mesh for a ring."""
+        return self.rows // 2 + self.cols // 2
 
     def distance(self, a: int, b: int) -> int:
         """Hops on a shortest route from a to b."""

@@ -68,7 +68,8 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     r = stats["rays"]
     created = r["eye_rays"] + r["reflected_rays"] + r["refracted_rays"] + r["shadow_rays"]
     assert created == r["hits"] + r["escaped"] + r["shadow_rays_blocked"] + r["shadow_rays_lit"]
-    assert all(n["packet_visits"] >= 3 for n in nodes)
+    # termination waves: DOWNLOAD, TRACE (again while rays were passed), DONE
+    assert all(n["waves"] >= 3 for n in nodes)
     assert all(50e6 < n["peak_rss_bytes"] < 4e9 for n in nodes)  # reported, and plausible
     assert len(nodes) == rows * cols
 
@@ -102,8 +103,8 @@ def test_dead_node_stops_the_render_naming_it_when_told_to_fail():
 
 
 def test_delayed_link_over_tcp_gives_the_whole_image():
-    # Ray messages from node 0 to node 1 held back 0.4 s each, far longer than a turn of the
-    # state packet on a 2x2 ring (milliseconds): the render must wait for them, not end early.
+    # Ray messages from node 0 to node 1 held back 0.4 s each, far longer than a termination
+    # wave on a 2x2 (milliseconds): the render must wait for them, not end early.
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=40, height=40, threads=1)
     ref, ref_stats = render(scene, *rs)
@@ -244,7 +245,7 @@ def test_an_outbox_wakes_the_work_loop_when_it_sends():
 
 def test_nodes_tracing_on_several_threads_give_the_single_node_image():
     # Two batches in flight per node: deposits and passed rays come back in any order, the
-    # state packet must wait for both; image and counts stay the single node's.
+    # termination waves must wait for both; image and counts stay the single node's.
     scene = read_nff(spd_scene("rings_s1.nff"))
     rs = records(width=48, height=48, spp=2, threads=1)
     ref, ref_stats = render(scene, *rs)

@@ -167,7 +167,7 @@ SHAPES = [(1, 1), (1, 2), (2, 1), (2, 2), (3, 3), (2, 4), (2, 3), (4, 5), (1, 7)
 
 
 @pytest.mark.parametrize("rows,cols", SHAPES)
-def test_torus_neighbours_links_and_ring(rows, cols):
+def test_torus_neighbours_and_links(rows, cols):
     t = Torus(rows, cols)
     for n in range(t.size):
         nb = t.neighbours(n)
@@ -178,10 +178,6 @@ def test_torus_neighbours_links_and_ring(rows, cols):
             assert n in t.links(m)
         assert n not in t.links(n)
         assert len(t.links(n)) <= 4
-    assert sorted(t.ring) == list(range(t.size))
-    # Consecutive ring nodes are neighbours (the closing step may be longer).
-    for a, b in zip(t.ring, t.ring[1:], strict=False):
-        assert t.distance(a, b) == 1
     if cols == 2 and rows == 1:
         assert t.links(0) == [1]
 

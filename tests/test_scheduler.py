@@ -1,13 +1,14 @@
 """The node's scheduler alone (no sockets, no clock): what it traces first, what it holds
-back, when it passes the state packet, and that a ring of one walks every state once."""
+back, when it passes a termination wave on and answers it, and that a mesh of one walks every
+state once."""
 
 import numpy as np
 
 from meshnode.mesh import scheduler
 from meshnode.mesh.feeds import Primaries
 from meshnode.mesh.scheduler import Scheduler
-from meshnode.mesh.steps import Enter, Flush, SendPacket, Trace
-from meshnode.mesh.termination import Packet
+from meshnode.mesh.steps import Enter, Flush, SendEcho, SendProbe, Trace
+from meshnode.mesh.termination import Echo, Probe
 from protocols.dtypes import RAY
 from protocols.state import State
 
@@ -16,52 +17,65 @@ def rays(n: int) -> np.ndarray:
     return np.zeros(n, RAY)
 
 
-def tracing(nodes: int = 2, threads: int = 1, high: int = 1000) -> Scheduler:
-    """Node 1 of a ring of `nodes`, in TRACE with three primary batches of 10 rays."""
-    s = Scheduler(1, 0, nodes, threads, high)
-    s.packet_in(
-        Packet(int(State.TRACE), 0, 1, np.zeros(nodes, np.int64), np.zeros(nodes, np.int64))
-    )
+def tracing(threads: int = 1, high: int = 1000, children=()) -> Scheduler:
+    """Node 1, child of node 0, in TRACE with three primary batches of 10 rays."""
+    s = Scheduler(1, 0, children, threads, high)
+    s.probe_in(Probe(1, int(State.TRACE)))
     assert s.next() == Enter(State.TRACE)
     s.primaries = Primaries(rays(10) for _ in range(3))
-    step = s.next()  # the packet goes on before any primary batch (next test)
-    assert isinstance(step, SendPacket) and step.to == 0
     return s
 
 
-def test_a_state_with_primaries_is_handed_on_before_this_node_traces_them():
-    # Held until this node's primaries were done, the packet started the nodes after it on
-    # the ring seconds late (2x2: nodes 1 and 3 idle ~1 s); passed on at once, marked busy,
-    # it cannot end the state early: this node is still dirty when it comes back.
-    s = Scheduler(1, 0, 2)
-    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(2, np.int64), np.zeros(2, np.int64)))
+def test_a_wave_goes_on_to_the_children_before_this_node_enters_its_state():
+    # Held until this node's primaries were done, a wave bringing TRACE started the nodes
+    # below it seconds late; passed on at once, it cannot end the state early: this node
+    # answers only once idle.
+    s = Scheduler(1, 0, (2, 5))
+    s.probe_in(Probe(1, int(State.TRACE)))
+    trace = Probe(1, int(State.TRACE))
+    assert [s.next(), s.next()] == [SendProbe(trace, 2), SendProbe(trace, 5)]
     assert s.next() == Enter(State.TRACE)
     s.primaries = Primaries([rays(10)])
-    step = s.next()
-    assert isinstance(step, SendPacket) and step.packet.last_busy == 1
-    assert step.packet.state == State.TRACE
-    assert isinstance(s.next(), Trace) and s.term.dirty
-    s.packet_in(step.packet)  # back round the ring while this node traces
-    assert s.next() is None  # held while busy
+    assert isinstance(s.next(), Trace)
+    s.echo_in(2, Echo(1, False, 0, 0))
+    s.echo_in(5, Echo(1, False, 3, 1))
+    assert s.next() is None  # busy: the wave waits
     s.batch_done()
     assert s.next() == Flush()
-    back = s.next()
-    assert isinstance(back, SendPacket) and back.packet.last_busy == 1
-    assert back.packet.state == State.TRACE  # no advance: this node worked since
+    assert s.next() == SendEcho(Echo(1, False, 3, 1), 0)  # its children's counts and its own
+    assert s.next() is None
+    s.probe_in(Probe(2, int(State.TRACE)))
+    s.next(), s.next()  # on to the children
+    assert s.next() is None  # the children have not answered wave 2
+    s.echo_in(2, Echo(2, False, 0, 0))
+    s.rays_in(rays(4))  # a message came: the wave waits, and this node is dirty
+    assert isinstance(s.next(), Trace)
+    s.batch_done()
+    assert s.next() == Flush()
+    s.echo_in(5, Echo(2, False, 3, 3))
+    assert s.next() == SendEcho(Echo(2, True, 3, 4), 0)
+    assert not s.term.dirty
 
 
-def test_a_clean_node_marks_the_packet_it_hands_on_with_primaries_to_trace():
-    # Node 0 advanced the ring to TRACE and has no primaries; node 1, clean since its last
-    # visit, hands the packet on at once. Unmarked, the packet came back to node 0 as it left
-    # (last busy 0, counts balanced) and TRACE ended while node 1 still traced its primaries.
-    s = Scheduler(1, 0, 2)
-    s.term.dirty = False
-    s.packet_in(Packet(int(State.TRACE), 0, 1, np.zeros(2, np.int64), np.zeros(2, np.int64)))
+def test_the_root_judges_each_wave_and_starts_the_next():
+    s = Scheduler(0, None, (1,), states=(State.DOWNLOAD, State.TRACE, State.DONE))
+    assert s.next() == SendProbe(Probe(1, int(State.DOWNLOAD)), 1)  # its own first wave
+    assert s.next() is None
+    s.echo_in(1, Echo(1, False, 0, 0))
+    assert s.next() == SendProbe(Probe(2, int(State.TRACE)), 1)  # clean: TRACE
     assert s.next() == Enter(State.TRACE)
-    s.primaries = Primaries([rays(10)])
-    step = s.next()
-    assert isinstance(step, SendPacket) and step.packet.last_busy == 1
-    assert s.term.dirty  # and it stays busy for the packet's next visit
+    s.echo_in(1, Echo(2, True, 4, 2))
+    assert s.next() == SendProbe(Probe(3, int(State.TRACE)), 1)  # dirty: once more
+    s.echo_in(1, Echo(3, False, 4, 2))
+    assert s.next() == SendProbe(Probe(4, int(State.TRACE)), 1)  # two messages in flight
+    s.message_in()
+    s.message_in()
+    s.echo_in(1, Echo(4, False, 4, 2))
+    assert s.next() == SendProbe(Probe(5, int(State.TRACE)), 1)  # the root took them: dirty
+    s.echo_in(1, Echo(5, False, 4, 2))
+    assert s.next() == SendProbe(Probe(6, int(State.DONE)), 1)
+    assert s.next() == Enter(State.DONE)
+    assert s.next() is None and s.done
 
 
 def test_passed_rays_go_first_once_enough_wait_and_threads_bound_the_batches():
@@ -96,20 +110,18 @@ def test_no_new_primaries_while_the_links_are_full_but_incoming_rays_still_run()
     assert isinstance(step, Trace) and not step.primary
     s.batch_done()
     assert s.next(room=False) == Flush()  # idle: buffered deposits go out
-    assert s.next(room=False) is None  # primaries wait for room; the packet waits for them
+    assert s.next(room=False) is None  # primaries wait for room; the wave waits for them
     assert isinstance(s.next(room=True), Trace)
 
 
-def test_output_is_flushed_before_the_packet_moves_and_the_packet_waits_for_work():
+def test_output_is_flushed_before_the_node_answers_and_the_wave_waits_for_work():
     s = tracing()
-    s.packet_in(Packet(int(State.TRACE), 1, 2, np.zeros(2, np.int64), np.zeros(2, np.int64)))
     for _ in range(3):
         assert isinstance(s.next(), Trace)
         s.batch_done()
     assert s.next() == Flush()
-    step = s.next()
-    assert isinstance(step, SendPacket) and step.to == 0
-    assert step.packet.last_busy == 1  # it worked since the packet's last visit
+    # its own primaries done, nothing received: its work cannot wake another node
+    assert s.next() == SendEcho(Echo(1, False, 0, 0), 0)
     assert s.next() is None
 
 
@@ -165,8 +177,8 @@ def test_rays_queued_for_held_engines_are_merged_per_engine_and_traced_with_it()
     assert s.incoming_rays == 0 and not s.incoming
 
 
-def test_a_ring_of_one_walks_every_state_once_and_stops():
-    s = Scheduler(0, 0, 1)
+def test_a_mesh_of_one_walks_every_state_once_and_stops():
+    s = Scheduler(0)
     entered, steps = [], 0
     while (step := s.next()) is not None and steps < 100:
         steps += 1

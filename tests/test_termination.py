@@ -1,104 +1,150 @@
-"""The state packet never ends a state while a message is on a link or a node is busy: a
-simulated ring of nodes passing messages with random delays, checked at every advance."""
+"""Termination waves never end a state while a message is on a link or a node is busy: nodes of
+a torus passing messages with random delays while the waves run down and up the tree, checked
+at every advance; and a state ends within a few tree depths of the last activity, not a ring of
+the mesh."""
 
 import numpy as np
 import pytest
 
-from meshnode.mesh.termination import Packet, Termination
-from protocols.state import State
+from meshnode.mesh.termination import Echo, Probe, Termination
+from protocols.errors import BadFrame
+from protocols.state import State, states_of
 from protocols.topology import Torus
 
 
-def simulate(rows, cols, seed, work=200, max_delay=30, steps=200_000):
-    """Nodes hold work units; processing one may send a message (after a random delay) to a
-    random node. Returns the time the packet reached TRACE -> FLUSH and the time the last
-    message was processed, and checks the invariant at each advance."""
+def simulate(rows, cols, seed, work=200, max_delay=30, wave_delay=1, steps=200_000):
+    """Nodes hold work units; processing one may send a message (after a random delay of up
+    to `max_delay`) to a random node. Probes and echoes take 1..`wave_delay` steps a hop.
+    Returns (the step TRACE ended, the step of the last work), checking at the advance that
+    nothing is left anywhere."""
     rng = np.random.default_rng(seed)
     torus = Torus(rows, cols)
     n = torus.size
-    nodes = [Termination(i) for i in range(n)]
+    nodes = [Termination(i, torus.parent(i), torus.children(i)) for i in range(n)]
     queue = [0] * n
-    in_flight = []  # (arrival time, destination)
-    queue[0] = work
-    packet, holder, arrive = Packet.start(n), 0, 0
-    packet.state = State.TRACE
+    queue[int(rng.integers(n))] = work
+    in_flight = []  # (arrival step, destination)
+    waves = [(0, 0, Probe(1, int(State.TRACE)))]  # (arrival step, node, Probe or (child, Echo))
+    holding = [False] * n
     last_activity = 0
     for now in range(steps):
-        # Deliver messages that have arrived.
         for m in [m for m in in_flight if m[0] <= now]:
             in_flight.remove(m)
             queue[m[1]] += 1
             nodes[m[1]].on_received()
-        # Each node processes one unit; with some chance it spawns a message.
         for i in range(n):
             if queue[i]:
                 queue[i] -= 1
-                nodes[i].on_work()
                 last_activity = now
                 if rng.random() < 0.7:
                     dest = int(rng.integers(n))
                     in_flight.append((now + int(rng.integers(1, max_delay)), dest))
                     nodes[i].on_sent()
-        # The packet moves one hop per step; an idle holder passes it on.
-        if now >= arrive and queue[holder] == 0:
-            state = packet.state
-            packet = nodes[holder].pass_on(packet)
-            if packet.state != state:
-                # Advancing is only right when nothing is left anywhere.
-                assert not in_flight and not any(queue), (now, in_flight, queue)
-                return now, last_activity
-            holder, arrive = torus.ring_next(holder), now + 1
+        for w in [w for w in waves if w[0] <= now]:
+            waves.remove(w)
+            _, i, what = w
+            if isinstance(what, Probe):
+                nodes[i].probe_in(what)
+                holding[i] = True
+                hop = now + int(rng.integers(1, wave_delay + 1))
+                waves.extend((hop, c, what) for c in torus.children(i))
+            else:
+                nodes[i].echo_in(*what)
+        for i in range(n):
+            t = nodes[i]
+            if not (holding[i] and t.ready and queue[i] == 0):
+                continue
+            holding[i] = False
+            if t.root:
+                probe = t.next_wave(int(State.TRACE))
+                if probe.state != State.TRACE:
+                    assert not in_flight and not any(queue), (now, in_flight, queue)
+                    return now, last_activity
+                waves.append((now, i, probe))
+            else:
+                hop = now + int(rng.integers(1, wave_delay + 1))
+                waves.append((hop, t.parent, (i, t.answer())))
     raise AssertionError("never advanced")
 
 
-@pytest.mark.parametrize("rows,cols", [(1, 1), (1, 2), (2, 2), (3, 3), (2, 4)])
+@pytest.mark.parametrize("rows,cols", [(1, 1), (1, 2), (2, 2), (3, 3), (2, 4), (5, 4)])
 @pytest.mark.parametrize("seed", range(6))
 def test_state_advances_only_after_all_work_and_messages(rows, cols, seed):
     done, last = simulate(rows, cols, seed)
     assert done >= last
-    # ...and not absurdly late: at most three rounds of the ring after the last activity.
-    assert done - last <= 3 * rows * cols + 3
+    # ...and soon: a wave down and up finishes the busy one, one more comes back clean
+    # (each hop a step; a node answers the step the last of its children's echoes came)
+    depth = Torus(rows, cols).tree_depth
+    assert done - last <= 4 * depth + 4
 
 
-def test_long_delays_are_not_mistaken_for_the_end():
-    # Messages delayed far longer than a whole turn of the ring.
-    for seed in range(4):
-        done, last = simulate(2, 2, seed, work=20, max_delay=400)
+def test_long_and_uneven_delays_are_not_mistaken_for_the_end():
+    # Data messages delayed far longer than a wave, and waves whose hops take uneven times,
+    # so echoes of one wave overtake data sent before them.
+    for seed in range(6):
+        done, last = simulate(2, 2, seed, work=20, max_delay=400, wave_delay=7)
+        assert done >= last
+        done, last = simulate(3, 4, seed, work=60, max_delay=50, wave_delay=5)
         assert done >= last
 
 
-def test_states_run_in_order_to_done():
-    t = Termination(0)
-    p = Packet.start(1)
-    seen = []
-    for _ in range(12):
-        p = t.pass_on(p)
-        seen.append(p.state)
-    assert [s for s in dict.fromkeys(seen)] == [
-        State.DOWNLOAD,
-        State.TRACE,
-        State.REFINE,
-        State.FLUSH,
-        State.DONE,
-    ]
-    assert t.advances == [State.TRACE, State.REFINE, State.FLUSH, State.DONE]
+def test_the_tree_spans_the_torus_on_links_within_its_depth():
+    for rows, cols in [(1, 1), (1, 2), (2, 1), (2, 2), (3, 3), (2, 5), (4, 4), (16, 16), (7, 3)]:
+        t = Torus(rows, cols)
+        assert t.parent(0) is None
+        for node in range(1, t.size):
+            hops, at = 0, node
+            while at != 0:
+                assert t.parent(at) in t.links(at)  # a tree edge is a torus link
+                at, hops = t.parent(at), hops + 1
+            assert hops <= t.tree_depth
+            assert node in t.children(t.parent(node))
+        assert sum(len(t.children(n)) for n in range(t.size)) == t.size - 1
 
 
-def test_a_render_without_adaptive_sampling_goes_from_trace_to_done():
-    # REFINE and FLUSH hold nothing without adaptive sampling; each cost the packet its
-    # rounds of the ring (simulated 16x16 image space: wall 39 against 204 on the busiest
-    # node, 56 without them). With adaptive sampling every state is kept, in order.
-    from protocols.state import states_of
+def test_states_run_in_order_to_done_on_a_mesh_of_one():
+    for adaptive in (False, True):
+        want = list(states_of(adaptive))
+        t = Termination(0, states=states_of(adaptive))
+        state, seen = int(State.DOWNLOAD), []
+        for wave in range(1, 12):
+            t.probe_in(Probe(wave, state))
+            seen.append(state)
+            if state == State.DONE:
+                break
+            state = t.next_wave(state).state
+        # one clean wave a state, as nothing happens between them
+        assert seen == want and t.advances == want[1:]
 
-    for adaptive, want in (
-        (False, [State.DOWNLOAD, State.TRACE, State.DONE]),
-        (True, list(State)),
-    ):
-        t = Termination(0, states_of(adaptive))
-        p = Packet.start(1)
-        seen = []
-        for _ in range(12):
-            p = t.pass_on(p)
-            seen.append(p.state)
-        assert list(dict.fromkeys(seen)) == want
-        assert t.advances == want[1:]
+
+def test_a_dirty_or_unbalanced_subtree_holds_the_state():
+    root = Termination(0, None, (1, 3), states_of(adaptive=False))
+    root.probe_in(Probe(1, int(State.TRACE)))
+    root.echo_in(1, Echo(1, False, 5, 5))
+    assert not root.ready
+    root.echo_in(3, Echo(1, True, 0, 0))
+    assert root.next_wave(int(State.TRACE)) == Probe(2, int(State.TRACE))  # dirty
+    root.probe_in(Probe(2, int(State.TRACE)))
+    root.echo_in(1, Echo(2, False, 5, 4))  # a message still on a link
+    root.echo_in(3, Echo(2, False, 0, 0))
+    assert root.next_wave(int(State.TRACE)) == Probe(3, int(State.TRACE))
+    root.probe_in(Probe(3, int(State.TRACE)))
+    root.echo_in(1, Echo(3, False, 5, 5))
+    root.echo_in(3, Echo(3, False, 0, 0))
+    assert root.next_wave(int(State.TRACE)) == Probe(4, int(State.DONE))
+
+
+def test_echoes_out_of_turn_are_a_peers_error():
+    t = Termination(1, 0, (2,))
+    with pytest.raises(BadFrame, match="not the open one"):
+        t.echo_in(2, Echo(1, False, 0, 0))  # no wave open yet
+    t.probe_in(Probe(1, int(State.TRACE)))
+    with pytest.raises(BadFrame, match="not a child"):
+        t.echo_in(3, Echo(1, False, 0, 0))
+    with pytest.raises(BadFrame, match="not the open one"):
+        t.echo_in(2, Echo(2, False, 0, 0))
+    t.echo_in(2, Echo(1, False, 0, 0))
+    with pytest.raises(BadFrame, match="not the open one"):
+        t.echo_in(2, Echo(1, False, 0, 0))  # twice
+    with pytest.raises(BadFrame, match="wave 3 after wave 1"):
+        t.probe_in(Probe(3, int(State.TRACE)))

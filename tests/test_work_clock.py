@@ -10,6 +10,7 @@ from host.camera.setup import CameraSetup
 from host.scene.nff import read_nff
 from protocols.camera import CameraSampling
 from protocols.render import ImageSpec
+from protocols.topology import Torus
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
 from tests.test_image_space import COUNTS, SHAPES, reference
@@ -25,7 +26,7 @@ MODES = [
 @pytest.mark.parametrize("latency", [0, 10, 30_000])
 @pytest.mark.parametrize("plan", MODES, ids=["image-dynamic", "object-steal", "copies"])
 def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan, latency):
-    # latency 30,000 units: longer than any batch here, so rays, tiles and the state packet
+    # latency 30,000 units: longer than any batch here, so rays, tiles and termination waves
     # are in flight across several batches and overtake each other
     scene = read_nff(spd_scene("rings_s1.nff"))
     ref, counts = reference(scene, ImageSpec(width=30, height=26, spp=2))
@@ -46,8 +47,9 @@ def test_every_shape_and_mode_on_the_work_clock_equals_one_node(plan, latency):
         )
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
-        # every message of the last state's ring took `latency`: the clock saw them
-        assert outs[0].makespan >= rows * cols * latency
+        # every hop of the last clean wave (down and up the tree) and of DONE's took
+        # `latency`: the clock saw them
+        assert outs[0].makespan >= 3 * Torus(rows, cols).tree_depth * latency
 
 
 def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():

@@ -274,7 +274,7 @@ async def neighbour_stream(f: "Fuzzer", host: Conn, peer: Conn) -> None:
 
 
 def neighbour_message(f: "Fuzzer") -> dict:
-    """A message node 0 might send node 1: RAYS (mostly), PIXELS, STATE or any other kind."""
+    """A message node 0 might send node 1: RAYS (mostly), PIXELS, STATE, ECHO or any other kind."""
     rng = f.rng
     r = rng.random()
     if r < 0.5:
@@ -296,16 +296,19 @@ def neighbour_message(f: "Fuzzer") -> dict:
         deposits = np.zeros(rng.randint(0, 16), dtypes.DEPOSIT)
         deposits["pixel"] = rng.choice([0, 63, 64, -1, 2**62])
         return make(Kind.PIXELS, deposits=deposits, dest=rng.choice([0, 1, 2, -1]))
-    if r < 0.8:
-        n = rng.choice([2, 2, 0, 1, 3, 1000])
+    if r < 0.72:
         return make(
             Kind.STATE,
+            wave=rng.choice([0, 1, 2, 3, -1, 2**40]),
             state=rng.choice([0, 1, 2, 3, 4, 5, 9, -1, 2**40]),
-            last_busy=rng.choice([0, 1, -1, 5]),
-            round=rng.choice([0, 1, 2, -1]),
-            sent=np.zeros(n, "<i8") + rng.choice([0, 1, -1]),
-            received=np.zeros(n, "<i8"),
-            dest=rng.choice([1, 0, 7]),
+        )
+    if r < 0.8:
+        return make(
+            Kind.ECHO,
+            wave=rng.choice([0, 1, 2, -1, 2**40]),
+            dirty=rng.random() < 0.5,
+            sent=rng.choice([0, 1, -1, 2**62]),
+            received=rng.choice([0, 1, -1, 2**63]),
         )
     return mutate_message(rng, valid_message(rng.choice(list(Kind)), rng))
 

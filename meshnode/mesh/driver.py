@@ -10,8 +10,8 @@ import numpy as np
 
 from meshnode.mesh.node import HOST, Batch, NodeCore
 from meshnode.mesh.scheduler import Scheduler
-from meshnode.mesh.steps import Enter, Flush, Give, SendPacket, Steal, Trace
-from meshnode.mesh.termination import Packet
+from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
+from meshnode.mesh.termination import Echo, Probe
 from protocols.state import State
 
 PASS_RAYS = 4096  # rays leaving for one node are sent once this many wait ...
@@ -23,9 +23,9 @@ PASS_AGE = 4  # ... or once they have waited this many batches traced here, or t
 class Driver:
     """Acts on node `node`'s scheduler's steps with its NodeCore (`core`, set once built).
     Subclasses send: RAYS, PIXELS, STEAL and GIVE are counted messages, so their `post_*`
-    tell the scheduler (`Scheduler.message_out`); the state packet is not. Rays leaving for
-    another node wait here until PASS_RAYS of them or PASS_AGE batches have gathered, or
-    the node has nothing in flight (`Flush`)."""
+    tell the scheduler (`Scheduler.message_out`); termination's probes and echoes are not.
+    Rays leaving for another node wait here until PASS_RAYS of them or PASS_AGE batches have
+    gathered, or the node has nothing in flight (`Flush`)."""
 
     def __init__(self, node: int, sched: Scheduler, core: NodeCore | None = None):
         self.node, self.sched, self.core = node, sched, core
@@ -48,14 +48,16 @@ class Driver:
             self.post_steal(step.to)
         elif isinstance(step, Give):
             self.post_give(step.to, step.chunks)
-        elif isinstance(step, SendPacket):
-            self.post_packet(step.packet, step.to)
+        elif isinstance(step, SendProbe):
+            self.post_probe(step.probe, step.to)
+        elif isinstance(step, SendEcho):
+            self.post_echo(step.echo, step.to)
         else:
             raise TypeError(f"unknown scheduler step {step!r}")
 
     def enter(self, state: State) -> None:
-        """Act on a state the packet brought: set up its primaries, hand adaptive sampling's
-        finished pixels over, or report."""
+        """Act on a state a termination wave brought: set up its primaries, hand adaptive
+        sampling's finished pixels over, or report."""
         if state in (State.TRACE, State.REFINE):
             self.sched.primaries = self.core.primaries(state)
         elif state == State.FLUSH and self.core.keeps_pixels:
@@ -113,7 +115,10 @@ class Driver:
     def post_give(self, to: int, chunks: list) -> None:
         raise NotImplementedError
 
-    def post_packet(self, packet: Packet, to: int) -> None:
+    def post_probe(self, probe: Probe, to: int) -> None:
+        raise NotImplementedError
+
+    def post_echo(self, echo: Echo, to: int) -> None:
         raise NotImplementedError
 
     def post_tiles_done(self, tiles: list[int]) -> None:

@@ -2,12 +2,13 @@
 
 The asyncio service and the simulated mesh (the host's cost pre-pass, the tests) drive it
 alike, so a simulated mesh decides exactly as a real one. The driver reports events (rays
-arrived, a pixel message arrived, messages sent, the state packet arrived, a batch finished)
-and asks `next()` what to do: enter a new state, trace a batch (rays from other nodes first
-once PASSED_MIN of them wait, or whenever no primary batch can start: they are partly
+arrived, a pixel message arrived, messages sent, a termination probe or echo arrived, a
+batch finished) and asks `next()` what to do: enter a new state, trace a batch (rays from other
+nodes first once PASSED_MIN of them wait, or whenever no primary batch can start: they are partly
 traced, and finishing them keeps queues short and cannot deadlock full links; then this
 node's primary rays, while its links have room), flush buffered output
-once idle, send the state packet on, or wait for the next event (None). The steps are the
+once idle, pass a termination wave on or answer it (`termination`), or wait for the next event
+(None). The steps are the
 records of `meshnode.mesh.steps`; primary rays come from a feed (`meshnode.mesh.feeds`) the
 driver sets up on entering a state.
 """
@@ -17,8 +18,9 @@ from collections import Counter, deque
 import numpy as np
 
 from meshnode.mesh.feeds import ChunkFeed, Primaries
-from meshnode.mesh.steps import Enter, Flush, Give, SendPacket, Steal, Trace
-from meshnode.mesh.termination import Packet, Termination
+from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
+from meshnode.mesh.termination import Echo, Probe, Termination
+from protocols.errors import BadFrame
 from protocols.state import EVERY_STATE, State
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
@@ -30,16 +32,17 @@ PASSED_MIN = 1024
 
 
 class Scheduler:
-    """One node's decisions. `ring_next`: the node after this one on the packet's ring;
-    `threads`: batches traced at once; `incoming_high`: queued incoming rays above which the
-    driver stops reading (it resumes once `may_read`, at a quarter of that); `passed_min`:
+    """One node's decisions. `parent`, `children`: this node's place in the termination
+    waves' tree (`protocols.topology.Torus.parent`; the root's parent is None); `threads`:
+    batches traced at once; `incoming_high`: queued incoming rays above which the driver
+    stops reading (it resumes once `may_read`, at a quarter of that); `passed_min`:
     queued incoming rays that go before a primary batch (PASSED_MIN)."""
 
     def __init__(
         self,
         node: int,
-        ring_next: int,
-        nodes: int,
+        parent: int | None = None,
+        children: tuple = (),
         threads: int = 1,
         incoming_high: int = INCOMING_HIGH,
         neighbours=(),
@@ -47,7 +50,7 @@ class Scheduler:
         passed_min: int = PASSED_MIN,
         states: tuple = EVERY_STATE,
     ):
-        self.node, self.ring_next, self.threads = node, ring_next, max(1, threads)
+        self.node, self.threads = node, max(1, threads)
         # Stealing (MeshPlan.steal): neighbours asked in turn once this node has run out;
         # one that had nothing is not asked again in this state, but remembers who asked
         # (`hungry`) and gives to them unasked once it holds chunks to spare (a neighbour's
@@ -63,9 +66,10 @@ class Scheduler:
         self.given_in: Counter = Counter()  # chunks given, by state (TRACE, REFINE)
         self.incoming_high = max(1, incoming_high)
         self.passed_min = passed_min
-        self.term = Termination(node, states)  # the states this render goes through
+        # the states this render goes through; the root probes the first wave itself
+        self.term = Termination(node, parent, tuple(children), states)
         self.state = State.DOWNLOAD
-        self.packet: Packet | None = Packet.start(nodes) if node == 0 else None
+        self.probe: Probe | None = Probe(1, int(State.DOWNLOAD)) if parent is None else None
         # Queued rays by the engine that takes them (None: this node's own), and the engines
         # with rays queued, first come first: one batch traces one engine's parts.
         self.queued: dict[int | None, deque] = {}
@@ -74,8 +78,6 @@ class Scheduler:
         self.primaries = Primaries()
         self.in_flight = 0
         self.unflushed = False
-        self.done_passed = False
-        self.forward = False  # a state with primaries just came: pass the packet on first
         self.pending: deque = deque()  # decisions made, not yet handed out
 
     # ------------------------------------------------------------------ events
@@ -101,8 +103,18 @@ class Scheduler:
         """Counted data messages (RAYS, PIXELS) left toward other nodes."""
         self.term.on_sent(messages)
 
-    def packet_in(self, packet: Packet) -> None:
-        self.packet = packet
+    def probe_in(self, probe: Probe) -> None:
+        """A wave from this node's parent (taken up by the next `next()`)."""
+        if self.probe is not None or probe.state < self.state:
+            raise BadFrame(
+                f"STATE: wave {probe.wave} in state {probe.state} came while node "
+                f"{self.node} is in state {int(self.state)} with wave {self.term.wave}"
+            )
+        self.probe = probe
+
+    def echo_in(self, child: int, echo: Echo) -> None:
+        """A child's answer to the wave this node holds."""
+        self.term.echo_in(child, echo)
 
     def steal_request(self, thief: int) -> None:
         """A neighbour asked for chunks (a counted message): answered by the next `next()`."""
@@ -146,7 +158,6 @@ class Scheduler:
 
     def batch_done(self) -> None:
         self.in_flight -= 1
-        self.term.on_work()
         self.unflushed = True
 
     @property
@@ -160,7 +171,7 @@ class Scheduler:
 
     @property
     def done(self) -> bool:
-        return self.state == State.DONE and self.packet is None and not self.pending
+        return self.state == State.DONE and self.probe is None and not self.pending
 
     # ------------------------------------------------------------------ decisions
     def next(self, room: bool = True):
@@ -169,9 +180,9 @@ class Scheduler:
         while True:
             if self.pending:
                 return self.pending.popleft()
-            if self.packet is not None and self.packet.state > self.state:
-                self.forward = self.packet.state in (State.TRACE, State.REFINE)
-                return self._enter(State(self.packet.state))
+            if self.probe is not None:
+                self._take_probe()
+                continue
             if self.thieves:
                 thief = self.thieves.popleft()
                 chunks = self._take(thief)
@@ -185,20 +196,6 @@ class Scheduler:
                         self.hungry.remove(thief)
                         self.pending.append(Give(thief, chunks))
                 continue
-            if self.forward and self.packet is not None:
-                # The packet brought a state with primary rays: hand it on at once, so the
-                # nodes after this one start theirs now, not when this one has finished
-                # (Safra: passing it busy marks this node last busy; it stays dirty). Marked
-                # before it goes: else the node that advanced the state, idle with no
-                # primaries of its own, saw the packet back unmarked and ended the state
-                # while this one still had primaries to trace.
-                self.forward = False
-                busy = self.state in (State.TRACE, State.REFINE) and bool(self.primaries)
-                if busy:
-                    self.term.on_work()
-                if self._pass_packet():
-                    self.term.on_work()
-                    continue
             free = self.in_flight < self.threads
             tracing = self.state in (State.TRACE, State.REFINE) and (
                 bool(self.primaries) or self.primaries.waiting
@@ -216,10 +213,9 @@ class Scheduler:
             if self.unflushed:
                 self.unflushed = False
                 return Flush()
-            if self.packet is None or tracing or self.incoming or self.steal_from is not None:
+            if not self.term.ready or tracing or self.incoming or self.steal_from is not None:
                 return None
-            if not self._pass_packet():
-                return None
+            self._answer()
 
     def _take(self, thief: int) -> list:
         """Chunks of this node's feed for `thief` (none outside a chunked state), counted."""
@@ -255,21 +251,19 @@ class Scheduler:
         self.in_flight += 1
         return Trace(rays, primary)
 
-    def _pass_packet(self) -> bool:
-        """Record counters, maybe advance the state, hand the packet to the next ring node;
-        a DONE packet goes round once and is dropped where it has been before. False when
-        there is nothing more to decide now."""
-        packet, self.packet = self.packet, None
-        if self.state == State.DONE and self.done_passed:
-            return False
-        if self.state != State.DONE:
-            before = packet.state
-            packet = self.term.pass_on(packet)
-            if packet.state != before:
-                self.pending.append(self._enter(State(packet.state)))
-        self.done_passed = self.state == State.DONE
-        if self.ring_next != self.node:
-            self.pending.append(SendPacket(packet, self.ring_next))
-        elif not self.done_passed:
-            self.packet = packet  # a ring of one: the packet comes straight back
-        return True
+    def _take_probe(self) -> None:
+        """A wave reached this node: on to the children at once (so they start a new
+        state's primaries now, not once this node has traced its own), then into its state."""
+        probe, self.probe = self.probe, None
+        self.term.probe_in(probe)
+        self.pending.extend(SendProbe(probe, child) for child in self.term.children)
+        if probe.state > self.state:
+            self.pending.append(self._enter(State(probe.state)))
+
+    def _answer(self) -> None:
+        """Idle, and every child has answered: echo to the parent, or at the root judge
+        the wave and begin the next."""
+        if self.term.root:
+            self.probe = self.term.next_wave(int(self.state))
+        else:
+            self.pending.append(SendEcho(self.term.answer(), self.term.parent))

@@ -4,7 +4,7 @@ queue instead of sent on sockets.
 
 Each round, every node (in a seeded random order) acts until it has traced one batch or has
 nothing to do; messages sent in a round arrive at the start of the next (or `delay` rounds
-later on one link), so rays and the state packet overtake each other as on a network. The
+later on one link), so rays and termination waves overtake each other as on a network. The
 host's cost pre-pass runs it on a coarse image; the tests check the distributed algorithm
 with it (image, counts, termination under delays) against the single-node render.
 
@@ -29,7 +29,7 @@ from meshnode.mesh.node import EYE_BATCH, NodeCore
 from meshnode.mesh.scheduler import PASSED_MIN, Scheduler
 from meshnode.mesh.stats import add_counts, work_units
 from meshnode.mesh.steps import Trace
-from meshnode.mesh.termination import Packet
+from meshnode.mesh.termination import Echo, Probe
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.state import states_of
@@ -52,7 +52,7 @@ class NodeRecord:
     rays_sent: int = 0
     sent_to: dict = field(default_factory=lambda: defaultdict(int))  # node -> rays sent it
     rays_received: int = 0
-    packet_visits: int = 0
+    waves: int = 0  # termination waves that reached it
     chunks_given: int = 0  # chunks of its rectangle neighbours took (MeshPlan.steal)
     chunks_taken: int = 0  # chunks it took from neighbours
     given_in: dict = field(default_factory=dict)  # chunks given by state (TRACE, REFINE)
@@ -115,8 +115,8 @@ class _Mesh:
         self.scheds = [
             Scheduler(
                 n,
-                torus.ring_next(n),
-                torus.size,
+                torus.parent(n),
+                torus.children(n),
                 neighbours=torus.links(n),
                 steal=spec.steals,
                 passed_min=passed_min,
@@ -160,6 +160,7 @@ class _Mesh:
         for rec, sched in zip(self.records, self.scheds, strict=True):
             rec.chunks_given, rec.chunks_taken = sched.chunks_given, sched.chunks_taken
             rec.given_in = dict(sched.given_in)
+            rec.waves = sched.term.wave
 
     def run(self) -> Outcome:
         while not all(s.done for s in self.scheds) or self.transit:
@@ -178,7 +179,7 @@ class _Mesh:
     def _send(self, src: int, dst: int, kind: str, payload) -> None:
         late = self.delay[2] if self.delay and (src, dst) == tuple(self.delay[:2]) else 0
         self._post((self._stamp(src, late), dst, kind, payload))
-        if kind != "state":
+        if kind not in ("probe", "echo"):
             self.scheds[src].message_out()
 
     def _deliver(self) -> None:
@@ -208,8 +209,10 @@ class _Mesh:
                 if tiles or last:
                     owners = self.dealer.owners_with(last)
                     self._post((self._stamp(-1), payload[0], "tiles", (tiles, last, owners)))
+        elif kind == "echo":
+            sched.echo_in(*payload)
         else:
-            sched.packet_in(payload)
+            sched.probe_in(payload)
 
     def _act(self, n: int) -> bool:
         """Node n acts until it has traced one batch (True) or must wait (False)."""
@@ -254,9 +257,11 @@ class _Node(Driver):
     def post_give(self, to: int, chunks: list) -> None:
         self.mesh._send(self.node, to, "give", (self.node, chunks))
 
-    def post_packet(self, packet: Packet, to: int) -> None:
-        self.record.packet_visits += 1
-        self.mesh._send(self.node, to, "state", packet)
+    def post_probe(self, probe: Probe, to: int) -> None:
+        self.mesh._send(self.node, to, "probe", probe)
+
+    def post_echo(self, echo: Echo, to: int) -> None:
+        self.mesh._send(self.node, to, "echo", (self.node, echo))
 
     def post_tiles_done(self, tiles: list[int]) -> None:
         self.mesh._post((self.mesh._stamp(self.node), -1, "done", (self.node, tiles)))

@@ -8,13 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshnode.mesh.termination import Packet
+from meshnode.mesh.termination import Echo, Probe
 from protocols.state import State
 
 
 @dataclass(frozen=True)
 class Enter:
-    """The ring moved to `state`: the driver sets up its primaries (`Scheduler.primaries`),
+    """The mesh moved to `state`: the driver sets up its primaries (`Scheduler.primaries`),
     flushes finished pixels or reports statistics."""
 
     state: State
@@ -51,8 +51,16 @@ class Give:
 
 
 @dataclass(frozen=True)
-class SendPacket:
-    """Send the state packet to node `to` (the next on the ring)."""
+class SendProbe:
+    """Pass a termination wave on to child `to` in the tree."""
 
-    packet: Packet
+    probe: Probe
+    to: int
+
+
+@dataclass(frozen=True)
+class SendEcho:
+    """Answer the wave to parent `to`."""
+
+    echo: Echo
     to: int

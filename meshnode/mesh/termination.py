@@ -1,75 +1,121 @@
-"""Termination by the state packet on the ring (DESIGN.md 5), with Safra's message counters.
+"""Termination by waves on the torus's spanning tree (DESIGN.md 5), with message counters.
 
-Pure: the service reports events (a data message sent or received, work done, the packet
-arrived, the node fell idle) and forwards the packet when told. A node that was active since
-it last passed the packet on marks itself `last_busy`; the packet coming back to its
-`last_busy` node unchanged means a whole round saw no activity, and the state advances only if
-the data messages counted as sent equal those counted as received, so a ray still on a link
-(sent, not yet received) can never be mistaken for the end of a state.
+The root (node 0) sends a probe down the tree (`protocols.topology.Torus.parent`); a node passes
+it to its children at once and, once it is idle and every child has echoed, echoes up: whether
+any node of its subtree received a data message since its previous echo (dirty), and the data
+messages the subtree has sent and received in all. A wave that comes back clean and balanced
+ends the state: the root takes the next one and the next probe carries it down. Otherwise the
+next wave starts at once.
+
+One clean wave suffices. Waves follow one another (the root probes only after the last echo
+came back), so every echo of wave k comes after every echo of wave k-1. A message sent after
+its sender's echo k and received before its receiver's echo k was received after that
+receiver's echo k-1, so its receiver is dirty in wave k: in a clean wave no message crosses the
+echoes backwards, the counts are those of one consistent cut, and balanced counts mean no
+message was in flight across it. Every node was idle at its echo, and within a state an idle
+node wakes only for a message (its primaries, dealt tiles and stolen chunks are done before it
+echoes): nothing can wake any node after the cut. So a node's own work need not dirty it: a
+state whose nodes exchange no messages (image space) ends with the wave that brought it.
+
+A wave costs 2 x `tree_depth` message flights (rows/2 + cols/2 each way) where the ring it
+replaces took the size of the mesh: on 16x16, 32 against 256.
+
+Pure: the service reports events (a data message sent or received, work done, a probe or an
+echo arrived) and sends what the scheduler decides.
 """
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
+from protocols.errors import BadFrame
 from protocols.state import State
 
 
-@dataclass
-class Packet:
-    """The state packet: current state, last busy node, round number, per-node counters."""
+@dataclass(frozen=True)
+class Probe:
+    """Down the tree: wave `wave` has begun, in state `state`."""
 
+    wave: int
     state: int
-    last_busy: int
-    round: int
-    sent: np.ndarray
-    received: np.ndarray
 
-    @classmethod
-    def start(cls, n_nodes: int, first: int = 0) -> "Packet":
-        zeros = np.zeros(n_nodes, np.int64)
-        return cls(int(State.DOWNLOAD), first, 0, zeros, zeros.copy())
 
-    def balanced(self) -> bool:
-        return int(self.sent.sum()) == int(self.received.sum())
+@dataclass(frozen=True)
+class Echo:
+    """Up the tree: a subtree's answer to wave `wave`: any node active since its last echo,
+    and the data messages its nodes have sent and received since the render began."""
+
+    wave: int
+    dirty: bool
+    sent: int
+    received: int
 
 
 @dataclass
 class Termination:
-    """One node's side of the protocol; `states`: the states the render goes through, in
+    """One node's side of the protocol. `parent`: its parent in the tree (None at the root);
+    `children`: the nodes it waits for; `states`: the states the render goes through, in
     order (`protocols.state.states_of`)."""
 
     node: int
+    parent: int | None = None
+    children: tuple = ()
     states: tuple = tuple(State)
     sent: int = 0
     received: int = 0
-    dirty: bool = True  # active since the packet last left; a node starts out busy
-    visits: int = 0
-    advances: list = field(default_factory=list)
+    dirty: bool = False  # received a data message since its last echo
+    wave: int = 0  # the last wave whose probe came here
+    holding: bool = False  # that wave awaits this node's echo
+    echoes: dict = field(default_factory=dict)  # child -> Echo of this wave
+    advances: list = field(default_factory=list)  # states the root moved to
 
     def on_sent(self, messages: int = 1) -> None:
         self.sent += messages
-        self.dirty = True
 
     def on_received(self, messages: int = 1) -> None:
         self.received += messages
         self.dirty = True
 
-    def on_work(self) -> None:
-        self.dirty = True
+    @property
+    def root(self) -> bool:
+        return self.parent is None
 
-    def pass_on(self, packet: Packet) -> Packet:
-        """Called when the node holds the packet and is idle: returns the packet to forward,
-        with the state advanced when a clean round with balanced counters came back here."""
-        self.visits += 1
-        packet.sent[self.node] = self.sent
-        packet.received[self.node] = self.received
-        if self.dirty:
-            packet.last_busy = self.node
-            self.dirty = False
-        elif packet.last_busy == self.node and packet.balanced():
-            if packet.state < State.DONE:
-                packet.state = int(next(x for x in self.states if x > packet.state))
-                self.advances.append(packet.state)
-        packet.round += 1
-        return packet
+    def probe_in(self, probe: Probe) -> None:
+        """A wave reached this node (the root makes its own); DONE awaits no echo."""
+        if probe.wave != self.wave + 1:
+            raise BadFrame(f"STATE: wave {probe.wave} after wave {self.wave}")
+        self.wave, self.echoes = probe.wave, {}
+        self.holding = probe.state < State.DONE
+
+    def echo_in(self, child: int, echo: Echo) -> None:
+        """A child's answer to the current wave; anything else is a peer's error."""
+        if child not in self.children:
+            raise BadFrame(f"ECHO from node {child}, which is not a child of node {self.node}")
+        if not self.holding or echo.wave != self.wave or child in self.echoes:
+            raise BadFrame(f"ECHO: node {child} answered wave {echo.wave}, not the open one")
+        self.echoes[child] = echo
+
+    @property
+    def ready(self) -> bool:
+        """This node holds a wave and every child has answered it (the scheduler adds: and
+        the node is idle)."""
+        return self.holding and len(self.echoes) == len(self.children)
+
+    def answer(self) -> Echo:
+        """This subtree's echo; the node is clean again from now."""
+        echoes = self.echoes.values()
+        echo = Echo(
+            self.wave,
+            self.dirty or any(e.dirty for e in echoes),
+            self.sent + sum(e.sent for e in echoes),
+            self.received + sum(e.received for e in echoes),
+        )
+        self.dirty, self.holding, self.echoes = False, False, {}
+        return echo
+
+    def next_wave(self, state: int) -> Probe:
+        """At the root, once ready: the next wave's probe, with the next state when this one
+        came back clean and balanced."""
+        echo = self.answer()
+        if not echo.dirty and echo.sent == echo.received and state < State.DONE:
+            state = int(next(s for s in self.states if s > state))
+            self.advances.append(state)
+        return Probe(self.wave + 1, state)

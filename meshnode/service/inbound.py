@@ -1,4 +1,4 @@
-"""What a neighbour may send during a render: each RAYS, PIXELS, STATE and GIVE checked before
+"""What a neighbour may send during a render: each RAYS, PIXELS, STATE, ECHO and GIVE checked before
 the session acts on it (DESIGN.md 5: everything a peer sends is validated and bounded before
 anything is allocated). A bad message raises BadFrame naming the message and its field; the
 session reports it as that neighbour's link failing.
@@ -6,6 +6,7 @@ session reports it as that neighbour's link failing.
 
 import numpy as np
 
+from meshnode.mesh.termination import Echo, Probe
 from protocols.dtypes import RAY
 from protocols.errors import BadFrame
 from protocols.render import RenderSpec
@@ -55,17 +56,21 @@ def check_pixels(f: dict, nodes: int) -> None:
         raise BadFrame("PIXELS: colours must be finite")
 
 
-def check_state(f: dict, nodes: int) -> None:
-    """STATE: a known state, a last busy node and one pair of counters per node of the mesh
-    (termination indexes them by node)."""
-    check_dest(f, "STATE", nodes)
-    if (
-        not 0 <= f["state"] <= State.DONE
-        or not 0 <= f["last_busy"] < nodes
-        or len(f["sent"]) != nodes
-        or len(f["received"]) != nodes
-    ):
-        raise BadFrame("STATE: state, last busy node or counters do not fit the mesh")
+def checked_probe(f: dict, sender: int, parent: int | None) -> Probe:
+    """STATE: a wave's probe, only from this node's parent in the tree, in a known state."""
+    if sender != parent:
+        raise BadFrame(f"STATE from node {sender}, which is not this node's parent in the tree")
+    if not 0 <= f["state"] <= State.DONE or f["wave"] < 1:
+        raise BadFrame(f"STATE: wave {f['wave']} in state {f['state']} does not exist")
+    return Probe(f["wave"], f["state"])
+
+
+def checked_echo(f: dict) -> Echo:
+    """ECHO: a wave's answer with counts a render can reach (the scheduler checks that it
+    comes from a child and answers the open wave)."""
+    if f["wave"] < 1 or not 0 <= f["sent"] < 2**62 or not 0 <= f["received"] < 2**62:
+        raise BadFrame("ECHO: wave or message counts out of range")
+    return Echo(f["wave"], f["dirty"], f["sent"], f["received"])
 
 
 def checked_chunks(chunks: list, render: RenderSpec) -> list:

@@ -3,7 +3,7 @@
 The session reads its configuration and objects, builds its NodeCore off the event loop, links
 to its neighbours, and then lets the Scheduler decide: it traces the batches it is told to on
 the service's thread pool (kernels release the GIL, so links keep flowing), posts rays and
-deposits toward the nodes that take them, and forwards the state packet; what neighbours send
+deposits toward the nodes that take them, and passes termination waves on; what neighbours send
 is checked first (`inbound`). Every send goes through a per-link Outbox; new primary rays start
 only while the outboxes are below a high-water mark, which bounds the rays in flight (and so
 the memory).
@@ -21,9 +21,15 @@ from meshnode.mesh.node import NodeCore
 from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.stats import NodeStats
 from meshnode.mesh.steps import Trace
-from meshnode.mesh.termination import Packet
+from meshnode.mesh.termination import Echo, Probe
 from meshnode.service.config import Config, Objects
-from meshnode.service.inbound import check_pixels, check_rays, check_state, checked_chunks
+from meshnode.service.inbound import (
+    check_pixels,
+    check_rays,
+    checked_chunks,
+    checked_echo,
+    checked_probe,
+)
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
@@ -47,8 +53,8 @@ class Session(Driver):
         threads = min(service.threads, config.render.engine.threads or service.threads)
         sched = Scheduler(
             node,
-            config.torus.ring_next(node),
-            config.torus.size,
+            config.torus.parent(node),
+            config.torus.children(node),
             threads,
             service.incoming_high,
             neighbours=config.torus.links(node),
@@ -195,7 +201,9 @@ class Session(Driver):
                 elif kind is Kind.PIXELS:
                     self.on_pixels(f)
                 elif kind is Kind.STATE:
-                    self.on_state(f)
+                    self.sched.probe_in(checked_probe(f, m, self.config.torus.parent(self.node)))
+                elif kind is Kind.ECHO:
+                    self.sched.echo_in(m, checked_echo(f))
                 elif kind is Kind.STEAL:
                     self.sched.steal_request(m)
                 elif kind is Kind.GIVE:
@@ -245,14 +253,6 @@ class Session(Driver):
             return
         self.send_pixels(self.core.add_tiles(f["tiles"], f["last"], f["owners"]))
         self.wake.set()
-
-    def on_state(self, f: dict) -> None:
-        check_state(f, self.config.torus.size)
-        if f["dest"] != self.node:
-            self.outboxes[self.router.next_hop(f["dest"])].post(make(Kind.STATE, **f))
-            return
-        sent, received = np.array(f["sent"]), np.array(f["received"])
-        self.sched.packet_in(Packet(f["state"], f["last_busy"], f["round"], sent, received))
 
     # ------------------------------------------------------------------ work
     async def work(self) -> None:
@@ -325,17 +325,19 @@ class Session(Driver):
         self.outboxes[to].post(make(Kind.GIVE, chunks=chunks))
         self.sched.message_out()
 
-    def post_packet(self, packet: Packet, to: int) -> None:
-        message = make(
-            Kind.STATE,
-            state=packet.state,
-            last_busy=packet.last_busy,
-            round=packet.round,
-            sent=packet.sent,
-            received=packet.received,
-            dest=to,
+    def post_probe(self, probe: Probe, to: int) -> None:
+        self.outboxes[to].post(make(Kind.STATE, wave=probe.wave, state=probe.state))
+
+    def post_echo(self, echo: Echo, to: int) -> None:
+        self.outboxes[to].post(
+            make(
+                Kind.ECHO,
+                wave=echo.wave,
+                dirty=echo.dirty,
+                sent=echo.sent,
+                received=echo.received,
+            )
         )
-        self.outboxes[self.router.next_hop(to)].post(message)
 
     def post_tiles_done(self, tiles: list[int]) -> None:
         self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=tiles))
@@ -357,7 +359,7 @@ class Session(Driver):
         """The node's STATS to the host."""
         links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
         report = self.stats.report(self.core.engine.stats, links)
-        report["packet_visits"] = self.sched.term.visits
+        report["waves"] = self.sched.term.wave
         report["engine_reused"] = self.core.engine_reused
         report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
         report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)

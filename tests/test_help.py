@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from host.cli import _parser as host_parser
+from host.cli.options import FLAGS
 from meshnode.service.cli import parser as node_parser
 
 
@@ -43,6 +44,9 @@ def test_every_help_prints_and_exits_0(prog, path, parser, capsys):
         for action in parser._actions:
             for option in action.option_strings:
                 assert option in out, (prog, path, option)
+        # values named in the user's terms, never by a record's field (IMAGESPEC.SPP)
+        records = {dest.split(".")[0] for dest in FLAGS}
+        assert records and not any(f"{r}.".upper() in out for r in records), out
 
 
 def test_the_subcommands_are_all_walked():

@@ -18,6 +18,8 @@ def record_option(group, flag: str, record: type, name: str, help: str, **kw) ->
     d = default(record, name)
     FLAGS[f"{record.__name__}.{name}"] = flag
     shown = "" if d is None or kw.get("action") == "store_true" else f" (default {d})"
+    if kw.get("action") is None and "choices" not in kw:
+        kw.setdefault("metavar", flag.lstrip("-").replace("-", "_").upper())  # not the field
     group.add_argument(
         flag, dest=f"{record.__name__}.{name}", default=argparse.SUPPRESS, help=help + shown, **kw
     )

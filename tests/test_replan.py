@@ -85,3 +85,47 @@ def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols,
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
+
+
+@pytest.mark.parametrize("fault", ["kill", "pause"])
+def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault):
+    # Killed or paused as the host starts setting the render up (its plan chosen, CONFIG
+    # and objects about to go): the loss shows in the sends, in the links or in the
+    # heartbeats, and the frame is planned again on the nodes left (issue 41 item 3).
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=32, height=32, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    victim = 2
+    mesh = slow_mesh(4, 0, 1, 0.0, 0)
+    notices: list[str] = []
+    with mesh as addresses:
+        proc = mesh.procs[victim]
+
+        def notice(text: str) -> None:
+            notices.append(text)
+            if text.startswith("plan:"):
+                os.kill(proc.pid, signal.SIGKILL if fault == "kill" else signal.SIGSTOP)
+
+        async def run():
+            task = render_on_mesh(
+                scene,
+                rs.image,
+                addresses,
+                MeshPlan(2, 2, 10),
+                rs.engine,
+                silence=3.0,
+                notice=notice,
+            )
+            try:
+                return await asyncio.wait_for(task, 90)
+            finally:
+                if fault == "pause":
+                    os.kill(proc.pid, signal.SIGCONT)
+
+        img, stats = asyncio.run(run())
+    assert [d["node"] for d in stats["lost_nodes"]] == [victim]
+    assert f"lost node {victim} ({addresses[victim]})" in notices[1]
+    assert stats["mesh"]["rows"] * stats["mesh"]["cols"] == 3
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert all(p.poll() is not None for p in mesh.procs)

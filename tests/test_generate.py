@@ -189,6 +189,14 @@ def test_teapot_has_64_n_squared_less_8_n_triangles_past_size_1():
         assert len(scene.polygons) == n * n  # the checkerboard
 
 
+@pytest.mark.parametrize("name", sorted(set(GENERATORS) - {"teapot"}))
+def test_counts_table_gives_each_generators_objects(name):
+    from bench.generate import COUNTS
+
+    for n in (1, 2):
+        assert GENERATORS[name](n).n_objects == COUNTS[name](n), (name, n)
+
+
 def test_mount_is_a_deterministic_landscape_of_2_4_to_the_n_triangles():
     a, b = mount(3), mount(3)
     assert len(a.triangles) == 2 * 4**3 and len(a.spheres) == 4

@@ -26,17 +26,17 @@ import re
 
 from bench.generate.balls import balls, balls_count, sphereflake
 from bench.generate.gears import gears, gears_count
-from bench.generate.jacks import jacks
-from bench.generate.lattice import lattice
+from bench.generate.jacks import jacks, jacks_count
+from bench.generate.lattice import lattice, lattice_count
 from bench.generate.mount import mount
 from bench.generate.nffwrite import write_nff
 from bench.generate.records import SPD_BACKGROUND, SpdScene
-from bench.generate.rings import rings
-from bench.generate.shells import shells
-from bench.generate.sombrero import sombrero
+from bench.generate.rings import rings, rings_count
+from bench.generate.shells import shells, shells_count
+from bench.generate.sombrero import sombrero, sombrero_count
 from bench.generate.teapot import teapot
 from bench.generate.tetra import tetra, tetra_count, tetra_triangles
-from bench.generate.tree import tree
+from bench.generate.tree import tree, tree_count
 from protocols.scene import SceneData
 
 __all__ = [
@@ -92,7 +92,19 @@ DEFAULT_SIZES = {
     "tetra": 6,
     "tree": 11,
 }
-COUNTS = {"tetra": tetra_count, "balls": lambda n: balls_count(n) + 1}  # objects, floor too
+# Objects (primitives, floors and walls too) at size factor n; teapot's depend on its cusps.
+COUNTS = {
+    "tetra": tetra_count,
+    "balls": lambda n: balls_count(n) + 1,
+    "gears": gears_count,
+    "jacks": jacks_count,
+    "lattice": lattice_count,
+    "mount": lambda n: 4 + 2 * 4**n,
+    "rings": rings_count,
+    "shells": shells_count,
+    "sombrero": sombrero_count,
+    "tree": tree_count,
+}
 
 
 def spd(name: str, printed: bool = False) -> SceneData:

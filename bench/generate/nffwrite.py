@@ -1,7 +1,8 @@
 """Write a `SceneData` as an NFF file that `read_nff` reads back as the same records.
 
 Many tools and tests take a scene *path*; a generated scene becomes one here. Numbers are
-written with 17 significant digits, so they read back bit for bit. Objects go out in gid order,
+written with 17 significant digits, so they read back bit for bit (a smooth
+triangle's normal within an ulp: the reader normalises it again). Objects go out in gid order,
 each `f` line before the first object of its material: when materials follow gid order (as
 every NFF file's do) the materials table reads back unchanged, unused rows included; otherwise
 an `f` line is repeated wherever the material changes (the same look, a longer table). Smooth

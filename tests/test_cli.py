@@ -192,7 +192,10 @@ def test_a_first_run_says_kernels_compile_before_the_progress_starts(
         assert not said
     else:
         assert len(said) == 1 and said[0].startswith("host: compiling kernels for spheres+")
-        assert said[0].endswith("/shadows/refraction, first run only")
+        assert said[0].endswith(
+            "/shadows/refraction, first run only: the structure build, the tracing kernel, "
+            "the primary rays"
+        )
         assert lines.index(said[0]) < min(i for i, x in enumerate(lines) if "tracing:" in x)
     assert (
         main(

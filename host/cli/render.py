@@ -112,7 +112,8 @@ def _mesh_summary(out, stats: dict) -> str:
         f"{out}: mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}  eye {r['eye_rays']}"
         f"  reflected {r['reflected_rays']}  refracted {r['refracted_rays']}  shadow "
         f"{r['shadow_rays']} (blocked {r['shadow_rays_blocked']})  passed "
-        f"{stats['rays_passed']}  wall {stats['wall_seconds']:.2f} s  imbalance "
+        f"{stats['rays_passed']}  setup {stats['setup_seconds']:.2f} s (compile "
+        f"{stats['compile_seconds']:.1f} s)  wall {stats['wall_seconds']:.2f} s  imbalance "
         f"{stats['imbalance']:.2f}"
     )
 
@@ -125,7 +126,8 @@ def _summary(out, stats: dict) -> str:
         f"eye {r['eye_rays']} (hit {r['eye_hits']})  reflected {r['reflected_rays']}  "
         f"refracted {r['refracted_rays']}  shadow {r['shadow_rays']} "
         f"(blocked {r['shadow_rays_blocked']})\n"
-        f"preprocess {stats['preprocess_seconds']:.3f} s  trace {stats['trace_seconds']:.3f} s"
+        f"compile {stats['compile_seconds']:.1f} s  load {stats['load_seconds']:.2f} s  setup "
+        f"{stats['setup_seconds']:.3f} s  trace {stats['trace_seconds']:.3f} s"
         f"  {stats['rays_per_second']:.0f} rays/s  tests/ray {stats['tests_per_ray']:.2f}  "
         f"steps/ray {stats['steps_per_ray']:.2f}  [{stats['engine']['kernel_variant']}]"
     )

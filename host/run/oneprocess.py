@@ -9,13 +9,15 @@ import sys
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from host.camera.setup import CameraSetup
+from host.run.firstrun import STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import WALK_COUNTS
+from meshnode.engine.kernelcache import compile_clock
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from protocols.render import EngineSpec, ImageSpec
@@ -43,12 +45,20 @@ def render(
     `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
     image = image.sized(scene.view)
     announce = _compiling if progress else None
-    tracer = built or Engine.from_spec(scene, engine, max_depth=image.depth, announce=announce)
-    tracer.warmup()
-    eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))  # compiled here, not while timed
-    job = _Job(scene, image, engine, tracer, progress, watch)
+    with compile_clock() as clock:  # a first run's compiling told apart from the rest
+        setup = Setup(clock, say_on_stderr if progress else None)
+        tracer = built or setup.run(
+            "structure build",
+            lambda: Engine.from_spec(scene, engine, max_depth=image.depth, announce=announce),
+        )
+        setup.run("tracing kernel", tracer.warmup)
+        if camera is None:  # compiled here, not while timed
+            setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
+        else:
+            lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
+    job = _Job(scene, image, engine, tracer, progress, watch, setup.seconds())
     if camera is not None:
-        return _render_camera(job, camera)
+        return _render_camera(job, *lens)
     width, height = image.size
     corners = image.corners()
     fb = Framebuffer(width, height, corners=corners, spp=image.spp)
@@ -76,7 +86,12 @@ def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple
 
 def _compiling(variant: str) -> None:
     """A first run compiles for tens of seconds before any progress: say why."""
-    print(f"host: compiling kernels for {variant}, first run only", file=sys.stderr, flush=True)
+    steps = ", the ".join(STEPS)
+    print(
+        f"host: compiling kernels for {variant}, first run only: the {steps}",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 @dataclass(frozen=True)
@@ -89,6 +104,7 @@ class _Job:
     tracer: Engine
     progress: bool
     watch: object = None  # host.live.monitor.Monitor, or None
+    setup: dict = field(default_factory=dict)  # compile, load and setup seconds (`firstrun`)
 
 
 def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
@@ -126,13 +142,20 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
     return fb.image(), stats
 
 
-def _render_camera(job: _Job, camera: CameraSetup):
+def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, tracer: Engine):
+    """(camera spec, its info for the stats), focused (autofocus probes the scene) and its
+    ray kernels compiled, before the frame is timed."""
+    spec, info = camera.spec(scene, image, lambda: tracer)
+    width, height = image.size
+    camera_rays(spec, scene.view, width, height, rect_pixels((0, width, 0, height), width)[:1])
+    return spec, info
+
+
+def _render_camera(job: _Job, spec, info):
     """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
     view, (width, height), seed = job.scene.view, job.image.size, job.image.seed
-    spec, info = camera.spec(job.scene, job.image, lambda: job.tracer)
     fb = Framebuffer(width, height, corners=False, spp=1)
     pixels = rect_pixels((0, width, 0, height), width)
-    camera_rays(spec, view, width, height, pixels[:1])  # compiled here, not while timed
 
     def trace_batch(rays):
         return _traced(job.tracer, rays)
@@ -198,6 +221,7 @@ def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
         "steps_per_ray": totals["voxel_steps"] / segments,
         "engine": tracer.stats,
         "preprocess_seconds": tracer.preprocess_seconds,
+        **job.setup,
         "trace_seconds": trace_seconds,
         "rays_per_second": rays / trace_seconds if trace_seconds > 0 else None,
     }

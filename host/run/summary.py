@@ -21,6 +21,8 @@ def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "deposits_received": deposits,
         "rays_passed": sum(s["rays_sent"] for s in nodes),
         "setup_seconds": setup,  # planned, configured, every engine built and link up
+        # ... of which the slowest-compiling node compiled kernels (a first run)
+        "compile_seconds": max(s.get("compile_seconds", 0.0) for s in nodes),
         "wall_seconds": wall,
         "busiest_node_cpu_seconds": max(busy),
         # the whole process's CPU for the frame (kernels, routing, deposits, framing, the

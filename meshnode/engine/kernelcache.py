@@ -14,6 +14,7 @@ except ImportError:  # Windows: no advisory locks; processes there may compile t
     fcntl = None
 
 import numba
+from numba.core import event
 
 from meshnode.engine.trace import trace_batch
 
@@ -79,3 +80,25 @@ def kernels_compiled() -> int:
             if isinstance(value, numba.core.registry.CPUDispatcher):
                 total += sum(value.stats.cache_misses.values())
     return total
+
+
+class CompileClock:
+    """Seconds numba spent compiling (cache misses only: loading from the disk cache is not
+    counted) while `compile_clock()` was installed, so a first run's summary can tell
+    compiling from building and loading."""
+
+    def __init__(self):
+        self.listener = event.TimingListener()
+
+    @property
+    def seconds(self) -> float:
+        return self.listener.duration if self.listener.done else 0.0
+
+
+@contextlib.contextmanager
+def compile_clock():
+    """A CompileClock over the block (numba's compile events are process-wide: compiles on
+    other threads meanwhile count too)."""
+    clock = CompileClock()
+    with event.install_listener("numba:compile", clock.listener):
+        yield clock

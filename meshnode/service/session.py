@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from meshnode.engine.kernelcache import compile_clock
 from meshnode.mesh.driver import Driver
 from meshnode.mesh.node import NodeCore
 from meshnode.mesh.scheduler import Scheduler
@@ -76,6 +77,7 @@ class Session(Driver):
         self.ready = False  # engine built and every neighbour linked
         self.created = time.perf_counter()
         self.setup_seconds = 0.0
+        self.compile_seconds = 0.0  # of the setup, numba compiling (a first run)
         self.frame_cpu_start = time.process_time()  # moved to the frame's start once built
         self.frame_sys_start = os.times().system
         self.tasks: set[asyncio.Task] = set()
@@ -121,24 +123,25 @@ class Session(Driver):
             c = self.config
             scene = self.objects.scene(self.node, c.view, c.background)
             copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
-            self.core = await loop.run_in_executor(
-                self.service.pool,
-                lambda: NodeCore(
-                    self.node,
-                    scene,
-                    c.render,
-                    c.partition,
-                    engines=self.service.engines,
-                    copies=copies,
-                ),
-            )
-            if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
-                log.info(
-                    "node %d: compiling kernels for %s, first run only",
-                    self.node,
-                    self.core.engine.variant(),
+            with compile_clock() as clock:  # a first run's compiling, told apart in the stats
+                self.core = await loop.run_in_executor(
+                    self.service.pool,
+                    lambda: NodeCore(
+                        self.node,
+                        scene,
+                        c.render,
+                        c.partition,
+                        engines=self.service.engines,
+                        copies=copies,
+                    ),
                 )
-            await loop.run_in_executor(self.service.pool, self.core.warmup)
+                variant = self.core.engine.variant()
+                if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
+                    log.info("node %d: compiling %s, first run only", self.node, variant)
+                await loop.run_in_executor(self.service.pool, self.core.warmup)
+            self.compile_seconds = clock.seconds
+            if clock.seconds:
+                log.info("node %d: compiled %s in %.1f s", self.node, variant, clock.seconds)
             for f in self.early_tiles:  # nothing is traced yet, so no deposit is to send
                 self.core.add_tiles(f["tiles"], f["last"], f["owners"])
             for m in c.torus.links(self.node):
@@ -366,6 +369,7 @@ class Session(Driver):
         report["chunks_taken"] = self.sched.chunks_taken
         report["chunks_given_by_state"] = dict(self.sched.given_in)
         report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
+        report["compile_seconds"] = self.compile_seconds  # ... of which compiling kernels
         report["engine_bytes_held"] = self.core.engine_bytes  # its own engine and copies
         # the whole process's CPU from the frame's start (kernels, routing, deposits,
         # framing, the event loop): what a node's speedup counts

@@ -12,9 +12,10 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-PROTOCOL_VERSION = 10  # 10: termination waves (STATE down the tree, ECHO up); 9: arrays after
-# the map, MeshPlan.max_share, node_bytes (8: MeshPlan.shared;
-# 7: TILES.owners; 6: MeshPlan.order; 5: OBJECTS name)
+# 10: termination waves (STATE down the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
+# MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
+# 5: OBJECTS name)
+PROTOCOL_VERSION = 10
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 
@@ -45,6 +46,8 @@ class Kind(IntEnum):
     STEAL = 17  # node to neighbour (MeshPlan.steal): I have run out, give me unstarted chunks
     GIVE = 18  # neighbour's answer: chunks [x0, x1, y0, y1] of its rectangle, maybe none
     ECHO = 19  # child to parent: its subtree's answer to a wave (meshnode.mesh.termination)
+    TILES_TRACED = 20  # node to host, dynamic image space: tiles whose every deposit it has
+    # sent (all before this message), with their ray counts: kept if another node is lost
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -97,6 +100,7 @@ FIELDS = {
     # owners: every tile's node, with `last` under adaptive sampling (else empty)
     Kind.TILES: {"tiles": list, "last": bool, "owners": np.dtype("<i8")},
     Kind.TILE_DONE: {"node": int, "tiles": list},
+    Kind.TILES_TRACED: {"node": int, "tiles": list, "counts": dict},
     Kind.ABORT: {"reason": str},
     Kind.ABORTED: {},
     Kind.STEAL: {"node": int},
@@ -173,7 +177,7 @@ def parse(message: dict) -> tuple[Kind, dict]:
                 f"GIVE.chunks must be at most {MAX_TILES_PER_MESSAGE} rectangles "
                 "[x0, x1, y0, y1] of non-negative integers, x0 < x1, y0 < y1"
             )
-    if kind in (Kind.TILES, Kind.TILE_DONE):
+    if kind in (Kind.TILES, Kind.TILE_DONE, Kind.TILES_TRACED):
         tiles = fields["tiles"]
         if len(tiles) > MAX_TILES_PER_MESSAGE or not all(
             isinstance(t, int) and not isinstance(t, bool) and t >= 0 for t in tiles
@@ -183,6 +187,8 @@ def parse(message: dict) -> tuple[Kind, dict]:
             )
     if kind is Kind.PROGRESS:
         _check_progress(fields)
+    if kind is Kind.TILES_TRACED:
+        _check_counts(fields["counts"])
     if kind is Kind.OBJECTS:
         want = OBJECT_TABLES.get(fields["table"])
         if want is None:
@@ -204,3 +210,22 @@ def _check_progress(f: dict) -> None:
         bad.append("links")
     if bad:
         raise BadFrame(f"PROGRESS: {', '.join(bad)} out of range")
+
+
+MAX_COUNTERS = 64  # ray counters in a TILES_TRACED (a node's STATS has about 20)
+
+
+def _check_counts(counts: dict) -> None:
+    """Counters a host adds into the render's statistics: named, whole and not negative."""
+    if len(counts) > MAX_COUNTERS or not all(
+        isinstance(k, str)
+        and len(k) <= 64
+        and isinstance(v, int)
+        and not isinstance(v, bool)
+        and 0 <= v < 2**62
+        for k, v in counts.items()
+    ):
+        raise BadFrame(
+            f"TILES_TRACED.counts must be at most {MAX_COUNTERS} named counters, "
+            "each a whole number from 0"
+        )

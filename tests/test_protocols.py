@@ -227,3 +227,20 @@ def test_error_descriptions_are_never_empty():
             raise TimeoutError() from e
     except TimeoutError as e:
         assert describe(e) == "TimeoutError (ConnectionResetError: peer reset)"
+
+
+@pytest.mark.parametrize(
+    "counts",
+    [
+        {"eye_rays": -1},
+        {"eye_rays": 1.5},
+        {"eye_rays": True},
+        {1: 2},
+        {f"k{i}": 1 for i in range(65)},
+    ],
+)
+def test_traced_tiles_counts_a_host_adds_up_are_checked(counts):
+    good = make(Kind.TILES_TRACED, node=1, tiles=[0, 3], counts={"eye_rays": 5})
+    assert parse(good)[1]["counts"] == {"eye_rays": 5}
+    with pytest.raises(BadFrame, match="TILES_TRACED.counts"):
+        parse({**good, "counts": counts})

@@ -129,3 +129,64 @@ def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault):
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert all(p.poll() is not None for p in mesh.procs)
+
+
+def test_a_node_lost_at_half_an_image_space_frame_costs_only_the_tiles_not_yet_traced():
+    # Dynamic tiles on 3x3: a node killed once half the primary rays are traced. Every tile
+    # some node had traced whole (its deposits all in) is kept; the nodes left are dealt only
+    # the others, and image and ray counts are still one node's (issue 41 item 9).
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    rs = records(width=64, height=64, spp=4, threads=1)
+    ref, ref_stats = render(scene, *rs)
+    total = ref_stats["rays"]["eye_rays"]
+    plan = MeshPlan(3, 3, mode="image", tiles="dynamic", tile=8)
+    mesh = slow_mesh(9, 0, 1, 0.0, 0)
+    with mesh as addresses:
+        victim = mesh.procs[4]
+
+        async def run():
+            half, traced = asyncio.Event(), [0]
+
+            def progress(rays: int) -> None:
+                traced[0] += rays
+                if traced[0] >= total // 2:
+                    half.set()
+
+            task = asyncio.create_task(
+                render_on_mesh(
+                    scene, rs.image, addresses, plan, rs.engine, silence=4.0, progress=progress
+                )
+            )
+            await asyncio.wait_for(half.wait(), 60)
+            os.kill(victim.pid, signal.SIGKILL)
+            return await asyncio.wait_for(task, 90)
+
+        img, stats = asyncio.run(run())
+    assert [d["node"] for d in stats["lost_nodes"]] == [4]
+    kept = stats["recovery"]
+    assert kept["tiles_kept"] >= kept["tiles"] // 4  # a quarter at least was whole
+    # the nodes left traced only the rest: the kept tiles' eye rays were not traced again
+    again = sum(n["rays"]["eye_rays"] for n in stats["nodes"])
+    assert again + kept["eye_rays_kept"] == total and kept["eye_rays_kept"] > 0
+    assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    assert all(p.poll() is not None for p in mesh.procs)
+
+
+def test_a_tile_is_traced_once_every_batch_of_it_was_handed_out_and_traced():
+    from meshnode.mesh.traced import TracedTiles
+
+    t = TracedTiles()
+    t.batch_started(3)
+    t.batch_traced(3, {"eye_hits": 2, "shadow_rays": 5}, 4)
+    assert t.take() == ([], {})  # more of tile 3 may come
+    t.batch_started(3)
+    t.batch_started(7)
+    t.all_started([3])  # tile 3's last batch is out, not traced yet
+    assert t.take() == ([], {})
+    t.batch_traced(3, {"eye_hits": 1, "shadow_rays": 1}, 2)
+    t.all_started([9])  # a tile of no rays is traced at once
+    assert t.take() == ([3, 9], {"eye_hits": 3, "shadow_rays": 6, "eye_rays": 6})
+    t.batch_traced(7, {"eye_hits": 1}, 1)
+    t.all_started([7])
+    assert t.take() == ([7], {"eye_hits": 1, "eye_rays": 1})

@@ -45,6 +45,9 @@ class Collector:
         self.work = dict.fromkeys(range(n), 0)
         self.ready = dict.fromkeys(range(n), False)  # engine built, links up
         self.last_work = now
+        # dynamic image space: tiles whose every deposit has come, and their ray counts
+        self.tiles_traced: list[int] = []
+        self.traced_counts: dict[str, int] = {}
 
     def name(self, n: int) -> str:
         return self.names[n]
@@ -103,10 +106,21 @@ class Collector:
                         await link.send(tiles_message(self.dealer, tiles, last))
                 if self.watch is not None:
                     self.watch.tiles(n, len(f["tiles"]))
+            elif kind is Kind.TILES_TRACED and self.dealer is not None:
+                self.traced_tiles(n, f)
             elif kind is Kind.STATS:
                 self.stats[n] = f["stats"]
             elif kind is Kind.ERROR:
                 raise MeshError(f"{self.name(n)} failed: {f['reason']}")
+
+    def traced_tiles(self, n: int, f: dict) -> None:
+        """Tiles node n traced whole: each must be one dealt to it, reported once."""
+        owner = self.dealer.owner
+        if f["node"] != n or any(not t < len(owner) or owner[t] != n for t in f["tiles"]):
+            raise MeshError(f"{self.name(n)} reports traced tiles that were not dealt to it")
+        self.tiles_traced.extend(f["tiles"])
+        for k, v in f["counts"].items():
+            self.traced_counts[k] = self.traced_counts.get(k, 0) + v
 
     async def watchdog(self) -> None:
         """A node that stops talking (stopped, hung, cut off) fails the render, named; so

@@ -5,7 +5,8 @@ node (DESIGN.md 5). The links to the nodes are `host.run.connections`', the rend
 The host talks to every node directly for control; rays and pixel packets use the torus. A
 node whose link breaks or that falls silent is lost: under `on_node_loss="replan"` (the
 default) the host gives the render up on every node (ABORT, answered by ABORTED), plans it
-again on the nodes that answered and renders the frame from the start on them: the image and
+again on the nodes that answered and renders the frame on them: from the start, or under
+dynamic image space only the tiles no node had traced whole (`host.run.kept`); the image and
 ray counts are the single node's, whatever was lost. A node that reports an error (with every
 node still there), or a mesh whose nodes all live but none works, fails the render, named.
 """
@@ -13,7 +14,7 @@ node still there), or a mesh whose nodes all live but none works, fails the rend
 import math
 import ssl
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -23,6 +24,7 @@ from host.run.collector import Collector, tiles_message
 from host.run.connections import close_all, configure, connect_all, give_up
 from host.run.errors import MeshError, NodeLost
 from host.run.framebuffer import Framebuffer
+from host.run.kept import Kept, keeps_tiles, kept_after, recovery, with_kept_tiles
 from host.run.summary import summarise
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.transport.link import Link, LinkClosed
@@ -91,11 +93,14 @@ async def render_on_mesh(
         notice(f"plan: {plan.mode} space on {plan.rows}x{plan.cols} ({why})")
     lost: list[dict] = []
     first_loss = None
+    kept = None  # what lost tries leave that the next keeps (`host.run.kept`)
     try:
         while True:
             names = [f"node {n} ({addresses[n]})" for n in alive]
+            attempt = Try(kept)
             try:
                 fb, summary = await _attempt(
+                    attempt,
                     scene,
                     image,
                     engine,
@@ -119,6 +124,7 @@ async def render_on_mesh(
                 gone = await give_up([links[n] for n in alive], e, silence)
                 if not gone or len(gone) == len(alive):
                     raise
+                kept = attempt.left()
                 first_loss = t_loss if first_loss is None else first_loss
                 for i, reason in gone.items():
                     lost.append(
@@ -143,6 +149,7 @@ async def render_on_mesh(
     summary["addresses"] = [addresses[n] for n in alive]
     summary["lost_nodes"] = lost
     summary["recovery_seconds"] = end - first_loss if first_loss is not None else 0.0
+    summary["recovery"] = recovery(kept, bool(lost))
     summary["mode"] = {"choice": plan.mode, "why": why, "node_memory_bytes": memories}
     summary["connect_seconds"] = connect
     return fb.image(), summary
@@ -158,7 +165,25 @@ def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:
     return replace(plan, rows=rows, cols=nodes // rows, shared=())
 
 
+@dataclass
+class Try:
+    """One try at the frame: what the last lost try left (`kept`), and this one's plan,
+    framebuffer and collector once made, so a lost try leaves what it traced whole."""
+
+    kept: Kept | None
+    planned: Planned | None = None
+    fb: Framebuffer | None = None
+    collector: Collector | None = None
+
+    def left(self) -> Kept | None:
+        """What this try, lost, leaves to the next (nothing if it never got to trace)."""
+        if self.collector is None:
+            return self.kept
+        return kept_after(self.kept, self.planned, self.fb, self.collector)
+
+
 async def _attempt(
+    attempt: Try,
     scene,
     image,
     engine,
@@ -179,13 +204,22 @@ async def _attempt(
     `plan_render`."""
     start, ticks = time.perf_counter(), time.monotonic()
     planned = plan_render(scene, image, engine, plan, camera, *holding)
+    kept = attempt.kept if attempt.kept is not None and keeps_tiles(planned) else None
+    if kept is not None:
+        planned = with_kept_tiles(planned, kept)
     await configure(scene, planned, links, addresses)
     sent = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
-    dealer = _dealer(planned)
+    dealer = _dealer(planned, kept.tiles if kept else frozenset())
     collector = Collector(fb, names, progress, silence, stall, dealer, watch, ready)
+    if kept is not None:
+        fb.sums += kept.sums  # the tiles traced whole before: dealt to nobody this time
+        if progress:
+            collector.traced = kept.counts.get("eye_rays", 0)
+            progress(collector.traced)
+    attempt.planned, attempt.fb, attempt.collector = planned, fb, collector
     if watch is not None:
         watch.start(
             fb,
@@ -216,6 +250,9 @@ async def _attempt(
         time.perf_counter() - start,
     )
     summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
+    if kept is not None:  # the kept tiles' rays, traced by the lost try
+        for k, v in kept.counts.items():
+            summary["rays"][k] = summary["rays"].get(k, 0) + v
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance
     summary["plan_seconds"] = planned.seconds
@@ -228,17 +265,19 @@ async def _attempt(
     return fb, summary
 
 
-def _dealer(planned: Planned) -> TileDealer | None:
-    """The host's dealer of dynamic tiles for this plan; None where the partition fixes
-    every tile's node."""
+def _dealer(planned: Planned, kept=frozenset()) -> TileDealer | None:
+    """The host's dealer of dynamic tiles for this plan, dealing none of the `kept` ones;
+    None where the partition fixes every tile's node."""
     spec, chosen = planned.spec, planned.spec.plan
     if not chosen.dynamic:
         return None
+    rects = planned.partition.rects
     return TileDealer(
-        deal_order(planned.partition.rects, chosen.order),
+        [t for t in deal_order(rects, chosen.order) if t not in kept],
         chosen.nodes,
         chosen.buffer,
         spec.adaptive,
+        count=len(rects),
     )
 
 

@@ -29,11 +29,14 @@ class TileDealer:
     reports is told it gets no more. `tiles`: the tile indices in the order they are dealt.
     Pure: the host and the simulated mesh both drive it."""
 
-    def __init__(self, tiles, nodes: int, buffer: int, share_owners: bool = False):
+    def __init__(
+        self, tiles, nodes: int, buffer: int, share_owners: bool = False, count: int | None = None
+    ):
         self.left = deque(tiles)
         self.nodes, self.buffer = nodes, max(1, buffer)
         self.share_owners = share_owners  # adaptive sampling: `last` comes with `owners()`
-        self.owner = np.full(len(self.left), -1, np.int64)  # tile -> node dealt it; -1: not yet
+        # tile -> node dealt it; -1: not yet (or never: `count` tiles, `tiles` those to deal)
+        self.owner = np.full(len(self.left) if count is None else count, -1, np.int64)
         self.told: set[int] = set()  # nodes told they get no more
 
     def first(self) -> dict[int, tuple[list[int], bool]]:

@@ -12,6 +12,7 @@ from meshnode.mesh.node import HOST, Batch, NodeCore
 from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
 from meshnode.mesh.termination import Echo, Probe
+from meshnode.mesh.traced import TracedTiles
 from protocols.state import State
 
 PASS_RAYS = 4096  # rays leaving for one node are sent once this many wait ...
@@ -30,13 +31,17 @@ class Driver:
     def __init__(self, node: int, sched: Scheduler, core: NodeCore | None = None):
         self.node, self.sched, self.core = node, sched, core
         self.leaving: dict[int, list] = {}  # dest -> [batches of rays, rays, batches waited]
+        self.traced = TracedTiles()  # dynamic image space: tiles wholly traced here
 
     def act(self, step) -> None:
         """Do one step `Scheduler.next()` decided."""
         if isinstance(step, Trace):
             feed = self.core.feed
+            if step.tile >= 0:
+                self.traced.batch_started(step.tile)
             if step.primary and feed is not None and feed.finished:
                 self.post_tiles_done(feed.finished)  # the host deals the next ones meanwhile
+                self.traced.all_started(feed.finished)
                 feed.finished = []
             self.start(step)
         elif isinstance(step, Enter):
@@ -65,9 +70,10 @@ class Driver:
         elif state == State.DONE:
             self.report()
 
-    def deliver(self, batch: Batch) -> None:
+    def deliver(self, batch: Batch, step: Trace | None = None) -> None:
         """A traced batch's deposits and leaving rays, each toward the node that takes it;
-        segments for an engine held here are queued here."""
+        segments for an engine held here are queued here; `step`: the batch's Trace, whose
+        tile (dynamic image space) is then one batch nearer traced."""
         for dest, deposits in batch.deposits.items():
             if dest == HOST:
                 self.for_host(deposits)
@@ -85,6 +91,10 @@ class Driver:
             self.send_leaving(dest)
         for taker, rays in batch.held.items():
             self.sched.rays_in(rays, message=False, taker=taker)
+        if step is not None and step.tile >= 0:
+            self.traced.batch_traced(step.tile, batch.counts, len(step.rays))
+            if self.traced.done:  # out now, with its deposits: kept if another node is lost
+                self.flush()
 
     def send_leaving(self, dest: int | None = None) -> None:
         """Send the rays waiting to leave for `dest` (None: for every node) as one message."""

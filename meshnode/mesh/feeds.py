@@ -15,6 +15,8 @@ class Primaries:
     """Batches of primary rays made one at a time (memory stays bounded at any number of
     rays per pixel), with a look ahead so the scheduler can tell whether any are left."""
 
+    label = -1  # the tile of the batch `pop` returned last (TileFeed; -1: none)
+
     def __init__(self, batches=()):
         self.batches, self.next = iter(batches), None
         self._advance()
@@ -110,7 +112,12 @@ class TileFeed(Primaries):
         self.tiles: deque = deque()  # (tile index, batches)
         self.finished: list[int] = []
         self.open = True
+        self.next_tile = -1  # the tile of the batch looked ahead
         super().__init__()
+
+    def pop(self) -> np.ndarray:
+        self.label = self.next_tile
+        return super().pop()
 
     def add(self, tile: int, batches) -> None:
         self.tiles.append((tile, iter(batches)))
@@ -124,7 +131,7 @@ class TileFeed(Primaries):
         self.next = None
         while self.next is None and self.tiles:
             tile, batches = self.tiles[0]
-            self.next = next(batches, None)
+            self.next, self.next_tile = next(batches, None), tile
             while self.next is not None and len(self.next) == 0:
                 self.next = next(batches, None)
             if self.next is None:

@@ -204,7 +204,9 @@ class Scheduler:
             if self.incoming and free and (self.incoming_rays >= self.passed_min or not primary):
                 return self._passed_batch()
             if primary:
-                return self._trace(self.primaries.pop(), primary=True)
+                rays = self.primaries.pop()
+                self.in_flight += 1
+                return Trace(rays, True, tile=self.primaries.label)
             if (target := self._steal_target()) is not None:
                 self.steal_from = target
                 return Steal(target)
@@ -246,10 +248,6 @@ class Scheduler:
         self.spare = False
         self.primaries = Primaries()
         return Enter(state)
-
-    def _trace(self, rays: np.ndarray, primary: bool) -> Trace:
-        self.in_flight += 1
-        return Trace(rays, primary)
 
     def _take_probe(self) -> None:
         """A wave reached this node: on to the children at once (so they start a new

@@ -240,7 +240,7 @@ class _Node(Driver):
         rec.cpu += batch.counts.get("cpu_seconds", 0.0)
         add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
         self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done
-        self.deliver(batch)
+        self.deliver(batch, step)
         self.sched.batch_done()
 
     def post_rays(self, dest: int, rays) -> None:

@@ -23,11 +23,13 @@ class Enter:
 @dataclass(frozen=True)
 class Trace:
     """Trace this batch (with the engine of node `taker`: this node's own when None, or a
-    copy it holds); call `batch_done` when it is."""
+    copy it holds); call `batch_done` when it is. `tile`: the dealt tile a primary batch
+    belongs to (dynamic image space; -1: none)."""
 
     rays: np.ndarray
     primary: bool
     taker: int | None = None
+    tile: int = -1
 
 
 @dataclass(frozen=True)

@@ -276,12 +276,17 @@ class Session(Driver):
             self.fail(e)
 
     def flush(self) -> None:
-        """Buffered deposits toward the host, in packets of DEPOSIT_BATCH."""
+        """Buffered deposits toward the host, in packets of DEPOSIT_BATCH; then the tiles
+        traced whole (dynamic image space), after every deposit of theirs on the same link,
+        so the host may keep them if another node is lost."""
         if self.deposits:
             allp = np.concatenate(self.deposits)
             self.deposits, self.deposits_held = [], 0
             for i in range(0, len(allp), DEPOSIT_BATCH):
                 self.to_host(allp[i : i + DEPOSIT_BATCH])
+        if self.traced.done and not self.core.keeps_pixels:
+            tiles, counts = self.traced.take()
+            self.host_out.post(make(Kind.TILES_TRACED, node=self.node, tiles=tiles, counts=counts))
 
     def queued_bytes(self) -> int:
         return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
@@ -300,7 +305,7 @@ class Session(Driver):
                 self.service.pool, self.core.trace, rays, primary, step.taker
             )
             self.stats.traced(batch.counts, len(rays) if primary else 0)
-            self.deliver(batch)
+            self.deliver(batch, step)
             if primary:
                 self.progress(len(rays))
         except Exception as e:  # noqa: BLE001 - the host must hear of it

@@ -1,7 +1,7 @@
 """Soak: renders back to back on a local 3x3 mesh with a fault injected at random into most of
 them, counting what went wrong (issue 41).
 
-    python -m bench.soak [--renders 200] [--seed 1] [--size 48] [--json FILE]
+    python -m bench.soak [--renders 200] [--seed 1] [--size 48] [--json FILE] [--plot FILE]
 
 Every render is of the same small generated scene (tetra 5) and must give one node's image and
 ray counts, or fail with a clear one-line error when its fault makes it fail (never hang: each
@@ -10,7 +10,10 @@ mid-render (the host re-plans on the nodes left; the mesh is started again after
 paused for a second (SIGSTOP, then SIGCONT); a stranger flooding a node with idle sockets; a
 host without the secret trying at the same time; a host that vanishes mid-render (the next
 render, on the same nodes, must still work). Prints a line per fault kind: renders, exact
-images, clear failures, hangs, then the processes left.
+images, clear failures, hangs, then the processes left; and after every render each node's
+resident memory and open descriptors are read (`soak_plot`): the busiest node's may not grow
+within a mesh's life (beyond its first three renders) by more than GROWTH_MB or any
+descriptor; `--plot` draws them.
 """
 
 import argparse
@@ -32,6 +35,7 @@ from bench import finish  # noqa: E402
 
 FAULTS = ("none", "kill", "pause", "flood", "stranger host", "host vanishes")
 RENDER_SECONDS = 60.0  # a render that takes longer has hung
+GROWTH_MB = 50.0  # the busiest node's RSS may rise this much within one mesh's renders
 STARTED: list = []  # every node process this run started: none may be left at the end
 
 
@@ -41,8 +45,10 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--size", type=int, default=48)
     p.add_argument("--json", type=Path)
+    p.add_argument("--plot", type=Path, help="PNG of every node's RSS and descriptors")
     args = p.parse_args(argv)
     from bench.generate import tetra
+    from bench.soak_plot import growth, node_resources, plot
     from host.run.oneprocess import render
     from meshnode.engine.counters import RAY_COUNTS
     from protocols.render import EngineSpec, ImageSpec
@@ -55,18 +61,23 @@ def main(argv=None) -> int:
     tally: dict[str, Counter] = {f: Counter() for f in FAULTS}
     messages: list[str] = []
     secret = os.urandom(32).hex().encode()
-    mesh = None
+    mesh, meshes, samples = None, 0, []
     try:
         for i in range(args.renders):
             fault = rng.choice(FAULTS)
             if mesh is None:
-                mesh = _start(secret)
+                mesh, meshes = _start(secret), meshes + 1
             outcome, text = asyncio.run(
                 _one(scene, image, mesh, secret, fault, rng, ref, want, RAY_COUNTS)
             )
             tally[fault][outcome] += 1
             if text:
                 messages.append(f"render {i} ({fault}): {text}")
+            rss, fds = node_resources(p.pid for p in mesh[0].procs)
+            if rss:
+                samples.append(
+                    {"render": i, "mesh": meshes, "rss_max_mb": max(rss), "fds_max": max(fds)}
+                )
             if fault == "kill" or outcome == "hang":
                 _stop(mesh)  # killed nodes are gone: a fresh mesh for the next render
                 mesh = None
@@ -82,12 +93,24 @@ def main(argv=None) -> int:
             f"{c['hang']:>4} {c['wrong image']:>5}"
         )
     print(f"meshnode processes left: {left}")
+    rise_mb, rise_fd = growth(samples)
+    print(
+        f"busiest node within a mesh's life, after its first 3 renders: RSS rose at most "
+        f"{rise_mb:.1f} MB, descriptors at most {rise_fd} ({meshes} meshes, "
+        f"RSS {min(s['rss_max_mb'] for s in samples):.0f}-"
+        f"{max(s['rss_max_mb'] for s in samples):.0f} MB, descriptors "
+        f"{min(s['fds_max'] for s in samples)}-{max(s['fds_max'] for s in samples)})"
+    )
+    if args.plot:
+        plot(samples, args.plot)
     for m in messages[-10:]:
         print("  " + m)
     bad = [f"{f}: {c['hang']} hangs, {c['wrong image']} wrong" for f, c in tally.items()]
     bad = [b for b, c in zip(bad, tally.values(), strict=True) if c["hang"] or c["wrong image"]]
     if left:
         bad.append(f"{left} meshnode processes left")
+    if rise_mb > GROWTH_MB or rise_fd > 0:
+        bad.append(f"resources grew: RSS {rise_mb:.1f} MB, descriptors {rise_fd}")
     rows = [{"fault": f, **dict(c)} for f, c in tally.items()]
     return finish(rows, args.json, bad, "FAILED:\n", "no hang, no wrong image, nothing left")
 

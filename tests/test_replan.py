@@ -166,7 +166,7 @@ def test_a_node_lost_at_half_an_image_space_frame_costs_only_the_tiles_not_yet_t
     kept = stats["recovery"]
     assert kept["tiles_kept"] >= kept["tiles"] // 4  # a quarter at least was whole
     # the nodes left traced only the rest: the kept tiles' eye rays were not traced again
-    again = sum(n["rays"]["eye_rays"] for n in stats["nodes"])
+    again = sum(n["rays"].get("eye_rays", 0) for n in stats["nodes"])  # some may get none
     assert again + kept["eye_rays_kept"] == total and kept["eye_rays_kept"] > 0
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

@@ -1,0 +1,135 @@
+"""Setup against mesh size: how long a mesh takes from the host's plan to every node built and
+linked, measured on local meshes and simulated for meshes this machine cannot run (issue 38).
+
+    python -m bench.setup [--scenes DIR] [--only tetra8,balls,gears] [--measured 1x2,2x2,3x3,4x4]
+                          [--simulated 8x8,16x16] [--mode object] [--bandwidth 1e9] [--json FILE]
+
+Measured: one render of a 16x16 image (tracing negligible) on a fresh local mesh of each size
+(warm kernel cache, no engine reused), its summary's plan seconds (the host's planning:
+cells, clipping, holders), configure seconds (CONFIG and every node's objects sent: the host
+sends them node after node) and setup seconds (from the plan's start until every node has
+built its engine and linked its neighbours). Simulated: the same plan made in this process
+(real seconds), every node's objects sent one after the other at `--bandwidth` bytes a second
+(the host's link), and the slowest node's build (each node's NodeCore made here, one after
+another, timed on its own): plan + send + slowest build, the figure a mesh of that size
+would show with builds in parallel. `tetra8` is the SPD tetrahedron at size factor 8
+(65,536 triangles), generated.
+"""
+
+import argparse
+import asyncio
+import json
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import add_scenes_option  # noqa: E402 (after the path is set)
+
+SIZE = 16  # image side: tracing takes no time next to setup
+
+
+def load(name: str, scenes: Path):
+    """An SPD scene by name: `tetra8` generated, others read from `scenes`."""
+    if name == "tetra8":
+        from bench.generate import tetra
+
+        return tetra(8)
+    from host.scene.nff import read_nff
+
+    return read_nff(scenes / f"{name}.nff")
+
+
+def measured(scene, rows: int, cols: int, mode: str) -> dict:
+    """Plan, configure and setup seconds of one render on a fresh local mesh."""
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    with LocalMesh(rows * cols) as addresses:
+        _, stats = asyncio.run(
+            render_on_mesh(
+                scene,
+                ImageSpec(width=SIZE, height=SIZE),
+                addresses,
+                MeshPlan(rows, cols, mode=mode),
+                EngineSpec(threads=1),
+            )
+        )
+    return {
+        "plan": stats["plan_seconds"],
+        "configure": stats["configure_seconds"],
+        "setup": stats["setup_seconds"],
+        "build_max": max(n["engine"]["preprocess_seconds"] for n in stats["nodes"]),
+    }
+
+
+def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float) -> dict:
+    """Plan (real), send (bytes / bandwidth, node after node) and the slowest build."""
+    from host.planning.plan import plan_render
+    from host.scene.subset import subset
+    from meshnode.mesh.node import NodeCore
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+    from protocols.scene import SCENE_TABLES
+
+    engine = EngineSpec(threads=1)
+    planned = plan_render(
+        scene, ImageSpec(width=SIZE, height=SIZE), engine, MeshPlan(rows, cols, mode=mode)
+    )
+    part, sent, slowest = planned.partition, 0, 0.0
+    for n in range(part.nodes):
+        held = subset(scene, planned.holders[n])
+        sent += sum(getattr(held, t).nbytes for t in SCENE_TABLES)
+        start = time.perf_counter()
+        NodeCore(n, held, planned.spec, part)  # as the node builds it (a cache of its own)
+        slowest = max(slowest, time.perf_counter() - start)
+    plan = planned.seconds
+    return {
+        "plan": plan,
+        "configure": sent / bandwidth,
+        "setup": plan + sent / bandwidth + slowest,
+        "build_max": slowest,
+    }
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.setup", description=__doc__.split("\n\n")[0])
+    add_scenes_option(p)
+    p.add_argument("--only", default="tetra8,balls,gears")
+    p.add_argument("--measured", default="1x2,2x2,3x3,4x4")
+    p.add_argument("--simulated", default="8x8,16x16")
+    p.add_argument("--mode", default="object", choices=("object", "image"))
+    p.add_argument("--bandwidth", type=float, default=1e9, help="host link, bytes a second")
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    rows_out = []
+    print(
+        f"{'scene':>8} {'mesh':>6} {'how':>9} {'plan s':>7} {'send s':>7} {'build s':>8} "
+        f"{'setup s':>8}"
+    )
+    for name in args.only.split(","):
+        scene = load(name, args.scenes)
+        meshes = [(m, "measured") for m in args.measured.split(",") if m] + [
+            (m, "simulated") for m in args.simulated.split(",") if m
+        ]
+        for mesh, how in meshes:
+            rows, cols = (int(v) for v in mesh.split("x"))
+            if how == "measured":
+                got = measured(scene, rows, cols, args.mode)
+            else:
+                got = simulated(scene, rows, cols, args.mode, args.bandwidth)
+            print(
+                f"{name:>8} {mesh:>6} {how:>9} {got['plan']:>7.3f} {got['configure']:>7.3f} "
+                f"{got['build_max']:>8.3f} {got['setup']:>8.3f}",
+                flush=True,
+            )
+            rows_out.append({"scene": name, "mesh": mesh, "how": how, **got})
+    if args.json:
+        args.json.write_text(json.dumps(rows_out, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

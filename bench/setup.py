@@ -11,14 +11,18 @@ sends them node after node) and setup seconds (from the plan's start until every
 built its engine and linked its neighbours). Simulated: the same plan made in this process
 (real seconds), every node's objects sent one after the other at `--bandwidth` bytes a second
 (the host's link), and the slowest node's build (each node's NodeCore made here, one after
-another, timed on its own): plan + send + slowest build, the figure a mesh of that size
-would show with builds in parallel. `tetra8` is the SPD tetrahedron at size factor 8
-(65,536 triangles), generated.
+another, timed on its own) and a fresh process's start (importing, loading the kernels from
+the disk cache and building a small engine, measured once in a subprocess): plan + send +
+slowest build + start, the figure a mesh of that size would show on machines of its own,
+builds in parallel. (Measured meshes share this machine's two cores: a 4x4's sixteen
+processes load their kernels and build at once, so its setup is mostly waiting for a core.)
+`tetra8` is the SPD tetrahedron at size factor 8 (65,536 triangles), generated.
 """
 
 import argparse
 import asyncio
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -66,8 +70,9 @@ def measured(scene, rows: int, cols: int, mode: str) -> dict:
     }
 
 
-def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float) -> dict:
-    """Plan (real), send (bytes / bandwidth, node after node) and the slowest build."""
+def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float, process: float) -> dict:
+    """Plan (real), send (bytes / bandwidth, node after node), the slowest build and a
+    `process`'s start."""
     from host.planning.plan import plan_render
     from host.scene.subset import subset
     from meshnode.mesh.node import NodeCore
@@ -89,9 +94,24 @@ def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float) -> dict:
     return {
         "plan": plan,
         "configure": sent / bandwidth,
-        "setup": plan + sent / bandwidth + slowest,
+        "setup": plan + sent / bandwidth + slowest + process,
         "build_max": slowest,
     }
+
+
+def process_start() -> float:
+    """Seconds a fresh process takes to import the engine, load a variant's kernels from the
+    disk cache and build and warm a one-sphere engine (what every node pays once)."""
+    code = (
+        "import time; t = time.perf_counter(); "
+        "from bench.generate import balls; from meshnode.engine import Engine; "
+        "e = Engine(balls(0)); e.warmup(); print(time.perf_counter() - t)"
+    )
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=root, check=True
+    )
+    return float(out.stdout.split()[-1])
 
 
 def main(argv=None) -> int:
@@ -105,6 +125,8 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
     rows_out = []
+    start = process_start()
+    print(f"a fresh process's start (imports, kernels loaded, a small engine): {start:.2f} s")
     print(
         f"{'scene':>8} {'mesh':>6} {'how':>9} {'plan s':>7} {'send s':>7} {'build s':>8} "
         f"{'setup s':>8}"
@@ -119,7 +141,7 @@ def main(argv=None) -> int:
             if how == "measured":
                 got = measured(scene, rows, cols, args.mode)
             else:
-                got = simulated(scene, rows, cols, args.mode, args.bandwidth)
+                got = simulated(scene, rows, cols, args.mode, args.bandwidth, start)
             print(
                 f"{name:>8} {mesh:>6} {how:>9} {got['plan']:>7.3f} {got['configure']:>7.3f} "
                 f"{got['build_max']:>8.3f} {got['setup']:>8.3f}",

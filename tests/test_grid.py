@@ -239,3 +239,26 @@ def test_voxels_wholly_inside_a_sphere_hold_no_reference():
     inner = make_scene(spheres=[((0, 0, 0), -1.0, 0)])
     t, g = Engine(inner, resolution=(9, 9, 9)).first_hits(np.zeros((3, 3)), np.eye(3))
     np.testing.assert_allclose(t, 1.0, atol=1e-12)
+
+
+def test_nested_objects_stop_the_refining_before_a_build_no_render_wins_back():
+    # Spheres nested in one another (the SPD's shells): finer voxels cannot separate them,
+    # and refined toward the target occupancy shells' grid took 48 M references, 260 MB
+    # and 20 s to build. Refining stops before each object is in 64 voxels on average;
+    # the grid still finds what brute force finds.
+    from meshnode.engine.grid import MAX_REFS_PER_OBJECT
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-0.05, 0.05, (400, 3))
+    radii = np.linspace(0.1, 4.0, 400)
+    scene = make_scene(
+        spheres=[(tuple(c), float(r), 0) for c, r in zip(centres, radii, strict=True)]
+    )
+    engine = Engine(scene, structure="grid")
+    grid = engine.grid.stats
+    # kept at the first resolution: the next put every object in far more voxels
+    assert grid["resolution_boost"] == 1.0 and grid["object_references"] < 100 * 400
+    assert f"(over {MAX_REFS_PER_OBJECT}): kept the last" in grid["resolution_reason"]
+    rays = eye_rays(scene.view, ImageSpec(width=24, height=24).sized(scene.view))
+    brute = Engine(scene, brute=True)
+    np.testing.assert_array_equal(engine.trace(rays)[0], brute.trace(rays)[0])

@@ -32,7 +32,10 @@ from protocols.spec import default
 # Above this many objects tested per ray crossing the node (the hierarchy's surface area
 # forecast) the grid is chosen: bounding boxes that nest or overlap (SPD shells: 159) are
 # what a hierarchy cannot separate and the grid's exact voxel-overlap tests can. Measured
-# with bench.spd: shells grid 0.31 s vs bvh 0.45 s; rings (5.0) bvh 1.14 s vs grid 1.17 s.
+# with bench.spd: rings (5.0) bvh 1.14 s vs grid 1.17 s; shells, one thread at 512x512, build
+# and trace: grid 0.20 + 0.53 s (its refining stopped at MAX_REFS_PER_OBJECT; refined on it
+# took 20.5 + 0.28 s) against the hierarchy's 0.50 + 0.42 s. (Which pays over a long render
+# depends on its ray count, which the engine is not told: issue 42.)
 GRID_ABOVE_TESTS = 16.0
 
 

@@ -12,12 +12,18 @@ import numpy as np
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 
-# 10: termination waves (STATE down the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
+# 11: PROGRESS.setup (where a node's setup is: SETUP_STEPS); 10: termination waves (STATE down
+# the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 10
+PROTOCOL_VERSION = 11
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
+# PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a
+# node does before it traces (a first run compiles kernels for tens of seconds): objects
+# arriving, engine building, kernels compiling (a first run) or loading from the disk cache,
+# links to the neighbours opening, ready
+SETUP_STEPS = ("objects", "engine", "compile", "load", "links", "ready")
 
 
 class Kind(IntEnum):
@@ -35,7 +41,7 @@ class Kind(IntEnum):
     # traced in all, whether its engine is built and its links are up (a heartbeat every
     # second, so the host tells alive from working, and building from stuck); and for the
     # live view: its state, busy and elapsed milliseconds, rays traced in all, objects held,
-    # and each link's traffic so far
+    # each link's traffic so far, and its setup step (SETUP_STEPS)
     AUTH = 11  # handshake: proof of the cluster secret over both nonces (protocols.handshake)
     WELCOME = 12  # handshake: the listener accepted the dialler's proof
     TILES = 13  # host to node, dynamic image space: tiles to trace (partition rectangles)
@@ -94,6 +100,7 @@ FIELDS = {
         "traced": int,
         "objects": int,
         "links": dtypes.LINK_TRAFFIC,
+        "setup": int,
     },
     Kind.AUTH: {"proof": bytes},
     Kind.WELCOME: {},
@@ -198,10 +205,12 @@ def parse(message: dict) -> tuple[Kind, dict]:
 
 
 def _check_progress(f: dict) -> None:
-    """Counters never negative, at most a torus node's links (the host checks node numbers
-    and states against its mesh)."""
+    """Counters never negative, a setup step of SETUP_STEPS, at most a torus node's links (the
+    host checks node numbers and states against its mesh)."""
     counts = ("node", "rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects")
     bad = [name for name in counts if f[name] < 0]
+    if not 0 <= f["setup"] < len(SETUP_STEPS):
+        bad.append("setup")
     links = f["links"]
     if len(links) > MAX_LINKS or (
         len(links)

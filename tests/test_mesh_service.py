@@ -121,7 +121,7 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
 
 def test_a_mesh_that_lives_but_never_finishes_fails_instead_of_hanging():
     # A ray message held on one link for 1000 s: every node is alive (heartbeats flow) and
-    # soon idle, but the ring can never end the frame. The host gives up after `stall`.
+    # soon idle, but no termination wave can end the frame. The host gives up after `stall`.
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=40, height=40, threads=1)
     with slow_mesh(4, 0, 1, 1000.0, 1) as addresses:

@@ -1,4 +1,4 @@
-"""Where a node's primary rays come from in a state of the ring: batches made one at a time.
+"""Where a node's primary rays come from in a state of the render: batches made one at a time.
 
 `Primaries` is a plain sequence of batches; `ChunkFeed` holds chunks of the node's rectangle,
 traced from the front and stolen from the back (DESIGN.md 6); `TileFeed` holds the tiles the

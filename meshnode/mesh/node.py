@@ -3,7 +3,7 @@ both wrap this.
 
 A node holds the objects touching its box and every node's box (in image space: the whole
 scene, and every box is the scene's). It makes the primary rays of its rectangles (one in
-object space, its tiles in image space) for each state of the ring that has them, traces
+object space, its tiles in image space) for each state of the render that has them, traces
 batches and says where each batch's deposits and leaving rays go; under adaptive sampling its
 books (`books.NodeBooks`) keep its own pixels until the frame is flushed.
 """
@@ -143,7 +143,7 @@ class NodeCore:
             camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
 
     def primaries(self, state: State) -> Primaries:
-        """Batches of this node's primary rays for a state of the ring: every eye or camera
+        """Batches of this node's primary rays for a state of the render: every eye or camera
         ray in TRACE, or adaptive sampling's two passes (`NodeBooks.primaries`); under
         dynamic tiles, the feed the host's tiles arrive in. Made one batch at a time."""
         if state == State.TRACE and self.feed is not None:

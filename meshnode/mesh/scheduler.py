@@ -2,15 +2,14 @@
 
 The asyncio service and the simulated mesh (the host's cost pre-pass, the tests) drive it
 alike, so a simulated mesh decides exactly as a real one. The driver reports events (rays
-arrived, a pixel message arrived, messages sent, a termination probe or echo arrived, a
-batch finished) and asks `next()` what to do: enter a new state, trace a batch (rays from other
-nodes first once PASSED_MIN of them wait, or whenever no primary batch can start: they are partly
-traced, and finishing them keeps queues short and cannot deadlock full links; then this
-node's primary rays, while its links have room), flush buffered output
-once idle, pass a termination wave on or answer it (`termination`), or wait for the next event
-(None). The steps are the
-records of `meshnode.mesh.steps`; primary rays come from a feed (`meshnode.mesh.feeds`) the
-driver sets up on entering a state.
+arrived, a pixel message arrived, messages sent, a termination probe or echo arrived, a batch
+finished) and asks `next()` what to do: enter a new state, trace a batch (rays from other
+nodes first once PASSED_MIN of them wait, or whenever no primary batch can start: they are
+partly traced, and finishing them keeps queues short and cannot deadlock full links; then this
+node's primary rays, while its links have room), flush buffered output once idle, pass a
+termination wave on or answer it (`termination`), or wait for the next event (None). The
+steps are the records of `meshnode.mesh.steps`; primary rays come from a feed
+(`meshnode.mesh.feeds`) the driver sets up on entering a state.
 """
 
 from collections import Counter, deque

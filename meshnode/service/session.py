@@ -33,7 +33,7 @@ from meshnode.service.inbound import (
 )
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
-from protocols.messages import Kind, make
+from protocols.messages import SETUP_STEPS, Kind, make
 from protocols.state import State, states_of
 from protocols.topology import Router
 
@@ -75,6 +75,7 @@ class Session(Driver):
         self.deposits_held = 0  # deposits in self.deposits
         self.error: Exception | None = None
         self.ready = False  # engine built and every neighbour linked
+        self.setup = "objects"  # the setup step PROGRESS reports (SETUP_STEPS)
         self.created = time.perf_counter()
         self.setup_seconds = 0.0
         self.compile_seconds = 0.0  # of the setup, numba compiling (a first run)
@@ -99,7 +100,8 @@ class Session(Driver):
             self.progress(0)
 
     def progress(self, rays: int) -> None:
-        """Primary rays just traced, and what the host's live view shows of this node."""
+        """Primary rays just traced, and what the host's live view shows of this node (its
+        setup step too: before it traces, the page says what it is doing)."""
         links = {m: o.link.stats for m, o in self.outboxes.items()}
         objects = self.core.engine.stats["objects"] if self.core is not None else 0
         self.host_out.post(
@@ -111,6 +113,7 @@ class Session(Driver):
                 ready=self.ready,
                 state=int(self.sched.state),
                 objects=objects,
+                setup=SETUP_STEPS.index(self.setup),
                 **self.stats.live(links),
             )
         )
@@ -121,6 +124,7 @@ class Session(Driver):
         try:
             loop = asyncio.get_running_loop()
             c = self.config
+            self.setup = "engine"
             scene = self.objects.scene(self.node, c.view, c.background)
             copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
             with compile_clock() as clock:  # a first run's compiling, told apart in the stats
@@ -136,7 +140,8 @@ class Session(Driver):
                     ),
                 )
                 variant = self.core.engine.variant()
-                if not self.core.engine.compiled:  # the host only sees "not ready" meanwhile
+                self.setup = "load" if self.core.engine.compiled else "compile"
+                if self.setup == "compile":  # the live view shows the step meanwhile
                     log.info("node %d: compiling %s, first run only", self.node, variant)
                 await loop.run_in_executor(self.service.pool, self.core.warmup)
             self.compile_seconds = clock.seconds
@@ -144,12 +149,13 @@ class Session(Driver):
                 log.info("node %d: compiled %s in %.1f s", self.node, variant, clock.seconds)
             for f in self.early_tiles:  # nothing is traced yet, so no deposit is to send
                 self.core.add_tiles(f["tiles"], f["last"], f["owners"])
+            self.setup = "links"
             for m in c.torus.links(self.node):
                 if self.node < m:  # the lower index dials, the higher accepts
                     self.attach(m, await self.service.dial(m, c.neighbours[str(m)]))
             await self.service.wait_links(self)
             self.setup_seconds = time.perf_counter() - self.created
-            self.ready = True
+            self.ready, self.setup = True, "ready"
             self.progress(0)
             self.frame_cpu_start = time.process_time()
             self.frame_sys_start = os.times().system

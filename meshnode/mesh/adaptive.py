@@ -8,8 +8,8 @@ then the neighbours' colours change. A ray's colour is known only when all its d
 ended, possibly on other nodes, so under adaptive sampling every deposit travels to the node
 owning its pixel - and pass-1 deposits also to the owners of its side neighbours, which keep a
 one-pixel halo around their rectangle - and the two passes are two states of the mesh's state
-machine (ended by termination waves). The owner alone knows how many rays each of its pixels got (and how many left the
-camera), so it divides and sends finished pixels to the host.
+machine (ended by termination waves). The owner alone knows how many rays each of its pixels
+got (and how many left the camera), so it divides and sends finished pixels to the host.
 """
 
 import numpy as np

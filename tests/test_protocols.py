@@ -132,6 +132,7 @@ def progress(**change):
         "traced": 50,
         "objects": 3,
         "links": np.array([(0, 4, 400), (2, 0, 0)], dtypes.LINK_TRAFFIC),
+        "setup": 5,
     } | change
     return FrameDecoder().feed(encode(make(Kind.PROGRESS, **fields)))[0]
 
@@ -139,9 +140,11 @@ def progress(**change):
 def test_progress_counters_and_links_are_checked():
     kind, f = parse(progress())
     assert kind is Kind.PROGRESS and f["links"]["rays"].tolist() == [4, 0]
-    for name in ("rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects"):
+    for name in ("rays", "work", "state", "busy_ms", "elapsed_ms", "traced", "objects", "setup"):
         with pytest.raises(BadFrame, match=f"PROGRESS: {name} out of range"):
             parse(progress(**{name: -1}))
+    with pytest.raises(BadFrame, match="PROGRESS: setup out of range"):
+        parse(progress(setup=6))  # past SETUP_STEPS
     too_many = np.zeros(5, dtypes.LINK_TRAFFIC)
     negative = np.array([(0, -1, 0)], dtypes.LINK_TRAFFIC)
     for links in (too_many, negative):

@@ -87,11 +87,28 @@ def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols,
     assert all(p.poll() is not None for p in mesh.procs)  # no process outlives the mesh
 
 
-@pytest.mark.parametrize("fault", ["kill", "pause"])
-def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault):
+class _Watch:
+    """A live-view stand-in whose `start` (called once every node has its objects, while
+    they build) runs `at_start`; every other call does nothing."""
+
+    def __init__(self, at_start):
+        self.at_start = at_start
+
+    def start(self, *args, **kwargs) -> None:
+        self.at_start()
+
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: None
+
+
+@pytest.mark.parametrize(
+    "fault,stage", [("kill", "plan"), ("pause", "plan"), ("kill", "objects sent")]
+)
+def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault, stage):
     # Killed or paused as the host starts setting the render up (its plan chosen, CONFIG
-    # and objects about to go): the loss shows in the sends, in the links or in the
-    # heartbeats, and the frame is planned again on the nodes left (issue 41 item 3).
+    # and objects about to go), or killed once every node has its objects (building its
+    # engine, linking): the loss shows in the sends, the links or the heartbeats, and the
+    # frame is planned again on the nodes left (issue 41 item 3).
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=32, height=32, threads=1)
     ref, ref_stats = render(scene, *rs)
@@ -100,11 +117,19 @@ def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault):
     notices: list[str] = []
     with mesh as addresses:
         proc = mesh.procs[victim]
+        hit = []
+
+        def strike() -> None:
+            if not hit:  # the first try only
+                hit.append(True)
+                os.kill(proc.pid, signal.SIGKILL if fault == "kill" else signal.SIGSTOP)
 
         def notice(text: str) -> None:
             notices.append(text)
-            if text.startswith("plan:"):
-                os.kill(proc.pid, signal.SIGKILL if fault == "kill" else signal.SIGSTOP)
+            if text.startswith("plan:") and stage == "plan":
+                strike()
+
+        watch = _Watch(strike) if stage == "objects sent" else None
 
         async def run():
             task = render_on_mesh(
@@ -115,6 +140,7 @@ def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault):
                 rs.engine,
                 silence=3.0,
                 notice=notice,
+                watch=watch,
             )
             try:
                 return await asyncio.wait_for(task, 90)

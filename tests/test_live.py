@@ -20,30 +20,44 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from host.live.monitor import RAY_KINDS, Monitor
+from host.live.monitor import RAY_KINDS, Monitor, preview_srgb8
 from host.live.server import LiveServer, parse_address
 from host.run.framebuffer import Framebuffer, to_srgb8
 from protocols.dtypes import LINK_TRAFFIC
+from protocols.messages import SETUP_STEPS
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "host" / "examples" / "showcase.nff"
 WAIT = 30.0  # seconds any one wait may take before the test fails
 
 
-def progress(node: int, rays: int, state: int = 1, links=()) -> dict:
+def progress(
+    node: int, rays: int, state: int = 1, links=(), setup: str = "ready", traced=None
+) -> dict:
     """A PROGRESS message's fields as protocols.messages.parse hands them over."""
     return {
         "node": node,
         "rays": rays,
         "work": 1,
-        "ready": True,
+        "ready": setup == "ready",
         "state": state,
         "busy_ms": 750,
         "elapsed_ms": 1000,
-        "traced": 10 * rays,
+        "traced": 10 * rays if traced is None else traced,
         "objects": 7,
         "links": np.array(list(links), LINK_TRAFFIC),
+        "setup": SETUP_STEPS.index(setup),
     }
+
+
+class Clock:
+    """Seconds that pass only when a test says so."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
 
 
 def frame_of(fb: Framebuffer) -> np.ndarray:
@@ -96,7 +110,7 @@ def test_frames_are_copied_at_most_once_an_interval():
     monitor.pixels()
     fb.add(np.array([2]), np.ones((1, 3)))
     monitor.pixels()  # within the interval: not copied
-    version, png = monitor.frame()
+    version, png = monitor.frame(png=True)
     assert version == 1
     got = np.asarray(Image.open(io.BytesIO(png)))
     assert got[0, 2].tolist() == [0, 0, 0] and got[0, 1].tolist() == [255, 255, 255]
@@ -137,7 +151,8 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 status, frames = await receive_until(
                     ws, lambda s, f: s["progress"]["done"] == 12 and s["frame"] in f
                 )
-                np.testing.assert_array_equal(frames[status["frame"]], half)
+                preview = frames[status["frame"]].astype(int)  # a JPEG: near, not equal
+                assert np.abs(preview - half).mean() < 4
                 assert status["progress"]["total"] == 24
                 assert status["progress"]["fraction"] == 0.5
                 n1 = status["nodes"][1]
@@ -152,6 +167,9 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 fb.add(np.arange(12, 24), np.full((12, 3), 2.0))
                 stats = {
                     "nodes": [node_stats(0, 5, 0.25), node_stats(1, 9, 0.5)],
+                    "rays": {"eye_rays": 12, "shadow_rays": 14, "eye_hits": 99},
+                    "wall_seconds": 3.0,
+                    "setup_seconds": 1.0,
                     "odd": float("inf"),
                 }
                 monitor.finish(fb.image(), stats)
@@ -160,9 +178,13 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 )
                 np.testing.assert_array_equal(frames[status["frame"]], frame_of(fb))
                 assert status["phase"] == "done" and status["progress"]["fraction"] == 1.0
+                done = status["progress"]  # the command line's figures: wall, rays after setup
+                assert (done["elapsed_seconds"], done["traced"]) == (3.0, 26)
+                assert done["rays_per_second"] == 26 / (3.0 - 1.0)
                 assert status["stats"]["odd"] is None  # strict JSON: no Infinity
                 assert [n["traced"] for n in status["nodes"]] == [5 + 6, 9 + 6]
                 assert [n["busy"] for n in status["nodes"]] == [0.25, 0.5]
+                assert [n["rays_per_second"] for n in status["nodes"]] == [11.0, 15.0]
                 assert status["nodes"][0]["links"] == [{"peer": 1, "rays": 2, "bytes": 99}]
 
             async with http.get(f"http://127.0.0.1:{live.port}/stats.json") as r:
@@ -180,6 +202,77 @@ def node_stats(n: int, shadow: int, busy: float) -> dict:
         "idle_seconds": 1.0 - busy,
         "links": {str(1 - n): {"rays_sent": 2, "bytes_out": 99}},
     }
+
+
+def test_building_nodes_say_their_step_and_progress_counts_from_the_first_ray():
+    clock = Clock()
+    monitor = Monitor(clock=clock)
+    monitor.start(Framebuffer(4, 4, corners=False), 1, 2, [1, 1], total=100)
+    status = monitor.status()
+    assert status["phase"] == "building" and status["progress"]["started"]
+    assert [n["setup"] for n in status["nodes"]] == ["objects", "objects"]
+    monitor.node(0, progress(0, 0, state=0, setup="compile"))
+    clock.now += 12.0
+    monitor.node(1, progress(1, 0, state=0, setup="load"))
+    status = monitor.status()
+    assert status["phase"] == "building"
+    assert [(n["setup"], n["setup_seconds"]) for n in status["nodes"]] == [
+        ("compile", 12.0),
+        ("load", 0.0),
+    ]
+    assert status["progress"]["done"] == 0 and status["progress"]["eta_seconds"] is None
+    monitor.node(0, progress(0, 10))  # node 0 built and tracing, node 1 still loading
+    status = monitor.status()
+    assert status["phase"] == "tracing" and status["progress"]["done"] == 10
+    assert status["progress"]["elapsed_seconds"] == 12.0  # since the render began
+
+
+def test_the_eta_follows_the_recent_rate():
+    """Half the rays in the first moment (the showcase's sky), then 10 a second: the ETA is
+    the recent rate's (400 left at 10/s), not the mean's since the start (60/s)."""
+    clock = Clock()
+    monitor = Monitor(clock=clock)
+    monitor.start(Framebuffer(4, 4, corners=False), 1, 1, [1], total=1000)
+    monitor.node(0, progress(0, 500, traced=500))
+    for second in range(1, 11):
+        clock.now += 1.0
+        monitor.node(0, progress(0, 10, traced=500 + 30 * second))
+    p = monitor.status()["progress"]
+    assert p["done"] == 600 and p["rate"] == pytest.approx(10.0)
+    assert p["eta_seconds"] == pytest.approx(40.0)
+    assert p["rays_per_second"] == pytest.approx(30.0)
+    assert monitor.status()["nodes"][0]["rays_per_second"] == pytest.approx(30.0)
+    clock.now += 2.5  # a stall: the rate falls as it lasts (30 rays since 7 s, 5.5 s ago) ...
+    assert monitor.status()["progress"]["rate"] == pytest.approx(30 / 5.5)
+    clock.now += 2.5  # ... to nothing, and there is no ETA
+    p = monitor.status()["progress"]
+    assert p["rate"] == 0.0 and p["eta_seconds"] is None
+
+
+def test_the_final_figures_are_the_statistics():
+    """One process: rays of every kind, rays/s and trace seconds as the summary prints them."""
+    monitor = Monitor()
+    fb = Framebuffer(2, 2, corners=False)
+    monitor.start(fb, 1, 1, [3], total=4, unit="batches")
+    rays = {"eye_rays": 4, "reflected_rays": 2, "refracted_rays": 1, "shadow_rays": 5}
+    stats = {
+        "rays": rays | {"eye_hits": 3},
+        "total_rays": 12,
+        "trace_seconds": 0.5,
+        "rays_per_second": 24.0,
+        "engine": {"objects": 3},
+    }
+    monitor.finish(fb.image(), stats)
+    p = monitor.status()["progress"]
+    assert (p["traced"], p["rays_per_second"], p["elapsed_seconds"]) == (12, 24.0, 0.5)
+    assert monitor.status()["nodes"][0]["rays_per_second"] == 24.0
+
+
+def test_previews_are_within_a_level_of_the_exact_image():
+    fb = Framebuffer(64, 48, corners=False, spp=4)
+    fb.sums[:] = np.random.default_rng(1).random(fb.sums.shape) * 5.0  # some above white
+    exact = frame_of(fb).astype(int)
+    assert np.abs(preview_srgb8(fb).astype(int) - exact).max() <= 1
 
 
 def test_progress_outside_the_mesh_is_not_trusted():
@@ -325,10 +418,11 @@ def test_nodes_report_state_busy_objects_and_link_traffic():
         seen = watch.seen[n]
         assert {f["node"] for f in seen} == {n}
         assert seen[-1]["objects"] == s["objects"] > 0
-        for key in ("traced", "busy_ms", "elapsed_ms", "work"):
+        for key in ("traced", "busy_ms", "elapsed_ms", "work", "setup"):
             values = [f[key] for f in seen]
             assert values == sorted(values), key
         assert all(0 <= f["busy_ms"] <= f["elapsed_ms"] + 1 for f in seen)
+        assert SETUP_STEPS[seen[-1]["setup"]] == "ready" and seen[-1]["ready"]
         assert seen[-1]["traced"] <= sum(s["rays"].get(k, 0) for k in RAY_KINDS)
         sent = [f["links"] for f in seen if len(f["links"])][-1]
         assert sent["peer"].tolist() == [1 - n]

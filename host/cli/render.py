@@ -97,7 +97,11 @@ def _report(out, stats: dict, quiet: bool) -> None:
 
 
 def _mesh_summary(out, stats: dict) -> str:
-    """The rays of a mesh render by kind, the rays passed between nodes and the imbalance."""
+    """The rays of a mesh render by kind, the rays passed between nodes, rays per second after
+    setup (the live view's final figure) and the imbalance."""
+    from host.live.monitor import final_figures
+
+    rate = final_figures(stats)["rays_per_second"]
     r = {
         k: stats["rays"].get(k, 0)
         for k in (
@@ -113,7 +117,8 @@ def _mesh_summary(out, stats: dict) -> str:
         f"  reflected {r['reflected_rays']}  refracted {r['refracted_rays']}  shadow "
         f"{r['shadow_rays']} (blocked {r['shadow_rays_blocked']})  passed "
         f"{stats['rays_passed']}  setup {stats['setup_seconds']:.2f} s (compile "
-        f"{stats['compile_seconds']:.1f} s)  wall {stats['wall_seconds']:.2f} s  imbalance "
+        f"{stats['compile_seconds']:.1f} s)  wall {stats['wall_seconds']:.2f} s  {rate:.0f} "
+        f"rays/s  imbalance "
         f"{stats['imbalance']:.2f}"
     )
 

@@ -5,7 +5,7 @@ the host). It runs on its own thread and event loop, so single-node renders (a t
 the main thread) and mesh renders (the mesh client's event loop) are watched the same way, and
 a slow page never holds up the render. Each page gets a status message (JSON text) whenever the
 monitor changes, at most every `interval` seconds, and a frame (binary: version as 4 bytes
-little-endian, then a PNG) whenever there is a newer one.
+little-endian, then a JPEG preview, or the final image's PNG) whenever there is a newer one.
 """
 
 import asyncio
@@ -204,7 +204,7 @@ class LiveServer:
     async def _frame(self, request: web.Request) -> web.StreamResponse:
         if why := self._trusted(request):
             raise web.HTTPForbidden(text=f"refused: {why}\n")
-        frame = await asyncio.get_running_loop().run_in_executor(None, self.monitor.frame)
+        frame = await asyncio.get_running_loop().run_in_executor(None, self.monitor.frame, True)
         if frame is None:
             raise web.HTTPNotFound(text="no frame yet: no pixels have arrived\n")
         return web.Response(body=frame[1], content_type="image/png", headers=NO_STORE)
@@ -223,21 +223,27 @@ class LiveServer:
         try:
             while not reader.done() and not ws.closed:
                 client.wake.clear()
-                status = self.monitor.status()
-                await ws.send_str(_dumps(status))
+                status, frame = self.monitor.status(), None
                 if status["frame"] != sent:
                     frame = await loop.run_in_executor(None, self.monitor.frame)
-                    if frame is not None:
-                        await ws.send_bytes(struct.pack("<I", frame[0]) + frame[1])
-                        sent = frame[0]
+                    if frame is not None and frame[0] != status["frame"]:
+                        status = self.monitor.status()  # as new as the frame, not older
+                await ws.send_str(_dumps(status))
+                if frame is not None and frame[0] != sent:
+                    await ws.send_bytes(struct.pack("<I", frame[0]) + frame[1])
+                    sent = frame[0]
                 if status["final"] and sent >= status["frame"] and not client.final_sent:
                     client.final_sent = True
                     self._sent.set()
+                sent_at = loop.time()
                 woken = asyncio.ensure_future(client.wake.wait())
                 await asyncio.wait([woken, reader], return_when=asyncio.FIRST_COMPLETED)
                 woken.cancel()
-                if not reader.done():  # throttle: a few messages a second at most
-                    await asyncio.wait([reader], timeout=self.interval)
+                # throttle: a few messages a second at most, but a change after a quiet spell
+                # (the first pixels after the build) goes out at once
+                rest = sent_at + self.interval - loop.time()
+                if not reader.done() and rest > 0:
+                    await asyncio.wait([reader], timeout=rest)
         except ConnectionError:  # the page went away mid-send
             pass
         finally:

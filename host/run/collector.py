@@ -82,7 +82,7 @@ class Collector:
                 self.fb.add(d["pixel"], d["rgb"])
                 self.deposits += len(d)
                 self.last_work = now
-                if self.watch is not None:
+                if self.watch is not None and len(d):  # deposits: tracing has begun
                     self.watch.pixels()
             elif kind is Kind.PROGRESS:
                 if f["node"] != n:

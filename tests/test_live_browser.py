@@ -1,10 +1,13 @@
 """The live view in a real browser (headless Chromium driven by selenium): after `host render
 --serve` finishes, the page's canvas holds exactly the PNG the render wrote, and its node
-panels show the statistics JSON's figures. Skips without Chromium, fails without it when
-MESHTRACE_REQUIRE_BROWSER=1 (CI sets it)."""
+panels show the statistics JSON's figures; in every mode the canvas fills in while fewer than
+half the primary rays are traced, the final figures are the command line's and the
+statistics', the page fits above the fold and logs no error. Skips without Chromium, fails
+without it when MESHTRACE_REQUIRE_BROWSER=1 (CI sets it)."""
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -57,24 +60,28 @@ def chromium(profile: Path):
     options.binary_location = browser
     for flag in [*FLAGS, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})  # console errors
     service = webdriver.ChromeService(executable_path=driver)
     return webdriver.Chrome(options=options, service=service)
 
 
-def serve(tmp_path: Path, *options: str) -> tuple[subprocess.Popen, str]:
-    """`host render --serve 0` of the showcase in a process of its own, and the page's URL."""
+def serve(
+    tmp_path: Path, *options: str, quiet: bool = True, scene: Path = EXAMPLE
+) -> tuple[subprocess.Popen, str]:
+    """`host render --serve 0` of the showcase (or `scene`) in a process of its own, and the
+    page's URL."""
     proc = subprocess.Popen(
         [
             sys.executable,
             "-m",
             "host.cli",
             "render",
-            str(EXAMPLE),
+            str(scene),
             "-o",
             str(tmp_path / "a.png"),
             "--stats",
             str(tmp_path / "s.json"),
-            "--quiet",
+            *(["--quiet"] if quiet else []),
             "--serve",
             "0",
             *options,
@@ -164,6 +171,97 @@ def test_the_page_shows_the_image_and_the_nodes(tmp_path, mesh):
         proc.send_signal(signal.SIGINT)
         assert proc.wait(WAIT) == 0
         wait_for(browser, "return document.body.dataset.closed === '1';", WAIT)
+    finally:
+        browser.quit()
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+# The figures of the page's progress line (their exact values), and the node panels' and the
+# canvas's places against the window.
+FIGURES = """const v = (c) => {
+  const e = document.querySelector("#progress-text ." + c);
+  return e ? Number(e.dataset.value) : null;
+};
+return [v("traced"), v("rate"), v("elapsed")];"""
+FOLD = """const below = (e) => e.getBoundingClientRect().bottom > window.innerHeight;
+return [...document.querySelectorAll(".node, #canvas")].filter(below).length;"""
+# Each traces for a few seconds: a page shows new pixels within about a quarter of a second
+# (its throttle), and object-space nodes send deposits in packets of 32,768 (on a small image
+# their first packet comes late); image space traces fastest, so with more samples.
+SIZE = ["--width", "640", "--height", "640"]
+MODES = {
+    "one process": ["--mesh", "1x1", "--threads", "2", *SIZE, "--spp", "4"],
+    "image space": ["--mesh", "2x2", "--mode", "image", "--tiles", "dynamic", *SIZE, "--spp", "8"],
+    "object space": ["--mesh", "2x2", "--mode", "object", *SIZE, "--spp", "4"],
+}
+
+
+def from_above(tmp_path: Path) -> Path:
+    """The showcase seen from above: all floor and objects, no sky, so every row costs about
+    the same and half the primary rays take about half the time (from the front, the sky's
+    cheap rows are half the rays and take a seventh of it: no page could show them in time)."""
+    text = EXAMPLE.read_text().replace("from 0 -7 3.2", "from 0 -3 9")
+    assert "from 0 -3 9" in text
+    scene = tmp_path / "above.nff"
+    scene.write_text(text)
+    return scene
+
+
+def expected_figures(stats: dict) -> tuple[int, float, float]:
+    """Rays of every kind, rays/s and elapsed seconds as the statistics give them: one
+    process over its tracing, a mesh over its wall time (rays/s after setup)."""
+    if "nodes" not in stats:
+        return stats["total_rays"], stats["rays_per_second"], stats["trace_seconds"]
+    rays = sum(stats["rays"].get(k, 0) for k in RAY_KINDS)
+    return rays, rays / (stats["wall_seconds"] - stats["setup_seconds"]), stats["wall_seconds"]
+
+
+def summary_figures(lines) -> tuple[str, str]:
+    """(seconds, rays/s) as the command line's summary printed them."""
+    text = "".join(drain_all(lines))
+    one = re.search(r"trace ([0-9.]+) s  ([0-9]+) rays/s", text)
+    mesh = re.search(r"wall ([0-9.]+) s  ([0-9]+) rays/s", text)
+    assert one or mesh, text
+    return (one or mesh).groups()
+
+
+def drain_all(lines):
+    """The lines so far, until the one that says the page stays."""
+    while (line := lines.get(timeout=WAIT)) is not None:
+        yield line
+        if "stays at" in line:
+            return
+
+
+@pytest.mark.parametrize("mode", list(MODES))
+def test_the_canvas_fills_in_and_ends_on_the_summary_figures(tmp_path, mode):
+    """The page's own progress when its canvas first held rendered pixels (recorded by the
+    page as it drew that frame) is under half the primary rays; at the end its elapsed
+    seconds, rays and rays/s are the statistics' and the summary line's."""
+    browser = chromium(tmp_path / "profile")
+    proc = None
+    try:
+        proc, url = serve(tmp_path, *MODES[mode], quiet=False, scene=from_above(tmp_path))
+        browser.get(url)
+        wait_for(browser, DONE, WAIT * 6)  # a cold mesh loads its kernels first
+        first = browser.execute_script("return live.firstPixels;")
+        assert first is not None and first["phase"] == "tracing"
+        assert first["done"] < first["total"] / 2, first
+
+        stats = json.loads((tmp_path / "s.json").read_text())
+        rays, rate, seconds = expected_figures(stats)
+        assert browser.execute_script(FIGURES) == [rays, rate, seconds]
+        printed = summary_figures(proc.lines)
+        digits = 3 if mode == "one process" else 2
+        assert printed == (f"{seconds:.{digits}f}", f"{rate:.0f}")
+
+        assert browser.execute_script(FOLD) == 0  # every node and the image above the fold
+        errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+        assert not errors
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(WAIT) == 0
     finally:
         browser.quit()
         if proc is not None and proc.poll() is None:

@@ -11,9 +11,9 @@ paused for a second (SIGSTOP, then SIGCONT); a stranger flooding a node with idl
 host without the secret trying at the same time; a host that vanishes mid-render (the next
 render, on the same nodes, must still work). Prints a line per fault kind: renders, exact
 images, clear failures, hangs, then the processes left; and after every render each node's
-resident memory and open descriptors are read (`soak_plot`): the busiest node's may not grow
-within a mesh's life (beyond its first three renders) by more than GROWTH_MB or any
-descriptor; `--plot` draws them.
+resident memory and open descriptors are read (`soak_plot`): within a mesh's life (beyond its
+first three renders) the busiest node's median RSS may not rise by more than GROWTH_MB nor
+its fewest open descriptors at all (`soak_plot.growth`); `--plot` draws them.
 """
 
 import argparse
@@ -95,8 +95,9 @@ def main(argv=None) -> int:
     print(f"meshnode processes left: {left}")
     rise_mb, rise_fd = growth(samples)
     print(
-        f"busiest node within a mesh's life, after its first 3 renders: RSS rose at most "
-        f"{rise_mb:.1f} MB, descriptors at most {rise_fd} ({meshes} meshes, "
+        f"busiest node within a mesh's life, after its first 3 renders, second half against "
+        f"first: median RSS rose at most {rise_mb:.1f} MB, fewest descriptors at most "
+        f"{rise_fd} ({meshes} meshes, "
         f"RSS {min(s['rss_max_mb'] for s in samples):.0f}-"
         f"{max(s['rss_max_mb'] for s in samples):.0f} MB, descriptors "
         f"{min(s['fds_max'] for s in samples)}-{max(s['fds_max'] for s in samples)})"
@@ -111,7 +112,7 @@ def main(argv=None) -> int:
         bad.append(f"{left} meshnode processes left")
     if rise_mb > GROWTH_MB or rise_fd > 0:
         bad.append(f"resources grew: RSS {rise_mb:.1f} MB, descriptors {rise_fd}")
-    rows = [{"fault": f, **dict(c)} for f, c in tally.items()]
+    rows = [{"fault": f, **dict(c)} for f, c in tally.items()] + [{"samples": samples}]
     return finish(rows, args.json, bad, "FAILED:\n", "no hang, no wrong image, nothing left")
 
 

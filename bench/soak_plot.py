@@ -2,6 +2,7 @@
 each render, read from /proc, and their plot (PNG, drawn with Pillow as the sampling plot is),
 so a leak shows as a slope within one mesh's renders."""
 
+import statistics
 from pathlib import Path
 
 from bench.sampling_plot import _font
@@ -26,14 +27,23 @@ def node_resources(pids) -> tuple[list[float], list[int]]:
 
 
 def growth(samples: list[dict], warm: int = 3) -> tuple[float, int]:
-    """The largest rise of the busiest node's RSS (MB) and descriptors within one mesh's
-    life, after its first `warm` renders (kernels loaded, engines cached, pools grown)."""
+    """How much the busiest node's resources rose within one mesh's life, after its first
+    `warm` renders (kernels loaded, engines cached, pools grown): the median RSS (MB) and the
+    fewest descriptors of the second half of its renders against the first half's. A sample
+    is taken as a render returns, when links and a flood's sockets may still be closing, so
+    single samples swing by a dozen descriptors; a leak raises the floor."""
     rise_mb, rise_fd = 0.0, 0
     for mesh in {s["mesh"] for s in samples}:
         life = [s for s in samples if s["mesh"] == mesh][warm:]
-        if len(life) > 1:
-            rise_mb = max(rise_mb, max(s["rss_max_mb"] for s in life) - life[0]["rss_max_mb"])
-            rise_fd = max(rise_fd, max(s["fds_max"] for s in life) - life[0]["fds_max"])
+        if len(life) < 4:
+            continue
+        first, second = life[: len(life) // 2], life[len(life) // 2 :]
+        rise_mb = max(
+            rise_mb,
+            statistics.median(s["rss_max_mb"] for s in second)
+            - statistics.median(s["rss_max_mb"] for s in first),
+        )
+        rise_fd = max(rise_fd, min(s["fds_max"] for s in second) - min(s["fds_max"] for s in first))
     return rise_mb, rise_fd
 
 

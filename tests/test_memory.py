@@ -52,3 +52,23 @@ def test_a_node_gives_a_large_renders_memory_back():
         after = resident(pid)
     assert after["VmHWM"] - before["VmRSS"] > 100 * MB  # the large render held memory
     assert after["VmRSS"] - before["VmRSS"] < 100 * MB, (before, after)
+
+
+def test_engines_kept_between_renders_stay_within_their_bound():
+    # `meshnode serve --keep-engines SIZE`: after a render the oldest engines go until the
+    # rest fit; 0 keeps none, so a render's whole memory can come back.
+    from meshnode.mesh.engines import EngineCache
+
+    scenes = [read_nff(spd_scene("balls_s1.nff")), read_nff(spd_scene("tetra_s1.nff"))]
+    cache = EngineCache(keep_bytes=None)
+    first, _ = cache.get(scenes[0], keep=2)
+    second, _ = cache.get(scenes[1], keep=2)
+    cache.trim()  # no bound: both stay
+    assert len(cache.engines) == 2
+    cache.keep_bytes = second.nbytes()  # room for the newer one only
+    cache.trim()
+    assert list(cache.engines.values()) == [second] and first.nbytes() > 0
+    cache.keep_bytes = 0
+    cache.trim()
+    assert not cache.engines
+    assert cache.get(scenes[1])[1] is False  # built again, not reused

@@ -164,20 +164,6 @@ def overlap(text: str) -> float | str:
         raise argparse.ArgumentTypeError(f"{text!r} is neither a percentage nor auto") from None
 
 
-def memory_size(text: str) -> int:
-    """A memory size: bytes, or a number with K, M, G or T (powers of 1024)."""
-    units = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
-    t = text.strip().upper().removesuffix("B").removesuffix("I")
-    unit = t[-1:] if t[-1:] in units else ""
-    try:
-        value = float(t[: len(t) - len(unit)]) * units[unit]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a memory size (e.g. 512M, 8G)") from None
-    if not 0 < value < 1 << 62:
-        raise argparse.ArgumentTypeError(f"{text!r}: a memory size must be positive")
-    return int(value)
-
-
 def share(text: str) -> float:
     """A share of the scene: a number above 0 and at most 1, or a percentage ('25%')."""
     t = text.strip()

@@ -10,7 +10,6 @@ from host.cli.options import (
     FILM_SIZE_HELP,
     camera_options,
     film_size,
-    memory_size,
     overlap,
     record_option,
     sampling_options,
@@ -31,6 +30,7 @@ from protocols.render import (
     ImageSpec,
     MeshPlan,
 )
+from protocols.units import memory_size
 
 
 def _version() -> str:

@@ -16,10 +16,19 @@ class EngineCache:
     objects in the same box with the same engine settings (a user re-rendering a scene at
     another size, sampling or camera on a running cluster pays no build). At most `keep`
     engines (one, or one per box held under MeshPlan.copies), least recently used dropped
-    first: bounded memory."""
+    first: bounded memory; and after a render (`trim`) at most `keep_bytes` of them."""
 
-    def __init__(self):
+    def __init__(self, keep_bytes: int | None = None):
         self.engines: dict[bytes, Engine] = {}  # oldest use first
+        self.keep_bytes = keep_bytes  # kept between renders at most (None: no bound)
+
+    def trim(self) -> None:
+        """After a render: the oldest engines go until the rest fit `keep_bytes` (their
+        memory comes back; the next render of their scene builds again)."""
+        if self.keep_bytes is None:
+            return
+        while self.engines and sum(e.nbytes() for e in self.engines.values()) > self.keep_bytes:
+            del self.engines[next(iter(self.engines))]
 
     def get(
         self, scene: SceneData, keep: int = 1, spec: EngineSpec = EngineSpec(), **placement

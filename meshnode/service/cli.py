@@ -6,7 +6,9 @@ import argparse
 import sys
 
 from meshnode.mesh.scheduler import INCOMING_HIGH
+from meshnode.service.config import KEEP_ENGINES, OBJECT_SHARE
 from meshnode.transport.tls import NO_TLS, TlsFiles, add_tls_options
+from protocols.units import memory_size
 
 
 def parser() -> argparse.ArgumentParser:
@@ -48,6 +50,22 @@ def parser() -> argparse.ArgumentParser:
         "--threads", type=int, default=0, help="tracing threads (default 0: one per core)"
     )
     s.add_argument(
+        "--object-share",
+        type=_share,
+        default=OBJECT_SHARE,
+        help="the share of this node's free memory a render's objects may take, at most "
+        f"4 GiB (default {OBJECT_SHARE:g})",
+    )
+    s.add_argument(
+        "--keep-engines",
+        type=memory_size,
+        default=KEEP_ENGINES,
+        metavar="SIZE",
+        help="engines kept between renders for the next render of the same scene, at most "
+        f"this many bytes (e.g. 512M; default {KEEP_ENGINES >> 30}G); the rest of a render's "
+        "memory goes back to the system when it ends",
+    )
+    s.add_argument(
         "--incoming-high",
         type=int,
         default=INCOMING_HIGH,
@@ -85,7 +103,20 @@ def main(argv=None) -> int:
         args.incoming_high,
         secret=secret,
         tls=tls,
+        object_share=args.object_share,
+        keep_engines=args.keep_engines,
     )
+
+
+def _share(text: str) -> float:
+    """A share above 0 and at most 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: a share must be above 0 and at most 1")
+    return value
 
 
 def _warmup(common: bool) -> int:
@@ -129,6 +160,8 @@ def serve(
     service_class=None,
     secret: bytes | None = None,
     tls: TlsFiles = NO_TLS,
+    object_share: float = OBJECT_SHARE,
+    keep_engines: int = KEEP_ENGINES,
 ) -> int:
     """Run the node service (uvloop when installed) until stopped."""
     import asyncio
@@ -152,6 +185,8 @@ def serve(
             incoming_high,
             secret,
             tls,
+            object_share=object_share,
+            keep_engines=keep_engines,
         )
         try:
             bound = await service.start()

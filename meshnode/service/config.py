@@ -21,6 +21,7 @@ from protocols.topology import Torus
 
 MAX_OBJECT_BYTES = 4 << 30  # object records one render may download to a node, at most ...
 OBJECT_SHARE = 0.5  # ... and at most this share of the node's free memory when it starts
+KEEP_ENGINES = 2 << 30  # bytes of engines a node keeps between renders (`meshnode serve`)
 
 
 class Config:
@@ -64,10 +65,10 @@ class Objects:
     """The node's objects as they arrive, table by table, bounded in bytes; keyed by whose
     they are: this node's, or under MeshPlan.copies a linked neighbour's (`nodes`)."""
 
-    def __init__(self, nodes=()):
-        self.nodes = frozenset(nodes)
+    def __init__(self, nodes=(), share: float = OBJECT_SHARE):
+        self.nodes, self.share = frozenset(nodes), share
         free = available_memory()
-        self.most = min(MAX_OBJECT_BYTES, int(OBJECT_SHARE * free)) if free else MAX_OBJECT_BYTES
+        self.most = min(MAX_OBJECT_BYTES, int(share * free)) if free else MAX_OBJECT_BYTES
         self.tables: dict[tuple[int, str], list] = {}
         self.seen: set[int] = set()
         self.bytes = 0
@@ -79,7 +80,7 @@ class Objects:
         self.bytes += records.nbytes
         if self.bytes > self.most:
             raise BadFrame(
-                f"OBJECTS: more than {self.most >> 20} MiB of objects ({OBJECT_SHARE:.0%} of "
+                f"OBJECTS: more than {self.most >> 20} MiB of objects ({self.share:.0%} of "
                 f"this node's free memory, at most {MAX_OBJECT_BYTES >> 30} GiB)"
             )
         self.seen.add(node)

@@ -23,6 +23,7 @@ from meshnode.service.admission import (
     Admission,
     RefusalLog,
 )
+from meshnode.service.config import KEEP_ENGINES, OBJECT_SHARE
 from meshnode.service.session import Config, Session
 from meshnode.transport.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
 from meshnode.transport.tls import NO_TLS, TlsFiles
@@ -52,7 +53,9 @@ class NodeService:
     `threads`: batches traced at once; `incoming_high`: queued incoming rays at which the
     node stops reading from its neighbours; `once`: stop after the first host leaves;
     `secret`: the cluster secret every peer must prove (None: the empty key, loopback use);
-    `tls`: certificate, key and CA files for TLS on every link (meshnode.transport.tls)."""
+    `tls`: certificate, key and CA files for TLS on every link (meshnode.transport.tls);
+    `object_share`: the share of its free memory a render's objects may take (at most 4 GiB);
+    `keep_engines`: bytes of engines kept between renders for the next of the same scene."""
 
     def __init__(
         self,
@@ -64,6 +67,8 @@ class NodeService:
         incoming_high: int = INCOMING_HIGH,
         secret: bytes | None = None,
         tls: TlsFiles = NO_TLS,
+        object_share: float = OBJECT_SHARE,
+        keep_engines: int = KEEP_ENGINES,
     ):
         self.address, self.port, self.cluster, self.once = host, port, cluster, once
         self.secret = secret
@@ -75,7 +80,9 @@ class NodeService:
         self.leaving: Session | None = None  # the session whose host has gone, closing
         self.free = asyncio.Event()  # no session: a host may start one
         self.free.set()
-        self.engines = EngineCache()  # the last render's engines, for the next of that scene
+        # the last render's engines, for the next of that scene, within `keep_engines` bytes
+        self.engines = EngineCache(keep_engines)
+        self.object_share = object_share
         # neighbour links that came before their session took them: node -> (render id, link)
         self.pending: dict[int, tuple[bytes, Link]] = {}
         self.links_ready = asyncio.Event()
@@ -291,6 +298,7 @@ class NodeService:
             await self._end(session)
             self.leaving = session = None  # the render's objects, queues and books go now
             await link.close()
+            self.engines.trim()
             memory_back()
             if self.once:
                 self.stopped.set()

@@ -65,7 +65,7 @@ class Session(Driver):
         super().__init__(node, sched)
         self.router = Router(config.torus, node)
         self.stats = NodeStats(self.node)
-        self.objects = Objects([self.node, *config.copies])
+        self.objects = Objects([self.node, *config.copies], service.object_share)
         self.early_tiles: list[dict] = []  # TILES that came before the engine was built
         self.outboxes: dict[int, Outbox] = {}
         self.wake = asyncio.Event()

@@ -26,24 +26,27 @@ def node_resources(pids) -> tuple[list[float], list[int]]:
     return rss, fds
 
 
-def growth(samples: list[dict], warm: int = 3) -> tuple[float, int]:
+def growth(samples: list[dict], warm: int = 3) -> tuple[float, float]:
     """How much the busiest node's resources rose within one mesh's life, after its first
-    `warm` renders (kernels loaded, engines cached, pools grown): the median RSS (MB) and the
-    fewest descriptors of the second half of its renders against the first half's. A sample
-    is taken as a render returns, when links and a flood's sockets may still be closing, so
-    single samples swing by a dozen descriptors; a leak raises the floor."""
-    rise_mb, rise_fd = 0.0, 0
+    `warm` renders (kernels loaded, engines cached, pools grown): the medians of RSS (MB) and
+    of descriptors over the second half of its renders against the first half's. A sample is
+    taken as a render returns, while the nodes may still be closing that render's links and a
+    flood's sockets, so single samples swing by a dozen descriptors (14 to 27 in 200 renders);
+    a leak moves the median."""
+    rise_mb, rise_fd = 0.0, 0.0
     for mesh in {s["mesh"] for s in samples}:
         life = [s for s in samples if s["mesh"] == mesh][warm:]
         if len(life) < 4:
             continue
         first, second = life[: len(life) // 2], life[len(life) // 2 :]
-        rise_mb = max(
-            rise_mb,
-            statistics.median(s["rss_max_mb"] for s in second)
-            - statistics.median(s["rss_max_mb"] for s in first),
-        )
-        rise_fd = max(rise_fd, min(s["fds_max"] for s in second) - min(s["fds_max"] for s in first))
+        for key, rise in (("rss_max_mb", "mb"), ("fds_max", "fd")):
+            up = statistics.median(s[key] for s in second) - statistics.median(
+                s[key] for s in first
+            )
+            if rise == "mb":
+                rise_mb = max(rise_mb, up)
+            else:
+                rise_fd = max(rise_fd, up)
     return rise_mb, rise_fd
 
 

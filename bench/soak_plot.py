@@ -36,7 +36,7 @@ def growth(samples: list[dict], warm: int = 3) -> tuple[float, float]:
     rise_mb, rise_fd = 0.0, 0.0
     for mesh in {s["mesh"] for s in samples}:
         life = [s for s in samples if s["mesh"] == mesh][warm:]
-        if len(life) < 4:
+        if len(life) < 8:  # a median of fewer than four is one sample's swing
             continue
         first, second = life[: len(life) // 2], life[len(life) // 2 :]
         for key, rise in (("rss_max_mb", "mb"), ("fds_max", "fd")):

@@ -82,7 +82,9 @@ async def test_a_reset_connection_is_still_a_link_closed():
 
 
 async def test_a_send_error_fails_the_sessions_render_and_tells_the_host():
-    service = SimpleNamespace(threads=1, incoming_high=1 << 16, engines=None, pool=None)
+    service = SimpleNamespace(
+        threads=1, incoming_high=1 << 16, engines=None, pool=None, object_share=0.5
+    )
     host = fake_link("the host")
     session = Session(service, host, Config(config(node=0, plan=MeshPlan(1, 2))))
     try:

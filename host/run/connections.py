@@ -39,12 +39,14 @@ async def connect_all(addresses, cluster, secret, tls, wait: float) -> tuple[lis
     return links, memories
 
 
-SATURATED_PAUSE = 0.2  # seconds between tries of a node that says it is saturated
+SATURATED_PAUSE = 0.2  # seconds between tries of a node that is saturated or dropped us
 
 
 async def _dial_within(deadline: float, address, n: int, cluster, secret, tls):
-    """`dial` node n, again while it says it is saturated (its hosts' links all taken:
-    `meshnode.service.admission`) and the deadline allows; then its refusal, by name."""
+    """`dial` node n, again while the deadline allows if it says it is saturated (its
+    hosts' links all taken) or drops the connection before the handshake is done (a flood
+    of strangers filling its pool of handshakes drops the oldest: `meshnode.service.
+    admission`); then its refusal, by name. A refused secret is not tried again."""
     while True:
         left = max(deadline - time.monotonic(), 0.1)
         try:
@@ -52,7 +54,9 @@ async def _dial_within(deadline: float, address, n: int, cluster, secret, tls):
                 address, f"node {n} ({address})", cluster, secret, "host", tls=tls, wait=left
             )
         except LinkClosed as e:
-            if "saturated" not in e.reason or time.monotonic() + SATURATED_PAUSE > deadline:
+            dropped = isinstance(e.__cause__, LinkClosed)  # lost mid-handshake, not refused
+            again = "saturated" in e.reason or dropped
+            if not again or time.monotonic() + SATURATED_PAUSE > deadline:
                 raise
         await asyncio.sleep(SATURATED_PAUSE)
 

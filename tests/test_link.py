@@ -164,3 +164,34 @@ def test_large_frames_are_received_in_place_and_reading_pauses_until_taken():
     for k, m in zip((0, 1, 2), (got[0], got[2], got[3]), strict=True):
         assert m["dest"] == k
         np.testing.assert_array_equal(m["rays"], rays)
+
+
+async def test_a_bad_frame_read_before_the_link_took_over_is_its_first_error():
+    # Bytes the stream reader already held when the link swapped in its receiver are framed
+    # first; a bad frame among them raised out of the link's construction (a node's accept
+    # then left the connection open and unread). It is now the first receive's error, and
+    # the link closes.
+    import struct
+
+    got = asyncio.get_running_loop().create_future()
+
+    async def on_connect(reader, writer):
+        await reader._wait_for_data("test")  # the bytes are in the reader before the link
+        try:
+            link = Link(reader, writer, "peer", max_frame=1024)
+            await link.recv()
+        except Exception as e:  # noqa: BLE001 - what is raised, and where, is the test
+            got.set_result(e)
+        writer.close()
+
+    server = await asyncio.start_server(on_connect, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(struct.pack("<I", 2**32 - 1))
+    await writer.drain()
+    error = await asyncio.wait_for(got, 5)
+    assert isinstance(error, LinkClosed) and "exceeds the 1024 limit" in str(error)
+    assert await asyncio.wait_for(reader.read(), 5) == b""  # closed by the link
+    writer.close()
+    server.close()
+    await server.wait_closed()

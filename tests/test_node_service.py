@@ -265,3 +265,33 @@ async def test_a_neighbour_address_that_is_another_service_fails_by_name(speaks)
         await asyncio.wait_for(service.shutdown(), 10)
         foreign.close()
         await foreign.wait_closed()
+
+
+async def test_a_bad_frame_sent_with_the_hello_is_refused_and_the_connection_closed(caplog):
+    # A peer that writes its HELLO and a length prefix past any frame's limit at once: the
+    # node read both before its link took over the connection, and a bad frame there raised
+    # out of the link's construction, left the connection open and unread (a fuzzer waited
+    # out its 15 s timeout) and logged an unhandled exception.
+    import struct
+
+    from protocols.framing import encode
+    from protocols.handshake import hello
+
+    service = NodeService("127.0.0.1", 0)
+    await service.start()
+    try:
+        for _ in range(5):
+            reader, writer = await asyncio.open_connection("127.0.0.1", service.port)
+            writer.write(encode(hello("meshtrace", "host")) + struct.pack("<I", 2**32 - 1))
+            await writer.drain()
+            while await asyncio.wait_for(reader.read(65536), 5):  # the node closes it
+                pass
+            writer.close()
+        link = await host_link(service.port)  # and a real host is served after them
+        await link.send(config())
+        kind, _ = await asyncio.wait_for(link.recv(), 10)
+        assert kind is Kind.PROGRESS
+        await link.close()
+    finally:
+        await asyncio.wait_for(service.shutdown(), 10)
+    assert not [r for r in caplog.records if "Unhandled exception" in r.getMessage()]

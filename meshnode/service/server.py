@@ -25,7 +25,14 @@ from meshnode.service.admission import (
 )
 from meshnode.service.config import KEEP_ENGINES, OBJECT_SHARE
 from meshnode.service.session import Config, Session
-from meshnode.transport.link import HANDSHAKE_SECONDS, Link, LinkClosed, answer, dial
+from meshnode.transport.link import (
+    HANDSHAKE_FRAME,
+    HANDSHAKE_SECONDS,
+    Link,
+    LinkClosed,
+    answer,
+    dial,
+)
 from meshnode.transport.tls import NO_TLS, TlsFiles
 from protocols.errors import BadFrame, ProtocolError, Saturated, describe
 from protocols.messages import Kind, make
@@ -183,7 +190,7 @@ class NodeService:
         its session or a host's served, within the authenticated capacity."""
         address, port = writer.get_extra_info("peername")[:2]
         peer = f"{address}:{port}"
-        link = Link(reader, writer, peer)
+        link = Link(reader, writer, peer, max_frame=HANDSHAKE_FRAME)
         admitted, dropped = self.admission.arrive(link, address)
         for old in dropped:
             old.abort()

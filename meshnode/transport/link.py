@@ -73,8 +73,14 @@ class _Receiver(asyncio.BufferedProtocol):
         # which of a bytearray is a copy (a frame then decoded from stale bytes)
         self.scratch = memoryview(bytearray(SCRATCH))
         self.direct = False
-        if held:  # bytes the stream reader took before the swap
-            self._take(self.decoder.feed(held))
+        if held:  # bytes the stream reader took before the swap: a bad frame among them is
+            # the first receive's error, as one read later would be (raised here, it left
+            # the connection open and unread, and the node's accept with a traceback)
+            try:
+                self._take(self.decoder.feed(held))
+            except ProtocolError as e:
+                self.error = e
+                transport.pause_reading()
 
     def get_buffer(self, sizehint: int):
         target = self.decoder.buffer(SCRATCH)

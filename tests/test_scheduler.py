@@ -3,6 +3,7 @@ back, when it passes a termination wave on and answers it, and that a mesh of on
 state once."""
 
 import numpy as np
+import pytest
 
 from meshnode.mesh import scheduler
 from meshnode.mesh.feeds import Primaries
@@ -10,6 +11,7 @@ from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.steps import Enter, Flush, SendEcho, SendProbe, Trace
 from meshnode.mesh.termination import Echo, Probe
 from protocols.dtypes import RAY
+from protocols.errors import BadFrame
 from protocols.state import State
 
 
@@ -190,3 +192,15 @@ def test_a_mesh_of_one_walks_every_state_once_and_stops():
             s.batch_done()
     assert entered == [State.TRACE, State.REFINE, State.FLUSH, State.DONE]
     assert s.done and steps < 100
+
+
+def test_a_probe_out_of_turn_is_refused_as_it_arrives():
+    # The fuzzer's neighbour sent STATE with wave 3 first: refused in the work loop, it was
+    # a traceback there; refused as it arrives, it fails the parent's link by name.
+    s = Scheduler(1, 0)
+    for wave in (0, 2, 3, 1 << 40):
+        with pytest.raises(BadFrame, match=f"STATE: wave {wave} in state"):
+            s.probe_in(Probe(wave, int(State.TRACE)))
+    s.probe_in(Probe(1, int(State.TRACE)))
+    with pytest.raises(BadFrame):
+        s.probe_in(Probe(2, int(State.TRACE)))  # the first is not taken yet

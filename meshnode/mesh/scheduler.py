@@ -103,8 +103,10 @@ class Scheduler:
         self.term.on_sent(messages)
 
     def probe_in(self, probe: Probe) -> None:
-        """A wave from this node's parent (taken up by the next `next()`)."""
-        if self.probe is not None or probe.state < self.state:
+        """A wave from this node's parent (taken up by the next `next()`), checked here, as it
+        arrives: the wave after the last one, while none is held, in no earlier state (a bad
+        one fails the parent's link by name, not the work loop)."""
+        if self.probe is not None or probe.state < self.state or probe.wave != self.term.wave + 1:
             raise BadFrame(
                 f"STATE: wave {probe.wave} in state {probe.state} came while node "
                 f"{self.node} is in state {int(self.state)} with wave {self.term.wave}"

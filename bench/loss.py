@@ -24,35 +24,36 @@ if __package__ in (None, ""):
 import numpy as np  # noqa: E402
 
 
+async def render_losing(scene, image, addresses, plan, engine, total: int, victim, wait=300.0):
+    """(image, stats) of a render on running nodes at `addresses`, process `victim` (None:
+    none) killed once half of the `total` primary rays are traced; `wait` bounds each step."""
+    from host.run.meshclient import render_on_mesh
+
+    half, traced = asyncio.Event(), [0]
+
+    def progress(rays: int) -> None:
+        traced[0] += rays
+        if traced[0] >= total // 2:
+            half.set()
+
+    task = asyncio.create_task(
+        render_on_mesh(scene, image, addresses, plan, engine, silence=4.0, progress=progress)
+    )
+    if victim is not None:
+        await asyncio.wait_for(half.wait(), wait)
+        os.kill(victim.pid, signal.SIGKILL)
+    return await asyncio.wait_for(task, 2 * wait)
+
+
 def one_render(scene, image, plan, engine, total: int, kill: bool):
     """(image, stats) of one render on a fresh local mesh, a node killed at half the primary
     rays when `kill`."""
     from host.run.localmesh import LocalMesh
-    from host.run.meshclient import render_on_mesh
 
     mesh = LocalMesh(plan.nodes)
     with mesh as addresses:
-        victim = mesh.procs[plan.nodes // 2]
-
-        async def run():
-            half, traced = asyncio.Event(), [0]
-
-            def progress(rays: int) -> None:
-                traced[0] += rays
-                if traced[0] >= total // 2:
-                    half.set()
-
-            task = asyncio.create_task(
-                render_on_mesh(
-                    scene, image, addresses, plan, engine, silence=5.0, progress=progress
-                )
-            )
-            if kill:
-                await asyncio.wait_for(half.wait(), 300)
-                os.kill(victim.pid, signal.SIGKILL)
-            return await asyncio.wait_for(task, 600)
-
-        return asyncio.run(run())
+        victim = mesh.procs[plan.nodes // 2] if kill else None
+        return asyncio.run(render_losing(scene, image, addresses, plan, engine, total, victim))
 
 
 def main(argv=None) -> int:

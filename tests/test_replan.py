@@ -10,6 +10,7 @@ import signal
 import numpy as np
 import pytest
 
+from bench.loss import render_losing
 from host.run.meshclient import render_on_mesh, shrink
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
@@ -169,25 +170,9 @@ def test_a_node_lost_at_half_an_image_space_frame_costs_only_the_tiles_not_yet_t
     mesh = slow_mesh(9, 0, 1, 0.0, 0)
     with mesh as addresses:
         victim = mesh.procs[4]
-
-        async def run():
-            half, traced = asyncio.Event(), [0]
-
-            def progress(rays: int) -> None:
-                traced[0] += rays
-                if traced[0] >= total // 2:
-                    half.set()
-
-            task = asyncio.create_task(
-                render_on_mesh(
-                    scene, rs.image, addresses, plan, rs.engine, silence=4.0, progress=progress
-                )
-            )
-            await asyncio.wait_for(half.wait(), 60)
-            os.kill(victim.pid, signal.SIGKILL)
-            return await asyncio.wait_for(task, 90)
-
-        img, stats = asyncio.run(run())
+        img, stats = asyncio.run(
+            render_losing(scene, rs.image, addresses, plan, rs.engine, total, victim, wait=60)
+        )
     assert [d["node"] for d in stats["lost_nodes"]] == [4]
     kept = stats["recovery"]
     assert kept["tiles_kept"] >= kept["tiles"] // 4  # a quarter at least was whole

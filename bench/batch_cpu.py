@@ -23,6 +23,8 @@ from collections import Counter
 from functools import partial
 from pathlib import Path
 
+from host.planning.request import Request
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -108,14 +110,14 @@ def main(argv=None) -> int:
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
-        planned = plan_render(scene, image, EngineSpec(), plan)
+        planned = plan_render(Request(scene, image, EngineSpec(), plan=plan))
         scenes = [subset(scene, k) for k in planned.holders]
 
         run = partial(simulate, scenes, planned.spec, planned.partition, clock="work")
         run()  # kernels compiled or loaded, engines built
         spent, outcome = timed_parts(run)
         counts = outcome.totals()
-        _, one = render(scene, image, EngineSpec(threads=1))
+        _, one = render(Request(scene, image, EngineSpec(threads=1)))
         if any(counts[k] != one["rays"][k] for k in ONCE):
             bad.append(
                 f"{name}: mesh {[counts[k] for k in ONCE]}, one node "

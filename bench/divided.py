@@ -21,6 +21,9 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Auto, Request
+from host.run.connections import Nodes
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -54,8 +57,8 @@ def main(argv=None) -> int:
     budget = int(whole / args.fraction)
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
     one = EngineSpec(threads=1)
-    render(scene, ImageSpec(width=16, height=16), one, progress=False)  # kernels loaded
-    ref, ref_stats = render(scene, image, one, progress=False)
+    render(Request(scene, ImageSpec(width=16, height=16), one), progress=False)  # kernels loaded
+    ref, ref_stats = render(Request(scene, image, one), progress=False)
     print(
         f"tetra {args.tetra}: {len(scene.triangles):,} triangles, whole engine about "
         f"{whole / 2**20:.1f} MiB; each of {rows}x{cols} nodes may hold {budget / 2**20:.1f} MiB "
@@ -69,13 +72,14 @@ def main(argv=None) -> int:
         start = time.perf_counter()
         img, stats = asyncio.run(
             render_on_mesh(
-                scene,
-                image,
-                addresses,
-                MeshPlan(rows, cols, balance="objects"),
-                one,
-                mode="auto",
-                node_memory=budget,
+                Request(
+                    scene,
+                    image,
+                    one,
+                    plan=MeshPlan(rows, cols, balance="objects"),
+                    auto=Auto(mode="auto", node_memory=budget),
+                ),
+                Nodes(addresses),
             )
         )
         wall = time.perf_counter() - start

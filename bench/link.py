@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Request
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -136,8 +138,8 @@ def segment_ns() -> dict[str, float]:
     out = {}
     for name, scene in (("tetra 6", tetra(6)), ("balls 3", balls(3))):
         image = ImageSpec(width=256, height=256)
-        render(scene, image, EngineSpec(threads=1), progress=False)
-        _, stats = render(scene, image, EngineSpec(threads=1), progress=False)
+        render(Request(scene, image, EngineSpec(threads=1)), progress=False)
+        _, stats = render(Request(scene, image, EngineSpec(threads=1)), progress=False)
         out[name] = 1e9 * stats["trace_cpu_seconds"] / stats["rays"]["ray_segments"]
     return out
 

@@ -18,6 +18,9 @@ import statistics
 import sys
 from pathlib import Path
 
+from host.planning.request import Request
+from host.run.connections import Nodes
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -37,7 +40,12 @@ async def render_losing(scene, image, addresses, plan, engine, total: int, victi
             half.set()
 
     task = asyncio.create_task(
-        render_on_mesh(scene, image, addresses, plan, engine, silence=4.0, progress=progress)
+        render_on_mesh(
+            Request(scene, image, engine, plan=plan),
+            Nodes(addresses),
+            silence=4.0,
+            progress=progress,
+        )
     )
     if victim is not None:
         await asyncio.wait_for(half.wait(), wait)
@@ -73,7 +81,7 @@ def main(argv=None) -> int:
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
     engine = EngineSpec(threads=1)
     plan = MeshPlan(rows, cols, mode="image", tiles="dynamic")
-    ref, ref_stats = render(scene, image, engine)
+    ref, ref_stats = render(Request(scene, image, engine))
     total = ref_stats["rays"]["eye_rays"]
     print(f"{args.scene} {args.size}x{args.size} at {args.spp} spp on {args.mesh}, image dynamic")
     print(f"{'run':>3} {'no loss s':>9} {'loss s':>7} {'kept tiles':>11} {'ratio':>6}")

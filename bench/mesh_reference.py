@@ -5,6 +5,8 @@ weigh as they do on a long render."""
 import time
 from pathlib import Path
 
+from host.planning.request import Request
+
 # Samples are raised for min_trace * SIZE_MARGIN seconds: one node's later runs in the rows
 # (best of --repeat, caches warm) traced 10-20% less than the sizing run (session 10: balls
 # and tetra 4.1-4.8 s at --min-trace 5 with a margin of 1.1).
@@ -18,9 +20,9 @@ def single(scene, image, warm: bool = True, camera=None):
     from protocols.render import EngineSpec
 
     if warm:
-        render(scene, image, EngineSpec(threads=1), camera)
+        render(Request(scene, image, EngineSpec(threads=1), camera))
     start = time.perf_counter()
-    _, stats = render(scene, image, EngineSpec(threads=1), camera)
+    _, stats = render(Request(scene, image, EngineSpec(threads=1), camera))
     return time.perf_counter() - start, stats
 
 

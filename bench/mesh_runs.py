@@ -7,6 +7,8 @@ import statistics
 import time
 
 from bench.mesh_reference import single
+from host.planning.request import Auto, Request
+from host.run.connections import Nodes
 
 
 def on_mesh(
@@ -61,7 +63,14 @@ def on_mesh(
         start = time.perf_counter()
         _, stats = asyncio.run(
             render_on_mesh(
-                scene, image, addresses, plan, camera=camera, overlaps=OVERLAPS if auto else ()
+                Request(
+                    scene,
+                    image,
+                    camera=camera,
+                    plan=plan,
+                    auto=Auto(overlaps=OVERLAPS if auto else ()),
+                ),
+                Nodes(addresses),
             )
         )
         if stats["lost_nodes"]:  # re-planned on fewer nodes: not the row's mesh

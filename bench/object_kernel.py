@@ -22,6 +22,8 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Request
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -48,7 +50,7 @@ def captured(scene, rows: int, cols: int, size: int, spp: int, overlap: float, p
 
     image = ImageSpec(width=size, height=size, spp=spp)
     mesh = MeshPlan(rows, cols, overlap, tile=max(2, size // 24), **plan)
-    planned = plan_render(scene, image, EngineSpec(), mesh)
+    planned = plan_render(Request(scene, image, EngineSpec(), plan=mesh))
     engine_module.Engine._trace = keep
     try:
         simulate([subset(scene, k) for k in planned.holders], planned.spec, planned.partition)

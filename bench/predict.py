@@ -25,6 +25,8 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Auto, Request
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -79,7 +81,9 @@ def simulated(
     tile = max(2, min(size // 24, int(size / math.sqrt(TILES_PER_NODE * rows * cols))))
     auto = overlap == "auto"
     mesh = MeshPlan(rows, cols, OVERLAPS[0] if auto else overlap, tile=tile, **plan)
-    planned = plan_render(scene, image, EngineSpec(), mesh, overlaps=OVERLAPS if auto else ())
+    planned = plan_render(
+        Request(scene, image, EngineSpec(), plan=mesh, auto=Auto(overlaps=OVERLAPS if auto else ()))
+    )
     part, keep = planned.partition, planned.holders
     out = simulate(
         [subset(scene, keep[n]) for n in range(part.nodes)],

@@ -50,11 +50,12 @@ class Bench:
 
     def render(self, settings, repeat: int = 1):
         """(image, stats, best tracing seconds of `repeat` identical renders)."""
+        from host.planning.request import Request
         from host.run.oneprocess import render
 
         best, image, stats = math.inf, None, None
         for _ in range(repeat):
-            image, stats = render(self.scene, *settings, built=self.engine)
+            image, stats = render(Request(self.scene, *settings), built=self.engine)
             best = min(best, stats["trace_seconds"])
         return image, stats, best
 

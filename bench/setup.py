@@ -27,6 +27,9 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Request
+from host.run.connections import Nodes
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -55,11 +58,13 @@ def measured(scene, rows: int, cols: int, mode: str) -> dict:
     with LocalMesh(rows * cols) as addresses:
         _, stats = asyncio.run(
             render_on_mesh(
-                scene,
-                ImageSpec(width=SIZE, height=SIZE),
-                addresses,
-                MeshPlan(rows, cols, mode=mode),
-                EngineSpec(threads=1),
+                Request(
+                    scene,
+                    ImageSpec(width=SIZE, height=SIZE),
+                    EngineSpec(threads=1),
+                    plan=MeshPlan(rows, cols, mode=mode),
+                ),
+                Nodes(addresses),
             )
         )
     return {
@@ -81,7 +86,9 @@ def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float, process:
 
     engine = EngineSpec(threads=1)
     planned = plan_render(
-        scene, ImageSpec(width=SIZE, height=SIZE), engine, MeshPlan(rows, cols, mode=mode)
+        Request(
+            scene, ImageSpec(width=SIZE, height=SIZE), engine, plan=MeshPlan(rows, cols, mode=mode)
+        )
     )
     part, sent, slowest = planned.partition, 0, 0.0
     for n in range(part.nodes):

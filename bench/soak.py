@@ -27,6 +27,9 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from host.planning.request import Request
+from host.run.connections import Nodes
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -57,7 +60,7 @@ def main(argv=None) -> int:
 
     scene = tetra(5)
     image = ImageSpec(width=args.size, height=args.size, spp=4)
-    ref, ref_stats = render(scene, image, EngineSpec(threads=1), progress=False)
+    ref, ref_stats = render(Request(scene, image, EngineSpec(threads=1)), progress=False)
     want = {k: ref_stats["rays"][k] for k in RAY_COUNTS}
     rng = random.Random(args.seed)
     tally: dict[str, Counter] = {f: Counter() for f in FAULTS}
@@ -148,15 +151,10 @@ async def _one(scene, image, mesh, secret, fault, rng, ref, want, keys):
 
     job = asyncio.create_task(
         render_on_mesh(
-            scene,
-            image,
-            addresses,
-            MeshPlan(3, 3),
-            EngineSpec(threads=1),
-            secret=secret,
+            Request(scene, image, EngineSpec(threads=1), plan=MeshPlan(3, 3)),
+            Nodes(addresses, secret=secret, wait=10.0),
             progress=progress,
             silence=5.0,
-            wait=10.0,
         )
     )
     side = asyncio.create_task(_inject(fault, procs[victim], addresses[victim], started, job))

@@ -5,6 +5,7 @@ POV-Ray side so every other part of the benchmark reuses the same measurement.""
 import time
 from pathlib import Path
 
+from host.planning.request import Request
 from meshnode.engine.counters import RAY_COUNTS
 
 STORAGES = ("csr", "hash")
@@ -87,7 +88,7 @@ def run_config(
 
     image = ImageSpec(spd=True, width=size, height=size)
     engine = EngineSpec(threads=1, structure=structure, storage=storage, density=density)
-    runs = [render(scene, image, engine, built=built)[1] for _ in range(repeats)]
+    runs = [render(Request(scene, image, engine), built=built)[1] for _ in range(repeats)]
     best = min(runs, key=lambda s: s["trace_seconds"])
     stats = best["engine"]
     is_grid = stats["structure"] == "grid"  # a hierarchy's grid is only a one-voxel box

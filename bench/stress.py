@@ -27,6 +27,9 @@ import sys
 import time
 from pathlib import Path
 
+from host.planning.request import Request
+from host.run.connections import Nodes
+
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -72,12 +75,8 @@ async def faulted_render(scene, image, engine, mesh, addresses, silence: float) 
 
     task = asyncio.create_task(
         render_on_mesh(
-            scene,
-            image,
-            addresses,
-            MeshPlan(3, 3, 2),
-            engine,
-            secret=mesh.secret,
+            Request(scene, image, engine, plan=MeshPlan(3, 3, 2)),
+            Nodes(addresses, secret=mesh.secret),
             progress=progress,
             notice=notice,
             silence=silence,
@@ -133,7 +132,7 @@ def main(argv=None) -> int:
     scene = read_nff(args.scenes / args.scene)
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
     start = time.perf_counter()
-    ref, ref_stats = render(scene, image, EngineSpec(threads=0))
+    ref, ref_stats = render(Request(scene, image, EngineSpec(threads=0)))
     single_s = time.perf_counter() - start
     total = sum(
         ref_stats["rays"][k]

@@ -285,7 +285,7 @@ def make_scene(
 
 
 class Job(NamedTuple):
-    """A render's records, for `render(scene, *job)`."""
+    """A render's records, for `render(Request(scene, *job))`."""
 
     image: ImageSpec
     engine: EngineSpec

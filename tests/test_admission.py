@@ -6,6 +6,7 @@ import asyncio
 import logging
 import socket
 
+from host.run.connections import Nodes
 from meshnode.service.admission import PER_ADDRESS, Admission, RefusalLog
 from protocols.messages import Kind
 from tests.test_auth import SECRET, serving
@@ -64,7 +65,7 @@ async def host_served(service) -> None:
     from host.run.connections import close_all, connect_all
 
     address = f"127.0.0.1:{service.port}"
-    links, _ = await connect_all([address], "meshtrace", SECRET, None, 15.0)
+    links, _ = await connect_all(Nodes([address], "meshtrace", SECRET, None, 15.0))
     await links[0].send(config())
     kind, f = await asyncio.wait_for(links[0].recv(), 10)
     assert kind is Kind.PROGRESS and f["node"] == 0
@@ -103,13 +104,13 @@ async def test_a_saturated_node_says_so_and_the_host_tries_again_within_its_wait
     service.admission.authenticate = lambda: next(answers)
     try:
         links, memories = await asyncio.wait_for(
-            connect_all([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 10.0), 20
+            connect_all(Nodes([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 10.0)), 20
         )
         assert len(links) == 1 and memories[0] > 0
         await close_all(links, shutdown=False)
         service.admission.authenticate = lambda: False  # never free: refused by name
         try:
-            await connect_all([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 0.5)
+            await connect_all(Nodes([f"127.0.0.1:{service.port}"], "meshtrace", SECRET, None, 0.5))
         except Exception as e:  # noqa: BLE001 - the message is what is checked
             assert "node saturated" in str(e)
         else:
@@ -146,13 +147,13 @@ async def test_a_host_dropped_mid_handshake_dials_again_and_a_refused_secret_doe
         monkeypatch.setattr(
             connections, "dial", dropped_once(LinkClosed("node 0", "connection lost"))
         )
-        links, _ = await connections.connect_all(address, "meshtrace", SECRET, None, 10.0)
+        links, _ = await connections.connect_all(Nodes(address, "meshtrace", SECRET, None, 10.0))
         assert len(tries) == 2  # dropped, then served
         await connections.close_all(links, shutdown=False)
         tries.clear()
         monkeypatch.setattr(connections, "dial", dropped_once(AuthFailed("secrets differ")))
         try:
-            await connections.connect_all(address, "meshtrace", SECRET, None, 10.0)
+            await connections.connect_all(Nodes(address, "meshtrace", SECRET, None, 10.0))
         except MeshError as e:
             assert "secrets differ" in str(e) and len(tries) == 1  # refused: not again
         else:

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from host.camera.lens import Camera
+from host.planning.request import Request
 from host.run.oneprocess import render
 from protocols import dtypes
 from protocols.scene import View
@@ -79,7 +80,7 @@ def shoot(scene, camera: Camera, size: int, focus: float, rays: int = 256, **kw)
         distance=focus,
         **kw,
     )
-    image, _ = render(scene, *settings)
+    image, _ = render(Request(scene, *settings))
     return image.mean(axis=2)
 
 

@@ -16,6 +16,8 @@ from host.planning.clip import holders
 from host.planning.holding import engine_bytes
 from host.planning.objectcells import object_cells
 from host.planning.plan import plan_render
+from host.planning.request import Auto, Request
+from host.run.connections import Nodes
 from host.run.framebuffer import Framebuffer
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
@@ -32,14 +34,14 @@ ONE = EngineSpec(threads=1)
 
 
 def single(scene, size=SIZE):
-    img, stats = render(scene, ImageSpec(width=size, height=size), ONE, progress=False)
+    img, stats = render(Request(scene, ImageSpec(width=size, height=size), ONE), progress=False)
     return img, {k: stats["rays"][k] for k in RAY_COUNTS}
 
 
 def planned_render(scene, plan: MeshPlan, size=SIZE):
     """(image, counts, per-node records, the plan made) of a simulated mesh render planned
     as the host plans a real one (`plan_render`: budget, retreats, cuts)."""
-    planned = plan_render(scene, ImageSpec(width=size, height=size), ONE, plan)
+    planned = plan_render(Request(scene, ImageSpec(width=size, height=size), ONE, plan=plan))
     part = planned.partition
     scenes = [subset(scene, planned.holders[n]) for n in range(part.nodes)]
     out = simulate(scenes, planned.spec, part)
@@ -116,11 +118,19 @@ def test_a_byte_budget_holds_on_every_node_and_builds_hierarchies():
 def test_a_scene_that_cannot_be_divided_is_refused_naming_the_smallest_share():
     scene = read_nff(spd_scene("balls_s2.nff"))
     with pytest.raises(BudgetError, match=r"fullest node (\d+\.\d)% of the objects") as e:
-        plan_render(scene, ImageSpec(width=SIZE, height=SIZE), ONE, MeshPlan(2, 2, max_share=0.1))
+        plan_render(
+            Request(
+                scene, ImageSpec(width=SIZE, height=SIZE), ONE, plan=MeshPlan(2, 2, max_share=0.1)
+            )
+        )
     reached = float(str(e.value).split("fullest node ")[1].split("%")[0]) / 100
     assert 0.1 < reached < 0.5  # the objects' cells at overlap 0: about a quarter
     with pytest.raises(BudgetError, match="--node-memory 1000 bytes"):
-        plan_render(scene, ImageSpec(width=SIZE, height=SIZE), ONE, MeshPlan(2, 2, node_bytes=1000))
+        plan_render(
+            Request(
+                scene, ImageSpec(width=SIZE, height=SIZE), ONE, plan=MeshPlan(2, 2, node_bytes=1000)
+            )
+        )
 
 
 def test_the_cli_refuses_an_impossible_budget_before_starting_any_node(capsys, monkeypatch):
@@ -140,16 +150,17 @@ def test_a_scene_no_node_can_hold_renders_on_real_nodes_within_their_memory():
     # its budget by its own report, and the image is one unbudgeted node's.
     scene = tetra(7)
     budget = engine_bytes(scene) // 4
-    ref, ref_stats = render(scene, ImageSpec(width=24, height=24), ONE, progress=False)
+    ref, ref_stats = render(Request(scene, ImageSpec(width=24, height=24), ONE), progress=False)
     with LocalMesh(9) as addresses:
         coro = render_on_mesh(
-            scene,
-            ImageSpec(width=24, height=24),
-            addresses,
-            MeshPlan(3, 3),
-            ONE,
-            mode="auto",
-            node_memory=budget,
+            Request(
+                scene,
+                ImageSpec(width=24, height=24),
+                ONE,
+                plan=MeshPlan(3, 3),
+                auto=Auto(mode="auto", node_memory=budget),
+            ),
+            Nodes(addresses),
         )
         img, stats = asyncio.run(asyncio.wait_for(coro, 240))
     assert stats["mesh"]["mode"] == "object" and stats["mesh"]["node_bytes"] == budget
@@ -178,13 +189,13 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     counted = node_costs(scene, spec, None, None, object_cells(scene, scene_box(scene), 3, 3))
     assert cost.max() <= 0.75 * counted.max()
     assert report["simulated_busiest_by_round"][0] == pytest.approx(counted.max())
-    planned = plan_render(scene, ImageSpec(width=128, height=128), ONE, plan)
+    planned = plan_render(Request(scene, ImageSpec(width=128, height=128), ONE, plan=plan))
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
     # the plan's own pre-pass is bounded by the render it plans: 128 x 128 at one sample
     # is 4 coarse passes' samples, so a tenth of it affords no re-cut, and says so
     assert planned.balance["rounds"] == 0 and "of 3" in planned.balance["rounds_reason"]
-    big = plan_render(scene, ImageSpec(width=256, height=256, spp=64), ONE, plan)
+    big = plan_render(Request(scene, ImageSpec(width=256, height=256, spp=64), ONE, plan=plan))
     assert big.balance["rounds"] == 3
 
 

@@ -133,6 +133,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
     """Under adaptation "all" a ray weighs the area it was drawn from over the area passing
     from the film's centre: however the rays are aimed, the centre of a uniform background is
     the background, and the share of rays stopped is the stop's share of the aimed area."""
+    from host.planning.request import Request
     from host.run.oneprocess import render
     from tests.conftest import records
 
@@ -141,7 +142,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
     rs = records(
         width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="all", threads=1
     )
-    img, stats = render(scene, *rs)
+    img, stats = render(Request(scene, *rs))
     assert img[2:4, 3:5].mean() == pytest.approx(1.0, abs=0.02)
     share = stats["camera"]["centre_rays_leaving_camera"]
     if leaving is None:
@@ -152,12 +153,13 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
     rs = records(
         width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="left", threads=1
     )
-    img, _ = render(scene, *rs)
+    img, _ = render(Request(scene, *rs))
     np.testing.assert_allclose(img[2:4, 3:5], 1.0, atol=1e-12)
 
 
 def test_camera_image_is_upright_and_not_mirrored():
     # An off-axis sphere lands in the same quadrant through the lens as through the pinhole.
+    from host.planning.request import Request
     from host.run.oneprocess import render
     from protocols.scene import View
     from tests.conftest import make_scene, records
@@ -173,7 +175,7 @@ def test_camera_image_is_upright_and_not_mirrored():
         rs = records(
             width=40, height=40, camera=camera, **({"generation": 1} if camera else {}), threads=1
         )
-        img, _ = render(scene, *rs)
+        img, _ = render(Request(scene, *rs))
         ys, xs = np.nonzero(img.sum(axis=2) > 0.05)
         assert len(ys)
         centroids.append((np.sign(xs.mean() - 19.5), np.sign(ys.mean() - 19.5)))

@@ -13,6 +13,8 @@ import pytest
 
 from host.camera.setup import CameraSetup
 from host.planning.partition import partition
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh, shrink
 from host.run.oneprocess import render
@@ -47,7 +49,7 @@ def _check_sends(rows: int, cols: int, nodes, shared=()) -> int:
 def test_copies_on_every_mesh_give_the_single_node_image(name, spp):
     scene = read_nff(spd_scene(name))
     image = ImageSpec(width=36, height=36, spp=spp)
-    ref, st = render(scene, image, EngineSpec(threads=1))
+    ref, st = render(Request(scene, image, EngineSpec(threads=1)))
     want = {k: st["rays"][k] for k in SPD_COUNTS}
     for rows, cols in SHAPES:
         for steal in (False, True):
@@ -76,7 +78,7 @@ def test_shared_cells_on_every_mesh_give_the_single_node_image():
     counts as one node, with and without stealing, and fewer rays passed than without."""
     scene = read_nff(spd_scene("balls_s2.nff"))
     image = ImageSpec(width=36, height=36, spp=1)
-    ref, st = render(scene, image, EngineSpec(threads=1))
+    ref, st = render(Request(scene, image, EngineSpec(threads=1)))
     want = {k: st["rays"][k] for k in SPD_COUNTS}
     for rows, cols in SHAPES[1:]:
         n = rows * cols
@@ -104,7 +106,7 @@ def test_copies_through_a_camera_give_the_single_node_image(sampling):
     scene = dof_scene()
     image = ImageSpec(width=30, height=24, seed=3)
     setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
-    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    ref, st = render(Request(scene, image, EngineSpec(threads=1), setup))
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
         shared = (rows * cols - 1,) if rows * cols > 2 else ()
@@ -132,10 +134,10 @@ def test_copies_through_a_camera_give_the_single_node_image(sampling):
 def test_copies_over_tcp_give_the_single_node_image_and_say_what_each_node_holds(shared):
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=48, height=48, spp=4, threads=1)
-    ref, st = render(scene, *rs)
+    ref, st = render(Request(scene, *rs))
     with LocalMesh(4) as addresses:
         plan = MeshPlan(2, 2, 1, steal=True, tile=8, copies=True, shared=shared)
-        coro = render_on_mesh(scene, rs.image, addresses, plan, rs.engine)
+        coro = render_on_mesh(Request(scene, rs.image, rs.engine, plan=plan), Nodes(addresses))
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)

@@ -10,6 +10,7 @@ import pytest
 from host.camera.focus import circle_of_confusion, dof_from_near_far
 from host.camera.lens import Camera, CameraError, entrance_pupil_radius, focused, with_f_number
 from host.cli import main
+from host.planning.request import Request
 from host.run.oneprocess import render
 from meshnode.engine.optics import trace
 from protocols import dtypes
@@ -88,7 +89,7 @@ def test_autofocus_finds_the_depth_at_the_image_centre():
     wall = [(-5, -5, 2.7), (5, -5, 2.7), (5, 5, 2.7), (-5, 5, 2.7)]
     scene = make_scene(polygons=[(wall, 0)], lights=[(0, 0, -3)], view=view)
     rs = records(width=16, height=12, camera=lens_camera(), distance="auto", threads=1)
-    _, stats = render(scene, *rs)
+    _, stats = render(Request(scene, *rs))
     cam = stats["camera"]
     assert cam["focus_distance_m"] == pytest.approx(3.7, rel=1e-9)
     assert cam["autofocus"]["probe_hits"] == cam["autofocus"]["probe_rays"]

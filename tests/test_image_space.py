@@ -9,6 +9,8 @@ import pytest
 from host.camera.setup import CameraSetup
 from host.planning.partition import partition
 from host.planning.rectangles import tiles
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine.counters import RAY_COUNTS
@@ -28,7 +30,7 @@ TILINGS = [
 
 
 def reference(scene, image, camera=None):
-    img, stats = render(scene, image, EngineSpec(threads=1), camera)
+    img, stats = render(Request(scene, image, EngineSpec(threads=1), camera))
     return img, {k: stats["rays"][k] for k in COUNTS}
 
 
@@ -180,7 +182,9 @@ def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     ref, counts = reference(scene, image, setup)
     plan = MeshPlan(2, 2, mode="image", tiles=tiling, tile=8 if tiling == "static" else 5)
     with LocalMesh(plan.nodes) as addresses:
-        coro = render_on_mesh(scene, image, addresses, plan, EngineSpec(threads=1), setup)
+        coro = render_on_mesh(
+            Request(scene, image, EngineSpec(threads=1), setup, plan), Nodes(addresses)
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == counts
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
@@ -204,7 +208,9 @@ def test_dynamic_tiles_over_tcp_finish_every_tile_once_and_equal_one_node():
     ref, counts = reference(scene, image)
     plan = MeshPlan(2, 2, mode="image", tiles="dynamic", tile=6, buffer=2)
     with LocalMesh(plan.nodes) as addresses:
-        coro = render_on_mesh(scene, image, addresses, plan, EngineSpec(threads=1))
+        coro = render_on_mesh(
+            Request(scene, image, EngineSpec(threads=1), plan=plan), Nodes(addresses)
+        )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in COUNTS} == counts  # every pixel traced exactly once
     assert np.array_equal(img, ref)  # a pixel's samples summed on its node, in the same order

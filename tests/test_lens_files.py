@@ -15,6 +15,7 @@ from host.camera.lens import Camera, CameraError, describe
 from host.camera.lensfile import read_camera, read_toml
 from host.camera.setup import CameraSetup, PinholeSetup
 from host.cli import main
+from host.planning.request import Request
 from host.run.oneprocess import render
 from meshnode.engine.optics import trace
 from protocols import dtypes
@@ -73,7 +74,7 @@ def _thin_lens(efl: float, n: float) -> Camera:
 
 def _render(scene, setup, width=36, height=24, seed=0):
     image = ImageSpec(width=width, height=height, seed=seed)
-    return render(scene, image, EngineSpec(threads=2), setup)
+    return render(Request(scene, image, EngineSpec(threads=2), setup))
 
 
 # ---------------------------------------------------------------------------- lens tables
@@ -306,8 +307,8 @@ def test_the_pinhole_set_up_as_a_camera_makes_the_scenes_own_rays():
         background=(0.2, 0.3, 0.4),
     )
     image = ImageSpec(width=24, height=16)
-    plain, _ = render(scene, image, EngineSpec(threads=1))
-    camera, _ = render(scene, image, EngineSpec(threads=1), PinholeSetup.of("uniform", 1))
+    plain, _ = render(Request(scene, image, EngineSpec(threads=1)))
+    camera, _ = render(Request(scene, image, EngineSpec(threads=1), PinholeSetup.of("uniform", 1)))
     np.testing.assert_allclose(camera, plain, atol=1e-9)
 
 
@@ -359,9 +360,11 @@ def test_adaptive_pinhole_is_closer_to_the_many_ray_image_than_one_ray():
 
     scene = read_nff(ROOT / "bench" / "scenes" / "dof.nff")
     image = ImageSpec(width=40, height=30)
-    ref, _ = render(scene, replace(image, spp=256, seed=9), EngineSpec(threads=2))
-    one, _ = render(scene, image, EngineSpec(threads=2))
-    ada, stats = render(scene, image, EngineSpec(threads=2), PinholeSetup.of("adaptive", 16))
+    ref, _ = render(Request(scene, replace(image, spp=256, seed=9), EngineSpec(threads=2)))
+    one, _ = render(Request(scene, image, EngineSpec(threads=2)))
+    ada, stats = render(
+        Request(scene, image, EngineSpec(threads=2), PinholeSetup.of("adaptive", 16))
+    )
     assert stats["rays"]["eye_rays"] < 16 * 40 * 30
 
     def rms(a):
@@ -420,7 +423,7 @@ def test_adaptive_pinhole_and_lens_tables_on_a_mesh_equal_one_node(which):
         setup = PinholeSetup.of("adaptive", 9)
     else:
         setup = CameraSetup(read_camera(shared_lens("wide.22mm.dat")), CameraSampling(rays=4))
-    ref, _ = render(scene, image, EngineSpec(threads=1), setup)
+    ref, _ = render(Request(scene, image, EngineSpec(threads=1), setup))
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     assert CameraSpec.from_wire(spec.to_wire()) == spec
     img, _, nodes, _ = render_mesh(scene, 2, 2, 1.0, 30, 24, seed=3, camera=spec)

@@ -22,6 +22,8 @@ from PIL import Image
 
 from host.live.monitor import RAY_KINDS, Monitor, preview_srgb8
 from host.live.server import LiveServer, parse_address
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.framebuffer import Framebuffer, to_srgb8
 from protocols.dtypes import LINK_TRAFFIC
 from protocols.messages import SETUP_STEPS
@@ -406,10 +408,8 @@ def test_nodes_report_state_busy_objects_and_link_traffic():
     with LocalMesh(2) as addresses:
         img, stats = asyncio.run(
             render_on_mesh(
-                read_nff(EXAMPLE),
-                ImageSpec(width=24, height=16),
-                addresses,
-                MeshPlan(1, 2),
+                Request(read_nff(EXAMPLE), ImageSpec(width=24, height=16), plan=MeshPlan(1, 2)),
+                Nodes(addresses),
                 watch=watch,
             )
         )

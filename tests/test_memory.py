@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from bench.generate import tetra
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.scene.nff import read_nff
@@ -39,7 +41,9 @@ def test_a_node_gives_a_large_renders_memory_back():
             image = ImageSpec(width=48, height=48)
             plan, engine = MeshPlan(1, 1), EngineSpec(threads=1)
             asyncio.run(
-                asyncio.wait_for(render_on_mesh(scene, image, addresses, plan, engine), 120)
+                asyncio.wait_for(
+                    render_on_mesh(Request(scene, image, engine, plan=plan), Nodes(addresses)), 120
+                )
             )
 
         run(small)  # kernels loaded, one small engine cached

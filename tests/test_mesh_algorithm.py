@@ -10,6 +10,7 @@ from host.planning.cells import grown, node_cells, scene_box
 from host.planning.clip import holders
 from host.planning.partition import partition
 from host.planning.rectangles import column_rows, rectangles
+from host.planning.request import Request
 from host.run.framebuffer import Framebuffer
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
@@ -32,7 +33,9 @@ SIZE = 36
 
 def single(scene, structure="auto"):
     img, stats = render(
-        scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, structure=structure)
+        Request(
+            scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, structure=structure)
+        )
     )
     return img, {k: stats["rays"][k] for k in SPD_COUNTS}
 

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from host.cli import main
+from host.planning.request import Request
 from host.run.cluster import parse_mesh, read_cluster
+from host.run.connections import Nodes
 from host.run.errors import MeshError
 from host.run.framebuffer import read_pfm
 from host.run.localmesh import LocalMesh
@@ -27,7 +29,7 @@ COUNTS = RAY_COUNTS
 
 def on_mesh(scene, rs, addresses, plan: MeshPlan, **kw):
     """render_on_mesh of a test's records (`rs`) on running nodes."""
-    return render_on_mesh(scene, rs.image, addresses, plan, rs.engine, rs.camera, **kw)
+    return render_on_mesh(Request(scene, *rs, plan), Nodes(addresses), **kw)
 
 
 def mesh_render(scene, plan: MeshPlan, rs):
@@ -56,10 +58,14 @@ def slow_mesh(n: int, src: int, dst: int, seconds: float, count: int) -> LocalMe
     ],
 )
 def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
-    scene = read_nff(spd_scene(name))
-    rs = records(width=40, height=40, threads=1)
-    ref, ref_stats = render(scene, *rs)
-    img, stats = mesh_render(scene, MeshPlan(rows, cols, overlap), rs)
+    # One request, rendered both ways: one process reads its scene and records, the mesh
+    # its plan too.
+    request = Request(read_nff(spd_scene(name)), *records(width=40, height=40, threads=1))
+    request = request.on(MeshPlan(rows, cols, overlap))
+    ref, ref_stats = render(request)
+    with LocalMesh(request.plan.nodes) as addresses:
+        coro = render_on_mesh(request, Nodes(addresses))
+        img, stats = asyncio.run(asyncio.wait_for(coro, 180))
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     # Conservation over the wire: rays sent on links are received, every ray ends once.
@@ -107,7 +113,7 @@ def test_delayed_link_over_tcp_gives_the_whole_image():
     # wave on a 2x2 (milliseconds): the render must wait for them, not end early.
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=40, height=40, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     mesh = slow_mesh(4, 0, 1, 0.4, 3)
     with mesh as addresses:
         coro = on_mesh(scene, rs, addresses, MeshPlan(2, 2, 1))
@@ -136,7 +142,7 @@ def test_tiny_receive_buffers_do_not_deadlock(high):
     # finishes (a reader resumes once the queue is down to a quarter, or empty).
     scene = read_nff(spd_scene("gears_s1.nff"))
     rs = records(width=40, height=40, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     with LocalMesh(4, options=["--incoming-high", str(high)]) as addresses:
         coro = on_mesh(scene, rs, addresses, MeshPlan(2, 2, 24), stall=20.0)
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
@@ -181,7 +187,7 @@ def test_a_silent_node_fails_the_render_when_told_to_fail():
 def test_garbage_from_a_peer_closes_only_that_link():
     scene = read_nff(spd_scene("tetra_s2.nff"))
     rs = records(width=24, height=24, threads=1)
-    ref, _ = render(scene, *rs)
+    ref, _ = render(Request(scene, *rs))
     with LocalMesh(2) as addresses:
         host, port = addresses[1].rsplit(":", 1)
         with socket.create_connection((host, int(port))) as s:
@@ -248,7 +254,7 @@ def test_nodes_tracing_on_several_threads_give_the_single_node_image():
     # termination waves must wait for both; image and counts stay the single node's.
     scene = read_nff(spd_scene("rings_s1.nff"))
     rs = records(width=48, height=48, spp=2, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     with LocalMesh(2, threads=2) as addresses:
         coro = on_mesh(scene, rs, addresses, MeshPlan(1, 2, 24.0))
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
@@ -272,7 +278,7 @@ def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family,
     monkeypatch.setattr(host.planning.plan, "balanced_cuts", families)
     scene = read_nff(spd_scene(name))
     rs = records(width=60, height=60, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     img, stats = mesh_render(scene, MeshPlan(rows, cols, 2, balance="cost"), rs)
     assert stats["balance"]["cuts"] == "cost" and stats["balance"]["family"] == family
     if family != "work map":
@@ -287,7 +293,7 @@ def test_brute_force_is_honoured_on_a_mesh():
     # says so, and the mesh gives one brute-force node's image and counts.
     scene = read_nff(spd_scene("balls_s1.nff"))
     rs = records(width=24, height=24, threads=1, brute=True)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     assert ref_stats["engine"]["structure_reason"].startswith("brute force")
     img, stats = mesh_render(scene, MeshPlan(1, 2, 1), rs)
     assert {k: stats["rays"][k] for k in COUNTS} == {k: ref_stats["rays"][k] for k in COUNTS}

@@ -7,6 +7,8 @@ import asyncio
 import numpy as np
 import pytest
 
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.errors import MeshError
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
@@ -28,11 +30,12 @@ def _shape(net):
 def test_mesh_across_namespaces_equals_single_node():
     scene = read_nff(spd_scene("rings_s1.nff"))
     rs = records(width=64, height=64, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     with netns.namespaced_mesh(4, _shape) as (_, mesh, addresses):
         assert all(a.startswith("10.213.") for a in addresses)
         coro = render_on_mesh(
-            scene, rs.image, addresses, MeshPlan(2, 2, 24.0), rs.engine, secret=mesh.secret
+            Request(scene, rs.image, rs.engine, plan=MeshPlan(2, 2, 24.0)),
+            Nodes(addresses, secret=mesh.secret),
         )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
@@ -49,12 +52,9 @@ def test_a_node_cut_off_the_network_is_named_within_seconds():
         async def run():
             started = asyncio.Event()
             coro = render_on_mesh(
-                scene,
-                rs.image,
-                addresses,
-                MeshPlan(1, 2),
+                Request(scene, rs.image, plan=MeshPlan(1, 2)),
+                Nodes(addresses, secret=mesh.secret),
                 silence=3.0,
-                secret=mesh.secret,
                 on_node_loss="fail",
                 progress=lambda n: started.set(),
             )

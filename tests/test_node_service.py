@@ -7,6 +7,8 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
+from host.planning.request import Request
+from host.run.connections import Nodes
 from meshnode.service.server import NodeService
 from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.messages import Kind, make
@@ -213,11 +215,10 @@ async def test_a_finished_render_leaves_nothing_but_the_engine_cache(monkeypatch
     try:
         scene = make_scene()
         await render_on_mesh(
-            scene,
-            ImageSpec(width=16, height=16),
-            [f"127.0.0.1:{service.port}"],
-            MeshPlan(1, 1),
-            EngineSpec(threads=1),
+            Request(
+                scene, ImageSpec(width=16, height=16), EngineSpec(threads=1), plan=MeshPlan(1, 1)
+            ),
+            Nodes([f"127.0.0.1:{service.port}"]),
         )
         await asyncio.wait_for(service.free.wait(), 10)
         for _ in range(200):  # the host link's task finishes its `finally` (bounded turns)

@@ -9,6 +9,7 @@ import pytest
 from host.planning.holding import FITS, OVERLAPS, engine_bytes, largest_engine
 from host.planning.plan import plan_render
 from host.planning.prepass import node_costs
+from host.planning.request import Auto, Request
 from host.run.framebuffer import Framebuffer
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
@@ -23,7 +24,10 @@ COUNTS = RAY_COUNTS
 
 def planned(scene, image, memory=0, balance="cost"):
     plan = MeshPlan(2, 2, OVERLAPS[0], balance=balance, steal=True)
-    return plan_render(scene, image, EngineSpec(threads=1), plan, overlaps=OVERLAPS, memory=memory)
+    return plan_render(
+        Request(scene, image, EngineSpec(threads=1), plan=plan, auto=Auto(overlaps=OVERLAPS)),
+        memory=memory,
+    )
 
 
 @pytest.mark.parametrize("balance", ["cost", "even"])
@@ -82,7 +86,7 @@ def test_a_render_at_the_chosen_overlap_equals_one_node(balance):
     # the pre-pass takes one (30 on its cuts, 100 on even ones), so a wide box is exercised.
     scene = read_nff(spd_scene("teapot_s1.nff"))
     image = ImageSpec(width=48, height=48, spp=2)
-    ref, stats = render(scene, image, EngineSpec(threads=1))
+    ref, stats = render(Request(scene, image, EngineSpec(threads=1)))
     got = planned(scene, image, balance=balance)
     assert got.spec.plan.overlap > OVERLAPS[0]
     out = simulate([subset(scene, k) for k in got.holders], got.spec, got.partition)

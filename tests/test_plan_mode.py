@@ -10,6 +10,8 @@ import pytest
 from host.cli import main
 from host.planning.holding import FITS, engine_bytes
 from host.planning.plan import choose_mode
+from host.planning.request import Auto, Request
+from host.run.connections import Nodes
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
@@ -45,17 +47,18 @@ def test_choose_mode_weighs_the_engine_against_the_smallest_node():
 def test_auto_on_real_nodes_reports_memory_and_gives_the_single_node_image(name, node_memory, mode):
     scene = read_nff(spd_scene(name))
     rs = records(width=32, height=32, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     notices: list[str] = []
     with LocalMesh(2) as addresses:
         coro = render_on_mesh(
-            scene,
-            rs.image,
-            addresses,
-            MeshPlan(1, 2),
-            rs.engine,
-            mode="auto",
-            node_memory=node_memory,
+            Request(
+                scene,
+                rs.image,
+                rs.engine,
+                plan=MeshPlan(1, 2),
+                auto=Auto(mode="auto", node_memory=node_memory),
+            ),
+            Nodes(addresses),
             notice=notices.append,
         )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
@@ -111,9 +114,11 @@ def test_a_running_cluster_reuses_the_engine_of_an_unchanged_scene():
 
         def run(scene, spp):
             rs = records(width=24, height=24, spp=spp, threads=1)
-            coro = render_on_mesh(scene, rs.image, addresses, MeshPlan(1, 2), rs.engine)
+            coro = render_on_mesh(
+                Request(scene, rs.image, rs.engine, plan=MeshPlan(1, 2)), Nodes(addresses)
+            )
             img, stats = asyncio.run(asyncio.wait_for(coro, 120))
-            np.testing.assert_allclose(img, render(scene, *rs)[0], rtol=0, atol=1e-5)
+            np.testing.assert_allclose(img, render(Request(scene, *rs))[0], rtol=0, atol=1e-5)
             return [n["engine_reused"] for n in stats["nodes"]], stats
 
         assert run(balls, 1)[0] == [False, False]
@@ -126,3 +131,13 @@ def test_a_running_cluster_reuses_the_engine_of_an_unchanged_scene():
         assert all(0 < n["busy_cpu_seconds"] <= n["batch_cpu_seconds"] for n in stats["nodes"])
         assert stats["busiest_node_batch_cpu_seconds"] >= stats["busiest_node_cpu_seconds"]
         assert run(tetra, 1)[0] == [False, False]
+
+
+def test_the_auto_choices_are_checked_when_asked_for():
+    # A mode the host cannot choose, or a memory of no bytes, fails where the request is
+    # made, not after the nodes have been dialled.
+    with pytest.raises(ValueError, match="mode 'sideways'"):
+        Auto(mode="sideways")
+    with pytest.raises(ValueError, match="node memory 0"):
+        Auto(node_memory=0)
+    assert Auto(overlaps=[1, 2]).overlaps == (1.0, 2.0)

@@ -5,6 +5,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from host.planning.request import Request
 from host.run.oneprocess import BAND_RAYS, BAND_ROWS, pinhole_bands
 
 
@@ -30,8 +31,8 @@ def test_a_high_spp_render_in_bounded_bands_equals_whole_row_bands(monkeypatch):
 
     scene = read_nff(spd_scene("tetra_s1.nff"))
     image = ImageSpec(width=48, height=32, spp=40)
-    whole, a = render(scene, image, EngineSpec(threads=1))
+    whole, a = render(Request(scene, image, EngineSpec(threads=1)))
     monkeypatch.setattr("host.run.oneprocess.BAND_RAYS", 1000)
-    parts, b = render(scene, image, EngineSpec(threads=1))
+    parts, b = render(Request(scene, image, EngineSpec(threads=1)))
     assert np.array_equal(whole, parts)
     assert a["rays"] == b["rays"]

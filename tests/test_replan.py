@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from bench.loss import render_losing
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.meshclient import render_on_mesh, shrink
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
@@ -38,7 +40,7 @@ def test_shrink_uses_every_node_left_nearly_square():
 def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols, fault, mode):
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=48, height=48, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     n = rows * cols
     victim = n - 1
     plan = MeshPlan(
@@ -55,11 +57,8 @@ def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols,
             started = asyncio.Event()
             task = asyncio.create_task(
                 render_on_mesh(
-                    scene,
-                    rs.image,
-                    addresses,
-                    plan,
-                    rs.engine,
+                    Request(scene, rs.image, rs.engine, plan=plan),
+                    Nodes(addresses),
                     silence=4.0,
                     progress=lambda k: started.set(),
                     notice=notices.append,
@@ -112,7 +111,7 @@ def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault, stage):
     # frame is planned again on the nodes left (issue 41 item 3).
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=32, height=32, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     victim = 2
     mesh = slow_mesh(4, 0, 1, 0.0, 0)
     notices: list[str] = []
@@ -134,11 +133,8 @@ def test_a_node_lost_while_the_mesh_is_set_up_is_replanned(fault, stage):
 
         async def run():
             task = render_on_mesh(
-                scene,
-                rs.image,
-                addresses,
-                MeshPlan(2, 2, 10),
-                rs.engine,
+                Request(scene, rs.image, rs.engine, plan=MeshPlan(2, 2, 10)),
+                Nodes(addresses),
                 silence=3.0,
                 notice=notice,
                 watch=watch,
@@ -164,7 +160,7 @@ def test_a_node_lost_at_half_an_image_space_frame_costs_only_the_tiles_not_yet_t
     # the others, and image and ray counts are still one node's (issue 41 item 9).
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=64, height=64, spp=4, threads=1)
-    ref, ref_stats = render(scene, *rs)
+    ref, ref_stats = render(Request(scene, *rs))
     total = ref_stats["rays"]["eye_rays"]
     plan = MeshPlan(3, 3, mode="image", tiles="dynamic", tile=8)
     mesh = slow_mesh(9, 0, 1, 0.0, 0)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from host.camera.lens import Camera
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
@@ -74,7 +76,7 @@ def test_concentric_map_keeps_area():
 
 def _render(camera=None, **kw):
     rs = records(width=48, height=36, camera=camera or thin_camera(), threads=1, **kw)
-    return render(dof_scene(), *rs)
+    return render(Request(dof_scene(), *rs))
 
 
 def test_adaptive_traces_corners_then_the_rest_where_they_differ():
@@ -132,12 +134,8 @@ def test_film_area_antialiases_an_edge():
 def _mesh(rows, cols, rs, progress=None):
     with LocalMesh(rows * cols) as addresses:
         coro = render_on_mesh(
-            dof_scene(),
-            rs.image,
-            addresses,
-            MeshPlan(rows, cols, 1.0),
-            rs.engine,
-            rs.camera,
+            Request(dof_scene(), rs.image, rs.engine, rs.camera, MeshPlan(rows, cols, 1.0)),
+            Nodes(addresses),
             progress=progress,
         )
         return asyncio.run(asyncio.wait_for(coro, 180))
@@ -148,7 +146,7 @@ def _mesh(rows, cols, rs, progress=None):
 )
 def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
     rs = records(width=30, height=24, camera=thin_camera(), rays=9, sampling=sampling, threads=1)
-    ref, ref_stats = render(dof_scene(), *rs)
+    ref, ref_stats = render(Request(dof_scene(), *rs))
     for rows, cols in meshes:
         reports = []
         img, stats = _mesh(rows, cols, rs, reports.append)

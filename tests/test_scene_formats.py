@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from host.cli import main
+from host.planning.request import Request
 from host.run.oneprocess import render
 from host.scene.formats import SceneError, read_scene
 from host.scene.inventor import CAP_SIDES, parse_inventor
@@ -140,7 +141,7 @@ def smooth_normals():
 def single(scene):
     """Image and ray counts on one node (CSR storage: fewer kernel variants to compile)."""
     img, stats = render(
-        scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, storage="csr")
+        Request(scene, ImageSpec(width=SIZE, height=SIZE), EngineSpec(threads=1, storage="csr"))
     )
     return img, {k: stats["rays"][k] for k in COUNTS}
 

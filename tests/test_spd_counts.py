@@ -5,6 +5,7 @@ independent reference for the whole tracer (camera, intersections, shading rules
 import pytest
 
 from bench.spd_published import PUBLISHED_TOLERANCE, TOLERANCE, parse_published
+from host.planning.request import Request
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine.counters import spd_counts
@@ -16,7 +17,7 @@ from tests.conftest import spd_readme, spd_scene
 def test_default_scene_counts_match_the_published_table(name):
     scene = read_nff(spd_scene(f"{name}.nff"))
     published = parse_published(spd_readme().read_text())[name]
-    _, stats = render(scene, ImageSpec(spd=True), EngineSpec())
+    _, stats = render(Request(scene, ImageSpec(spd=True), EngineSpec()))
     ours = spd_counts(stats["rays"])
     tolerance = PUBLISHED_TOLERANCE.get(name, TOLERANCE)
     for key, n in published.items():

@@ -13,6 +13,8 @@ import pytest
 from host.camera.lensfile import read_camera
 from host.camera.setup import CameraSetup
 from host.planning.plan import plan_render
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
@@ -147,7 +149,7 @@ def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
     scene = read_nff(spd_scene(name))
     size = 24 if corners else 36
     image = ImageSpec(width=size, height=size, spp=spp, spd=corners)
-    ref, st = render(scene, image, EngineSpec(threads=1))
+    ref, st = render(Request(scene, image, EngineSpec(threads=1)))
     moved = 0
     for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
         # Passed rays go first as they come (passed_min 1): at this size they never reach
@@ -178,8 +180,10 @@ def test_stealing_through_a_camera_and_where_it_is_refused():
     rs = records(width=24, height=24, threads=1)
     lens = Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml"
     camera = CameraSetup(read_camera(lens))
-    ref, st = render(scene, rs.image, rs.engine, camera)
-    spec = plan_render(scene, rs.image, rs.engine, MeshPlan(2, 2, steal=True, tile=4), camera).spec
+    ref, st = render(Request(scene, rs.image, rs.engine, camera))
+    spec = plan_render(
+        Request(scene, rs.image, rs.engine, camera, MeshPlan(2, 2, steal=True, tile=4))
+    ).spec
     img, totals, nodes, _ = render_mesh(
         scene, 2, 2, 1, 24, 24, camera=spec.camera, steal=True, tile=4
     )
@@ -207,7 +211,7 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
     every node starting TRACE within a wave's few hops, nobody ran out early in pass 1."""
     monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene, image, setup, spec = adaptive_setup(30, 24)
-    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    ref, st = render(Request(scene, image, EngineSpec(threads=1), setup))
     given = {"TRACE": 0, "REFINE": 0}
     for rows, cols in [(1, 2), (2, 2), (3, 3), (2, 3)]:
         img, totals, nodes, _ = render_mesh(
@@ -253,10 +257,11 @@ def test_refined_runs_cover_exactly_the_refined_pixels_of_a_chunk():
 def test_stealing_over_tcp_gives_the_single_node_image():
     scene = read_nff(spd_scene("balls_s2.nff"))
     rs = records(width=48, height=48, spp=4, threads=1)
-    ref, st = render(scene, *rs)
+    ref, st = render(Request(scene, *rs))
     with LocalMesh(4) as addresses:
         coro = render_on_mesh(
-            scene, rs.image, addresses, MeshPlan(2, 2, 1, steal=True, tile=8), rs.engine
+            Request(scene, rs.image, rs.engine, plan=MeshPlan(2, 2, 1, steal=True, tile=8)),
+            Nodes(addresses),
         )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
@@ -268,15 +273,13 @@ def test_stealing_over_tcp_gives_the_single_node_image():
 
 def test_adaptive_stealing_over_tcp_gives_the_single_node_image():
     scene, image, setup, _ = adaptive_setup(30, 24)
-    ref, st = render(scene, image, EngineSpec(threads=1), setup)
+    ref, st = render(Request(scene, image, EngineSpec(threads=1), setup))
     with LocalMesh(4) as addresses:
         coro = render_on_mesh(
-            scene,
-            image,
-            addresses,
-            MeshPlan(2, 2, 1, steal=True, tile=3),
-            EngineSpec(threads=1),
-            setup,
+            Request(
+                scene, image, EngineSpec(threads=1), setup, MeshPlan(2, 2, 1, steal=True, tile=3)
+            ),
+            Nodes(addresses),
         )
         img, stats = asyncio.run(asyncio.wait_for(coro, 120))
     assert {k: stats["rays"][k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}

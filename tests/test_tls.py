@@ -10,6 +10,8 @@ import pytest
 import trustme
 
 from host.cli import main
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.errors import MeshError
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
@@ -52,18 +54,13 @@ def tls_mesh(pki, n=2) -> LocalMesh:
 def test_a_tls_cluster_renders_the_single_node_image_and_refuses_other_hosts(pki):
     scene = read_nff(spd_scene("balls_s1.nff"))
     rs = records(width=32, height=32, threads=1)
-    ref, _ = render(scene, *rs)
+    ref, _ = render(Request(scene, *rs))
     good = TlsFiles(*pki["client"], pki["ca"]).client()
 
     def on_mesh(addresses, tls):
         coro = render_on_mesh(
-            scene,
-            rs.image,
-            addresses,
-            MeshPlan(1, 2, 1),
-            rs.engine,
-            secret=SECRET,
-            tls=tls,
+            Request(scene, rs.image, rs.engine, plan=MeshPlan(1, 2, 1)),
+            Nodes(addresses, secret=SECRET, tls=tls),
             on_node_loss="fail",
         )
         return asyncio.run(asyncio.wait_for(coro, 120))

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from host.planning.request import Request
 from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
@@ -22,7 +23,7 @@ COUNTS = RAY_COUNTS
 
 def small(scene, **kw):
     settings = records(width=40, height=40, depth=5, threads=1, **kw)
-    image, stats = render(scene, *settings)
+    image, stats = render(Request(scene, *settings))
     return image, {k: stats["rays"][k] for k in COUNTS}
 
 
@@ -245,7 +246,7 @@ def test_teapot_patches_render_without_isolated_dark_pixels():
     # all eight neighbours (below 70% of the darkest, in linear light) is such a speckle:
     # there were 12 at 256x256, now none.
     scene = read_nff(spd_scene("teapot_s1.nff"))
-    img, _ = render(scene, *records(width=256, height=256))
+    img, _ = render(Request(scene, *records(width=256, height=256)))
     lum = img @ np.array([0.2126, 0.7152, 0.0722])
     h, w = lum.shape
     around = np.stack(

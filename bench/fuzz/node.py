@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from host.planning.request import Request
+from host.run.connections import Nodes
 from host.run.meshclient import render_on_mesh
 from protocols import dtypes
 from protocols.render import ImageSpec, MeshPlan
@@ -118,11 +120,8 @@ async def final_render(port: int) -> str:
     try:
         image, _ = await asyncio.wait_for(
             render_on_mesh(
-                scene,
-                ImageSpec(width=8, height=8),
-                [f"127.0.0.1:{port}"],
-                MeshPlan(1, 1),
-                secret=SECRET,
+                Request(scene, ImageSpec(width=8, height=8), plan=MeshPlan(1, 1)),
+                Nodes([f"127.0.0.1:{port}"], secret=SECRET),
             ),
             60,
         )

@@ -20,6 +20,7 @@ from bench.fuzz.inputs import (
     valid_message,
 )
 from host.planning.plan import plan_render
+from host.planning.request import Request
 from host.scene.subset import subset
 from protocols import dtypes
 from protocols.framing import FrameDecoder, encode
@@ -37,7 +38,7 @@ SESSION_KINDS = {"config": 6, "render": 1, "neighbour": 3}
 
 def session_messages(scene: SceneData, plan: MeshPlan, n: int, image: ImageSpec):
     """A real CONFIG for node n and its objects, as host.run.connections makes them."""
-    planned = plan_render(scene, image, EngineSpec(), plan)
+    planned = plan_render(Request(scene, image, EngineSpec(), plan=plan))
     neighbours = {str(m): "127.0.0.1:9" for m in range(plan.nodes)}
     config = make(
         Kind.CONFIG,

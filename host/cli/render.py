@@ -16,7 +16,9 @@ from host.camera.setup import Focus
 from host.cli.options import FLAGS, given_fields
 from host.planning.budget import check_divisible
 from host.planning.holding import OVERLAPS
+from host.planning.request import Auto, Request
 from host.run.cluster import parse_mesh, read_cluster
+from host.run.connections import Nodes
 from host.run.errors import MeshError
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import primary_rays, render_on_mesh
@@ -25,7 +27,7 @@ from host.run.outputs import output_paths, write_images
 from host.scene.formats import SceneError, read_scene
 from meshnode.transport.tls import TlsFiles
 from protocols.camera import CameraSampling
-from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
 CAMERA_ONLY = (CameraSampling, Focus)
 PINHOLE_TOO = ("sampling", "threshold")  # CameraSampling fields the pinhole takes as well
@@ -263,13 +265,11 @@ def _run(scene, image, engine, camera, args, watch=None):
         from protocols.handshake import read_secret
 
         rows, cols, addresses = read_cluster(args.cluster)
-        plan = _plan(rows, cols, args)
-        check_divisible(scene, RenderSpec(image.sized(scene.view), engine, plan))
+        request = _request(scene, image, engine, camera, rows, cols, args)
         secret = read_secret(args.secret_file)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca).client()
-        img, stats = _mesh(
-            scene, image, engine, plan, camera, addresses, secret, args, tls, watch, args.wait
-        )
+        nodes = Nodes(addresses, secret=secret, tls=tls, wait=args.wait)
+        img, stats = _mesh(request, nodes, args, watch)
         stats["plan"] = {"choice": f"cluster {rows}x{cols}", "why": f"--cluster {args.cluster}"}
         return img, stats
     if args.tls_cert or args.tls_key or args.tls_ca:
@@ -277,25 +277,37 @@ def _run(scene, image, engine, camera, args, watch=None):
             "--tls-cert, --tls-key and --tls-ca are for nodes of a --cluster (a "
             "local mesh talks over loopback with a secret of its own)"
         )
-    rows, cols = parse_mesh(args.mesh)
-    plan = _plan(rows, cols, args)
-    check_divisible(scene, RenderSpec(image.sized(scene.view), engine, plan))  # before any node
+    request = _request(scene, image, engine, camera, *parse_mesh(args.mesh), args)
+    plan = request.plan
     if plan.nodes == 1:
         why = AUTO_WHY if args.mesh == "auto" else "asked for with --mesh 1x1"
         threads = engine.threads or os.cpu_count() or 1
         if not args.quiet:
             print(f"host: plan: one process, {threads} tracing threads ({why})", file=sys.stderr)
-        img, stats = render(scene, image, engine, camera, progress=not args.quiet, watch=watch)
+        img, stats = render(request, progress=not args.quiet, watch=watch)
         stats["plan"] = {"choice": "one process", "threads": threads, "why": why}
         return img, stats
     secret = secrets.token_hex(32).encode()  # this render's own: other users cannot join
     with LocalMesh(plan.nodes, secret=secret) as addresses:
-        img, stats = _mesh(scene, image, engine, plan, camera, addresses, secret, args, watch=watch)
+        img, stats = _mesh(request, Nodes(addresses, secret=secret), args, watch)
     stats["plan"] = {
         "choice": f"local mesh {plan.rows}x{plan.cols}",
         "why": f"asked for with --mesh {args.mesh}",
     }
     return img, stats
+
+
+def _request(scene, image, engine, camera, rows: int, cols: int, args) -> Request:
+    """The render asked for on a rows x cols mesh, its plan checked now and a budget it
+    cannot meet refused before any node starts."""
+    auto = Auto(
+        mode=args.mode,
+        node_memory=args.node_memory,
+        overlaps=OVERLAPS if _auto_overlap(args) else (),
+    )
+    request = Request(scene, image, engine, camera, _plan(rows, cols, args), auto)
+    check_divisible(scene, request.spec())
+    return request
 
 
 def _plan(rows: int, cols: int, args) -> MeshPlan:
@@ -312,13 +324,12 @@ def _auto_overlap(args) -> bool:
     return getattr(args, "MeshPlan.overlap", None) == "auto"
 
 
-def _mesh(
-    scene, image, engine, plan, camera, addresses, secret, args, tls=None, watch=None, wait=5.0
-):
-    """The render on the mesh at `addresses`, with a progress bar of its primary rays."""
+def _mesh(request: Request, nodes: Nodes, args, watch=None):
+    """The render on the mesh at `nodes`, with a progress bar of its primary rays."""
     from tqdm import tqdm
 
-    total = primary_rays(image.sized(scene.view), camera)
+    total = primary_rays(request.sized, request.camera)
+    plan = request.plan
     shape = f"mesh {plan.rows}x{plan.cols}"
     bar = tqdm(
         total=total,
@@ -339,23 +350,13 @@ def _mesh(
     try:
         return asyncio.run(
             render_on_mesh(
-                scene,
-                image,
-                addresses,
-                plan,
-                engine,
-                camera,
-                secret=secret,
+                request,
+                nodes,
                 progress=bar.update,
                 on_node_loss=args.on_node_loss,
-                tls=tls,
-                mode=args.mode,
-                node_memory=args.node_memory,
-                overlaps=OVERLAPS if _auto_overlap(args) else (),
                 notice=lambda text: bar.write(f"host: {text}", file=sys.stderr),
                 watch=watch,
                 ready=ready,
-                wait=wait,
             )
         )
     finally:

@@ -10,13 +10,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from host.camera.setup import CameraSetup
 from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
+from host.planning.request import Request
 from protocols.partition import Partition
 from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import SceneData
@@ -32,23 +32,17 @@ class Planned:
     seconds: float  # planning time (autofocus probe and cost pre-pass included)
 
 
-def plan_render(
-    scene: SceneData,
-    image: ImageSpec,
-    engine: EngineSpec,
-    plan: MeshPlan,
-    camera: CameraSetup | None = None,
-    overlaps=(),
-    memory: int = 0,
-) -> Planned:
-    """The render planned: `overlaps` (object space) are overlaps for the pre-pass to choose
-    among, the smallest first (`host.planning.balance.balanced_cuts` searches cuts at each; on even
-    cuts `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not
-    known. Without them the plan's own overlap is kept."""
+def plan_render(request: Request, memory: int = 0) -> Planned:
+    """The render planned on `request.plan`: the request's `auto.overlaps` (object space)
+    are overlaps for the pre-pass to choose among, the smallest first
+    (`host.planning.balance.balanced_cuts` searches cuts at each; on even cuts
+    `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not known.
+    Without overlaps the plan's own overlap is kept."""
     start = time.perf_counter()
+    scene, engine, plan, camera = request.scene, request.engine, request.plan, request.camera
+    image, overlaps = request.sized, request.auto.overlaps
     if overlaps and plan.mode == "object":
         plan = replace(plan, overlap=min(overlaps))
-    image = image.sized(scene.view)
     camera_spec = info = None
     if camera is not None:  # autofocus probes the scene here, before any node is configured
         camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image, engine))

@@ -5,8 +5,9 @@ and closing. The loop itself, once every node is configured, is `host.run.collec
 
 import asyncio
 import secrets
+import ssl
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -22,15 +23,35 @@ from protocols.scene import OBJECT_KINDS, SceneData
 OBJECT_BATCH = 20000  # records per OBJECTS message
 
 
-async def connect_all(addresses, cluster, secret, tls, wait: float) -> tuple[list[Link], list[int]]:
-    """One link to every node within `wait` seconds in all, both sides proving the secret;
-    and the memory each has."""
+@dataclass(frozen=True)
+class Nodes:
+    """Running nodes and how the host reaches them: node i at `addresses[i]` ("host:port"),
+    in `cluster`, proving `secret` (None: nodes started without one), over TLS with the
+    client context `tls` (`meshnode.transport.tls`; None: plain TCP), every node accepting
+    within `wait` seconds in all (nodes still starting), else the first that does not is
+    named."""
+
+    addresses: tuple[str, ...]
+    cluster: str = "meshtrace"
+    secret: bytes | None = None
+    tls: ssl.SSLContext | None = None
+    wait: float = 5.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "addresses", tuple(self.addresses))
+
+
+async def connect_all(nodes: Nodes) -> tuple[list[Link], list[int]]:
+    """One link to every node within `nodes.wait` seconds in all, both sides proving the
+    secret; and the memory each has."""
     links: list[Link] = []
     memories: list[int] = []
-    deadline = time.monotonic() + wait
+    deadline = time.monotonic() + nodes.wait
     try:
-        for n, address in enumerate(addresses):
-            link, theirs = await _dial_within(deadline, address, n, cluster, secret, tls)
+        for n, address in enumerate(nodes.addresses):
+            link, theirs = await _dial_within(
+                deadline, address, n, nodes.cluster, nodes.secret, nodes.tls
+            )
             links.append(link)
             memories.append(theirs["memory"])
     except (LinkClosed, ProtocolError) as e:

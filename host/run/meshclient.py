@@ -12,66 +12,48 @@ node still there), or a mesh whose nodes all live but none works, fails the rend
 """
 
 import math
-import ssl
 import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from host.camera.setup import CameraSetup
 from host.planning.plan import Planned, choose_mode, plan_render, smallest_memory
+from host.planning.request import Request
 from host.run.collector import Collector, tiles_message
-from host.run.connections import close_all, configure, connect_all, give_up
+from host.run.connections import Nodes, close_all, configure, connect_all, give_up
 from host.run.errors import MeshError, NodeLost
 from host.run.framebuffer import Framebuffer
 from host.run.kept import Kept, keeps_tiles, kept_after, recovery, with_kept_tiles
 from host.run.summary import summarise
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.transport.link import Link, LinkClosed
-from protocols.render import EngineSpec, ImageSpec, MeshPlan
-from protocols.scene import SceneData
+from protocols.render import ImageSpec, MeshPlan
 
 
 async def render_on_mesh(
-    scene: SceneData,
-    image: ImageSpec,
-    addresses: list[str],
-    plan: MeshPlan = MeshPlan(),
-    engine: EngineSpec = EngineSpec(),
-    camera: CameraSetup | None = None,
+    request: Request,
+    nodes: Nodes,
     *,
-    cluster: str = "meshtrace",
-    secret: bytes | None = None,
     progress=None,
+    notice=None,
+    watch=None,
+    ready=None,
     silence: float = 15.0,
     stall: float = 180.0,
     on_node_loss: str = "replan",
-    notice=None,
-    tls: ssl.SSLContext | None = None,
-    mode: str | None = None,
-    node_memory: int | None = None,
-    overlaps=(),
-    watch=None,
-    ready=None,
-    wait: float = 5.0,
 ) -> tuple[np.ndarray, dict]:
-    """Render on running nodes (address i is node i); returns (image, statistics).
-    `secret`: the cluster secret the nodes were started with (None: they have none);
-    `progress(n)` is called as nodes report n more primary rays traced (negative when a
-    re-plan starts the frame again); `silence`: seconds without a message from a node (they
-    send one a second) before it is taken for lost; `stall`: seconds in which no node traces
-    anything once all are built (all alive, none working: a stuck kernel or a protocol
-    fault); `on_node_loss`: "replan" (finish the frame on the nodes left) or "fail";
-    `notice(text)` hears of the plan chosen and of every lost node; `tls`: a client context
-    (meshnode.transport.tls) when the nodes listen with TLS; `mode`: "auto", "object" or "image" to
-    choose the plan's mode here (host.planning.plan.choose_mode: auto weighs the scene against the
-    memory the nodes report, or `node_memory`), None to keep `plan.mode`; `overlaps`:
-    object-space overlaps for the cost pre-pass to choose among within that memory
-    (`--overlap auto`; empty: keep `plan.overlap`); `watch`: a
-    `host.live.monitor.Monitor` told of pixels and of every node's PROGRESS; `ready()` once
-    every node has built its engine (compiled its kernels on a first run) and linked;
-    `wait`: seconds for every node to accept a connection (nodes still starting), then the
-    first one that does not is named."""
+    """Render `request` on the running `nodes` (address i is node i); returns (image,
+    statistics). `progress(n)` is called as nodes report n more primary rays traced (negative
+    when a re-plan starts the frame again); `notice(text)` hears of the plan chosen and of
+    every lost node; `watch`: a `host.live.monitor.Monitor` told of pixels and of every
+    node's PROGRESS; `ready()` once every node has built its engine (compiled its kernels on
+    a first run) and linked; `silence`: seconds without a message from a node (they send one
+    a second) before it is taken for lost; `stall`: seconds in which no node traces anything
+    once all are built (all alive, none working: a stuck kernel or a protocol fault);
+    `on_node_loss`: "replan" (finish the frame on the nodes left) or "fail". The request's
+    `auto` choices are made here, once the nodes have reported their memory
+    (`host.planning.plan.choose_mode`)."""
+    plan, addresses = request.plan, nodes.addresses
     if len(addresses) != plan.nodes:
         raise ValueError(
             f"a {plan.rows}x{plan.cols} mesh needs {plan.nodes} node addresses, "
@@ -81,14 +63,15 @@ async def render_on_mesh(
         raise ValueError(f"on_node_loss = {on_node_loss!r}: want one of {NODE_LOSS}")
     start = time.perf_counter()
     alive = list(range(len(addresses)))  # the original index of each node still rendering
-    links, memories = await connect_all(addresses, cluster, secret, tls, wait)
+    links, memories = await connect_all(nodes)
     connect = time.perf_counter() - start
-    memory = smallest_memory(memories, node_memory)
+    auto = request.auto
+    memory = smallest_memory(memories, auto.node_memory)
     why = f"MeshPlan.mode = {plan.mode}"
-    if mode is not None:
-        plan, why = choose_mode(plan, scene, memories, mode, node_memory)
-    if node_memory is not None and plan.mode == "object" and not plan.node_bytes:
-        plan = replace(plan, node_bytes=node_memory)  # the engines' budget (host.planning.budget)
+    if auto.mode is not None:
+        plan, why = choose_mode(plan, request.scene, memories, auto.mode, auto.node_memory)
+    if auto.node_memory is not None and plan.mode == "object" and not plan.node_bytes:
+        plan = replace(plan, node_bytes=auto.node_memory)  # the engines' (host.planning.budget)
     if notice is not None:
         notice(f"plan: {plan.mode} space on {plan.rows}x{plan.cols} ({why})")
     lost: list[dict] = []
@@ -101,20 +84,13 @@ async def render_on_mesh(
             try:
                 fb, summary = await _attempt(
                     attempt,
-                    scene,
-                    image,
-                    engine,
-                    plan,
-                    camera,
+                    request.on(plan),
+                    memory,
                     [links[n] for n in alive],
                     [addresses[n] for n in alive],
                     names,
-                    progress,
-                    silence,
-                    stall,
-                    watch,
-                    ready,
-                    (overlaps, memory),
+                    Observers(progress, watch, ready),
+                    (silence, stall),
                 )
                 break
             except MeshError as e:
@@ -182,38 +158,42 @@ class Try:
         return kept_after(self.kept, self.planned, self.fb, self.collector)
 
 
+@dataclass(frozen=True)
+class Observers:
+    """Who hears of a try's progress: `progress(n)` of primary rays, the live view's
+    `watch`, and `ready()` once every node traces."""
+
+    progress: object = None
+    watch: object = None
+    ready: object = None
+
+
 async def _attempt(
     attempt: Try,
-    scene,
-    image,
-    engine,
-    plan,
-    camera,
+    request: Request,
+    memory: int,
     links: list[Link],
     addresses,
     names,
-    progress,
-    silence,
-    stall,
-    watch,
-    ready,
-    holding=((), 0),
+    observers: Observers,
+    patience: tuple[float, float],
 ):
-    """One try at the frame on `links` (node i is links[i] at addresses[i], called
-    names[i] in messages): (framebuffer, summary); `holding`: (overlaps, memory) for
-    `plan_render`."""
+    """One try at the frame of `request` on `links` (node i is links[i] at addresses[i],
+    called names[i] in messages): (framebuffer, summary); `memory`: the smallest node's,
+    for `plan_render`; `patience`: (silence, stall) seconds for the collector."""
+    progress, watch, plan = observers.progress, observers.watch, request.plan
     start, ticks = time.perf_counter(), time.monotonic()
-    planned = plan_render(scene, image, engine, plan, camera, *holding)
+    planned = plan_render(request, memory)
     kept = attempt.kept if attempt.kept is not None and keeps_tiles(planned) else None
     if kept is not None:
         planned = with_kept_tiles(planned, kept)
-    await configure(scene, planned, links, addresses)
+    await configure(request.scene, planned, links, addresses)
     sent = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.image.spp)
     dealer = _dealer(planned, kept.tiles if kept else frozenset())
-    collector = Collector(fb, names, progress, silence, stall, dealer, watch, ready)
+    collector = Collector(fb, names, progress, *patience, dealer, watch, observers.ready)
     if kept is not None:
         fb.sums += kept.sums  # the tiles traced whole before: dealt to nobody this time
         if progress:
@@ -226,7 +206,7 @@ async def _attempt(
             plan.rows,
             plan.cols,
             planned.holders.sum(axis=1).tolist(),
-            primary_rays(spec.image, camera),
+            primary_rays(spec.image, request.camera),
         )
     try:
         if dealer is not None:

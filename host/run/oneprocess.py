@@ -12,6 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from host.camera.setup import CameraSetup
+from host.planning.request import Request
 from host.run.firstrun import STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from meshnode.engine import Engine
@@ -31,19 +32,17 @@ BAND_RAYS = 65536
 
 
 def render(
-    scene: SceneData,
-    image: ImageSpec = ImageSpec(),
-    engine: EngineSpec = EngineSpec(),
-    camera: CameraSetup | None = None,
+    request: Request,
     *,
     progress: bool = False,
     built: Engine | None = None,
     watch=None,
 ):
-    """Render `scene` on one node; returns (linear float image, statistics dict).
-    `built`: an engine already built for this scene and `engine` (benchmarks reuse one);
-    `watch`: a `host.live.monitor.Monitor` told of every traced job (the live view)."""
-    image = image.sized(scene.view)
+    """Render `request` in this process (its scene, image, engine and camera; one process
+    has no plan to follow); returns (linear float image, statistics dict). `built`: an
+    engine already built for this scene and engine spec (benchmarks reuse one); `watch`: a
+    `host.live.monitor.Monitor` told of every traced job (the live view)."""
+    scene, image, engine, camera = request.scene, request.sized, request.engine, request.camera
     announce = _compiling if progress else None
     with compile_clock() as clock:  # a first run's compiling told apart from the rest
         setup = Setup(clock, say_on_stderr if progress else None)

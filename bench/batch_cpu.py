@@ -23,12 +23,11 @@ from collections import Counter
 from functools import partial
 from pathlib import Path
 
-from host.planning.request import Request
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_simulated_mesh_options, finish  # noqa: E402 (after the path is set)
+from host.planning.request import Request  # noqa: E402
 
 ONCE = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_rays")
 PARTS = ("kernels", "routing", "deposits")

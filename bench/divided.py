@@ -21,15 +21,14 @@ import sys
 import time
 from pathlib import Path
 
-from host.planning.request import Auto, Request
-from host.run.connections import Nodes
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
 from bench import finish  # noqa: E402
+from host.planning.request import Auto, Request  # noqa: E402
+from host.run.connections import Nodes  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -18,12 +18,12 @@ import sys
 import time
 from pathlib import Path
 
-from host.planning.request import Request
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
+
+from host.planning.request import Request  # noqa: E402
 
 
 def _loop_run(coro):

@@ -18,13 +18,13 @@ import statistics
 import sys
 from pathlib import Path
 
-from host.planning.request import Request
-from host.run.connections import Nodes
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
+
+from host.planning.request import Request  # noqa: E402
+from host.run.connections import Nodes  # noqa: E402
 
 
 async def render_losing(scene, image, addresses, plan, engine, total: int, victim, wait=300.0):

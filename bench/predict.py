@@ -25,12 +25,11 @@ import sys
 import time
 from pathlib import Path
 
-from host.planning.request import Auto, Request
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from host.planning.request import Auto, Request  # noqa: E402
 
 # A message's flight under --clock work, as a share of one node's whole render: on loopback
 # taken as 60 us (an asyncio message between two local processes) against a render one node

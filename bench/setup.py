@@ -27,13 +27,12 @@ import sys
 import time
 from pathlib import Path
 
-from host.planning.request import Request
-from host.run.connections import Nodes
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from host.planning.request import Request  # noqa: E402
+from host.run.connections import Nodes  # noqa: E402
 
 SIZE = 16  # image side: tracing takes no time next to setup
 

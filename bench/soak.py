@@ -27,15 +27,14 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from host.planning.request import Request
-from host.run.connections import Nodes
-
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
 from bench import finish  # noqa: E402
+from host.planning.request import Request  # noqa: E402
+from host.run.connections import Nodes  # noqa: E402
 
 FAULTS = ("none", "kill", "pause", "flood", "stranger host", "host vanishes")
 RENDER_SECONDS = 60.0  # a render that takes longer has hung

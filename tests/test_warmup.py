@@ -47,22 +47,25 @@ def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights
 
 FRESH_RENDER = """
 import numpy as np
+from host.planning.request import Request
 from host.run.oneprocess import render
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import kernels_compiled
+from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.trace import owners
 from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec
 
 scene = variant_scene(ALL_KINDS)
-render(scene, ImageSpec(width=8, height=8))
-render(scene, ImageSpec(spd=True, width=8, height=8))
+render(Request(scene, ImageSpec(width=8, height=8)))
+render(Request(scene, ImageSpec(spd=True, width=8, height=8)))
 engine = Engine(scene, storage="hash")
 rays = eye_rays(scene.view, ImageSpec(width=4, height=4))
 engine.trace_node(rays)
 owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
 engine.routed(rays, (np.zeros((1, 3)), np.ones((1, 3))), True, 0)
+first_untraceable(rays)
 print(kernels_compiled())
 """
 

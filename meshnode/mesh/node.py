@@ -17,6 +17,7 @@ import numpy as np
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
+from meshnode.engine.raycheck import first_untraceable
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
 from meshnode.mesh.engines import EngineCache
@@ -137,6 +138,7 @@ class NodeCore:
         ray["d"] = (0.0, 0.0, 1.0)
         ray["t_max"] = np.inf
         self.engine.routed(ray, self.cells, True, self.node)
+        first_untraceable(ray)  # a neighbour's RAYS are checked by it (meshnode.service.inbound)
         per_cell(lit_deposits(ray, np.ones((1, 3))).repeat(2), 1)
         if self.spec.camera is not None:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)

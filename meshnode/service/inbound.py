@@ -6,8 +6,8 @@ session reports it as that neighbour's link failing.
 
 import numpy as np
 
+from meshnode.engine.raycheck import first_untraceable
 from meshnode.mesh.termination import Echo, Probe
-from protocols.dtypes import RAY
 from protocols.errors import BadFrame
 from protocols.render import RenderSpec
 from protocols.state import State
@@ -26,27 +26,12 @@ def check_rays(f: dict, nodes: int) -> None:
     the mesh; a NaN would poison every batch it joins."""
     check_dest(f, "RAYS", nodes)
     r = f["rays"]
-    if len(r) and not _finite(r):
-        raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
-    if len(r) and (r["depth"].min() < 1 or r["kind"].max() > 3):
-        raise BadFrame("RAYS: rays must be finite, of a known kind, depth >= 1")
-
-
-# the RAY fields every one of which must be finite, as columns of the record's floats: o, d,
-# t_min (0-6) and w (8-10); t_max (7) may be infinite, never NaN
-_FLOATS = 11
-assert all(RAY.fields[k][1] == 8 * c for k, c in (("o", 0), ("t_min", 6), ("t_max", 7), ("w", 8)))
-
-
-def _finite(r: np.ndarray) -> bool:
-    """Whether every ray's floats are finite (t_max: not NaN), in three passes over the
-    records' leading floats (seven per field before: 185 us a message of 4,096 rays). A
-    sum is finite only when every term is (a NaN or infinity carries; values near 1e308
-    that overflow are refused too, far past any scene's)."""
-    f = np.ndarray((len(r), _FLOATS), np.float64, r, 0, (r.dtype.itemsize, 8))
-    with np.errstate(over="ignore", invalid="ignore"):
-        total = f[:, :7].sum() + f[:, 8:].sum()
-    return bool(np.isfinite(total)) and not np.isnan(f[:, 7]).any()
+    bad = first_untraceable(r) if len(r) else -1
+    if bad >= 0:
+        raise BadFrame(
+            f"RAYS: ray {bad} of {len(r)} cannot be traced (each must be finite, of a known "
+            "kind, depth >= 1)"
+        )
 
 
 def check_pixels(f: dict, nodes: int) -> None:

@@ -70,13 +70,15 @@ def warmup(variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERN
 
 
 def _common_warmup() -> None:
-    """The kernels every variant shares: pinhole eye rays, ray routing between boxes,
-    deposits, and the camera rays (elements, sampling, records) on a one-pixel batch."""
+    """The kernels every variant shares: pinhole eye rays, ray routing between boxes, the
+    check of a neighbour's rays, deposits, and the camera rays (elements, sampling, records)
+    on a one-pixel batch."""
     from meshnode.engine.camera import eye_rays
     from meshnode.engine.counters import N_COUNTERS
     from meshnode.engine.deposits import cell_sums, lit
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.occupancy import everywhere, skip_empty
+    from meshnode.engine.raycheck import first_untraceable
     from meshnode.engine.trace import owners, routed
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
@@ -88,6 +90,7 @@ def _common_warmup() -> None:
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
     routed(rays, True, 0, *box, occ, box[0][None], box[1][None])  # a node's batches
+    first_untraceable(rays)  # a neighbour's RAYS
     deposits = np.zeros(2, dtypes.DEPOSIT)
     cell_sums(deposits, 1, deposits.copy())
     lit(rays, np.ones((1, 3)), deposits)

@@ -1,0 +1,164 @@
+"""How many rays a node gathers for a neighbour before sending them (`meshnode.mesh.driver.
+PASS_RAYS`), measured where it matters: a budgeted object-space render that passes millions of
+rays, on local meshes whose nodes gather each size, in turns.
+
+    python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
+                            [--size 384] [--spp 16] [--pass-rays 4096,16384] [--turns 2]
+
+Each turn renders the scene once on every size's mesh (after a first, warming render on each),
+in the same order, so the machine's noise falls on all of them alike. Printed per render: the
+nodes' user and system CPU summed from /proc over the frame, their minor page faults, the
+busiest node's frame CPU and the rays passed; then each size's medians over the turns and the
+ratio of its summed CPU to the first size's. Every render's ray counts must equal the first's
+and its image be within 1e-5 of it (object space sums a pixel's deposits in the order they
+arrive; exit 1 if not).
+
+`python -m bench.passing serve ... --pass-rays N` is such a node: the production service with
+only that constant changed.
+"""
+
+import argparse
+import asyncio
+import statistics
+import sys
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from bench import add_scenes_option, finish  # noqa: E402
+
+
+def serve(argv: list[str]) -> int:
+    """A node whose driver gathers `--pass-rays N` rays per neighbour before sending."""
+    from meshnode.mesh import driver
+    from meshnode.service import cli
+
+    at = argv.index("--pass-rays")
+    driver.PASS_RAYS = int(argv[at + 1])
+    del argv[at : at + 2]
+    return cli.main(argv)
+
+
+def _proc(pid: int) -> tuple[int, float, float]:
+    """(minor page faults, user seconds, system seconds) of process `pid` so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[7]), int(fields[11]) / 100, int(fields[12]) / 100
+
+
+def _render(request, mesh, addresses) -> tuple[np.ndarray, dict, tuple]:
+    """One render on the running `mesh`: (image, stats, (faults, user, system) of its nodes)."""
+    from host.run.connections import Nodes
+    from host.run.meshclient import render_on_mesh
+
+    before = [_proc(p.pid) for p in mesh.procs]
+    img, stats = asyncio.run(render_on_mesh(request, Nodes(addresses, wait=60)))
+    after = [_proc(p.pid) for p in mesh.procs]
+    spent = tuple(sum(a[i] - b[i] for a, b in zip(after, before, strict=True)) for i in range(3))
+    return img, stats, spent
+
+
+def _counts(stats: dict) -> dict:
+    from meshnode.engine.counters import RAY_COUNTS
+
+    return {k: stats["rays"][k] for k in RAY_COUNTS}
+
+
+def bench_scene(args, name: str, rows: list, bad: list) -> None:
+    """Every --pass-rays size's mesh up at once, rendered in turns."""
+    from contextlib import ExitStack
+
+    from host.planning.request import Request
+    from host.run.localmesh import LocalMesh
+    from host.scene.nff import read_nff
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    r, c = (int(v) for v in args.mesh.split("x"))
+    plan = MeshPlan(r, c, 1, balance="objects", max_share=args.share)
+    image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
+    request = Request(
+        read_nff(args.scenes / f"{name}.nff"), image, EngineSpec(threads=1), None, plan
+    )
+    sizes = [int(v) for v in args.pass_rays.split(",")]
+    print(
+        f"\n{name} {args.mesh}, at most {args.share:.0%} of the objects a node, "
+        f"{args.size}x{args.size} at {args.spp} spp"
+    )
+    print(
+        f"{'pass rays':>9} {'turn':>4} {'user s':>7} {'sys s':>6} {'faults':>7} "
+        f"{'busiest frame s':>15} {'rays passed':>11}"
+    )
+    with ExitStack() as stack:
+        meshes = []
+        for size in sizes:
+            mesh = LocalMesh(
+                r * c, once=False, module="bench.passing", options=["--pass-rays", str(size)]
+            )
+            meshes.append((size, mesh, stack.enter_context(mesh)))
+        ref = None
+        for _, mesh, addresses in meshes:  # kernels loaded, engines built and cached
+            img, stats, _ = _render(request, mesh, addresses)
+            ref = (img, _counts(stats)) if ref is None else ref
+        got = {size: [] for size in sizes}
+        for turn in range(args.turns):
+            for size, mesh, addresses in meshes:
+                img, stats, (faults, user, system) = _render(request, mesh, addresses)
+                off = float(np.abs(img - ref[0]).max())
+                if off > 1e-5 or _counts(stats) != ref[1]:
+                    bad.append(f"{name} pass rays {size} turn {turn}: {off:.3g} off, or counts")
+                busiest = stats["busiest_node_frame_cpu_seconds"]
+                got[size].append((user + system, busiest))
+                print(
+                    f"{size:>9} {turn:>4} {user:7.2f} {system:6.2f} {faults:7d} "
+                    f"{busiest:15.3f} {stats['rays_passed']:>11}"
+                )
+    first = statistics.median(t for t, _ in got[sizes[0]])
+    for size in sizes:
+        total = statistics.median(t for t, _ in got[size])
+        busiest = statistics.median(b for _, b in got[size])
+        print(
+            f"{size:>9} median: nodes' CPU {total:.2f} s ({total / first:.2f} of "
+            f"{sizes[0]}'s), busiest node's frame {busiest:.3f} s"
+        )
+        rows.append(
+            {
+                "scene": name,
+                "pass_rays": size,
+                "nodes_cpu_seconds": got[size],
+                "median_nodes_cpu_seconds": total,
+                "median_busiest_frame_cpu": busiest,
+            }
+        )
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["serve"]:
+        return serve(argv)
+    p = argparse.ArgumentParser(prog="bench.passing", description=__doc__.split("\n\n")[0])
+    add_scenes_option(p)
+    p.add_argument("--only", default="balls,tetra")
+    p.add_argument("--mesh", default="3x3")
+    p.add_argument("--share", type=float, default=0.25, help="--max-share of every node")
+    p.add_argument("--size", type=int, default=384)
+    p.add_argument("--spp", type=int, default=16)
+    p.add_argument("--pass-rays", default="4096,16384", help="sizes to compare, the first the base")
+    p.add_argument("--turns", type=int, default=2)
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    rows, bad = [], []
+    for name in args.only.split(","):
+        bench_scene(args, name, rows, bad)
+    return finish(
+        rows,
+        args.json,
+        bad,
+        "IMAGES DIFFER:\n",
+        "every render's counts equal the first's, its image within 1e-5",
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -139,3 +139,26 @@ def test_one_process_at_a_time_compiles_a_variant():
     ):
         raise RuntimeError("compile failed")
     assert not held("test-variant-a")  # released on an error too
+
+
+def test_kernels_of_no_variant_compile_under_the_cache_lock_once_then_are_warm():
+    # The structure builds' kernels: the first process to need them takes the lock (the
+    # others wait for it, then load from disk) and marks them warm, so later ones take no
+    # lock at all. A second process holding the lock keeps the first out until it lets go.
+    import fcntl
+    import secrets
+
+    from meshnode.engine import kernelcache
+
+    name = f"test/{secrets.token_hex(8)}"
+    assert not kernelcache.is_warm(name)
+    held = []
+    with kernelcache.compiled_once(name):
+        with open(kernelcache.lock_path(name), "a") as other:
+            try:
+                fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)  # another open file: refused
+            except BlockingIOError:
+                held.append(True)
+    assert held == [True] and kernelcache.is_warm(name)
+    with kernelcache.compiled_once(name), open(kernelcache.lock_path(name), "a") as other:
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)  # warm: no lock taken

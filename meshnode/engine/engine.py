@@ -44,7 +44,8 @@ def choose_structure(tables: Tables, asked: str, resolution) -> tuple[Bvh | None
     the objects say: the hierarchy unless its forecast tests per ray exceed GRID_ABOVE_TESTS)."""
     if asked == "grid" or (asked == "auto" and resolution is not None):
         return None, "forced by flag (grid)" if asked == "grid" else "a grid resolution was given"
-    bvh = Bvh(tables.lo, tables.hi, tables.offsets)
+    with kernelcache.compiled_once("build/bvh"):
+        bvh = Bvh(tables.lo, tables.hi, tables.offsets)
     tests = bvh.stats["expected_tests"]
     if asked == "bvh":
         return bvh, "forced by flag (bvh)"
@@ -112,7 +113,8 @@ class Engine:
             self.grid = box_only(lo, hi)
             self.bvh_arrays = self.bvh.arrays()
         else:
-            self.grid = build_grid(tb, lo, hi, density=density, storage=storage, res=resolution)
+            with kernelcache.compiled_once("build/grid"):
+                self.grid = build_grid(tb, lo, hi, density=density, storage=storage, res=resolution)
             self.bvh_arrays = empty_arrays()
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box

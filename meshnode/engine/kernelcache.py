@@ -69,6 +69,20 @@ def compiling(name: str):
             handle.close()
 
 
+@contextlib.contextmanager
+def compiled_once(name: str):
+    """`compiling(name)` over the block unless kernels named `name` are marked warm, then
+    marked: for kernels of no variant (the structure builds), which every process sharing
+    the cache would otherwise compile at once (a cold 3x3's nine nodes each compiled the
+    hierarchy build in 82-85 s)."""
+    if is_warm(name):
+        yield
+        return
+    with compiling(name):
+        yield
+    mark_warm(name)
+
+
 def kernels_compiled() -> int:
     """Kernels compiled in this process rather than loaded from the disk cache (numba's cache
     misses over every engine dispatcher): zero for a render after `meshnode warmup`."""

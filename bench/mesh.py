@@ -5,8 +5,8 @@ process.
                          [--overlaps 2,24,100] [--node-threads 1] [--balance even]
                          [--max-share 0.5,0.25]
                          [--modes object,image] [--tiles static] [--tile 32]
-                         [--size 512 --spp 1] [--camera FILE --lens-rays 16
-                         --sampling adaptive] [--min-trace 5] [--repeat 3] [--together 1]
+                         [--size 512 --spp 1] [--camera FILE --sampling adaptive]
+                         [--min-trace 5] [--repeat 3] [--together 1]
                          [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
@@ -22,7 +22,7 @@ seconds (until every node is built and linked), rays passed between nodes, and b
 (mean and max over directed links). Counts are checked against the single node's. Without
 --size the SPD rules (512x512 from corner rays); with it, SIZE x SIZE at --spp samples, and
 with `--min-trace S` at more samples for a scene that one node traces in less than S CPU
-seconds (through `--camera`: at more lens rays per pixel, `--lens-rays` the first; the image
+seconds (through `--camera`: at more lens rays per pixel, `--spp` the first; the image
 takes the film's shape, SIZE wide). Every row renders on one node (in this process) and on
 the mesh in turns, `--repeat
 N` times (the mesh's nodes keep running, so later renders reuse their engines), and compares
@@ -104,14 +104,15 @@ def parser() -> argparse.ArgumentParser:
         help="object space without and with the neighbours' copies: off,on",
     )
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
-    p.add_argument("--spp", type=int, default=1, help="samples per pixel with --size")
+    p.add_argument(
+        "--spp", type=int, help="rays per pixel with --size (default 1; 16 through --camera)"
+    )
     p.add_argument(
         "--camera",
         type=Path,
         help="with --size: render through this camera file "
         "(.toml) or lens table, focused on the image centre",
     )
-    p.add_argument("--lens-rays", type=int, default=16, help="rays per pixel with --camera")
     p.add_argument("--sampling", default="adaptive", help="how --camera places a pixel's rays")
     p.add_argument(
         "--min-trace",
@@ -147,13 +148,15 @@ def main(argv=None) -> int:
     if (args.min_trace or args.camera) and not args.size:
         p.error("--min-trace and --camera need --size")
     base = (
-        ImageSpec(width=args.size, height=args.size, spp=args.spp)
+        ImageSpec(width=args.size, height=args.size, spp=args.spp or 1)
         if args.size
         else ImageSpec(spd=True)
     )
     lens = None
     if args.camera:
-        lens, base = camera_setup(args.camera, args.lens_rays, args.sampling, args.size)
+        from host.camera.policy import LENS_SPP
+
+        lens, base = camera_setup(args.camera, args.spp or LENS_SPP, args.sampling, args.size)
     if args.plots:
         args.plots.mkdir(parents=True, exist_ok=True)
 

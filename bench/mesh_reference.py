@@ -27,8 +27,8 @@ def single(scene, image, warm: bool = True, camera=None):
 
 
 def sized(scene, image, min_trace: float, camera=None):
-    """(image, camera, single-node run) with the samples per pixel (through a camera: its
-    lens rays) raised, in one step from a first measurement, until one node traces at least
+    """(image, camera, single-node run) with the samples (through a camera: lens rays) per
+    pixel raised, in one step from a first measurement, until one node traces at least
     `min_trace` CPU seconds: the issue's work size for scenes that one node traces quickly
     (per-render costs then weigh as on a long render)."""
     import dataclasses
@@ -39,19 +39,13 @@ def sized(scene, image, min_trace: float, camera=None):
     if not min_trace or cpu >= min_trace:
         return image, camera, run
     scale = min_trace * SIZE_MARGIN / cpu
-    if camera is None:
-        image = dataclasses.replace(image, spp=math.ceil(image.spp * scale))
-    else:
-        rays = math.ceil(camera.sampling.rays * scale)
-        camera = dataclasses.replace(
-            camera, sampling=dataclasses.replace(camera.sampling, rays=rays)
-        )
+    image = dataclasses.replace(image, spp=math.ceil(image.spp * scale))
     return image, camera, single(scene, image, camera=camera)
 
 
 def camera_setup(path: Path, rays: int, sampling: str, width: int):
-    """(CameraSetup, its image: `width` wide, the film's shape) for `--camera`, focused on
-    the image centre (a probe pass)."""
+    """(CameraSetup, its image: `width` wide, the film's shape, `rays` per pixel) for
+    `--camera`, focused on the image centre (a probe pass)."""
     from host.camera.lensfile import read_camera
     from host.camera.setup import CameraSetup, Focus
     from protocols.camera import CameraSampling
@@ -59,7 +53,5 @@ def camera_setup(path: Path, rays: int, sampling: str, width: int):
 
     camera = read_camera(path)
     height = max(1, round(width * camera.film_height / camera.film_width))
-    setup = CameraSetup(
-        camera, CameraSampling(rays=rays, sampling=sampling), Focus(distance="auto")
-    )
-    return setup, ImageSpec(width=width, height=height)
+    setup = CameraSetup(camera, CameraSampling(sampling=sampling), Focus(distance="auto"))
+    return setup, ImageSpec(width=width, height=height, spp=rays)

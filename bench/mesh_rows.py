@@ -109,7 +109,7 @@ def print_header(name: str, image, camera, wall1: float, cpu1: float) -> None:
     rate = (
         f"{image.spp} spp"
         if camera is None
-        else f"{camera.sampling.rays} {camera.sampling.sampling} lens rays"
+        else f"{image.spp} {camera.sampling.sampling} lens rays"
     )
     print(
         f"\n== {name}: {image.width}x{image.height} at {rate}, 1x1 in process  "

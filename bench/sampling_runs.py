@@ -35,15 +35,16 @@ class Bench:
         from protocols.render import EngineSpec, ImageSpec
 
         a = self.args
+        image = ImageSpec(width=a.width, height=a.height, spp=rays, seed=seed)
         if a.pinhole:
             return (
-                ImageSpec(width=a.width, height=a.height, seed=seed),
+                image,
                 EngineSpec(threads=a.threads),
-                PinholeSetup.of(sampling, rays, threshold if sampling == "adaptive" else None),
+                PinholeSetup.of(sampling, threshold if sampling == "adaptive" else None),
             )
-        sampled = CameraSampling(generation=2, rays=rays, sampling=sampling, threshold=threshold)
+        sampled = CameraSampling(generation=2, sampling=sampling, threshold=threshold)
         return (
-            ImageSpec(width=a.width, height=a.height, seed=seed),
+            image,
             EngineSpec(threads=a.threads),
             CameraSetup(self.camera, sampled, Focus(a.focus)),
         )

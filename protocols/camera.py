@@ -2,7 +2,7 @@
 
 The command line builds a CameraSampling from its options; the host focuses the camera file
 and makes the CameraSpec every mesh node receives inside CONFIG, and each node makes the camera
-rays of its own pixels from it (with the image's seed).
+rays of its own pixels from it (with the image's seed and rays per pixel, ImageSpec.spp).
 """
 
 from dataclasses import dataclass, field
@@ -17,7 +17,6 @@ from protocols.spec import Spec, SpecError
 SAMPLINGS = ("uniform", "jittered", "random", "adaptive")
 FILM_AREAS = ("centre", "ellipse", "rectangle")
 ADAPTATIONS = ("all", "left")
-MAX_RAYS_PER_PIXEL = 65536
 MAX_PUPIL_BANDS = 1024
 
 
@@ -35,7 +34,7 @@ class Generation(IntEnum):
 
     @property
     def points(self) -> int:
-        """Rays of a fixed pattern (0: the count is the sampling's `rays`)."""
+        """Rays of a fixed pattern (0: the count is the image's rays per pixel)."""
         return {4: 5, 5: 5, 6: 9, 7: 9}.get(int(self), 0)
 
     @property
@@ -52,8 +51,8 @@ class Generation(IntEnum):
 class CameraSampling(Spec):
     """Where a pixel's camera rays go.
 
-    generation: area type on the first element; rays: rays per pixel for types 2 and 3 (and
-    for a film area or special jittering with types 0 and 1); sampling: how they are placed
+    generation: area type on the first element (how many of the image's rays per pixel,
+    ImageSpec.spp, it traces: `per_pixel`); sampling: how they are placed
     (regular strata, jittered strata, independent random, or adaptive: two opposite-corner
     rays first, the rest only where their colours differ by more than `threshold`);
     film_area: where on the pixel a ray starts, `film_area_size` pixels across; special:
@@ -61,7 +60,6 @@ class CameraSampling(Spec):
     all generated rays or by those that left the camera."""
 
     generation: int = Generation.ELLIPSE
-    rays: int = 16
     sampling: str = "jittered"
     threshold: float = 0.05
     film_area: str = "centre"
@@ -71,7 +69,6 @@ class CameraSampling(Spec):
 
     def check(self) -> None:
         self.want_int("generation", 0, 7)
-        self.want_int("rays", 1, MAX_RAYS_PER_PIXEL)
         self.want_choice("sampling", SAMPLINGS)
         self.want_number("threshold", 0.0, 1e30)
         self.want_choice("film_area", FILM_AREAS)
@@ -85,18 +82,19 @@ class CameraSampling(Spec):
     def kind(self) -> Generation:
         return Generation(self.generation)
 
-    @property
-    def per_pixel(self) -> int:
-        """Rays generated for a pixel when every one is traced."""
+    def per_pixel(self, rays: int) -> int:
+        """Rays generated for a pixel when every one is traced, `rays` (the image's spp)
+        asked for: all of them with types 2 and 3 (and with a film area or special jittering
+        with types 0 and 1), a fixed pattern's points, else one."""
         if self.kind.points:
             return self.kind.points
         if self.kind.through_centre and not self.special and self.film_area == "centre":
             return 1
-        return self.rays
+        return rays
 
-    @property
-    def adaptive(self) -> bool:
-        return self.sampling == "adaptive" and self.per_pixel > 2
+    def adaptive(self, rays: int) -> bool:
+        """Adaptive sampling at `rays` asked for per pixel (two passes need three or more)."""
+        return self.sampling == "adaptive" and self.per_pixel(rays) > 2
 
 
 @dataclass(frozen=True)
@@ -178,13 +176,11 @@ class CameraSpec(Spec):
         )
         return same and np.array_equal(self.elements, other.elements)
 
-    @property
-    def per_pixel(self) -> int:
-        return self.sampling.per_pixel
+    def per_pixel(self, rays: int) -> int:
+        return self.sampling.per_pixel(rays)
 
-    @property
-    def adaptive(self) -> bool:
-        return self.sampling.adaptive
+    def adaptive(self, rays: int) -> bool:
+        return self.sampling.adaptive(rays)
 
     @classmethod
     def decode(cls, values: dict) -> dict:

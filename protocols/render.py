@@ -38,9 +38,11 @@ ORDERS = ("rows", "centre")  # dynamic tiles: dealt row by row, or from the imag
 class ImageSpec(Spec):
     """The picture. width/height None: the scene's resolution (`sized` fills them in). spd:
     the SPD rules (512x512 from 513x513 corner rays, four averaged per pixel, depth 5; a size
-    given with them keeps corner sampling at that size); spp:
-    jittered pinhole samples per pixel (stratified when a square); depth: maximum ray tree
-    depth (eye ray = 1); seed: of every random choice (jitter, lens and film samples)."""
+    given with them keeps corner sampling at that size); spp: rays (samples) per pixel for
+    every camera: the pinhole's jittered samples (stratified when a square), or the rays of a
+    camera or of the pinhole set up as one (of which CameraSampling.per_pixel says how many
+    are traced); depth: maximum ray tree depth (eye ray = 1); seed: of every random choice
+    (jitter, lens and film samples)."""
 
     width: int | None = None
     height: int | None = None
@@ -56,10 +58,14 @@ class ImageSpec(Spec):
         self.want_int("spp", 1, MAX_SPP)
         self.want_int("depth", 1, MAX_DEPTH)
         self.want_int("seed", 0, 2**63 - 1)
-        if self.spd:
-            for name, rule in (("spp", 1), ("depth", SPD_DEPTH)):
-                if getattr(self, name) != rule:
-                    self.fail(name, f"the SPD rules fix it at {rule}")
+        if self.spd and self.depth != SPD_DEPTH:
+            self.fail("depth", f"the SPD rules fix it at {SPD_DEPTH}")
+
+    def check_corners(self, camera: bool = False) -> None:
+        """The SPD rules' eye rays are one a pixel corner: spp is 1, unless a camera makes
+        the rays (then spp is its rays per pixel)."""
+        if self.corners(camera) and self.spp != 1:
+            self.fail("spp", "the SPD rules fix it at 1 (but for the rays through a --camera)")
 
     def sized(self, view) -> "ImageSpec":
         """This image with its size filled in from the scene's view (or the SPD rules)."""
@@ -243,13 +249,12 @@ class RenderSpec(Spec):
                 self.fail(name, f"must be a {record.__name__}")
         if self.image.width is None or self.image.height is None:
             self.fail("image", "a render needs a sized image (ImageSpec.sized)")
-        if self.camera is not None and self.image.spp != 1:
-            self.fail("image", "through a camera, rays per pixel are CameraSampling.rays, not spp")
+        self.image.check_corners(self.camera is not None)
 
     @property
     def adaptive(self) -> bool:
         """Adaptive sampling through the camera: nodes keep their pixels' books."""
-        return self.camera is not None and self.camera.adaptive
+        return self.camera is not None and self.camera.adaptive(self.image.spp)
 
     @property
     def steals(self) -> bool:
@@ -269,9 +274,10 @@ class RenderSpec(Spec):
 
     @property
     def rays_per_pixel(self) -> int:
-        """Primary rays a pixel gets: its pinhole samples (ImageSpec.spp) or, through a
-        camera, CameraSampling.rays (at most: adaptive sampling may trace fewer)."""
-        return self.camera.sampling.rays if self.camera is not None else self.image.spp
+        """Primary rays asked for a pixel: ImageSpec.spp, through any camera (what is traced
+        may differ: CameraSampling.per_pixel's fixed points or one ray, adaptive sampling's
+        fewer)."""
+        return self.image.spp
 
     @property
     def ids_per_cell(self) -> int:

@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
+from host.camera.policy import LENS_SPP
 from host.camera.setup import CameraSetup, Focus
 from protocols import dtypes
 from protocols.camera import CameraSampling
@@ -294,11 +295,14 @@ class Job(NamedTuple):
 
 def records(camera=None, **options) -> Job:
     """The records of a render from keywords named as their fields (ImageSpec, EngineSpec,
-    and with a camera CameraSampling and Focus); an unknown keyword is an error."""
+    and with a camera CameraSampling and Focus); an unknown keyword is an error. Through a
+    camera, spp (its rays per pixel) is the command line's default unless given."""
 
     def pick(record):
         return {k: options.pop(k) for k in list(options) if k in record.__dataclass_fields__}
 
+    if camera is not None:
+        options.setdefault("spp", LENS_SPP)
     image, engine = ImageSpec(**pick(ImageSpec)), EngineSpec(**pick(EngineSpec))
     setup = None
     if camera is not None:

@@ -55,7 +55,7 @@ def render_mesh(
     if outcome is not None:
         outcome.append(out)
     w, h = spec.image.size
-    fb = Framebuffer(w, h, spec.corners, spec.image.spp)
+    fb = Framebuffer(w, h, spec.corners, spec.ids_per_cell)
     for d in out.deposits:
         fb.add(d["pixel"], d["rgb"])
     return fb.image(), out.totals(), out.nodes, out.rounds

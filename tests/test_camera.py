@@ -139,9 +139,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
 
     scene = _empty_scene()
     cam = _lens_with_stop(shape, stop_r)
-    rs = records(
-        width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="all", threads=1
-    )
+    rs = records(width=8, height=6, camera=cam, generation=2, spp=4096, adaptation="all", threads=1)
     img, stats = render(Request(scene, *rs))
     assert img[2:4, 3:5].mean() == pytest.approx(1.0, abs=0.02)
     share = stats["camera"]["centre_rays_leaving_camera"]
@@ -151,7 +149,7 @@ def test_a_stop_loses_rays_but_the_centre_stays_as_bright_as_the_scene(shape, st
         assert share == pytest.approx(leaving, abs=0.02)
     # Averaged over the rays that left the camera instead, nothing is lost.
     rs = records(
-        width=8, height=6, camera=cam, generation=2, rays=4096, adaptation="left", threads=1
+        width=8, height=6, camera=cam, generation=2, spp=4096, adaptation="left", threads=1
     )
     img, _ = render(Request(scene, *rs))
     np.testing.assert_allclose(img[2:4, 3:5], 1.0, atol=1e-12)
@@ -194,7 +192,7 @@ def test_host_render_through_a_camera(tmp_path, capsys):
         "24",
         "--height",
         "16",
-        "--lens-rays",
+        "--spp",
         "4",
         "--quiet",
         "--stats",
@@ -207,6 +205,31 @@ def test_host_render_through_a_camera(tmp_path, capsys):
     bad.write_text("[[element]]\ntype = 'mirror'\n")
     assert main([*args, "--camera", str(bad)]) == 2
     assert "element 1" in capsys.readouterr().err
+
+
+def test_spp_is_the_rays_per_pixel_through_a_camera_16_unless_given(tmp_path, capsys):
+    """--spp N traces N rays a pixel through a camera as through the pinhole (a thin lens
+    loses none: every ray is an eye ray); without it, a camera traces LENS_SPP = 16, as its
+    help says; --lens-rays is gone (argparse: unrecognised)."""
+    from host.camera.policy import LENS_SPP
+
+    scene = tmp_path / "s.nff"
+    scene.write_text(
+        "v\nfrom 0 0 -3\nat 0 0 0\nup 0 1 0\nangle 40\nhither 0\nresolution 6 4\n"
+        "b 0 0 0\nl 0 0 -3\nf 1 1 1 1 0 1 0 1\ns 0 0 0 1\n"
+    )
+    stats = tmp_path / "s.json"
+    args = ["render", str(scene), "-o", str(tmp_path / "o.png"), "--quiet", "--mesh", "1x1"]
+    args += ["--camera", str(CAMERAS / "thin_f2.8.toml"), "--stats", str(stats)]
+    for given, per_pixel in ((["--spp", "3"], 3), ([], LENS_SPP)):
+        assert main([*args, *given]) == 0
+        s = json.loads(stats.read_text())
+        assert s["image"]["spp"] == s["camera"]["rays_per_pixel"] == per_pixel
+        assert s["rays"]["eye_rays"] == 6 * 4 * per_pixel
+    assert LENS_SPP == 16
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--lens-rays", "4"])
+    assert e.value.code == 2 and "unrecognized arguments: --lens-rays" in capsys.readouterr().err
 
 
 def test_wide_angle_example_has_visible_barrel_distortion():

@@ -104,8 +104,8 @@ def test_shared_cells_on_every_mesh_give_the_single_node_image():
 @pytest.mark.parametrize("sampling", ["jittered", "adaptive"])
 def test_copies_through_a_camera_give_the_single_node_image(sampling):
     scene = dof_scene()
-    image = ImageSpec(width=30, height=24, seed=3)
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+    image = ImageSpec(width=30, height=24, spp=9, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling=sampling))
     ref, st = render(Request(scene, image, EngineSpec(threads=1), setup))
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
@@ -117,6 +117,7 @@ def test_copies_through_a_camera_give_the_single_node_image(sampling):
             1,
             30,
             24,
+            spp=9,
             seed=3,
             camera=spec,
             steal=True,

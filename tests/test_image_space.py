@@ -54,15 +54,15 @@ def test_camera_and_adaptive_on_every_shape_equal_one_node(sampling, monkeypatch
     # some unstarted on this small image, for neighbours to steal.
     monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene = dof_scene()
-    image = ImageSpec(width=30, height=24, seed=3)
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+    image = ImageSpec(width=30, height=24, spp=9, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling=sampling))
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     refined_taken = 0
     for rows, cols in SHAPES:
         for tiling in TILINGS:
             img, totals, nodes, _ = render_mesh(
-                scene, rows, cols, 0, 30, 24, seed=3, camera=spec, mode="image", **tiling
+                scene, rows, cols, 0, 30, 24, spp=9, seed=3, camera=spec, mode="image", **tiling
             )
             assert {k: totals[k] for k in COUNTS} == counts, (rows, cols, tiling)
             np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
@@ -81,8 +81,8 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
     # deposits on to the tiles' nodes.
     monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene = dof_scene()
-    image = ImageSpec(width=30, height=24, seed=3)
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    image = ImageSpec(width=30, height=24, spp=9, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling="adaptive"))
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     img, totals, nodes, _ = render_mesh(
@@ -92,6 +92,7 @@ def test_dynamic_adaptive_with_fewer_tiles_than_nodes_equals_one_node(monkeypatc
         0,
         30,
         24,
+        spp=9,
         seed=3,
         camera=spec,
         mode="image",
@@ -177,8 +178,8 @@ def test_image_space_over_tcp_equals_one_node(sampling, tiling):
     if sampling is None:
         scene, image, setup = read_nff(spd_scene("gears_s1.nff")), ImageSpec(40, 40), None
     else:
-        scene, image = dof_scene(), ImageSpec(width=30, height=24, seed=3)
-        setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling=sampling))
+        scene, image = dof_scene(), ImageSpec(width=30, height=24, spp=9, seed=3)
+        setup = CameraSetup(thin_camera(), CameraSampling(sampling=sampling))
     ref, counts = reference(scene, image, setup)
     plan = MeshPlan(2, 2, mode="image", tiles=tiling, tile=8 if tiling == "static" else 5)
     with LocalMesh(plan.nodes) as addresses:
@@ -278,8 +279,8 @@ def dynamic_adaptive_node():
     from meshnode.mesh.node import NodeCore
 
     scene = dof_scene()
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
-    image = ImageSpec(width=12, height=10).sized(scene.view)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling="adaptive"))
+    image = ImageSpec(width=12, height=10, spp=9).sized(scene.view)
     camera, _ = setup.spec(scene, image, lambda: None)
     spec = RenderSpec(
         image, plan=MeshPlan(1, 2, mode="image", tiles="dynamic", tile=5), camera=camera
@@ -294,7 +295,7 @@ def pass1_deposit(camera, pixel: int, n: int = 1):
     from protocols.dtypes import DEPOSIT
 
     d = np.zeros(n, DEPOSIT)
-    d["pixel"] = pixel * camera.per_pixel + pass_samples(camera)[0][0]
+    d["pixel"] = pixel * camera.per_pixel(9) + pass_samples(camera, 9)[0][0]  # at spp 9
     return d
 
 

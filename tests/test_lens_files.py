@@ -73,7 +73,7 @@ def _thin_lens(efl: float, n: float) -> Camera:
 
 
 def _render(scene, setup, width=36, height=24, seed=0):
-    image = ImageSpec(width=width, height=height, seed=seed)
+    image = ImageSpec(width=width, height=height, spp=16, seed=seed)
     return render(Request(scene, image, EngineSpec(threads=2), setup))
 
 
@@ -148,7 +148,7 @@ def test_most_camera_rays_leave_through_the_exit_pupil_and_the_centre_is_as_brig
 ):
     cam = read_camera(shared_lens(name))
     d = describe(cam)
-    setup = CameraSetup(cam, CameraSampling(rays=16))
+    setup = CameraSetup(cam, CameraSampling())
     scene = _uniform_scene()
     img, stats = _render(scene, setup)
     left = stats["rays"]["eye_rays"] / (36 * 24 * 16)
@@ -160,15 +160,13 @@ def test_most_camera_rays_leave_through_the_exit_pupil_and_the_centre_is_as_brig
     from meshnode.engine.lenscamera import camera_rays
 
     pixels = np.arange(36 * 24)
-    _, alive = camera_rays(spec, scene.view, 36, 24, pixels)
-    _, alive_rear = camera_rays(replace(spec, pupil=()), scene.view, 36, 24, pixels)
+    _, alive = camera_rays(spec, 16, scene.view, 36, 24, pixels)
+    _, alive_rear = camera_rays(replace(spec, pupil=()), 16, scene.view, 36, 24, pixels)
     assert alive.mean() > 1.5 * alive_rear.mean()
     # As bright at the centre as an ideal lens of the same f-number (colour adaptation all).
     thin, _ = _render(
         scene,
-        CameraSetup(
-            _thin_lens(d["effective_focal_length_m"], d["f_number"]), CameraSampling(rays=16)
-        ),
+        CameraSetup(_thin_lens(d["effective_focal_length_m"], d["f_number"]), CameraSampling()),
     )
     centre = (slice(11, 13), slice(17, 19))
     np.testing.assert_allclose(thin[centre], 1.0, atol=1e-12)
@@ -184,13 +182,13 @@ def test_drawing_rays_in_the_pupil_changes_no_pixel_beyond_noise():
 
     cam = read_camera(shared_lens("wide.22mm.dat"))
     scene = _uniform_scene(6, 4)
-    setup = CameraSetup(cam, CameraSampling(rays=32768))
-    spec, _ = setup.spec(scene, ImageSpec(width=6, height=4), None)
+    setup = CameraSetup(cam, CameraSampling())
+    spec, _ = setup.spec(scene, ImageSpec(width=6, height=4, spp=32768), None)
     rear = float(spec.elements["ax"][0])
     disc = replace(spec, pupil=(0.0, 2 * rear, 2 * rear), pupil_radius=1.0)
 
     def image(s):
-        rays, _ = camera_rays(s, scene.view, 6, 4, np.arange(24), seed=3)
+        rays, _ = camera_rays(s, 32768, scene.view, 6, 4, np.arange(24), seed=3)
         return np.bincount(rays["pixel"], weights=rays["w"][:, 0], minlength=24)
 
     pupil, reference = image(spec), image(disc)
@@ -308,7 +306,7 @@ def test_the_pinhole_set_up_as_a_camera_makes_the_scenes_own_rays():
     )
     image = ImageSpec(width=24, height=16)
     plain, _ = render(Request(scene, image, EngineSpec(threads=1)))
-    camera, _ = render(Request(scene, image, EngineSpec(threads=1), PinholeSetup.of("uniform", 1)))
+    camera, _ = render(Request(scene, image, EngineSpec(threads=1), PinholeSetup.of("uniform")))
     np.testing.assert_allclose(camera, plain, atol=1e-9)
 
 
@@ -346,13 +344,13 @@ def test_adaptive_pinhole_from_the_command_line(tmp_path, capsys):
                 str(ROOT / "host/cameras/thin_f2.8.toml"),
                 "--generation",
                 "4",
-                "--lens-rays",
+                "--spp",
                 "9",
             ]
         )
         == 0
     )
-    assert "warning: --lens-rays 9 changes nothing" in capsys.readouterr().err
+    assert "warning: --spp 9 changes nothing" in capsys.readouterr().err
 
 
 def test_adaptive_pinhole_is_closer_to_the_many_ray_image_than_one_ray():
@@ -363,7 +361,7 @@ def test_adaptive_pinhole_is_closer_to_the_many_ray_image_than_one_ray():
     ref, _ = render(Request(scene, replace(image, spp=256, seed=9), EngineSpec(threads=2)))
     one, _ = render(Request(scene, image, EngineSpec(threads=2)))
     ada, stats = render(
-        Request(scene, image, EngineSpec(threads=2), PinholeSetup.of("adaptive", 16))
+        Request(scene, replace(image, spp=16), EngineSpec(threads=2), PinholeSetup.of("adaptive"))
     )
     assert stats["rays"]["eye_rays"] < 16 * 40 * 30
 
@@ -391,7 +389,7 @@ def test_lens_table_renders_from_the_command_line_with_film_size_and_f_number(tm
                 "24x16",
                 "--f-number",
                 "4",
-                "--lens-rays",
+                "--spp",
                 "8",
                 "--mesh",
                 "1x1",
@@ -418,15 +416,16 @@ def test_adaptive_pinhole_and_lens_tables_on_a_mesh_equal_one_node(which):
     from tests.test_sampling import dof_scene
 
     scene = dof_scene()
-    image = ImageSpec(width=30, height=24, seed=3)
+    spp = 9 if which == "pinhole" else 4
+    image = ImageSpec(width=30, height=24, spp=spp, seed=3)
     if which == "pinhole":
-        setup = PinholeSetup.of("adaptive", 9)
+        setup = PinholeSetup.of("adaptive")
     else:
-        setup = CameraSetup(read_camera(shared_lens("wide.22mm.dat")), CameraSampling(rays=4))
+        setup = CameraSetup(read_camera(shared_lens("wide.22mm.dat")), CameraSampling())
     ref, _ = render(Request(scene, image, EngineSpec(threads=1), setup))
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     assert CameraSpec.from_wire(spec.to_wire()) == spec
-    img, _, nodes, _ = render_mesh(scene, 2, 2, 1.0, 30, 24, seed=3, camera=spec)
+    img, _, nodes, _ = render_mesh(scene, 2, 2, 1.0, 30, 24, spp=spp, seed=3, camera=spec)
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     assert ref.mean() > 0.05
 

@@ -2,8 +2,6 @@
 frames), every bad value is refused naming the record, the field and the value, and each
 setting has one definition the command line shows."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -56,7 +54,6 @@ plans = st.builds(
 samplings = st.builds(
     CameraSampling,
     generation=st.integers(0, 7),
-    rays=st.integers(1, 256),
     sampling=st.sampled_from(["uniform", "jittered", "random", "adaptive"]),
     threshold=st.floats(0, 1),
     film_area=st.sampled_from(["ellipse", "rectangle"]),
@@ -68,8 +65,6 @@ samplings = st.builds(
 @given(images, engines, plans, samplings, st.booleans())
 def test_every_record_round_trips_through_its_wire_form(image, engine, plan, sampling, cam):
     camera = CameraSpec(lens(), 0.036, 0.024, -0.0513, sampling) if cam else None
-    if camera is not None:
-        image = dataclasses.replace(image, spp=1)
     spec = RenderSpec(image, engine, plan, camera)
     for record in (image, engine, plan, sampling, spec, *([camera] if cam else [])):
         assert over_the_wire(record) == record
@@ -167,7 +162,6 @@ def test_partition_round_trips_and_checks_its_shapes():
         (MeshPlan, "overlap", -1.0),
         (MeshPlan, "overlap", float("inf")),
         (MeshPlan, "balance", "magic"),
-        (CameraSampling, "rays", 0),
         (CameraSampling, "generation", 8),
         (CameraSampling, "sampling", "lucky"),
         (CameraSampling, "threshold", -0.1),
@@ -196,10 +190,28 @@ def test_rules_across_fields_are_refused_by_name():
         CameraSampling(special=True, film_area="centre")
     with pytest.raises(SpecError, match=r"RenderSpec\.image"):
         RenderSpec(ImageSpec())  # not sized
-    with pytest.raises(SpecError, match=r"RenderSpec\.image.*spp"):
-        RenderSpec(ImageSpec(width=4, height=4, spp=4), camera=CameraSpec(lens(), 1, 1, -0.05))
+    corners = ImageSpec(spd=True, spp=4).sized(None)  # the SPD rules' corner rays: one each
+    with pytest.raises(SpecError, match=r"ImageSpec\.spp = 4: the SPD rules fix it at 1"):
+        RenderSpec(corners)
+    RenderSpec(corners, camera=CameraSpec(lens(), 1, 1, -0.05))  # a camera's rays per pixel
     with pytest.raises(SpecError, match=r"CameraSpec\.elements"):
         CameraSpec(np.zeros(0, dtypes.ELEMENT), 0.036, 0.024, -0.05)
+
+
+def test_rays_per_pixel_are_the_images_through_every_camera():
+    """One field: ImageSpec.spp, which the camera's generation type traces all of, a fixed
+    pattern's points of, or one of; adaptive sampling needs three or more. A peer's camera
+    still carrying its own rays (protocol 11) is refused by name."""
+    adaptive = CameraSpec(lens(), 0.036, 0.024, -0.05, CameraSampling(sampling="adaptive"))
+    for spp, books in ((2, False), (9, True)):
+        spec = RenderSpec(ImageSpec(width=4, height=4, spp=spp), camera=adaptive)
+        assert (spec.rays_per_pixel, spec.adaptive, spec.ids_per_cell) == (spp, books, 1)
+    traced = [CameraSampling(generation=g).per_pixel(9) for g in (0, 1, 2, 3, 4, 6)]
+    assert traced == [1, 1, 9, 9, 5, 9]
+    assert CameraSampling(generation=1, film_area="rectangle").per_pixel(9) == 9
+    wire = CameraSampling().to_wire()
+    with pytest.raises(SpecError, match=r"unknown fields \['rays'\]"):
+        CameraSampling.from_wire({**wire, "rays": 16})
 
 
 def test_a_peers_record_with_missing_or_unknown_fields_is_refused_by_name():
@@ -227,7 +239,7 @@ def test_sample_grid_is_corners_under_the_spd_rules_only():
     "flag,record,name",
     [
         ("--depth", ImageSpec, "depth"),
-        ("--lens-rays", CameraSampling, "rays"),
+        ("--generation", CameraSampling, "generation"),
         ("--overlap", MeshPlan, "overlap"),
         ("--density", EngineSpec, "density"),
     ],

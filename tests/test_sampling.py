@@ -81,37 +81,37 @@ def _render(camera=None, **kw):
 
 def test_adaptive_traces_corners_then_the_rest_where_they_differ():
     n = 16
-    full, full_stats = _render(rays=n, sampling="jittered")
+    full, full_stats = _render(spp=n, sampling="jittered")
     pixels = 48 * 36
     # Threshold 0: a pixel is refined unless its two corner rays agree exactly; refined
     # pixels get exactly the jittered rays, so they equal the jittered image.
-    img, st = _render(rays=n, sampling="adaptive", threshold=0.0)
+    img, st = _render(spp=n, sampling="adaptive", threshold=0.0)
     refined = st["camera"]["refined_pixels"]
     assert st["rays"]["eye_rays"] == 2 * pixels + (n - 2) * refined  # no lost rays here
     assert 0 < refined < pixels
     diff = np.abs(img - full).max(axis=2)
     assert np.count_nonzero(diff > 1e-12) <= pixels - refined
     # A threshold above any colour difference refines nothing: two rays a pixel.
-    img2, st2 = _render(rays=n, sampling="adaptive", threshold=10.0)
+    img2, st2 = _render(spp=n, sampling="adaptive", threshold=10.0)
     assert st2["rays"]["eye_rays"] == 2 * pixels and st2["camera"]["refined_pixels"] == 0
     # The usual threshold: far fewer rays than full sampling, close to its image.
-    img3, st3 = _render(rays=n, sampling="adaptive", threshold=0.05)
+    img3, st3 = _render(spp=n, sampling="adaptive", threshold=0.05)
     assert st3["rays"]["eye_rays"] < 0.6 * full_stats["rays"]["eye_rays"]
     assert np.sqrt(((img3 - full) ** 2).mean()) < 0.02
 
 
 def test_first_pass_is_opposite_corners_of_each_pattern():
     spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(generation=4))
-    assert first_pass(spec).tolist() == [1, 4]  # (-c, -c) and (c, c) of the five points
+    assert first_pass(spec, 16).tolist() == [1, 4]  # (-c, -c) and (c, c) of the five points
     spec = CameraSpec(thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(generation=6))
-    assert first_pass(spec).tolist() == [0, 8]
+    assert first_pass(spec, 16).tolist() == [0, 8]
 
 
 def test_special_jittering_has_no_depth_of_field():
     # Over the film area instead of the lens: every ray passes the lens centre, so the
     # image is the centre-ray image (type 1) over the same film points, whatever the
     # aperture; lens sampling at that aperture blurs visibly (CoC of 5 pixels at 1 m).
-    kw = dict(generation=2, rays=16, sampling="uniform", film_area="rectangle")
+    kw = dict(generation=2, spp=16, sampling="uniform", film_area="rectangle")
     wide, _ = _render(thin_camera(rim=0.05), special=True, **kw)
     tiny, _ = _render(thin_camera(rim=0.0001), special=True, **kw)
     np.testing.assert_allclose(wide, tiny, atol=1e-9)
@@ -125,7 +125,7 @@ def test_film_area_antialiases_an_edge():
     # Centre rays only (type 1): pixels are 0 or 1 across the sharp sphere's rim; over a film
     # area of one pixel they take values between, and the mean brightness is unchanged.
     sharp, _ = _render(generation=1)
-    soft, _ = _render(generation=1, rays=16, film_area="rectangle")
+    soft, _ = _render(generation=1, spp=16, film_area="rectangle")
     assert soft.mean() == pytest.approx(sharp.mean(), rel=0.02)
     levels = lambda im: len(np.unique(np.round(im[..., 0], 6)))  # noqa: E731
     assert levels(soft) > levels(sharp)
@@ -145,7 +145,7 @@ def _mesh(rows, cols, rs, progress=None):
     "sampling,meshes", [("jittered", [(2, 2)]), ("adaptive", [(2, 2), (3, 3)])]
 )
 def test_camera_on_the_mesh_gives_the_single_node_image(sampling, meshes):
-    rs = records(width=30, height=24, camera=thin_camera(), rays=9, sampling=sampling, threads=1)
+    rs = records(width=30, height=24, camera=thin_camera(), spp=9, sampling=sampling, threads=1)
     ref, ref_stats = render(Request(dof_scene(), *rs))
     for rows, cols in meshes:
         reports = []
@@ -164,24 +164,24 @@ def test_adaptive_refines_a_pixel_unlike_its_side_neighbours_and_halos_agree():
     from meshnode.mesh.adaptive import AdaptiveFilm, RectIndex, deposit_routes
 
     spec = CameraSpec(
-        thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(rays=4, sampling="adaptive")
+        thin_camera().elements, 0.024, 0.018, -0.05, CameraSampling(sampling="adaptive")
     )
-    width, height, n = 5, 4, spec.per_pixel
+    width, height, n = 5, 4, spec.per_pixel(4)
     pixels = np.arange(width * height)
-    ids = np.concatenate([pixels * n + k for k in first_pass(spec)])
+    ids = np.concatenate([pixels * n + k for k in first_pass(spec, 4)])
     rgb = np.zeros((len(ids), 3))
     rgb[ids // n == 1 * width + 2] = 1.0
-    whole = AdaptiveFilm(spec, (0, width, 0, height), width, height)
+    whole = AdaptiveFilm(spec, 4, (0, width, 0, height), width, height)
     whole.corner_alive[:] = True  # (no pass 1 here: every corner ray left the camera)
     whole.add(ids, rgb)
     refined = set(np.flatnonzero(whole.decide()).tolist())
     assert refined == {7, 2, 6, 8, 12}  # (2, 1) and (2, 0), (1, 1), (3, 1), (2, 2)
 
     rects = [(0, 2, 0, height), (2, width, 0, height)]
-    films = [AdaptiveFilm(spec, r, width, height) for r in rects]
+    films = [AdaptiveFilm(spec, 4, r, width, height) for r in rects]
     for film in films:
         film.corner_alive[:] = True
-    idx, dest = deposit_routes(ids, n, first_pass(spec), width, height, RectIndex(rects, width))
+    idx, dest = deposit_routes(ids, n, first_pass(spec, 4), width, height, RectIndex(rects, width))
     for node, film in enumerate(films):
         mine = idx[dest == node]
         film.add(ids[mine], rgb[mine])
@@ -205,8 +205,8 @@ def test_adaptive_refines_pixels_whose_corner_rays_the_camera_stops():
         },
     )
     cam = Camera(elements, 0.024, 0.018, None, 2.0)
-    full, _ = _render(cam, rays=16, sampling="jittered")
-    img, st = _render(cam, rays=16, sampling="adaptive")
+    full, _ = _render(cam, spp=16, sampling="jittered")
+    img, st = _render(cam, spp=16, sampling="adaptive")
     assert st["camera"]["refined_pixels"] == 48 * 36
     np.testing.assert_allclose(img, full, atol=1e-12)
     assert full.mean() > 0.05
@@ -241,8 +241,6 @@ def test_host_render_warns_when_most_camera_rays_are_stopped(tmp_path, capsys):
     ]
     assert main(args) == 0
     assert "of the camera rays leave the camera" in capsys.readouterr().err
-    assert main([*args, "--spp", "4"]) == 2
-    assert "--lens-rays" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("generation", [4, 5, 6, 7])
@@ -254,7 +252,7 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
     spec = CameraSpec(
         thin_camera().elements, 0.024, 0.018, -0.0513, CameraSampling(generation=generation)
     )
-    _, alive = camera_rays(spec, dof_scene().view, 64, 48, np.arange(64 * 48))
+    _, alive = camera_rays(spec, 16, dof_scene().view, 64, 48, np.arange(64 * 48))
     assert alive.all()
     special = CameraSpec(
         thin_camera().elements,
@@ -263,7 +261,7 @@ def test_fixed_patterns_stay_inside_the_generation_area(generation):
         -0.0513,
         CameraSampling(generation=generation, film_area="rectangle", special=True),
     )
-    assert first_pass(special).tolist() == ([1, 4] if generation < 6 else [0, 8])
+    assert first_pass(special, 16).tolist() == ([1, 4] if generation < 6 else [0, 8])
 
 
 def test_rect_index_finds_the_rectangle_of_every_pixel():

@@ -177,7 +177,7 @@ def test_stealing_on_every_mesh_gives_the_single_node_image(name, spp, corners):
 
 def test_stealing_through_a_camera_and_where_it_is_refused():
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = records(width=24, height=24, threads=1)
+    rs = records(width=24, height=24, spp=16, threads=1)
     lens = Path(__file__).resolve().parents[1] / "host" / "cameras" / "thin_f2.8.toml"
     camera = CameraSetup(read_camera(lens))
     ref, st = render(Request(scene, rs.image, rs.engine, camera))
@@ -185,7 +185,7 @@ def test_stealing_through_a_camera_and_where_it_is_refused():
         Request(scene, rs.image, rs.engine, camera, MeshPlan(2, 2, steal=True, tile=4))
     ).spec
     img, totals, nodes, _ = render_mesh(
-        scene, 2, 2, 1, 24, 24, camera=spec.camera, steal=True, tile=4
+        scene, 2, 2, 1, 24, 24, spp=16, camera=spec.camera, steal=True, tile=4
     )
     assert totals["eye_rays"] == st["rays"]["eye_rays"]
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
@@ -196,8 +196,8 @@ def test_stealing_through_a_camera_and_where_it_is_refused():
 def adaptive_setup(width, height):
     """The depth-of-field scene, an adaptive thin-lens camera, and its `CameraSpec`."""
     scene = dof_scene()
-    image = ImageSpec(width=width, height=height, seed=3)
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    image = ImageSpec(width=width, height=height, spp=9, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling="adaptive"))
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     return scene, image, setup, spec
 
@@ -221,6 +221,7 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
             1,
             30,
             24,
+            spp=image.spp,
             seed=3,
             camera=spec,
             steal=True,
@@ -239,7 +240,7 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
 
 
 def test_refined_runs_cover_exactly_the_refined_pixels_of_a_chunk():
-    film = AdaptiveFilm(adaptive_setup(16, 12)[3], (2, 12, 1, 9), 16, 12)
+    film = AdaptiveFilm(adaptive_setup(16, 12)[3], 9, (2, 12, 1, 9), 16, 12)
     rng = np.random.default_rng(5)
     film.refined = rng.random(len(film.pixels)) < 0.4
     chunk = (4, 11, 2, 7)

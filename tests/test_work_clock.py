@@ -66,13 +66,13 @@ def test_a_link_delayed_on_the_work_clock_still_gives_the_single_node_image():
 def test_adaptive_camera_with_dynamic_tiles_on_the_work_clock_equals_one_node(monkeypatch):
     monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)  # leave pass-2 chunks to steal
     scene = dof_scene()
-    image = ImageSpec(width=30, height=24, seed=3)
-    setup = CameraSetup(thin_camera(), CameraSampling(rays=9, sampling="adaptive"))
+    image = ImageSpec(width=30, height=24, spp=9, seed=3)
+    setup = CameraSetup(thin_camera(), CameraSampling(sampling="adaptive"))
     ref, counts = reference(scene, image, setup)
     spec, _ = setup.spec(scene, image.sized(scene.view), lambda: None)
     for rows, cols in SHAPES:
         img, totals, _, _ = render_mesh(
-            scene, rows, cols, 0, 30, 24, seed=3, camera=spec, clock="work", **MODES[0]
+            scene, rows, cols, 0, 30, 24, spp=9, seed=3, camera=spec, clock="work", **MODES[0]
         )
         assert {k: totals[k] for k in COUNTS} == counts, (rows, cols)
         np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)

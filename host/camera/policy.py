@@ -1,5 +1,7 @@
 """The camera policy of one render: which camera its options ask for (the scene's pinhole,
-plain or set up as a camera, or a camera file) and the film fitted to the image's shape.
+plain or set up as a camera, or a camera file), its rays per pixel (ImageSpec.spp, whatever
+the camera: LENS_SPP through a camera file unless given) and the film fitted to the image's
+shape.
 Decided here, not in the command line, so the command line only parses and wires; `warn`
 tells the user once, by option name, what is changed or changes nothing.
 """
@@ -13,12 +15,14 @@ from protocols.camera import CameraSampling
 from protocols.render import ImageSpec
 
 Warn = Callable[[str], None]
+LENS_SPP = 16  # rays per pixel through a camera file when --spp is not given
 
 
 def pinhole(image: ImageSpec, sampling: dict, warn: Warn):
     """The image and the scene's pinhole: plain jittered samples (the eye-ray kernel; None),
-    or, for another --sampling, the pinhole set up as a camera (PinholeSetup; the image then
-    takes its rays per pixel from it, so its own spp becomes 1)."""
+    or, for another --sampling, the pinhole set up as a camera (PinholeSetup), either way at
+    the image's spp rays per pixel."""
+    image.check_corners()
     how = sampling.get("sampling", "jittered")
     if how == "jittered":
         return image, None
@@ -26,21 +30,19 @@ def pinhole(image: ImageSpec, sampling: dict, warn: Warn):
         raise ValueError(f"--sampling {how}: the SPD rules fix the eye rays at pixel corners")
     if image.spp == 1 and how == "adaptive":
         warn("--sampling adaptive with --spp 1 traces one ray per pixel; give --spp N")
-    return replace(image, spp=1), PinholeSetup.of(how, image.spp, sampling.get("threshold"))
+    return image, PinholeSetup.of(how, sampling.get("threshold"))
 
 
 def lens_camera(
-    image: ImageSpec, sampling: dict, focus: dict, path, film_size, warn: Warn
-) -> CameraSetup:
-    """The camera of a camera file or lens table, sampled and focused as the given fields
-    of CameraSampling and Focus ask; rays per pixel are the camera's, not the image's."""
-    if image.spp != 1:
-        raise ValueError(
-            "--spp is for the pinhole; through a camera, rays per pixel are --lens-rays N"
-        )
+    image: dict, sampling: dict, focus: dict, path, film_size, warn: Warn
+) -> tuple[ImageSpec, CameraSetup]:
+    """The image, and the camera of a camera file or lens table, made from the given fields
+    of ImageSpec, CameraSampling and Focus: rays per pixel are the image's spp, LENS_SPP
+    unless given."""
+    pictured = ImageSpec(**{"spp": LENS_SPP, **image})
     sampled = CameraSampling(**sampling)
-    warn_unused(sampled, sampling, warn)
-    return CameraSetup(read_camera(path, film_size), sampled, Focus(**focus))
+    warn_unused(sampled, pictured.spp, {**image, **sampling}, warn)
+    return pictured, CameraSetup(read_camera(path, film_size), sampled, Focus(**focus))
 
 
 def fit_aspect(image: ImageSpec, camera, view, size_given: bool, warn: Warn):
@@ -75,17 +77,18 @@ def fit_aspect(image: ImageSpec, camera, view, size_given: bool, warn: Warn):
     return image, replace(camera, camera=replace(cam, film_width=fw, film_height=fh))
 
 
-def warn_unused(s: CameraSampling, given: dict, warn: Warn) -> None:
-    """Options that change nothing with this generation area and film area, by name: a
-    setting the user believes in but that has no effect is worth one line."""
-    if "rays" in given and s.per_pixel != s.rays:
+def warn_unused(s: CameraSampling, spp: int, given: dict, warn: Warn) -> None:
+    """Options that change nothing with this generation area and film area at `spp` rays
+    per pixel asked for, by name (`given`: the fields given, of the image and the sampling):
+    a setting the user believes in but that has no effect is worth one line."""
+    if "spp" in given and s.per_pixel(spp) != spp:
         why = (
             f"generation {s.generation} traces its fixed {s.kind.points} points"
             if s.kind.points
             else f"generation {s.generation} traces one ray per pixel without --film-area"
         )
-        warn(f"--lens-rays {s.rays} changes nothing: {why}")
-    if "sampling" in given and s.per_pixel == 1:
+        warn(f"--spp {spp} changes nothing: {why}")
+    if "sampling" in given and s.per_pixel(spp) == 1:
         warn(f"--sampling {s.sampling} changes nothing: one ray per pixel")
     if "film_area_size" in given and s.film_area == "centre":
         warn("--film-area-size changes nothing without --film-area ellipse|rectangle")

@@ -97,9 +97,9 @@ class CameraSetup:
             "film_z_m": spec.film_z,
             "effective_focal_length_m": describe(cam)["effective_focal_length_m"],
             "generation": s.generation,
-            "rays_per_pixel": s.per_pixel,
+            "rays_per_pixel": s.per_pixel(image.spp),
             "sampling": s.sampling,
-            "threshold": s.threshold if s.adaptive else None,
+            "threshold": s.threshold if s.adaptive(image.spp) else None,
             "film_area": s.film_area,
             "special_jittering": s.special,
             "adaptation": s.adaptation,
@@ -115,7 +115,7 @@ class PinholeSetup:
     """The scene's own pinhole eye sampled as a camera, so the pinhole gets every sampler
     (uniform, random, adaptive in two passes, on one node or the mesh) without a second
     implementation: a pinhole at the eye, a film one unit behind it as wide as the view's
-    angle spans, `sampling.rays` rays per pixel over the pixel's area, rays starting at the
+    angle spans, the image's spp rays per pixel over the pixel's area, rays starting at the
     scene's hither."""
 
     sampling: CameraSampling
@@ -131,22 +131,21 @@ class PinholeSetup:
             "source": "pinhole (the scene's view)",
             "notes": [],
             "generation": s.generation,
-            "rays_per_pixel": s.per_pixel,
+            "rays_per_pixel": s.per_pixel(image.spp),
             "sampling": s.sampling,
-            "threshold": s.threshold if s.adaptive else None,
+            "threshold": s.threshold if s.adaptive(image.spp) else None,
             "film_area": s.film_area,
             "adaptation": s.adaptation,
             "rays_leaving_lens": 1.0,
         }
 
     @classmethod
-    def of(cls, sampling: str, spp: int, threshold: float | None = None) -> "PinholeSetup":
-        """`spp` rays over each pixel's area, placed by `sampling`."""
+    def of(cls, sampling: str, threshold: float | None = None) -> "PinholeSetup":
+        """The image's rays per pixel over each pixel's area, placed by `sampling`."""
         given = {} if threshold is None else {"threshold": threshold}
         return cls(
             CameraSampling(
                 generation=Generation.PINHOLE,
-                rays=spp,
                 sampling=sampling,
                 film_area="rectangle",
                 **given,
@@ -159,26 +158,16 @@ def leaving_share(spec: CameraSpec, view, width: int, height: int, centre=False)
     render samples them) at each of up to 32 x 32 pixels spread over the image, or of 256
     uniform rays from the centre pixel: a lens that blocks most rays wastes most of the work
     (the CLI warns)."""
+    s = spec.sampling
     if centre:
-        probe = replace(
-            spec,
-            sampling=replace(
-                spec.sampling, rays=256, sampling="uniform", film_area="centre", special=False
-            ),
-        )
+        rays = 256
+        sampled = replace(s, sampling="uniform", film_area="centre", special=False)
         pixels = np.array([(height // 2) * width + width // 2])
-    else:
-        rays = spec.sampling.rays if spec.sampling.kind.points else 64
-        probe = replace(
-            spec,
-            sampling=replace(
-                spec.sampling,
-                rays=rays,
-                sampling="jittered" if spec.adaptive else spec.sampling.sampling,
-            ),
-        )
+    else:  # 64 asked for (a fixed pattern traces its points); adaptive's rays are jittered
+        rays = 64
+        sampled = replace(s, sampling="jittered" if s.sampling == "adaptive" else s.sampling)
         xs = np.unique(np.linspace(0, width - 1, min(width, 32)).astype(np.int64))
         ys = np.unique(np.linspace(0, height - 1, min(height, 32)).astype(np.int64))
         pixels = (ys[:, None] * width + xs[None, :]).ravel()
-    _, alive = camera_rays(probe, view, width, height, pixels)
+    _, alive = camera_rays(replace(spec, sampling=sampled), rays, view, width, height, pixels)
     return float(alive.mean())

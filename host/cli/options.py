@@ -13,11 +13,14 @@ FLAGS: dict[str, str] = {}  # "Record.field" -> the option that sets it, for mes
 FILM_SIZE_HELP = "film WIDTHxHEIGHT in mm (default: the file's; 36x24 for a lens table)"
 
 
-def record_option(group, flag: str, record: type, name: str, help: str, **kw) -> None:
-    """An option that sets `record.name`; unset, the record's own default applies."""
+def record_option(
+    group, flag: str, record: type, name: str, help: str, default_also: str = "", **kw
+) -> None:
+    """An option that sets `record.name`; unset, the record's own default applies (or what
+    `default_also` says, shown after it)."""
     d = default(record, name)
     FLAGS[f"{record.__name__}.{name}"] = flag
-    shown = "" if d is None or kw.get("action") == "store_true" else f" (default {d})"
+    shown = "" if d is None or kw.get("action") == "store_true" else f" (default {d}{default_also})"
     if kw.get("action") is None and "choices" not in kw:
         kw.setdefault("metavar", flag.lstrip("-").replace("-", "_").upper())  # not the field
     group.add_argument(
@@ -71,15 +74,8 @@ def camera_options(g) -> None:
         "--generation",
         CameraSampling,
         "generation",
-        "generation area type 0..7 (2: rays in the first element's ellipse)",
-        type=int,
-    )
-    record_option(
-        g,
-        "--lens-rays",
-        CameraSampling,
-        "rays",
-        "rays per pixel for types 2 and 3, or with a film area",
+        "generation area type 0..7 (2: --spp rays in the first element's ellipse; 0 and 1 "
+        "trace one ray per pixel unless with a film area, 4..7 fixed points)",
         type=int,
     )
     record_option(

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.camera.policy import LENS_SPP
 from host.cli.options import (
     FILM_SIZE_HELP,
     camera_options,
@@ -72,7 +73,7 @@ def _render_parser(sub) -> None:
     _plan_options(r)
     _tile_options(r)
     r.add_argument("--camera", help="render through a camera file (.toml) or lens table")
-    sampling_options(r.add_argument_group("sampling (pinhole --spp, or --camera --lens-rays)"))
+    sampling_options(r.add_argument_group("sampling (of --spp rays per pixel, any camera)"))
     camera_options(r.add_argument_group("camera (with --camera)"))
 
 
@@ -123,7 +124,13 @@ def _image_options(r) -> None:
         action="store_true",
     )
     record_option(
-        r, "--spp", ImageSpec, "spp", "pinhole rays per pixel (placed by --sampling)", type=int
+        r,
+        "--spp",
+        ImageSpec,
+        "spp",
+        "rays (samples) per pixel, pinhole or --camera (placed by --sampling)",
+        default_also=f"; {LENS_SPP} through --camera",
+        type=int,
     )
     record_option(
         r, "--depth", ImageSpec, "depth", "maximum ray tree depth (eye ray = 1)", type=int

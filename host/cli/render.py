@@ -224,19 +224,17 @@ def in_user_terms(message: str) -> str:
 def _records(args):
     """The render's records from the options (each checked by its record); options that do
     not apply to the chosen camera fail, or warn when they merely change nothing, by name."""
-    image, engine = (
-        ImageSpec(**given_fields(args, ImageSpec)),
-        EngineSpec(**given_fields(args, EngineSpec)),
-    )
+    image, engine = given_fields(args, ImageSpec), EngineSpec(**given_fields(args, EngineSpec))
     sampling = given_fields(args, CameraSampling)
     if "threshold" in sampling and sampling.get("sampling") != "adaptive":
         raise ValueError("--threshold applies to --sampling adaptive only")
     if not args.camera:
         _no_camera_options(args)
-        image, camera = pinhole(image, sampling, _warn)
+        image, camera = pinhole(ImageSpec(**image), sampling, _warn)
         return image, engine, camera
     focus = given_fields(args, Focus)
-    return image, engine, lens_camera(image, sampling, focus, args.camera, args.film_size, _warn)
+    image, camera = lens_camera(image, sampling, focus, args.camera, args.film_size, _warn)
+    return image, engine, camera
 
 
 def _no_camera_options(args) -> None:

@@ -46,7 +46,7 @@ def coarse_spec(spec: RenderSpec) -> RenderSpec:
     if camera is not None:
         camera = replace(
             camera,
-            sampling=CameraSampling(generation=Generation.CENTRE, rays=1, sampling="uniform"),
+            sampling=CameraSampling(generation=Generation.CENTRE, sampling="uniform"),
         )
     return RenderSpec(image, spec.engine, plan, camera)
 

@@ -54,8 +54,12 @@ class Request:
         return self.image.sized(self.scene.view)
 
     def spec(self) -> RenderSpec:
-        """The records every node is sent, before the camera is focused (checked now)."""
-        return RenderSpec(self.sized, self.engine, self.plan)
+        """The records every node is sent, before the camera is focused (checked now): a
+        camera's rays start from pixels, so its image samples pixels under the SPD rules too."""
+        image = self.sized
+        if self.camera is not None:
+            image = replace(image, spd=False)
+        return RenderSpec(image, self.engine, self.plan)
 
     def on(self, plan: MeshPlan) -> "Request":
         """This render planned otherwise (a mode chosen, a mesh shrunk after a lost node)."""

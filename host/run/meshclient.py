@@ -191,7 +191,7 @@ async def _attempt(
     sent = time.perf_counter() - start
     spec = planned.spec
     width, height = spec.image.size
-    fb = Framebuffer(width, height, spec.corners, spec.image.spp)
+    fb = Framebuffer(width, height, spec.corners, spec.ids_per_cell)
     dealer = _dealer(planned, kept.tiles if kept else frozenset())
     collector = Collector(fb, names, progress, *patience, dealer, watch, observers.ready)
     if kept is not None:

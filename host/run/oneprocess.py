@@ -146,24 +146,26 @@ def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, trace
     ray kernels compiled, before the frame is timed."""
     spec, info = camera.spec(scene, image, lambda: tracer)
     width, height = image.size
-    camera_rays(spec, scene.view, width, height, rect_pixels((0, width, 0, height), width)[:1])
+    pixel = rect_pixels((0, width, 0, height), width)[:1]
+    camera_rays(spec, image.spp, scene.view, width, height, pixel)
     return spec, info
 
 
 def _render_camera(job: _Job, spec, info):
     """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
     view, (width, height), seed = job.scene.view, job.image.size, job.image.seed
+    spp = job.image.spp  # rays per pixel asked for, of which the camera traces per_pixel
     fb = Framebuffer(width, height, corners=False, spp=1)
     pixels = rect_pixels((0, width, 0, height), width)
 
     def trace_batch(rays):
         return _traced(job.tracer, rays)
 
-    if not spec.adaptive:  # batches made as the pool takes them: memory stays bounded
-        batches = camera_batches(spec, view, width, height, pixels, seed, RAYS_PER_BATCH)
-        count = -(-len(pixels) // max(1, RAYS_PER_BATCH // spec.per_pixel))
+    if not spec.adaptive(spp):  # batches made as the pool takes them: memory stays bounded
+        batches = camera_batches(spec, spp, view, width, height, pixels, seed, RAYS_PER_BATCH)
+        count = -(-len(pixels) // max(1, RAYS_PER_BATCH // spec.per_pixel(spp)))
         return _run_batches(job, fb, [(batches, fb)], trace_batch, count, info)
-    film = AdaptiveFilm(spec, (0, width, 0, height), width, height, seed)
+    film = AdaptiveFilm(spec, spp, (0, width, 0, height), width, height, seed)
     passes = ((make(view, width, height), film) for make in (film.pass1, film.pass2))
     _, stats = _run_batches(job, fb, passes, trace_batch, None, info)
     ids, rgb = film.finish()

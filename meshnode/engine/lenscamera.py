@@ -7,9 +7,12 @@ is the `optics.through` kernel. Rays lost in the camera (rims, diaphragms, total
 are dropped; their share of the pixel is black under adaptation "all" (vignetting) and
 redistributed over the survivors under "left".
 
-Sample k of a pixel is a point of a stratified set: with N = m*m rays, stratum (k % m, k // m)
-of an m x m grid (otherwise N-rooks: column k, a shuffled row), taken at its centre (uniform)
-or at a hashed random point inside it (jittered). Sample 0 and sample N-1 sit in opposite
+A pixel's rays are the image's rays per pixel (ImageSpec.spp, `spp` here), of which the
+sampling's generation type traces N (`CameraSampling.per_pixel`: all of them, a fixed
+pattern's points, or one). Sample k of a pixel is a point of a stratified set: with
+N = m*m rays, stratum (k % m, k // m) of an m x m grid (otherwise N-rooks: column k, a
+shuffled row), taken at its centre (uniform) or at a hashed random point inside it
+(jittered). Sample 0 and sample N-1 sit in opposite
 corner strata: adaptive sampling traces those two first. Every number comes from a
 counter-based hash of (seed, pixel, sample), so any node makes the same ray for a sample.
 """
@@ -33,11 +36,12 @@ FIVE = np.array([(0, 0), (-_C, -_C), (_C, -_C), (-_C, _C), (_C, _C)])
 NINE = np.array([(x, y) for y in (-_C, 0, _C) for x in (-_C, 0, _C)])
 
 
-def first_pass(spec: CameraSpec) -> np.ndarray:
-    """The two samples at opposite corners that adaptive sampling traces first."""
+def first_pass(spec: CameraSpec, spp: int) -> np.ndarray:
+    """The two samples at opposite corners that adaptive sampling traces first, at `spp`
+    rays per pixel."""
     if spec.sampling.kind.points == 5:
         return np.array([1, 4])
-    return np.array([0, spec.per_pixel - 1])
+    return np.array([0, spec.per_pixel(spp) - 1])
 
 
 def _hash_uniform(seed: int, ids: np.ndarray, dim: int) -> np.ndarray:
@@ -139,8 +143,9 @@ def _emit(out, o, d, alive, share, ids, eye, right, up, fwd, front, hither):
     return n
 
 
-def _pattern_points(s: CameraSampling, pixels, ks, seed: int) -> np.ndarray:
-    """Offsets in [-1, 1]^2 of the sampled area (the lens's, or the film's when special)."""
+def _pattern_points(s: CameraSampling, n: int, pixels, ks, seed: int) -> np.ndarray:
+    """Offsets in [-1, 1]^2 of the sampled area (the lens's, or the film's when special), of
+    samples `ks` of the `n` a pixel traces."""
     gen = s.kind
     if gen.points:
         pts = np.broadcast_to((FIVE if gen.points == 5 else NINE)[ks], (len(pixels), len(ks), 2))
@@ -149,7 +154,7 @@ def _pattern_points(s: CameraSampling, pixels, ks, seed: int) -> np.ndarray:
             jit = np.stack([_hash_uniform(seed, ids, 2), _hash_uniform(seed, ids, 3)], -1)
             pts = pts + JITTER * (2 * jit - 1)
         return np.array(pts)
-    p = unit_points(_placement(s), s.per_pixel, pixels, ks, seed, 2)
+    p = unit_points(_placement(s), n, pixels, ks, seed, 2)
     ellipse = gen != Generation.RECTANGLE if not s.special else s.film_area == "ellipse"
     return to_area(p, ellipse)
 
@@ -159,13 +164,14 @@ def _placement(s: CameraSampling) -> str:
     return "jittered" if s.sampling == "adaptive" else s.sampling
 
 
-def sample_offsets(s: CameraSampling, pixels: np.ndarray, ks: np.ndarray, seed: int):
-    """(lens offsets, film offsets) for every (pixel, k): lens in units of the generation
-    area's semi-axes, film in pixels from the pixel centre."""
+def sample_offsets(s: CameraSampling, n: int, pixels: np.ndarray, ks: np.ndarray, seed: int):
+    """(lens offsets, film offsets) for every (pixel, k) of the `n` rays a pixel traces
+    (`CameraSampling.per_pixel`): lens in units of the generation area's semi-axes, film in
+    pixels from the pixel centre."""
     shape = (len(pixels), len(ks), 2)
     zeros = np.zeros(shape)
     lens_sampled = not s.kind.through_centre or s.special
-    pts = _pattern_points(s, pixels, ks, seed) if lens_sampled else None
+    pts = _pattern_points(s, n, pixels, ks, seed) if lens_sampled else None
     half = 0.5 * s.film_area_size
     if s.special:
         return zeros, pts * half
@@ -175,7 +181,6 @@ def sample_offsets(s: CameraSampling, pixels: np.ndarray, ks: np.ndarray, seed: 
     # permutation per pixel: any film stratum goes with any lens stratum (no correlation).
     # Without lens sampling there is nothing to decorrelate: sample k is stratum k, so
     # adaptive sampling's first two are the film area's opposite corners.
-    n = s.per_pixel
     perm = ks
     if lens_sampled:
         keys = _hash_uniform(
@@ -192,6 +197,7 @@ def sample_offsets(s: CameraSampling, pixels: np.ndarray, ks: np.ndarray, seed: 
 
 def camera_rays(
     spec: CameraSpec,
+    spp: int,
     view,
     width: int,
     height: int,
@@ -199,8 +205,8 @@ def camera_rays(
     ks: np.ndarray | None = None,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x), drawn
-    with the image's `seed`, and
+    """RAY records for samples `ks` (all by default) of `pixels` (ids y * width + x) at the
+    image's `spp` rays per pixel, drawn with the image's `seed`, and
     which of them left the camera, shape (len(pixels), len(ks)). Lost rays are not returned.
 
     Weights: 1 / (rays of the pixel) under "all", times the area the ray was drawn from
@@ -208,9 +214,9 @@ def camera_rays(
     its area ("all") or 1, `pixel` is the sample id pixel * N + k, and the node owning the
     pixel divides (it alone knows how many rays the pixel got)."""
     pixels = np.asarray(pixels, np.int64)
-    n = spec.per_pixel
+    n = spec.per_pixel(spp)
     ks = np.arange(n) if ks is None else np.asarray(ks, np.int64)
-    lens, film = sample_offsets(spec.sampling, pixels, ks, seed)
+    lens, film = sample_offsets(spec.sampling, n, pixels, ks, seed)
     k = len(ks)
     first = spec.elements[int(np.argmin(spec.elements["z"]))]
     ix, iy = pixels % width, pixels // width
@@ -235,7 +241,7 @@ def camera_rays(
         through(o, d, spec.elements, False, alive)
     alive2 = alive.reshape(len(pixels), k)
     left = spec.sampling.adaptation == "left"
-    if spec.adaptive:
+    if spec.adaptive(spp):
         share = np.ones(len(o)) if left else area
         ids = (pixels[:, None] * n + ks[None, :]).ravel()
     else:
@@ -288,6 +294,7 @@ def aim_points(spec: CameraSpec, fx, fy, lens):
 
 def camera_batches(
     spec: CameraSpec,
+    spp: int,
     view,
     width: int,
     height: int,
@@ -295,11 +302,11 @@ def camera_batches(
     seed: int = 0,
     rays_per_batch: int = 16384,
 ):
-    """Camera rays of `pixels` in batches of about `rays_per_batch` (bounded memory at any
-    number of rays per pixel)."""
-    step = max(1, rays_per_batch // spec.per_pixel)
+    """Camera rays of `pixels` at `spp` rays per pixel in batches of about `rays_per_batch`
+    (bounded memory at any number of rays per pixel)."""
+    step = max(1, rays_per_batch // spec.per_pixel(spp))
     for i in range(0, len(pixels), step):
-        yield camera_rays(spec, view, width, height, pixels[i : i + step], seed=seed)[0]
+        yield camera_rays(spec, spp, view, width, height, pixels[i : i + step], seed=seed)[0]
 
 
 def rect_pixels(rect, width: int) -> np.ndarray:

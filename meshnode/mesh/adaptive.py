@@ -66,10 +66,11 @@ def deposit_routes(sample_ids, n, first, width, height, index: RectIndex):
     return key % len(pixels), key // len(pixels) - 1
 
 
-def pass_samples(spec: CameraSpec) -> tuple[np.ndarray, np.ndarray]:
-    """The sample indices of pass 1 (a pixel's two corners) and of pass 2 (the rest)."""
-    first = first_pass(spec)
-    return first, np.setdiff1d(np.arange(spec.per_pixel), first)
+def pass_samples(spec: CameraSpec, spp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sample indices of pass 1 (a pixel's two corners) and of pass 2 (the rest), at the
+    image's `spp` rays per pixel."""
+    first = first_pass(spec, spp)
+    return first, np.setdiff1d(np.arange(spec.per_pixel(spp)), first)
 
 
 def split(idx: np.ndarray, per_pixel: int):
@@ -83,10 +84,10 @@ class AdaptiveFilm:
     colours over the rectangle and a one-pixel halo around it (their deposits come from the
     nodes owning those pixels)."""
 
-    def __init__(self, spec: CameraSpec, rect, width: int, height: int, seed: int = 0):
-        self.spec, self.width, self.seed = spec, width, seed
-        self.n = spec.per_pixel
-        self.first, self.rest = pass_samples(spec)
+    def __init__(self, spec: CameraSpec, spp: int, rect, width: int, height: int, seed: int = 0):
+        self.spec, self.spp, self.width, self.seed = spec, spp, width, seed
+        self.n = spec.per_pixel(spp)
+        self.first, self.rest = pass_samples(spec, spp)
         x0, x1, y0, y1 = self.rect = tuple(int(v) for v in rect)
         self.pixels = rect_pixels(self.rect, width)
         self.halo = (max(x0 - 1, 0), min(x1 + 1, width), max(y0 - 1, 0), min(y1 + 1, height))
@@ -106,7 +107,7 @@ class AdaptiveFilm:
         view, pixel, sample and seed, so the thief makes the very same ones."""
         samples = self.rest if refine else self.first
         rays, alive = camera_rays(
-            self.spec, view, width, height, self.pixels[idx], samples, self.seed
+            self.spec, self.spp, view, width, height, self.pixels[idx], samples, self.seed
         )
         if not refine:
             self.corner_alive[idx] = alive

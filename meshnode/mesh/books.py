@@ -43,7 +43,7 @@ class NodeBooks:
         self.films: list[AdaptiveFilm] = []
         self.every_rect = RectIndex(part.rects, spec.image.size[0])
         self.film_at = np.full(len(part.rects), -1, np.int64)  # rectangle -> own film
-        self.samples = pass_samples(spec.camera)  # (pass 1's, pass 2's sample indices)
+        self.samples = pass_samples(spec.camera, spec.image.spp)  # (pass 1's, pass 2's)
         # rectangle -> node; under dynamic tiles -1 until the host says (`learn_owners`)
         self.rect_owner = (
             np.full(len(part.rects), -1, np.int64)
@@ -60,8 +60,10 @@ class NodeBooks:
 
     def _add_film(self, tile: int) -> AdaptiveFilm:
         """Books for an own rectangle (or a dealt tile) of the adaptive render."""
-        w, h = self.spec.image.size
-        film = AdaptiveFilm(self.spec.camera, self.part.rects[tile], w, h, self.spec.image.seed)
+        image = self.spec.image
+        film = AdaptiveFilm(
+            self.spec.camera, image.spp, self.part.rects[tile], *image.size, image.seed
+        )
         self.film_at[tile] = len(self.films)
         self.films.append(film)
         return film
@@ -159,12 +161,12 @@ class NodeBooks:
 
     def _stolen_batches(self, chunks: list, refine: bool):
         """The rays of chunks whose books their owner keeps, for one adaptive pass."""
-        w, h = self.spec.image.size
+        image, (w, h) = self.spec.image, self.spec.image.size
         samples = self.samples[1 if refine else 0]
         pixels = np.concatenate([rect_pixels(c, w) for c in chunks])
         for part in split(pixels, len(samples)):
             yield camera_rays(
-                self.spec.camera, self.view, w, h, part, samples, self.spec.image.seed
+                self.spec.camera, image.spp, self.view, w, h, part, samples, image.seed
             )[0]
 
     def learn_owners(self, owners: np.ndarray) -> None:
@@ -238,9 +240,9 @@ class NodeBooks:
 
     def _routes(self, deposits):
         """(deposit index, rectangle) pairs of `adaptive.deposit_routes` inside the image."""
-        camera, (w, h) = self.spec.camera, self.spec.image.size
+        camera, image, (w, h) = self.spec.camera, self.spec.image, self.spec.image.size
         idx, rect = deposit_routes(
-            deposits["pixel"], camera.per_pixel, self.samples[0], w, h, self.every_rect
+            deposits["pixel"], camera.per_pixel(image.spp), self.samples[0], w, h, self.every_rect
         )
         return idx[rect >= 0], rect[rect >= 0]
 

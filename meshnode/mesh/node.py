@@ -142,7 +142,7 @@ class NodeCore:
         per_cell(lit_deposits(ray, np.ones((1, 3))).repeat(2), 1)
         if self.spec.camera is not None:
             view = View((0, 0, 0), (0, 0, 1), (0, 1, 0), 45.0)
-            camera_rays(self.spec.camera, view, 1, 1, np.zeros(1, int))
+            camera_rays(self.spec.camera, self.spec.image.spp, view, 1, 1, np.zeros(1, int))
 
     def primaries(self, state: State) -> Primaries:
         """Batches of this node's primary rays for a state of the render: every eye or camera
@@ -204,7 +204,7 @@ class NodeCore:
             return self._eye_batches(rect)
         w, h = image.size
         return camera_batches(
-            camera, self.view, w, h, rect_pixels(rect, w), image.seed, RAYS_PER_BATCH
+            camera, image.spp, self.view, w, h, rect_pixels(rect, w), image.seed, RAYS_PER_BATCH
         )
 
     def add_tiles(self, tiles: list[int], last: bool, owners=()) -> dict[int, np.ndarray]:

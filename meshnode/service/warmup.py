@@ -97,4 +97,4 @@ def _common_warmup() -> None:
     lens = np.zeros(1, dtypes.ELEMENT)
     lens["kind"], lens["focal"], lens["ax"], lens["ay"] = dtypes.THIN_LENS, 0.05, 0.01, 0.01
     spec = CameraSpec(lens, 0.036, 0.024, -0.051)
-    camera_rays(spec, view, 1, 1, np.zeros(1, int))
+    camera_rays(spec, 16, view, 1, 1, np.zeros(1, int))

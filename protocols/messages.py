@@ -11,8 +11,10 @@ import numpy as np
 
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
+from protocols.scene import TABLE_DTYPES
 
-# 12: CameraSampling.rays gone (CONFIG's camera takes its rays per pixel from ImageSpec.spp);
+# 12: CameraSampling.rays gone (CONFIG's camera takes its rays per pixel from ImageSpec.spp),
+# CONFIG.scene (protocols.scene.SceneHeader) for CONFIG.view and CONFIG.background;
 # 11: PROGRESS.setup (where a node's setup is: SETUP_STEPS); 10: termination waves (STATE down
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
@@ -71,15 +73,15 @@ FIELDS = {
         "render": bytes,
         "memory": int,
     },
-    # render: protocols.render.RenderSpec, partition: protocols.partition.Partition (wire forms);
+    # render: protocols.render.RenderSpec, partition: protocols.partition.Partition, scene:
+    # protocols.scene.SceneHeader (wire forms);
     # render_id: this render's random id (a new one for every try at a frame)
     Kind.CONFIG: {
         "node": int,
         "neighbours": dict,
         "render": dict,
         "partition": dict,
-        "view": dict,
-        "background": list,
+        "scene": dict,
         "render_id": bytes,
     },
     Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
@@ -114,15 +116,7 @@ FIELDS = {
     Kind.STEAL: {"node": int},
     Kind.GIVE: {"chunks": list},
 }
-OBJECT_TABLES = {
-    "spheres": dtypes.SPHERE,
-    "triangles": dtypes.TRIANGLE,
-    "polygons": dtypes.POLYGON,
-    "cones": dtypes.CONE,
-    "vertices": np.dtype("<f8"),
-    "materials": dtypes.MATERIAL,
-    "lights": dtypes.LIGHT,
-}
+OBJECT_TABLES = TABLE_DTYPES  # OBJECTS.table: each scene table's records
 
 
 def _check(kind: Kind, name: str, value, want) -> None:

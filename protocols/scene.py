@@ -4,7 +4,7 @@ Independent of the file format: the NFF reader fills it, the engine builds its k
 from it, and the mesh downloads slices of it.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -73,6 +73,56 @@ def _empty(dtype):
 OBJECT_KINDS = ("spheres", "triangles", "polygons", "cones")
 # every record array of a scene: what its memory is counted from
 SCENE_TABLES = (*OBJECT_KINDS, "vertices", "materials", "lights")
+# each table's records as they travel (OBJECTS): vertices flat, three numbers a vertex
+TABLE_DTYPES = {
+    "spheres": dtypes.SPHERE,
+    "triangles": dtypes.TRIANGLE,
+    "polygons": dtypes.POLYGON,
+    "cones": dtypes.CONE,
+    "vertices": np.dtype("<f8"),
+    "materials": dtypes.MATERIAL,
+    "lights": dtypes.LIGHT,
+}
+assert set(TABLE_DTYPES) == set(SCENE_TABLES)
+
+
+@dataclass(frozen=True)
+class SceneHeader:
+    """What of a scene is not its objects: the view and the background colour. CONFIG
+    carries it (`to_wire`); the objects follow as OBJECTS tables (`SceneData.tables`)."""
+
+    view: View
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def to_wire(self) -> dict:
+        return {"view": asdict(self.view), "background": [float(c) for c in self.background]}
+
+    @classmethod
+    def from_wire(cls, wire) -> "SceneHeader":
+        """The header a peer sent, checked: ValueError naming the field (a view every node
+        can build a camera from, a background of three finite numbers)."""
+        if not isinstance(wire, dict) or set(wire) != {"view", "background"}:
+            raise ValueError("scene: want a map of view and background")
+        view = wire["view"]
+        if not isinstance(view, dict):
+            raise ValueError("scene.view: want a map")
+        try:
+            view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in view.items()})
+        except TypeError as e:  # a field missing or unknown
+            raise ValueError(f"scene.view: {e}") from None
+        except ValueError as e:  # View's own checks, which name it ("view: ...")
+            raise ValueError(f"scene.{e}") from None
+        background = wire["background"]
+        if not (
+            isinstance(background, list)
+            and len(background) == 3
+            and all(
+                isinstance(c, int | float) and not isinstance(c, bool) and np.isfinite(c)
+                for c in background
+            )
+        ):
+            raise ValueError("scene.background must be three finite numbers")
+        return cls(view, tuple(float(c) for c in background))
 
 
 @dataclass
@@ -89,6 +139,37 @@ class SceneData:
     vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     cones: np.ndarray = _empty(dtypes.CONE)
     source: str = "<memory>"
+
+    @property
+    def header(self) -> SceneHeader:
+        return SceneHeader(self.view, tuple(float(c) for c in self.background))
+
+    def tables(self) -> dict[str, np.ndarray]:
+        """Every record array by table name (`TABLE_DTYPES`), vertices flat: what OBJECTS
+        carries of this scene, materials and lights first."""
+        return {
+            "materials": self.materials,
+            "lights": self.lights,
+            **{kind: getattr(self, kind) for kind in OBJECT_KINDS},
+            "vertices": self.vertices.reshape(-1),
+        }
+
+    @classmethod
+    def from_tables(cls, header: SceneHeader, tables: dict, source: str = "<memory>"):
+        """The scene of `header` and record arrays by table name (`tables()`' form; a table
+        not given is empty)."""
+
+        def table(name):
+            got = tables.get(name)
+            return got if got is not None else np.zeros(0, TABLE_DTYPES[name])
+
+        return cls(
+            view=header.view,
+            background=header.background,
+            **{name: table(name) for name in SCENE_TABLES if name != "vertices"},
+            vertices=table("vertices").reshape(-1, 3),
+            source=source,
+        )
 
     @property
     def n_objects(self) -> int:

@@ -162,7 +162,7 @@ def test_a_node_takes_objects_only_of_itself_and_its_linked_neighbours():
     with pytest.raises(BadFrame, match="node = 4: this render downloads objects of 0, 1, 2, 3, 6"):
         objects.add(4, "materials", materials)
     with pytest.raises(BadFrame, match="OBJECTS: none came for node 1"):
-        objects.scene(1, c.view, c.background)
+        objects.scene(1, c.scene)
     assert Config(config(node=0, plan=MeshPlan(3, 3))).copies == []
     with pytest.raises(SpecError, match="MeshPlan.copies"):
         MeshPlan(2, 2, mode="image", copies=True)

@@ -569,7 +569,9 @@ def test_config_refuses_bad_fields_with_spec_error_bad_frame_or_value_error(fiel
     plan = cfg.render.plan
     assert 0 <= cfg.node < plan.nodes == cfg.partition.nodes == cfg.torus.size
     assert all(isinstance(cfg.neighbours[str(m)], str) for m in cfg.torus.links(cfg.node))
-    assert all(math.isfinite(x) for v in (cfg.view.eye, cfg.view.at, cfg.view.up) for x in v)
+    view = cfg.scene.view
+    assert all(math.isfinite(x) for v in (view.eye, view.at, view.up) for x in v)
+    assert len(cfg.scene.background) == 3 and all(map(math.isfinite, cfg.scene.background))
 
 
 # ------------------------------------------------------------------ NFF

@@ -2,7 +2,6 @@
 that it cannot serve. No subprocesses; every wait is bounded."""
 
 import asyncio
-from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -14,7 +13,7 @@ from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.messages import Kind, make
 from protocols.partition import Partition
 from protocols.render import ImageSpec, MeshPlan, RenderSpec
-from protocols.scene import View
+from protocols.scene import SceneHeader, View
 
 VIEW = View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0)
 
@@ -35,8 +34,7 @@ def config(node=0, plan=None, **render_wire):
         neighbours={str(m): "127.0.0.1:9" for m in range(n)},
         render=render,
         partition=part.to_wire(),
-        view=asdict(VIEW),
-        background=[0, 0, 0],
+        scene=SceneHeader(VIEW).to_wire(),
         render_id=b"r" * 16,
     )
 

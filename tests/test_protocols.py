@@ -247,3 +247,55 @@ def test_traced_tiles_counts_a_host_adds_up_are_checked(counts):
     assert parse(good)[1]["counts"] == {"eye_rays": 5}
     with pytest.raises(BadFrame, match="TILES_TRACED.counts"):
         parse({**good, "counts": counts})
+
+
+def test_a_scene_travels_as_its_header_and_tables_and_comes_back_whole():
+    # The one wire form of a scene: CONFIG carries the header (view, background), OBJECTS
+    # every table by name; put back together on the node they are the host's scene.
+    from protocols.scene import SCENE_TABLES, SceneData, SceneHeader
+    from tests.conftest import make_scene
+
+    scene = make_scene(
+        spheres=[((0, 0, 5), 1.0, 0), ((1, 0, 6), 0.5, 0)],
+        lights=[(0, 5, 0)],
+        background=(0.1, 0.2, 0.3),
+    )
+    wire = parse(make(Kind.CONFIG, **_config_fields(scene.header.to_wire())))[1]["scene"]
+    tables = {
+        name: parse(make(Kind.OBJECTS, table=name, records=records, node=0, last=False))[1][
+            "records"
+        ]
+        for name, records in scene.tables().items()
+    }
+    assert set(tables) == set(SCENE_TABLES)
+    back = SceneData.from_tables(SceneHeader.from_wire(wire), tables)
+    assert back.header == scene.header
+    for name in SCENE_TABLES:
+        assert np.array_equal(getattr(back, name), getattr(scene, name)), name
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        ({"background": [0, 0]}, "scene.background must be three finite numbers"),
+        ({"background": [0, float("nan"), 0]}, "scene.background must be three finite"),
+        ({"background": [True, 0, 0]}, "scene.background must be three finite"),
+        ({"view": {"eye": [0, 0, 0]}}, "scene.view: "),
+        ({"view": []}, "scene.view: want a map"),
+        ({"extra": 1}, "scene: want a map of view and background"),
+    ],
+)
+def test_a_scene_header_from_a_peer_is_checked_by_field(change, message):
+    from protocols.scene import SceneHeader, View
+
+    wire = SceneHeader(View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0)).to_wire() | change
+    with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+        SceneHeader.from_wire(wire)
+    coincide = SceneHeader(View((0, 0, -5), (0, 0, 0), (0, 1, 0), 45.0)).to_wire()
+    coincide["view"]["at"] = [0, 0, -5]
+    with pytest.raises(ValueError, match=r"scene\.view: 'from' .* coincide"):
+        SceneHeader.from_wire(coincide)
+
+
+def _config_fields(scene: dict) -> dict:
+    return dict(node=0, neighbours={}, render={}, partition={}, scene=scene, render_id=b"r" * 16)

@@ -5,7 +5,6 @@ engines and render, a few a second, so they run in one lane of their own at the 
 import asyncio
 import math
 import time
-from dataclasses import asdict
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,20 +45,11 @@ def session_messages(scene: SceneData, plan: MeshPlan, n: int, image: ImageSpec)
         neighbours=neighbours,
         render=planned.spec.to_wire(),
         partition=planned.partition.to_wire(),
-        view=asdict(scene.view),
-        background=list(scene.background),
+        scene=scene.header.to_wire(),
         render_id=RENDER_ID,
     )
     scene = subset(scene, np.ones_like(planned.holders[n]))  # every object: one variant
-    tables = {
-        "materials": scene.materials,
-        "lights": scene.lights,
-        "spheres": scene.spheres,
-        "triangles": scene.triangles,
-        "polygons": scene.polygons,
-        "vertices": scene.vertices.reshape(-1),
-        "cones": scene.cones,
-    }
+    tables = scene.tables()
     return encode(config), tables
 
 
@@ -135,7 +125,7 @@ async def case_render(f: "Fuzzer") -> None:
     await c.handshake()
     config = FrameDecoder().feed(f.one[0])[0]
     if f.rng.random() < 0.2:
-        config["background"] = f.rng.choice(
+        config["scene"]["background"] = f.rng.choice(
             [[], [0.5], [1, 2, 3, 4], [math.nan] * 3, ["x", 0, 0], [[1, 2, 3]]]
         )
     c.send(encode(config))

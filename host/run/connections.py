@@ -7,7 +7,7 @@ import asyncio
 import secrets
 import ssl
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from meshnode.transport.link import Link, LinkClosed, dial
 from protocols.errors import ProtocolError, describe
 from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import Kind, make
-from protocols.scene import OBJECT_KINDS, SceneData
+from protocols.scene import SceneData
 
 OBJECT_BATCH = 20000  # records per OBJECTS message
 
@@ -98,8 +98,7 @@ async def configure(scene, planned: Planned, links: list[Link], addresses) -> No
                     neighbours=neighbours,
                     render=render,
                     partition=part,
-                    view=asdict(scene.view),
-                    background=list(scene.background),
+                    scene=scene.header.to_wire(),
                     render_id=render_id,
                 )
             )
@@ -115,12 +114,7 @@ async def download(link: Link, scenes: dict[int, SceneData]) -> None:
     own, and under MeshPlan.copies each linked neighbour's)."""
     parts = []
     for m, scene in scenes.items():
-        tables = [
-            ("materials", scene.materials),
-            ("lights", scene.lights),
-            *((kind, getattr(scene, kind)) for kind in OBJECT_KINDS),
-            ("vertices", scene.vertices.reshape(-1)),
-        ]
+        tables = scene.tables().items()
         own = [
             (m, n, t[i : i + OBJECT_BATCH])
             for n, t in tables

@@ -15,7 +15,7 @@ from protocols.handshake import RENDER_ID_BYTES
 from protocols.messages import OBJECT_TABLES
 from protocols.partition import Partition
 from protocols.render import RenderSpec
-from protocols.scene import MAX_COORDINATE, OBJECT_KINDS, SceneData, View
+from protocols.scene import MAX_COORDINATE, OBJECT_KINDS, SceneData, SceneHeader
 from protocols.spec import SpecError
 from protocols.topology import Torus
 
@@ -45,15 +45,9 @@ class Config:
             if not isinstance(self.neighbours.get(str(m)), str):
                 raise BadFrame(f"CONFIG.neighbours has no address for node {m}")
         try:
-            view = View(**{k: tuple(v) if isinstance(v, list) else v for k, v in f["view"].items()})
-        except (TypeError, ValueError) as e:
-            raise BadFrame(f"CONFIG.view: {e}") from None
-        background = np.asarray(f["background"], dtype=object)
-        if background.shape != (3,) or not all(
-            isinstance(c, int | float) and np.isfinite(c) for c in background
-        ):
-            raise BadFrame("CONFIG.background must be three finite numbers")
-        self.view, self.background = view, tuple(float(c) for c in background)
+            self.scene = SceneHeader.from_wire(f["scene"])
+        except ValueError as e:
+            raise BadFrame(f"CONFIG.{e}") from None
 
     @property
     def copies(self) -> list[int]:
@@ -86,30 +80,20 @@ class Objects:
         self.seen.add(node)
         self.tables.setdefault((node, table), []).append(np.array(records))
 
-    def scene(self, node: int, view: View, background) -> SceneData:
+    def scene(self, node: int, header: SceneHeader) -> SceneData:
         """Node `node`'s objects as a scene, checked first: every number finite, every
         material and polygon vertex index in range (a bad index would read outside an array
         in a kernel, a NaN could keep a ray walking forever)."""
         if node not in self.seen:
             raise BadFrame(f"OBJECTS: none came for node {node}")
-
-        def table(name):
-            parts = self.tables.get((node, name))
-            return np.concatenate(parts) if parts else np.zeros(0, OBJECT_TABLES[name])
-
-        tables = {name: table(name) for name in OBJECT_TABLES}
+        tables = {
+            name: np.concatenate(self.tables[node, name])
+            if (node, name) in self.tables
+            else np.zeros(0, OBJECT_TABLES[name])
+            for name in OBJECT_TABLES
+        }
         _check_objects(tables)
-        return SceneData(
-            view=view,
-            background=background,
-            lights=tables["lights"],
-            materials=tables["materials"],
-            spheres=tables["spheres"],
-            triangles=tables["triangles"],
-            polygons=tables["polygons"],
-            vertices=tables["vertices"].reshape(-1, 3),
-            cones=tables["cones"],
-        )
+        return SceneData.from_tables(header, tables)
 
 
 def _check_objects(tables: dict) -> None:

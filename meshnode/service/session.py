@@ -125,8 +125,8 @@ class Session(Driver):
             loop = asyncio.get_running_loop()
             c = self.config
             self.setup = "engine"
-            scene = self.objects.scene(self.node, c.view, c.background)
-            copies = {m: self.objects.scene(m, c.view, c.background) for m in c.copies}
+            scene = self.objects.scene(self.node, c.scene)
+            copies = {m: self.objects.scene(m, c.scene) for m in c.copies}
             with compile_clock() as clock:  # a first run's compiling, told apart in the stats
                 self.core = await loop.run_in_executor(
                     self.service.pool,

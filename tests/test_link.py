@@ -114,7 +114,7 @@ async def _until(ready, tries: int = 500) -> None:
 
 
 class FakeTransport:
-    """What `_Receiver` calls on a transport: pausing and resuming reading, counted."""
+    """What `Receiver` calls on a transport: pausing and resuming reading, counted."""
 
     def __init__(self):
         self.paused = 0
@@ -142,11 +142,11 @@ def _deliver(receiver, data: bytes, piece: int) -> int:
 
 
 def test_large_frames_are_received_in_place_and_reading_pauses_until_taken():
-    from meshnode.transport.link import READ_HIGH, _Receiver
+    from meshnode.transport.receiver import READ_HIGH, Receiver
     from protocols.framing import FrameDecoder, encode
 
     transport = FakeTransport()
-    receiver = _Receiver(None, transport, FrameDecoder(), b"", {"bytes_in": 0})
+    receiver = Receiver(None, transport, FrameDecoder(), b"", {"bytes_in": 0})
     rays = np.zeros(40_000, RAY)  # about 4 MB a frame: most of it read straight into place
     rays["pixel"] = np.arange(len(rays))
     frames = [encode(make(Kind.RAYS, rays=rays, dest=k)) for k in range(3)]

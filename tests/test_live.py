@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from host.live.monitor import RAY_KINDS, Monitor, preview_srgb8
+from host.live.figures import RAY_KINDS
+from host.live.frames import preview_srgb8
+from host.live.monitor import Monitor
 from host.live.server import LiveServer, parse_address
 from host.planning.request import Request
 from host.run.connections import Nodes

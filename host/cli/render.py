@@ -101,7 +101,7 @@ def _report(out, stats: dict, quiet: bool) -> None:
 def _mesh_summary(out, stats: dict) -> str:
     """The rays of a mesh render by kind, the rays passed between nodes, rays per second after
     setup (the live view's final figure) and the imbalance."""
-    from host.live.monitor import final_figures
+    from host.live.figures import final_figures
 
     rate = final_figures(stats)["rays_per_second"]
     r = {

@@ -9,14 +9,14 @@ copying and encoding a frame may take at most a fifth of the time between frames
 and frames are at most LONGEST apart.
 Frames before the end are previews, JPEG of an sRGB read from a table (a 1024x1024 frame
 in about 25 ms, where the exact PNG took 200 ms and, under load, set the next copy ten
-seconds off); the final frame is the exact PNG the render wrote.
+seconds off); the final frame is the exact PNG the render wrote. Frames are encoded in
+`frames`; node panels and the final figures are made in `figures`.
 
 Progress counts primary rays (or one process's batches) from the first traced one; rates
 and the ETA are over the last WINDOW seconds, not since the start: the showcase traces its
 sky, half its primary rays, in a seventh of the time.
 """
 
-import io
 import math
 import threading
 import time
@@ -24,17 +24,16 @@ from collections import deque
 
 import numpy as np
 
+from host.live.figures import final_figures, final_nodes, node_panel, rays_traced
+from host.live.frames import encode_jpeg, encode_png, preview_srgb8
 from host.run.framebuffer import Framebuffer, to_srgb8
 from protocols.messages import SETUP_STEPS
 from protocols.state import State
 
 STATES = [s.name.lower() for s in State]  # a node's state by its number in PROGRESS
-RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 BUDGET = 0.2  # share of the time between frames spent copying and encoding one
 LONGEST = 2.0  # seconds between frames at most (a cost measured under load runs long)
 WINDOW = 5.0  # seconds the recent rates (and so the ETA) are measured over
-LEVELS = 4096  # steps of the preview's linear-to-sRGB table
-QUALITY = 90  # the preview JPEG's
 
 
 class Monitor:
@@ -94,7 +93,7 @@ class Monitor:
             self.total, self.unit, self.done = total, unit, 0
             self.phase = "tracing" if one else "building"
             self.started = now if self.started is None else self.started
-            self.nodes = [_node(n, cols, objects[n], one) for n in range(rows * cols)]
+            self.nodes = [node_panel(n, cols, objects[n], one) for n in range(rows * cols)]
             self.since = [now] * len(self.nodes)
             self.primary, self.traced = Recent(), Recent()
             self.node_rates = [Recent() for _ in self.nodes]
@@ -135,7 +134,7 @@ class Monitor:
             wall = max(now - self.started, 1e-9)
             busy = min(cpu / (wall * threads), 1.0)
             node.update(state="trace", ready=True, busy=busy)
-            self._counted(now, 0, _traced(totals))
+            self._counted(now, 0, rays_traced(totals))
         self.pixels()  # the job's deposits are in the framebuffer
         self._changed()
 
@@ -187,7 +186,7 @@ class Monitor:
             self.phase, self.ended = "done", self.clock()
             self.version += 1
             self.figures = final_figures(stats)
-            self._final_nodes(stats)
+            self.nodes = final_nodes(stats, self.nodes, self.cols)
         self._changed()
 
     def fail(self, message: str) -> None:
@@ -314,67 +313,6 @@ class Monitor:
         shown["setup_seconds"] = now - self.since[n] if n < len(self.since) else 0.0
         return shown
 
-    def _final_nodes(self, stats: dict) -> None:
-        """Node panels from the statistics (the figures the STATS messages carried)."""
-        if "nodes" not in stats:  # one process
-            node = self.nodes[0] if self.nodes else _node(0, 1, 0)
-            threads = stats.get("threads", 1)
-            wall = max(stats.get("trace_seconds", 0.0), 1e-9)
-            busy = stats.get("trace_cpu_seconds", 0.0) / (wall * threads)
-            node.update(
-                state="done",
-                setup="ready",
-                traced=_traced(stats["rays"]),
-                busy=min(busy, 1.0),
-                objects=stats["engine"]["objects"],
-                rays_per_second=stats.get("rays_per_second") or 0.0,
-            )
-            self.nodes = [node]
-            return
-        nodes = []
-        tiles = stats.get("tiles_per_node") or [0] * len(stats["nodes"])
-        for n, s in enumerate(stats["nodes"]):
-            total = s["busy_seconds"] + s["idle_seconds"]
-            links = [
-                {"peer": int(p), "rays": v["rays_sent"], "bytes": v["bytes_out"]}
-                for p, v in sorted(s["links"].items(), key=lambda kv: int(kv[0]))
-            ]
-            node = _node(n, self.cols, s["objects"])
-            traced = _traced(s["rays"])
-            node.update(
-                state="done",
-                ready=True,
-                setup="ready",
-                traced=traced,
-                links=links,
-                busy=s["busy_seconds"] / total if total > 0 else 0.0,
-                tiles=tiles[n],
-                rays_per_second=traced / total if total > 0 else 0.0,
-            )
-            nodes.append(node)
-        self.nodes = nodes
-
-
-def _node(n: int, cols: int, objects: int, ready: bool = False) -> dict:
-    return {
-        "node": n,
-        "row": n // cols,
-        "col": n % cols,
-        "state": "trace" if ready else "download",
-        "ready": ready,
-        "setup": "ready" if ready else "objects",
-        "busy": 0.0,
-        "traced": 0,
-        "objects": objects,
-        "links": [],
-        "tiles": 0,
-    }
-
-
-def _traced(rays: dict) -> int:
-    """Rays of every kind traced (shadow rays included; the counts' other keys are not rays)."""
-    return int(sum(rays.get(k, 0) for k in RAY_KINDS))
-
 
 class Recent:
     """A count's rate over about the last `window` seconds: the latest point at or before
@@ -398,65 +336,6 @@ class Recent:
     def _trim(self, now: float) -> None:
         while len(self.points) > 1 and self.points[1][0] <= now - self.window:
             self.points.popleft()
-
-
-def final_figures(stats: dict) -> dict:
-    """Rays of every kind, rays per second and elapsed seconds as the command line's summary
-    prints them: one process, over its tracing (`trace_seconds`, `rays_per_second`); a mesh,
-    elapsed the render's wall time, rays per second over its wall time after setup (every
-    engine built, every link up)."""
-    if "nodes" not in stats:
-        seconds = stats.get("trace_seconds", 0.0)
-        return {
-            "rays": int(stats.get("total_rays", _traced(stats["rays"]))),
-            "rays_per_second": stats.get("rays_per_second") or 0.0,
-            "seconds": seconds,
-            "trace_seconds": seconds,
-        }
-    rays = _traced(stats["rays"])
-    trace = stats["wall_seconds"] - stats.get("setup_seconds", 0.0)
-    return {
-        "rays": rays,
-        "rays_per_second": rays / trace if trace > 0 else 0.0,
-        "seconds": stats["wall_seconds"],
-        "trace_seconds": trace,
-    }
-
-
-def _srgb_table() -> np.ndarray:
-    x = np.linspace(0.0, 1.0, LEVELS + 1)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-    return np.round(s * 255.0).astype(np.uint8)
-
-
-SRGB = _srgb_table()
-
-
-def preview_srgb8(fb: Framebuffer) -> np.ndarray:
-    """8-bit sRGB of a framebuffer by table (within a level of `to_srgb8`, a fifth of its
-    time): the previews only; the final image is converted exactly."""
-    linear = fb.image().astype(np.float32)
-    np.multiply(linear, LEVELS, out=linear)
-    np.clip(linear, 0, LEVELS, out=linear)
-    return SRGB[(linear + 0.5).astype(np.int32)]
-
-
-def encode_jpeg(rgb: np.ndarray) -> bytes:
-    """A preview frame: JPEG encodes a megapixel in milliseconds, PNG in a fifth of a second."""
-    from PIL import Image
-
-    out = io.BytesIO()
-    Image.fromarray(rgb, "RGB").save(out, format="JPEG", quality=QUALITY)
-    return out.getvalue()
-
-
-def encode_png(rgb: np.ndarray) -> bytes:
-    """8-bit RGB as PNG bytes, fast compression: frames go out several times a second."""
-    from PIL import Image
-
-    out = io.BytesIO()
-    Image.fromarray(rgb, "RGB").save(out, format="PNG", compress_level=1)
-    return out.getvalue()
 
 
 def strict(value):

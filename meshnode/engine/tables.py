@@ -33,8 +33,8 @@ class Geometry(NamedTuple):
     A kind the node does not hold is None. numba compiles out an `x is None` branch only when x
     is an argument of the compiled function that branches (inlined code included), never a
     field of a tuple: so the kernels that branch on kinds, or inline code that does
-    (`traverse.walk` and `brute_force`, `shade.normals`, `grid._touches`), take these fields as
-    arguments; the tracing entry points take the whole tuple and pass its fields on."""
+    (`traverse.walk` and `brute_force`, `shade.normals`, `voxelize._touches`), take these fields
+    as arguments; the tracing entry points take the whole tuple and pass its fields on."""
 
     gid: np.ndarray  # (n,) int32 scene object id per local id
     off: np.ndarray  # (5,) int64 first local id of spheres, triangles, polygons, cones; then n

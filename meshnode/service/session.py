@@ -31,9 +31,10 @@ from meshnode.service.inbound import (
     checked_echo,
     checked_probe,
 )
+from meshnode.service.reports import progress_message, stats_message
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
-from protocols.messages import SETUP_STEPS, Kind, make
+from protocols.messages import Kind, make
 from protocols.state import State, states_of
 from protocols.topology import Router
 
@@ -100,23 +101,9 @@ class Session(Driver):
             self.progress(0)
 
     def progress(self, rays: int) -> None:
-        """Primary rays just traced, and what the host's live view shows of this node (its
-        setup step too: before it traces, the page says what it is doing)."""
-        links = {m: o.link.stats for m, o in self.outboxes.items()}
-        objects = self.core.engine.stats["objects"] if self.core is not None else 0
-        self.host_out.post(
-            make(
-                Kind.PROGRESS,
-                node=self.node,
-                rays=rays,
-                work=self.stats.batches,
-                ready=self.ready,
-                state=int(self.sched.state),
-                objects=objects,
-                setup=SETUP_STEPS.index(self.setup),
-                **self.stats.live(links),
-            )
-        )
+        """Primary rays just traced, to the host with what its live view shows of this node
+        (`reports.progress_message`)."""
+        self.host_out.post(progress_message(self, rays))
 
     # ------------------------------------------------------------------ setup
     async def build(self) -> None:
@@ -370,24 +357,8 @@ class Session(Driver):
         self.stats.counts["refined_pixels"] = self.core.refined_pixels
 
     def report(self) -> None:
-        """The node's STATS to the host."""
-        links = {m: o.link.stats | {"tls": o.link.tls} for m, o in self.outboxes.items()}
-        report = self.stats.report(self.core.engine.stats, links)
-        report["waves"] = self.sched.term.wave
-        report["engine_reused"] = self.core.engine_reused
-        report["copies"] = {str(m): e.stats for m, e in self.core.copies.items()}
-        report["chunks_given"] = self.sched.chunks_given  # taken by neighbours (steal)
-        report["chunks_taken"] = self.sched.chunks_taken
-        report["chunks_given_by_state"] = dict(self.sched.given_in)
-        report["setup_seconds"] = self.setup_seconds  # CONFIG to engine built, links up
-        report["compile_seconds"] = self.compile_seconds  # ... of which compiling kernels
-        report["engine_bytes_held"] = self.core.engine_bytes  # its own engine and copies
-        # the whole process's CPU from the frame's start (kernels, routing, deposits,
-        # framing, the event loop): what a node's speedup counts
-        report["frame_cpu_seconds"] = time.process_time() - self.frame_cpu_start
-        # ... of which in the operating system (sockets, TCP, page faults)
-        report["frame_system_cpu_seconds"] = os.times().system - self.frame_sys_start
-        self.host_out.post(make(Kind.STATS, node=self.node, stats=report))
+        """The node's STATS to the host (`reports.stats_message`)."""
+        self.host_out.post(stats_message(self))
 
     async def close(self) -> None:
         """Cancel and await every task of this render, then drop its neighbour links: the

@@ -1,4 +1,4 @@
-"""One TCP connection carrying frames: the only code that touches streams.
+"""One TCP connection carrying frames: with `receiver`, the only code that touches streams.
 
 `send` writes a frame and waits for the transport to drain above a high-water mark (so a slow
 peer slows the sender instead of growing its memory); `recv` returns the next checked
@@ -11,8 +11,7 @@ import ssl
 import time
 from collections import deque
 
-import numpy as np
-
+from meshnode.transport.receiver import Receiver
 from protocols.errors import AuthFailed, ProtocolError, describe
 from protocols.framing import MAX_FRAME, FrameDecoder, encode
 from protocols.handshake import auth, check_auth, check_hello, hello, nonce
@@ -47,101 +46,6 @@ class SendFailed(RuntimeError):
         self.__cause__ = cause
 
 
-READ_HIGH = 8 * 1024 * 1024  # bytes of decoded frames not yet taken before reading pauses
-SCRATCH = 256 * 1024  # small frames and prefixes are read into this, then framed
-
-
-class _Receiver(asyncio.BufferedProtocol):
-    """Reads a link's bytes straight into the frames they belong to: a large frame's payload
-    is received into its own buffer (the one copy on this side: no stream buffer, no bytes
-    object per read), small frames through a scratch buffer. Reading pauses while more than
-    READ_HIGH bytes of decoded frames wait to be taken, so a consumer that stops taking
-    (back-pressure) stops the sender through TCP. Writing's flow control and the close
-    stay with the stream protocol it replaces (`writer.drain`, `wait_closed`)."""
-
-    def __init__(
-        self, stream: asyncio.BaseProtocol, transport, decoder: FrameDecoder, held, stats: dict
-    ):
-        self.stream, self.transport, self.decoder = stream, transport, decoder
-        self.stats = stats  # the link's: bytes_in counts what arrives, as it arrives
-        self.ready: deque = deque()  # messages decoded, not yet taken
-        self.error: BaseException | None = None
-        self.closed = False
-        self.waiter: asyncio.Future | None = None
-        self.paused = False
-        # a memoryview, never the bytearray: asyncio's TLS reader fills `buf[offset:]`,
-        # which of a bytearray is a copy (a frame then decoded from stale bytes)
-        self.scratch = memoryview(bytearray(SCRATCH))
-        self.direct = False
-        if held:  # bytes the stream reader took before the swap: a bad frame among them is
-            # the first receive's error, as one read later would be (raised here, it left
-            # the connection open and unread, and the node's accept with a traceback)
-            try:
-                self._take(self.decoder.feed(held))
-            except ProtocolError as e:
-                self.error = e
-                transport.pause_reading()
-
-    def get_buffer(self, sizehint: int):
-        target = self.decoder.buffer(SCRATCH)
-        self.direct = target is not None
-        return target if self.direct else self.scratch
-
-    def buffer_updated(self, nbytes: int) -> None:
-        self.stats["bytes_in"] += nbytes
-        try:
-            if self.direct:
-                self._take(self.decoder.wrote(nbytes))
-            else:
-                self._take(self.decoder.feed(self.scratch[:nbytes]))
-        except ProtocolError as e:
-            self.error = e
-            self.transport.pause_reading()
-        self._wake()
-
-    def _take(self, messages: list) -> None:
-        self.ready.extend(messages)
-        if messages and not self.paused and self._queued_bytes() > READ_HIGH:
-            self.paused = True
-            self.transport.pause_reading()
-
-    def _queued_bytes(self) -> int:
-        return sum(_nbytes(m) for m in self.ready)
-
-    def taken(self) -> None:
-        """A message was taken: reading resumes once the rest are under READ_HIGH."""
-        if self.paused and self._queued_bytes() <= READ_HIGH // 2 and self.error is None:
-            self.paused = False
-            self.transport.resume_reading()
-
-    def _wake(self) -> None:
-        if self.waiter is not None and not self.waiter.done():
-            self.waiter.set_result(None)
-
-    def eof_received(self):
-        self.closed = True
-        self._wake()
-        return False  # close the transport
-
-    def connection_lost(self, exc) -> None:
-        self.closed = True
-        if exc is not None and self.error is None:
-            self.error = exc
-        self._wake()
-        self.stream.connection_lost(exc)
-
-    def pause_writing(self) -> None:
-        self.stream.pause_writing()
-
-    def resume_writing(self) -> None:
-        self.stream.resume_writing()
-
-
-def _nbytes(message: dict) -> int:
-    """The bytes of a decoded message's arrays (what it holds of the payload)."""
-    return sum(v.nbytes for v in message.values() if isinstance(v, np.ndarray)) + 64
-
-
 class Link:
     def __init__(
         self,
@@ -157,8 +61,8 @@ class Link:
         self.stats = {"messages_out": 0, "bytes_out": 0, "messages_in": 0, "bytes_in": 0}
         self._receiver = self._receive_directly()
 
-    def _receive_directly(self) -> "_Receiver | None":
-        """Swap the stream reader for a `_Receiver` on this connection's transport (None
+    def _receive_directly(self) -> "Receiver | None":
+        """Swap the stream reader for a `Receiver` on this connection's transport (None
         where the transport cannot: a test's fake writer); what the reader already holds is
         framed first."""
         transport = getattr(self.writer, "transport", None)
@@ -169,7 +73,7 @@ class Link:
         if held:
             self.reader._buffer.clear()
         self.stats["bytes_in"] += len(held)
-        receiver = _Receiver(stream, transport, self._decoder, held, self.stats)
+        receiver = Receiver(stream, transport, self._decoder, held, self.stats)
         transport.set_protocol(receiver)
         return receiver
 
@@ -263,8 +167,8 @@ class Link:
         self.stats["messages_in"] += 1
         return self._ready.pop(0)
 
-    async def _recv_direct(self, r: _Receiver) -> dict:
-        """The next message `_Receiver` decoded; a bad frame or a closed connection becomes
+    async def _recv_direct(self, r: Receiver) -> dict:
+        """The next message `Receiver` decoded; a bad frame or a closed connection becomes
         LinkClosed as on the stream path."""
         while not r.ready:
             if r.error is not None:

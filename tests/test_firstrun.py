@@ -34,7 +34,7 @@ def test_each_step_that_compiled_is_said_with_its_seconds_and_the_steps_after_it
     split = setup.seconds()
     assert split["compile_seconds"] == 5.7
     # the steps' own time apart from compiling (the fake compiles took no time: none left)
-    assert split["setup_seconds"] == 0.0 and 0 <= split["load_seconds"] < 0.5
+    assert split["build_seconds"] == 0.0 and 0 <= split["load_seconds"] < 0.5
     assert set(setup.steps) == set(STEPS)
 
 

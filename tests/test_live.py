@@ -172,8 +172,11 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 stats = {
                     "nodes": [node_stats(0, 5, 0.25), node_stats(1, 9, 0.5)],
                     "rays": {"eye_rays": 12, "shadow_rays": 14, "eye_hits": 99},
+                    "total_rays": 26,
                     "wall_seconds": 3.0,
                     "setup_seconds": 1.0,
+                    "trace_seconds": 2.0,
+                    "rays_per_second": 13.0,
                     "odd": float("inf"),
                 }
                 monitor.finish(fb.image(), stats)
@@ -254,7 +257,7 @@ def test_the_eta_follows_the_recent_rate():
 
 
 def test_the_final_figures_are_the_statistics():
-    """One process: rays of every kind, rays/s and trace seconds as the summary prints them."""
+    """Rays of every kind, rays/s and wall seconds as the summary prints them."""
     monitor = Monitor()
     fb = Framebuffer(2, 2, corners=False)
     monitor.start(fb, 1, 1, [3], total=4, unit="batches")
@@ -263,12 +266,13 @@ def test_the_final_figures_are_the_statistics():
         "rays": rays | {"eye_hits": 3},
         "total_rays": 12,
         "trace_seconds": 0.5,
+        "wall_seconds": 0.75,
         "rays_per_second": 24.0,
         "engine": {"objects": 3},
     }
     monitor.finish(fb.image(), stats)
     p = monitor.status()["progress"]
-    assert (p["traced"], p["rays_per_second"], p["elapsed_seconds"]) == (12, 24.0, 0.5)
+    assert (p["traced"], p["rays_per_second"], p["elapsed_seconds"]) == (12, 24.0, 0.75)
     assert monitor.status()["nodes"][0]["rays_per_second"] == 24.0
 
 

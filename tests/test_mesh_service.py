@@ -19,6 +19,7 @@ from host.run.framebuffer import read_pfm
 from host.run.localmesh import LocalMesh
 from host.run.meshclient import render_on_mesh
 from host.run.oneprocess import render
+from host.run.summary import COMMON, summary_line
 from host.scene.nff import read_nff
 from meshnode.engine.counters import RAY_COUNTS
 from protocols.render import MeshPlan
@@ -78,6 +79,17 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     assert all(n["waves"] >= 3 for n in nodes)
     assert all(50e6 < n["peak_rss_bytes"] < 4e9 for n in nodes)  # reported, and plausible
     assert len(nodes) == rows * cols
+    # One statistics record: the figures every render carries mean the same both ways, and
+    # one summary prints either.
+    for key in ("scene", "image", "engine_spec", "total_rays"):
+        assert stats[key] == ref_stats[key], key
+    for s in (stats, ref_stats):
+        assert set(COMMON) <= set(s)
+        assert s["wall_seconds"] == pytest.approx(s["setup_seconds"] + s["trace_seconds"])
+        assert s["rays_per_second"] == pytest.approx(s["total_rays"] / s["trace_seconds"])
+        line = summary_line("out.png", s)
+        assert f"40x40  eye {s['rays']['eye_rays']} (hit {s['rays']['eye_hits']})" in line
+        assert f"wall {s['wall_seconds']:.3f} s  {s['rays_per_second']:.0f} rays/s" in line
 
 
 def test_dead_node_stops_the_render_naming_it_when_told_to_fail():

@@ -24,6 +24,7 @@ from host.run.localmesh import LocalMesh
 from host.run.meshclient import primary_rays, render_on_mesh
 from host.run.oneprocess import render
 from host.run.outputs import output_paths, write_images
+from host.run.summary import summary_line
 from host.scene.formats import SceneError, read_scene
 from meshnode.transport.tls import TlsFiles
 from protocols.camera import CameraSampling
@@ -93,51 +94,7 @@ def _report(out, stats: dict, quiet: bool) -> None:
             file=sys.stderr,
         )
     if not quiet:
-        print(
-            _mesh_summary(out, stats) if "mesh" in stats else _summary(out, stats), file=sys.stderr
-        )
-
-
-def _mesh_summary(out, stats: dict) -> str:
-    """The rays of a mesh render by kind, the rays passed between nodes, rays per second after
-    setup (the live view's final figure) and the imbalance."""
-    from host.live.figures import final_figures
-
-    rate = final_figures(stats)["rays_per_second"]
-    r = {
-        k: stats["rays"].get(k, 0)
-        for k in (
-            "eye_rays",
-            "reflected_rays",
-            "refracted_rays",
-            "shadow_rays",
-            "shadow_rays_blocked",
-        )
-    }
-    return (
-        f"{out}: mesh {stats['mesh']['rows']}x{stats['mesh']['cols']}  eye {r['eye_rays']}"
-        f"  reflected {r['reflected_rays']}  refracted {r['refracted_rays']}  shadow "
-        f"{r['shadow_rays']} (blocked {r['shadow_rays_blocked']})  passed "
-        f"{stats['rays_passed']}  setup {stats['setup_seconds']:.2f} s (compile "
-        f"{stats['compile_seconds']:.1f} s)  wall {stats['wall_seconds']:.2f} s  {rate:.0f} "
-        f"rays/s  imbalance "
-        f"{stats['imbalance']:.2f}"
-    )
-
-
-def _summary(out, stats: dict) -> str:
-    """The rays of a one-process render by kind, its times and the engine's work per ray."""
-    r = stats["rays"]
-    return (
-        f"{out}: {stats['image']['width']}x{stats['image']['height']}  "
-        f"eye {r['eye_rays']} (hit {r['eye_hits']})  reflected {r['reflected_rays']}  "
-        f"refracted {r['refracted_rays']}  shadow {r['shadow_rays']} "
-        f"(blocked {r['shadow_rays_blocked']})\n"
-        f"compile {stats['compile_seconds']:.1f} s  load {stats['load_seconds']:.2f} s  setup "
-        f"{stats['setup_seconds']:.3f} s  trace {stats['trace_seconds']:.3f} s"
-        f"  {stats['rays_per_second']:.0f} rays/s  tests/ray {stats['tests_per_ray']:.2f}  "
-        f"steps/ray {stats['steps_per_ray']:.2f}  [{stats['engine']['kernel_variant']}]"
-    )
+        print(summary_line(out, stats), file=sys.stderr)
 
 
 def _serve(args):

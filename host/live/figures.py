@@ -74,22 +74,11 @@ def final_nodes(stats: dict, nodes: list[dict], cols: int) -> list[dict]:
 
 def final_figures(stats: dict) -> dict:
     """Rays of every kind, rays per second and elapsed seconds as the command line's summary
-    prints them: one process, over its tracing (`trace_seconds`, `rays_per_second`); a mesh,
-    elapsed the render's wall time, rays per second over its wall time after setup (every
-    engine built, every link up)."""
-    if "nodes" not in stats:
-        seconds = stats.get("trace_seconds", 0.0)
-        return {
-            "rays": int(stats.get("total_rays", rays_traced(stats["rays"]))),
-            "rays_per_second": stats.get("rays_per_second") or 0.0,
-            "seconds": seconds,
-            "trace_seconds": seconds,
-        }
-    rays = rays_traced(stats["rays"])
-    trace = stats["wall_seconds"] - stats.get("setup_seconds", 0.0)
+    prints them (`host.run.summary.summary_line`): the render's COMMON figures, one process
+    or a mesh alike (rays per second over the seconds after setup, elapsed its wall)."""
     return {
-        "rays": rays,
-        "rays_per_second": rays / trace if trace > 0 else 0.0,
+        "rays": int(stats["total_rays"]),
+        "rays_per_second": stats["rays_per_second"],
         "seconds": stats["wall_seconds"],
-        "trace_seconds": trace,
+        "trace_seconds": stats["trace_seconds"],
     }

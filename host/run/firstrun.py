@@ -34,13 +34,13 @@ class Setup:
 
     def seconds(self) -> dict[str, float]:
         """compile: numba compiling; load: kernels loaded from the disk cache and run once;
-        setup: the engine built from the scene (its tables, hierarchy or grid)."""
+        build: the engine built from the scene (its tables, hierarchy or grid)."""
         # (compiles on other threads count too: never below 0)
         wall = {s: max(0.0, w - c) for s, (w, c) in self.steps.items()}
         return {
             "compile_seconds": sum(c for _, c in self.steps.values()),
             "load_seconds": sum(v for s, v in wall.items() if s != "structure build"),
-            "setup_seconds": wall.get("structure build", 0.0),
+            "build_seconds": wall.get("structure build", 0.0),
         }
 
 

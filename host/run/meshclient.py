@@ -24,7 +24,7 @@ from host.run.connections import Nodes, close_all, configure, connect_all, give_
 from host.run.errors import MeshError, NodeLost
 from host.run.framebuffer import Framebuffer
 from host.run.kept import Kept, keeps_tiles, kept_after, recovery, with_kept_tiles
-from host.run.summary import summarise
+from host.run.summary import common, summarise
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.transport.link import Link, LinkClosed
 from protocols.render import ImageSpec, MeshPlan
@@ -121,7 +121,18 @@ async def render_on_mesh(
     finally:
         await close_all([links[n] for n in alive])
     end = time.perf_counter()
-    summary["wall_seconds"] = end - start
+    setup = summary["setup_seconds"]
+    rays = summary["rays"]
+    image = request.sized
+    summary |= common(
+        request.scene.source,
+        image,
+        request.engine,
+        rays,
+        summary["compile_seconds"],
+        setup,
+        max(end - start - setup, 0.0),
+    )
     summary["addresses"] = [addresses[n] for n in alive]
     summary["lost_nodes"] = lost
     summary["recovery_seconds"] = end - first_loss if first_loss is not None else 0.0

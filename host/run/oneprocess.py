@@ -15,6 +15,7 @@ from host.camera.setup import CameraSetup
 from host.planning.request import Request
 from host.run.firstrun import STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
+from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import WALK_COUNTS
@@ -205,24 +206,29 @@ def _progress(total, enabled: bool):
 
 
 def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
-    rays = sum(totals[k] for k in ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays"))
+    """The COMMON figures (`host.run.summary`; setup: compiling, loading and building), then
+    what one process adds: its threads, the engine's stats and its work per ray segment."""
     segments = max(totals["ray_segments"], 1)
-    tracer = job.tracer
+    tracer, split = job.tracer, job.setup
+    setup = split["compile_seconds"] + split["load_seconds"] + split["build_seconds"]
+    rays = {k: v for k, v in totals.items() if k not in WALK_COUNTS}
     return {
-        "scene": tracer.scene.source,
-        "image": job.image.to_wire(),
-        "engine_spec": job.engine.to_wire(),
+        **common(
+            tracer.scene.source,
+            job.image,
+            job.engine,
+            rays,
+            split["compile_seconds"],
+            setup,
+            trace_seconds,
+        ),
+        **split,
         "max_depth": job.image.depth,
         "threads": threads,
-        "rays": {k: v for k, v in totals.items() if k not in WALK_COUNTS},
-        "total_rays": rays,
         "intersection_tests": totals["intersection_tests"],
         "voxel_steps": totals["voxel_steps"],
         "tests_per_ray": totals["intersection_tests"] / segments,
         "steps_per_ray": totals["voxel_steps"] / segments,
         "engine": tracer.stats,
         "preprocess_seconds": tracer.preprocess_seconds,
-        **job.setup,
-        "trace_seconds": trace_seconds,
-        "rays_per_second": rays / trace_seconds if trace_seconds > 0 else None,
     }

@@ -1,8 +1,81 @@
-"""The statistics of a mesh render, summed from every node's STATS: the rays, the time, how
-evenly the nodes worked and how much of the scene each held (what object space saves).
+"""A render's statistics: the figures every render carries, one process or a mesh, with one
+meaning (`COMMON`, made by `common`) and printed by one summary (`summary_line`); and a mesh
+render's, summed from every node's STATS: how evenly the nodes worked and how much of the
+scene each held (what object space saves).
 """
 
-from protocols.render import MeshPlan
+from meshnode.mesh.stats import RAY_KINDS
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+# What every render's statistics say, one process or a mesh, each with one meaning: the scene
+# file, the sized image and the engine spec asked for (wire forms), the rays by kind and in
+# all, seconds compiling kernels (a first run), the seconds before the first primary ray
+# could be traced (setup: building, loading, on a mesh connecting and configuring too), the
+# seconds after it (trace) and in all (wall), and rays per second over the trace seconds.
+COMMON = (
+    "scene",
+    "image",
+    "engine_spec",
+    "rays",
+    "total_rays",
+    "compile_seconds",
+    "setup_seconds",
+    "trace_seconds",
+    "wall_seconds",
+    "rays_per_second",
+)
+
+
+def common(
+    source: str,
+    image: ImageSpec,
+    engine: EngineSpec,
+    rays: dict,
+    compile_seconds: float,
+    setup: float,
+    trace: float,
+) -> dict:
+    """The COMMON figures of a render (its wall seconds are setup's and trace's)."""
+    total = sum(rays.get(k, 0) for k in RAY_KINDS)
+    return {
+        "scene": source,
+        "image": image.to_wire(),
+        "engine_spec": engine.to_wire(),
+        "rays": rays,
+        "total_rays": total,
+        "compile_seconds": compile_seconds,
+        "setup_seconds": setup,
+        "trace_seconds": trace,
+        "wall_seconds": setup + trace,
+        "rays_per_second": total / trace if trace > 0 else 0.0,
+    }
+
+
+def summary_line(out, stats: dict) -> str:
+    """The one summary of a render, from its COMMON figures: the image, the rays by kind, the
+    times and the rate; then a mesh's passes and imbalance, or one process's work per ray and
+    kernel variant."""
+    r, image = stats["rays"], stats["image"]
+    text = (
+        f"{out}: {image['width']}x{image['height']}  eye {r.get('eye_rays', 0)} (hit "
+        f"{r.get('eye_hits', 0)})  reflected {r.get('reflected_rays', 0)}  refracted "
+        f"{r.get('refracted_rays', 0)}  shadow {r.get('shadow_rays', 0)} (blocked "
+        f"{r.get('shadow_rays_blocked', 0)})\n"
+        f"setup {stats['setup_seconds']:.3f} s (compile {stats['compile_seconds']:.1f} s)  "
+        f"trace {stats['trace_seconds']:.3f} s  wall {stats['wall_seconds']:.3f} s  "
+        f"{stats['rays_per_second']:.0f} rays/s"
+    )
+    if "mesh" in stats:
+        mesh = stats["mesh"]
+        return (
+            f"{text}  mesh {mesh['rows']}x{mesh['cols']}  passed {stats['rays_passed']}  "
+            f"imbalance {stats['imbalance']:.2f}"
+        )
+    return (
+        f"{text}  (load {stats['load_seconds']:.2f} s, build {stats['build_seconds']:.3f} s)  "
+        f"tests/ray {stats['tests_per_ray']:.2f}  "
+        f"steps/ray {stats['steps_per_ray']:.2f}  [{stats['engine']['kernel_variant']}]"
+    )
 
 
 def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:

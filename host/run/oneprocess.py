@@ -18,7 +18,6 @@ from host.run.framebuffer import Framebuffer
 from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.counters import WALK_COUNTS
 from meshnode.engine.kernelcache import compile_clock
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
@@ -211,13 +210,12 @@ def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
     segments = max(totals["ray_segments"], 1)
     tracer, split = job.tracer, job.setup
     setup = split["compile_seconds"] + split["load_seconds"] + split["build_seconds"]
-    rays = {k: v for k, v in totals.items() if k not in WALK_COUNTS}
     return {
         **common(
             tracer.scene.source,
             job.image,
             job.engine,
-            rays,
+            totals,
             split["compile_seconds"],
             setup,
             trace_seconds,
@@ -225,8 +223,6 @@ def _stats(job: _Job, totals, trace_seconds, threads) -> dict:
         **split,
         "max_depth": job.image.depth,
         "threads": threads,
-        "intersection_tests": totals["intersection_tests"],
-        "voxel_steps": totals["voxel_steps"],
         "tests_per_ray": totals["intersection_tests"] / segments,
         "steps_per_ray": totals["voxel_steps"] / segments,
         "engine": tracer.stats,

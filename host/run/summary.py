@@ -4,14 +4,16 @@ render's, summed from every node's STATS: how evenly the nodes worked and how mu
 scene each held (what object space saves).
 """
 
+from meshnode.engine.counters import WALK_COUNTS
 from meshnode.mesh.stats import RAY_KINDS
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
 # What every render's statistics say, one process or a mesh, each with one meaning: the scene
 # file, the sized image and the engine spec asked for (wire forms), the rays by kind and in
-# all, seconds compiling kernels (a first run), the seconds before the first primary ray
-# could be traced (setup: building, loading, on a mesh connecting and configuring too), the
-# seconds after it (trace) and in all (wall), and rays per second over the trace seconds.
+# all (the walks' work counted apart: WALK_COUNTS), seconds compiling kernels (a first run),
+# the seconds before the first primary ray could be traced (setup: building, loading, on a
+# mesh connecting and configuring too), the seconds after it (trace) and in all (wall), and
+# rays per second over the trace seconds.
 COMMON = (
     "scene",
     "image",
@@ -23,6 +25,7 @@ COMMON = (
     "trace_seconds",
     "wall_seconds",
     "rays_per_second",
+    *WALK_COUNTS,
 )
 
 
@@ -35,13 +38,15 @@ def common(
     setup: float,
     trace: float,
 ) -> dict:
-    """The COMMON figures of a render (its wall seconds are setup's and trace's)."""
+    """The COMMON figures of a render (its wall seconds are setup's and trace's) from its
+    counters (`rays`: the walks' among them, taken apart)."""
     total = sum(rays.get(k, 0) for k in RAY_KINDS)
     return {
         "scene": source,
         "image": image.to_wire(),
         "engine_spec": engine.to_wire(),
-        "rays": rays,
+        "rays": {k: v for k, v in rays.items() if k not in WALK_COUNTS},
+        **{k: rays.get(k, 0) for k in WALK_COUNTS},
         "total_rays": total,
         "compile_seconds": compile_seconds,
         "setup_seconds": setup,

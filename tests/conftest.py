@@ -310,3 +310,13 @@ def records(camera=None, **options) -> Job:
     if options:
         raise TypeError(f"no render record has fields {sorted(options)}")
     return Job(image, engine, setup)
+
+
+def ctrl_c_default() -> None:
+    """A child's Ctrl-C as a terminal's (`Popen(preexec_fn=...)`): a suite started in the
+    background by a non-interactive shell inherits SIGINT ignored, and Python then installs
+    no KeyboardInterrupt handler, so the tests that send SIGINT would wait in vain (a fresh
+    clone's run: 8 of them)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

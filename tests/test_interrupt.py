@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import ctrl_c_default
+
 EXAMPLE = Path(__file__).resolve().parents[1] / "host" / "examples" / "showcase.nff"
 DEADLINE = 300.0  # seconds for the nodes to build and the first progress to show
 
@@ -64,6 +66,7 @@ def test_ctrl_c_prints_one_line_exits_130_and_leaves_no_process(tmp_path, mesh, 
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         start_new_session=True,
+        preexec_fn=ctrl_c_default,
     )
     try:
         before = read_until(proc.stderr.fileno(), progress, time.monotonic() + DEADLINE)

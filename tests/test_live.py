@@ -29,6 +29,7 @@ from host.run.connections import Nodes
 from host.run.framebuffer import Framebuffer, to_srgb8
 from protocols.dtypes import LINK_TRAFFIC
 from protocols.messages import SETUP_STEPS
+from tests.conftest import ctrl_c_default
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "host" / "examples" / "showcase.nff"
@@ -335,6 +336,7 @@ def test_serve_stays_until_ctrl_c(tmp_path):
         text=True,
         cwd=tmp_path,
         env=os.environ | {"PYTHONPATH": str(ROOT)},
+        preexec_fn=ctrl_c_default,
     )
     try:
         lines = stderr_lines(proc)

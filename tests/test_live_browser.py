@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.conftest import ctrl_c_default
 from tests.test_live import WAIT, stderr_lines, wait_for_line
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -90,6 +91,7 @@ def serve(
         text=True,
         cwd=tmp_path,
         env=os.environ | {"PYTHONPATH": str(ROOT)},
+        preexec_fn=ctrl_c_default,
     )
     proc.lines = stderr_lines(proc)
     line = wait_for_line(proc.lines, "live view at ")

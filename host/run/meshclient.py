@@ -122,13 +122,11 @@ async def render_on_mesh(
         await close_all([links[n] for n in alive])
     end = time.perf_counter()
     setup = summary["setup_seconds"]
-    rays = summary["rays"]
-    image = request.sized
     summary |= common(
         request.scene.source,
-        image,
+        request.sized,
         request.engine,
-        rays,
+        summary["rays"],
         summary["compile_seconds"],
         setup,
         max(end - start - setup, 0.0),
@@ -238,7 +236,6 @@ async def _attempt(
         planned.holders,
         collector.deposits,
         ready,
-        time.perf_counter() - start,
     )
     summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
     if kept is not None:  # the kept tiles' rays, traced by the lost try

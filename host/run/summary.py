@@ -83,9 +83,10 @@ def summary_line(out, stats: dict) -> str:
     )
 
 
-def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
+def summarise(stats, plan: MeshPlan, keep, deposits, setup) -> dict:
     """The render's statistics from each node's STATS (`stats[n]`), the objects each holds
-    (`keep`, nodes x objects), the deposits the host received and the seconds taken."""
+    (`keep`, nodes x objects), the deposits the host received and the seconds to set up
+    (the wall's and the rest of COMMON are the whole render's: `common`)."""
     nodes = [stats[n] for n in range(plan.nodes)]
     totals: dict[str, int] = {}
     for s in nodes:
@@ -101,7 +102,6 @@ def summarise(stats, plan: MeshPlan, keep, deposits, setup, wall) -> dict:
         "setup_seconds": setup,  # planned, configured, every engine built and link up
         # ... of which the slowest-compiling node compiled kernels (a first run)
         "compile_seconds": max(s.get("compile_seconds", 0.0) for s in nodes),
-        "wall_seconds": wall,
         "busiest_node_cpu_seconds": max(busy),
         # the whole process's CPU for the frame (kernels, routing, deposits, framing, the
         # event loop): what a speedup counts; a simulated node reports none

@@ -13,13 +13,14 @@ from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 from protocols.scene import TABLE_DTYPES
 
+# 13: MeshPlan.holds (a budget's copies, node by node);
 # 12: CameraSampling.rays gone (CONFIG's camera takes its rays per pixel from ImageSpec.spp),
 # CONFIG.scene (protocols.scene.SceneHeader) for CONFIG.view and CONFIG.background;
 # 11: PROGRESS.setup (where a node's setup is: SETUP_STEPS); 10: termination waves (STATE down
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 12
+PROTOCOL_VERSION = 13
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 # PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a

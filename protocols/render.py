@@ -137,7 +137,10 @@ class MeshPlan(Spec):
     (with copies): cells whose engines every node holds besides (the cost pre-pass picks the
     cells most of the work is traced in, within the nodes' memory): any node then makes and
     traces the tiles whose eye rays those cells take on, so the work gathered in one cell
-    spreads over the whole mesh, not only over that cell's four neighbours.
+    spreads over the whole mesh, not only over that cell's four neighbours. `holds` (with
+    copies; one tuple a node, empty: every node's links and the shared cells): the cells
+    whose engines each node holds besides its own, as a memory budget's copies are chosen
+    (`host.planning.replicas`: the hottest cells onto the nodes with room, within the budget).
     balance "objects" (object space): cells cut in three axes so each holds about 1/N of the
     objects, whatever the view (`host.planning.objectcells`). `max_share` and `node_bytes`
     are a memory budget (object space): no node holds more than `max_share` of the scene's
@@ -156,6 +159,7 @@ class MeshPlan(Spec):
     steal: bool = False
     copies: bool = False
     shared: tuple = ()
+    holds: tuple = ()
     max_share: float = 1.0
     node_bytes: int = 0
 
@@ -179,6 +183,7 @@ class MeshPlan(Spec):
         if self.copies and self.mode != "object":
             self.fail("copies", "neighbours' copies are object space's (image space holds all)")
         self._check_shared()
+        self._check_holds()
         self.want_number("max_share", 0.0, 1.0, open_lo=True)
         self.want_int("node_bytes", 0, 1 << 60)
         if self.mode == "image" and (self.max_share < 1 or self.node_bytes):
@@ -201,17 +206,42 @@ class MeshPlan(Spec):
         if any(not 0 <= c < self.nodes for c in shared) or len(set(shared)) < len(shared):
             self.fail("shared", f"must name distinct nodes from 0 to {self.nodes - 1}")
 
+    def _check_holds(self) -> None:
+        holds = self.holds
+        if holds == ():
+            return
+        if not isinstance(holds, tuple) or len(holds) != self.nodes:
+            self.fail("holds", f"must list {self.nodes} tuples, one a node")
+        if not self.copies or self.shared:
+            self.fail("holds", "a node's copies need 'copies' and replace 'shared'")
+        for n, cells in enumerate(holds):
+            if (
+                not isinstance(cells, tuple)
+                or not all(isinstance(c, int) and not isinstance(c, bool) for c in cells)
+                or any(not 0 <= c < self.nodes or c == n for c in cells)
+                or len(set(cells)) < len(cells)
+            ):
+                self.fail(
+                    "holds",
+                    f"node {n}'s must name distinct other nodes from 0 to {self.nodes - 1}",
+                )
+
     @classmethod
     def decode(cls, values: dict) -> dict:
         if isinstance(values.get("shared"), list):  # msgpack gives a list
             values = {**values, "shared": tuple(values["shared"])}
+        holds = values.get("holds")
+        if isinstance(holds, list) and all(isinstance(h, list) for h in holds):
+            values = {**values, "holds": tuple(tuple(h) for h in holds)}
         return values
 
     def held(self, node: int) -> list[int]:
-        """The nodes whose engines `node` holds: itself, and under `copies` its links and
-        the shared cells."""
+        """The nodes whose engines `node` holds: itself, and under `copies` the cells of
+        `holds`, or without them its links and the shared cells."""
         if not self.copies:
             return [node]
+        if self.holds:
+            return [node, *self.holds[node]]
         links = Torus(self.rows, self.cols).links(node)
         return list(dict.fromkeys([node, *links, *self.shared]))
 

@@ -260,6 +260,14 @@ def _plan_options(r) -> None:
         "work naming the smallest share it reached",
         type=share,
     )
+    r.add_argument(
+        "--budget-copies",
+        choices=("hottest", "none"),
+        default="hottest",
+        help="object space under --max-share or --node-memory: hottest (default) fills "
+        "each node's room with copies of the cells where the cost pre-pass finds the most "
+        "work, kept where it finds they lighten the busiest node; none: no copies",
+    )
 
 
 def _tile_options(r) -> None:

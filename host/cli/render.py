@@ -259,6 +259,7 @@ def _request(scene, image, engine, camera, rows: int, cols: int, args) -> Reques
         mode=args.mode,
         node_memory=args.node_memory,
         overlaps=OVERLAPS if _auto_overlap(args) else (),
+        budget_copies=args.budget_copies == "hottest",
     )
     request = Request(scene, image, engine, camera, _plan(rows, cols, args), auto)
     check_divisible(scene, request.spec())

@@ -16,6 +16,7 @@ from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
+from host.planning.replicas import with_replicas
 from host.planning.request import Request
 from protocols.partition import Partition
 from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, RenderSpec
@@ -69,15 +70,19 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
         spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
     part, keep = partition(scene, spec, xs, ys, cells, occupancy)
     if budgeted(spec.plan):
-        spec, part, keep, balance["budget"] = _within_budget(scene, spec, part, keep)
+        spec, part, keep, balance["budget"] = _within_budget(
+            scene, spec, part, keep, request.auto.budget_copies
+        )
         balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 
-def _within_budget(scene: SceneData, spec: RenderSpec, part, keep):
+def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool = True):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
-    that keeps it; BudgetError naming the smallest share reached when none does. Under a byte
+    that keeps it, its room then filled (`copies`) with copies of the hottest cells where the
+    pre-pass says they pay (`host.planning.replicas`); BudgetError naming the smallest share reached
+    when none does. Under a byte
     bound the nodes build hierarchies (their memory is known before they are built; a
     grid's is not: shells' took 260 MB for 1.5 MB of objects)."""
     gave_up = []
@@ -97,7 +102,11 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep):
         part, keep, held = _objects_within(scene, spec)
     if not within(spec.plan, held):
         raise refusal(scene, spec.plan, held)
-    return spec, part, keep, report(spec.plan, held, gave_up)
+    if not copies:
+        return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
+    spec, part, chosen = with_replicas(scene, spec, part, keep)
+    held = holdings(scene, spec, part, keep) if chosen["chosen"] else held
+    return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": chosen}
 
 
 def _objects_within(scene: SceneData, spec: RenderSpec):

@@ -21,11 +21,14 @@ class Auto:
     """What `--mode auto`, `--node-memory` and `--overlap auto` leave to the host: `mode`
     ("auto", or a mode of `protocols.render.MODES`; None keeps the plan's), `node_memory`
     (bytes to plan each node for, instead of what the nodes report) and `overlaps` (object
-    space: overlaps for the cost pre-pass to choose among; empty keeps the plan's)."""
+    space: overlaps for the cost pre-pass to choose among; empty keeps the plan's) and
+    `budget_copies` (under a memory budget, fill each node's room with copies of the
+    hottest cells where the pre-pass finds they pay: `host.planning.replicas`)."""
 
     mode: str | None = None
     node_memory: int | None = None
     overlaps: tuple[float, ...] = ()
+    budget_copies: bool = True
 
     def __post_init__(self):
         if self.mode is not None and self.mode not in ("auto", *MODES):

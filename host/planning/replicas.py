@@ -1,0 +1,162 @@
+"""A memory budget's copies (`MeshPlan.holds`): the room a budget leaves each node filled with
+copies of the cells where the work is, so rays stay on a node instead of being passed.
+
+R2E2 (Fouladi et al. 2022) renders scenes no node can hold by replicating the most-traversed
+parts onto lightly loaded nodes, within memory, from load estimates. Here the cost pre-pass
+simulates the mesh the budget left (no copies) and measures each cell's work and the rays each
+node passes to each other; then, hottest cell first (its work over the nodes already holding
+it), one more node holds it: a node it passes rays to or takes them from (its copy then traces
+those rays where they are), or failing that the least loaded node with room for its objects.
+Tiles whose eye rays the cell takes on are dealt over all its holders
+(`host.planning.rectangles.spread`). The mesh is simulated again with the copies, and they
+are kept only where its busiest node carries less than without (or as much, with fewer rays
+passed): a copy moves work onto its holder, and the pre-pass says whether that pays.
+"""
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from host.planning.budget import budgeted, holdings, within
+from host.planning.holding import engine_bytes, ratio
+from host.planning.prepass import coarse_pass, costs
+from host.planning.rectangles import spread
+from host.scene.subset import subset
+from protocols.partition import Partition
+from protocols.render import EVERYWHERE, RenderSpec
+from protocols.scene import SceneData
+
+TRIES = (1.0, 0.5, 0.25)  # shares of the copies chosen (hottest first) simulated, in turn
+
+
+def with_replicas(
+    scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray
+) -> tuple[RenderSpec, Partition, dict]:
+    """(spec, partition, report): the budgeted plan with copies of the hottest cells on the
+    nodes with room for them (`MeshPlan.holds`): all that fit, or the hottest half or
+    quarter of them (TRIES), the first whose simulated mesh's busiest node carries less
+    than without (or as much, with fewer rays passed); else the plan as it was, and why."""
+    plan = spec.plan
+    if not budgeted(plan) or plan.nodes < 2 or plan.copies:
+        why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
+        return spec, part, {"chosen": [], "why": why or "no memory budget on a mesh"}
+    began = time.process_time()
+    cells = (np.asarray(part.cell_los), np.asarray(part.cell_his))
+    occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
+    before = coarse_pass(scene, spec, None, None, cells, occupancy)
+    busiest, passed = float(costs(before).max()), _passed(before)
+    added = choose_copies(scene, spec, part, keep, costs(before), _passes(before))
+    report = {"simulated_load": costs(before).tolist(), "simulated_rays_passed": passed}
+    if not added:
+        return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
+    tried = {}
+    for share in TRIES:
+        holds = _holds(plan.nodes, added[: max(1, round(share * len(added)))])
+        if tuple(map(list, holds)) in tried.values():
+            continue
+        at = replace(spec, plan=replace(plan, copies=True, holds=holds))
+        after = coarse_pass(scene, at, None, None, cells, occupancy)
+        now = float(costs(after).max())
+        tried[ratio(now, busiest), _passed(after)] = tuple(map(list, holds))
+        if now < busiest or (now == busiest and _passed(after) < passed):
+            if not within(at.plan, holdings(scene, at, part, keep)):  # choose_copies keeps it
+                raise AssertionError("copies chosen past the memory budget")
+            return (
+                at,
+                _dealt(part, at),
+                {
+                    **report,
+                    "chosen": [list(h) for h in holds],
+                    "why": f"the hottest {share:.0%} of the copies that fit: the simulated "
+                    f"busiest node carries {now / busiest:.2f} of what it does without",
+                    "tried": _tried(tried),
+                    "prepass_cpu_seconds": time.process_time() - began,
+                },
+            )
+    return (
+        spec,
+        part,
+        {
+            **report,
+            "chosen": [],
+            "why": "with any of them the simulated busiest node carried as much or more",
+            "tried": _tried(tried),
+            "prepass_cpu_seconds": time.process_time() - began,
+        },
+    )
+
+
+def choose_copies(
+    scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray, load, passes
+) -> list[tuple[int, int]]:
+    """(node, cell) copies in the order chosen: while some node has room, the cell with the
+    most work per holder (`load[c]` shared evenly by its holders) gets one more holder, a
+    node with room for its objects and bytes: of those, the one it passes most rays to or
+    takes most from (`passes`, nodes x nodes), else the least loaded (each holder's load
+    its cells' shares)."""
+    plan, nodes = spec.plan, spec.plan.nodes
+    occ = int(np.prod(part.occ_res))
+    own = [engine_bytes(subset(scene, keep[m])) + occ for m in range(nodes)]
+    held = [{n} for n in range(nodes)]
+    mask = [keep[n].copy() for n in range(nodes)]
+    size = list(own)
+    limit = plan.max_share * keep.shape[1] + 1e-9
+    traffic = np.asarray(passes, float) + np.asarray(passes, float).T
+
+    def fits(n: int, c: int) -> bool:
+        if np.count_nonzero(mask[n] | keep[c]) > limit:
+            return False
+        return not plan.node_bytes or size[n] + own[c] <= plan.node_bytes
+
+    added = []
+    while True:
+        holders = [sum(c in h for h in held) for c in range(nodes)]
+        share = [float(load[c]) / holders[c] for c in range(nodes)]
+        carried = [sum(share[c] for c in held[n]) for n in range(nodes)]
+        for c in sorted(range(nodes), key=lambda c: (-share[c], c)):
+            room = [n for n in range(nodes) if c not in held[n] and fits(n, c)]
+            if room:
+                n = min(room, key=lambda n: (-traffic[n, c], carried[n], n))
+                held[n].add(c)
+                mask[n] |= keep[c]
+                size[n] += own[c]
+                added.append((n, c))
+                break
+        else:
+            return added
+
+
+def _holds(nodes: int, added: list[tuple[int, int]]) -> tuple:
+    """MeshPlan.holds from (node, cell) copies."""
+    return tuple(tuple(sorted(c for m, c in added if m == n)) for n in range(nodes))
+
+
+def _tried(tried: dict) -> list[dict]:
+    return [
+        {"holds": h, "simulated_busiest_vs_none": b, "simulated_rays_passed": p}
+        for (b, p), h in tried.items()
+    ]
+
+
+def _dealt(part: Partition, spec: RenderSpec) -> Partition:
+    """The partition with its tiles dealt over every holder of the cell taking their eye
+    rays on (adaptive sampling's rectangles, one a node, stay with their nodes)."""
+    if spec.adaptive:
+        return part
+    takers = list(part.takers or part.owner)
+    return replace(part, takers=tuple(takers), owner=tuple(spread(takers, spec.plan)))
+
+
+def _passes(outcome) -> np.ndarray:
+    """Rays each simulated node sent each other (next hops), nodes x nodes."""
+    nodes = len(outcome.nodes)
+    out = np.zeros((nodes, nodes))
+    for n, record in enumerate(outcome.nodes):
+        for m, rays in record.sent_to.items():
+            out[n, m] += rays
+    return out
+
+
+def _passed(outcome) -> int:
+    return int(sum(r.rays_sent for r in outcome.nodes))

@@ -1,0 +1,151 @@
+"""A memory budget's copies (`MeshPlan.holds`, `host.planning.replicas`): any node may hold any
+other cells' engines, and the image and ray counts stay the single node's; copies are chosen
+hottest cell first, never past the budget, and kept only where the simulated mesh's busiest
+node carries less."""
+
+import numpy as np
+import pytest
+
+from host.planning.budget import holdings, within
+from host.planning.partition import partition
+from host.planning.plan import plan_render
+from host.planning.prepass import coarse_pass, costs
+from host.planning.replicas import _holds, _passes, choose_copies, with_replicas
+from host.planning.request import Auto, Request
+from host.scene.nff import read_nff
+from protocols.render import ImageSpec, MeshPlan, RenderSpec
+from protocols.spec import SpecError
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_budget import ONE, planned_render, single
+
+
+def _random_holds(nodes: int, seed: int) -> tuple:
+    """Each node a random set of other cells (far ones too: their rays are traced here,
+    and what leaves them is routed on over as many links as it takes)."""
+    rng = np.random.default_rng(seed)
+    return tuple(
+        tuple(sorted(int(c) for c in rng.choice(nodes, 2, replace=False) if c != n))
+        for n in range(nodes)
+    )
+
+
+@pytest.mark.parametrize("shape", [(1, 2), (2, 2), (3, 3), (2, 3)])
+def test_any_cells_held_give_the_single_node_image(shape):
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    ref, ref_counts = single(scene)
+    nodes = shape[0] * shape[1]
+    holds = _random_holds(nodes, nodes)
+    img, totals, records, _ = render_mesh(
+        scene, *shape, 1.0, 32, 32, balance="objects", copies=True, holds=holds
+    )
+    assert {k: totals[k] for k in ref_counts} == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    # a node's copies trace what it would have passed to their cells: fewer rays are passed
+    # than with no copies at all
+    _, _, alone, _ = render_mesh(scene, *shape, 1.0, 32, 32, balance="objects")
+    assert sum(r.rays_sent for r in records) < sum(r.rays_sent for r in alone)
+
+
+def test_holds_are_checked_as_a_peer_sends_them():
+    MeshPlan(2, 2, copies=True, holds=((1,), (), (0, 3), ())).check()
+    bad = [
+        {"holds": ((1,), (), ())},  # a node missing
+        {"holds": ((0,), (), (), ())},  # a node holding itself
+        {"holds": ((1, 1), (), (), ())},
+        {"holds": ((4,), (), (), ())},
+        {"holds": ((True,), (), (), ())},
+    ]
+    for fields in bad:
+        with pytest.raises(SpecError, match="holds"):
+            MeshPlan(2, 2, copies=True, **fields)
+    with pytest.raises(SpecError, match="holds"):
+        MeshPlan(2, 2, holds=((1,), (), (), ()))  # copies are what holds name
+    assert MeshPlan.decode({"holds": [[1], [], [0, 3], []]})["holds"] == ((1,), (), (0, 3), ())
+
+
+@pytest.mark.parametrize(
+    "name,shape,share", [("teapot.nff", (3, 3), 0.25), ("tetra.nff", (2, 2), 0.5)]
+)
+def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share):
+    scene = read_nff(spd_scene(name))
+    plan = MeshPlan(*shape, balance="objects", max_share=share, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    part, keep = partition(scene, spec)
+    outcome = coarse_pass(
+        scene, spec, None, None, (np.array(part.cell_los), np.array(part.cell_his))
+    )
+    load = costs(outcome)
+    added = choose_copies(scene, spec, part, keep, load, _passes(outcome))
+    assert added, "the budget leaves room for some copy"
+    total = keep.shape[1]
+
+    def room(n, c):
+        return np.count_nonzero(keep[n] | keep[c]) <= share * total
+
+    # the first copy is of the hottest cell some other node has room for
+    fitting = [c for c in range(plan.nodes) if any(room(n, c) for n in range(plan.nodes) if n != c)]
+    assert added[0][1] == max(fitting, key=lambda c: load[c])
+    for k in range(1, len(added) + 1):  # every prefix (as `with_replicas` tries them) fits
+        at = RenderSpec(
+            spec.image,
+            ONE,
+            MeshPlan(
+                *shape,
+                balance="objects",
+                max_share=share,
+                overlap=0.0,
+                copies=True,
+                holds=_holds(plan.nodes, added[:k]),
+            ),
+        )
+        assert within(at.plan, holdings(scene, at, part, keep))
+    # no node could take one more cell: each cell it lacks would break the share
+    full = _holds(plan.nodes, added)
+    for n in range(plan.nodes):
+        mine = keep[[n, *full[n]]].any(axis=0)
+        for c in set(range(plan.nodes)) - {n, *full[n]}:
+            assert np.count_nonzero(mine | keep[c]) > share * total
+
+
+def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():
+    # Cells cut by the objects leave the teapot's work under it, in a few cells: copies of
+    # those on the nodes with room spread their tiles (measured 384 x 384 at 4 spp on a
+    # local 3x3: busiest node's frame CPU 0.32-0.35 s without, 0.19 with).
+    scene = read_nff(spd_scene("teapot.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.25, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    part, keep = partition(scene, spec)
+    assert within(plan, holdings(scene, spec, part, keep))  # as the budget leaves it
+    at, dealt, report = with_replicas(scene, spec, part, keep)
+    assert report["chosen"] and at.plan.holds, report["why"]
+    assert report["tried"][-1]["simulated_busiest_vs_none"] < 1.0
+    assert within(at.plan, holdings(scene, at, dealt, keep))
+    # tiles of a copied cell are dealt over its holders
+    takers, owners = np.array(dealt.takers), np.array(dealt.owner)
+    assert any(o != t and t in at.plan.held(o) for o, t in zip(owners, takers, strict=True))
+
+
+@pytest.mark.parametrize("shape,share", [((1, 2), 0.9), ((2, 2), 0.6), ((2, 3), 0.5)])
+def test_a_planned_budget_with_copies_gives_the_single_node_image(shape, share):
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    ref, ref_counts = single(scene)
+    img, counts, nodes, planned = planned_render(scene, MeshPlan(*shape, max_share=share))
+    assert counts == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    budget = planned.balance["budget"]
+    assert max(budget["share_held"]) <= share
+    assert "why" in budget["copies"] and budget["copies"]["why"]
+
+
+def test_no_copies_when_asked_for_none():
+    scene = read_nff(spd_scene("teapot.nff"))
+    request = Request(
+        scene,
+        ImageSpec(width=32, height=32),
+        ONE,
+        plan=MeshPlan(3, 3, balance="objects", max_share=0.25),
+        auto=Auto(budget_copies=False),
+    )
+    planned = plan_render(request)
+    assert planned.spec.plan.holds == () and planned.balance["budget"]["copies"] == "none asked"

@@ -2,20 +2,28 @@
 warm it at once, with the cache's compile lock (`meshnode.engine.kernelcache.compiling`: one
 compiles, the others wait and load it) and each compiling its own, side by side in one run.
 
-    python -m bench.compile_lock [--processes 3]
+    python -m bench.compile_lock [--processes 3] [--turns 1]
 
 Each mode starts from an empty cache folder (the common kernels compiled first, as a node's
-image has them) and prints its wall seconds and the processes' summed CPU seconds; the last
-line gives the ratios (no lock / lock).
+image has them); the two modes take turns (lock, own, lock, own ...) `--turns` rounds
+(`bench.timing`). Printed per mode: its wall seconds (what a mesh waits for, the lock's point)
+and the processes' summed CPU seconds (`RUSAGE_CHILDREN`), each a median (least-most) over the
+rounds; the last line gives the ratios no lock / lock, each the median of the rounds' paired
+ratios (least-most).
 """
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.timing import Turns, child_cpu, turns  # noqa: E402 (after the path is set)
 
 # One mesh node's engine of a variant the common warmup does not hold, warmed as a node does.
 NODE = """
@@ -37,7 +45,7 @@ def cold_start(mode: str, processes: int) -> tuple[float, float]:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         common = "from meshnode.service.warmup import _common_warmup; _common_warmup()"
         subprocess.run([sys.executable, "-c", common], env=env, check=True)
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        before = child_cpu()
         start = time.perf_counter()
         procs = [
             subprocess.Popen([sys.executable, "-c", NODE, mode], env=env) for _ in range(processes)
@@ -45,21 +53,30 @@ def cold_start(mode: str, processes: int) -> tuple[float, float]:
         if any(p.wait() for p in procs):
             raise RuntimeError(f"a node failed to warm up ({mode})")
         wall = time.perf_counter() - start
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        cpu = child_cpu() - before
     return wall, cpu
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.compile_lock", description=__doc__.split("\n\n")[0])
     p.add_argument("--processes", type=int, default=3)
+    p.add_argument("--turns", type=int, default=1, help="rounds of lock, own (1)")
     args = p.parse_args(argv)
-    rows = {mode: cold_start(mode, args.processes) for mode in ("lock", "own")}
-    for mode, (wall, cpu) in rows.items():
+    walls, cpus = Turns(), Turns()
+    for _, mode in turns(("lock", "own"), args.turns):
+        wall, cpu = cold_start(mode, args.processes)
+        walls.add(mode, wall)
+        cpus.add(mode, cpu)
+    print(f"{args.processes} processes, {args.turns} rounds in turns: median (least-most)")
+    for mode in ("lock", "own"):
         name = "shared lock" if mode == "lock" else "each its own"
-        print(f"{name:>13}: wall {wall:6.1f} s   CPU {cpu:6.1f} s   ({args.processes} processes)")
-    (lw, lc), (ow, oc) = rows["lock"], rows["own"]
-    print(f"each its own / shared lock: wall {ow / lw:.2f}x, CPU {oc / lc:.2f}x")
+        wall, cpu = walls.figure(mode).text("{:.1f}"), cpus.figure(mode).text("{:.1f}")
+        print(f"{name:>13}: wall {wall} s   CPU {cpu} s")
+    wall, cpu = walls.ratio("own", "lock"), cpus.ratio("own", "lock")
+    print(
+        f"each its own / shared lock (median of paired ratios): wall {wall.text('{:.2f}')}, "
+        f"CPU {cpu.text('{:.2f}')}"
+    )
     return 0
 
 

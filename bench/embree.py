@@ -11,10 +11,15 @@ thread) and by Embree (float32 `rtcIntersect1` per ray in embreex's loop, one th
 traces the surfaces as `host render` does, polygons native ("native" rows); Embree takes
 triangles only, so polygons are cut into triangles by ear clipping (exact for concave ones:
 gears' outlines), and ours is also timed on those same triangles ("triangles" rows). Plus a
-generated recursive tetrahedron of 4 x 4^LEVELS triangles (9: 1,048,576). Printed per scene
-and structure: triangles, build seconds both ways, rays per second both ways (best of
---repeat), ours / Embree, and the first-hit agreement: hit/miss disagreements and
-percentiles of the relative difference of t where both hit.
+generated recursive tetrahedron of 4 x 4^LEVELS triangles (9: 1,048,576).
+
+Timed as `bench.timing` says: the process pinned to one core, CPU seconds of the process
+(never the wall), ours and Embree taking turns `--repeat` rounds per row (ours, Embree, ours,
+Embree ...). Printed per scene and structure: triangles, build CPU seconds both ways (one
+build each), million rays per second both ways (median over the rounds, least-most in
+brackets), ours / Embree (the median of the rounds' paired ratios, each round's two sides
+sharing a spell of the machine, with their spread), and the first-hit agreement: hit/miss
+disagreements and percentiles of the relative difference of t where both hit.
 """
 
 import argparse
@@ -29,6 +34,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from bench.timing import interleaved, pin_one_core, pinned_text  # noqa: E402
 
 
 def triangles_of(scene) -> np.ndarray:
@@ -73,32 +79,22 @@ def flat_scene(view, tris: np.ndarray):
     return scene
 
 
-def best(fn, repeat: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
-
-
-def ours(scene, o, d, structure: str, repeat: int) -> dict:
-    """Build our engine with `structure` and time its first hits on the rays."""
+def ours(scene, structure: str) -> dict:
+    """Our engine with `structure`, its build CPU seconds, and the structure it chose."""
     from meshnode.engine import Engine
 
-    start = time.perf_counter()
+    start = time.process_time()
     engine = Engine(scene, structure=structure)
-    build = time.perf_counter() - start
-    engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
-    seconds, (t, _) = best(lambda: engine.first_hits(o, d), repeat)
-    return {"build_s": build, "seconds": seconds, "t": t, "chosen": engine.structure}
+    build = time.process_time() - start
+    return {"engine": engine, "build_s": build, "chosen": engine.structure}
 
 
 def compare(
     name: str, view, tris: np.ndarray, size: int, repeat: int, structures: list[str], native=None
 ) -> list[dict]:
     """One row per structure (and per surface form: `native`, the scene's own polygons, if
-    given, then Embree's triangles) of ours against Embree on identical rays."""
+    given, then Embree's triangles) of ours against Embree on identical rays, the two taking
+    turns `repeat` rounds."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
@@ -109,25 +105,32 @@ def compare(
     # Both sides get contiguous arrays made before timing (Embree its float32 copies).
     o = np.ascontiguousarray(rays["o"])
     d = np.ascontiguousarray(rays["d"] / np.linalg.norm(rays["d"], axis=1)[:, None])
-    start = time.perf_counter()
-    scene = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene, tris.astype(np.float32))
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
-    scene.run(o32[:1], d32[:1], output=1)  # commits (builds) the scene
-    embree_build = time.perf_counter() - start
-    embree_s, hits = best(lambda: scene.run(o32, d32, output=1), repeat)
-    t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
+    start = time.process_time()
+    embree = rtcore_scene.EmbreeScene()
+    TriangleMesh(embree, tris.astype(np.float32))
+    embree.run(o32[:1], d32[:1], output=1)  # commits (builds) the scene
+    embree_build = time.process_time() - start
+
+    def per_second(seconds: float) -> float:
+        return len(o) / seconds
+
     rows = []
     forms = ([("native", native)] if native is not None else []) + [
         ("triangles", flat_scene(view, tris))
     ]
     for (form, scene), structure in ((f, s) for f in forms for s in structures):
-        run = ours(scene, o, d, structure, repeat)
-        t_ours = run["t"]
-        ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
-        both = ours_hit & emb_hit
-        rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
-        pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
+        run = ours(scene, structure)
+        engine = run["engine"]
+        engine.first_hits(o[:1], d[:1])  # kernels loaded before timing
+        times, last = interleaved(
+            {
+                "ours": lambda engine=engine: engine.first_hits(o, d),
+                "embree": lambda: embree.run(o32, d32, output=1),
+            },
+            repeat,
+        )
+        del engine, run["engine"]  # one engine alive at a time: the biggest scenes are large
         row = {
             "scene": name,
             "form": form,
@@ -135,25 +138,57 @@ def compare(
             "chosen": run["chosen"],
             "triangles": len(tris),
             "rays": len(o),
+            "clock": "process CPU seconds, in turns",
             "ours_build_s": run["build_s"],
             "embree_build_s": embree_build,
-            "ours_rays_per_s": len(o) / run["seconds"],
-            "embree_rays_per_s": len(o) / embree_s,
-            "mismatches": int((ours_hit != emb_hit).sum()),
-            "rel_t_p50_p99_max": pct.tolist(),
+            **times.figure("ours").fields("ours_seconds"),
+            **times.figure("embree").fields("embree_seconds"),
+            **times.figure("ours").map(per_second).fields("ours_rays_per_s"),
+            **times.figure("embree").map(per_second).fields("embree_rays_per_s"),
+            # ours rays/s over Embree's: Embree's seconds over ours, paired by round
+            **times.ratio("embree", "ours").fields("ratio"),
+            **agreement(last["ours"][0], last["embree"]),
         }
-        row["ratio"] = row["ours_rays_per_s"] / row["embree_rays_per_s"]
-        label = f"auto={run['chosen']}" if structure == "auto" else structure
-        print(
-            f"{name:>16} {form:>9} {label:>9} {len(tris):>10,} {run['build_s']:>8.2f} "
-            f"{embree_build:>8.2f} "
-            f"{row['ours_rays_per_s']:>11,.0f} {row['embree_rays_per_s']:>11,.0f} "
-            f"{row['ratio']:>6.2f} {row['mismatches']:>6} "
-            f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}",
-            flush=True,
-        )
+        print_row(row, run["chosen"])
         rows.append(row)
     return rows
+
+
+def agreement(t_ours: np.ndarray, hits) -> dict:
+    """Hit/miss disagreements with Embree's hits, and the 50th, 99th and 100th percentiles of
+    the relative difference of t where both hit."""
+    t_emb = np.where(hits["geomID"] >= 0, hits["tfar"].astype(float), np.inf)
+    ours_hit, emb_hit = np.isfinite(t_ours), np.isfinite(t_emb)
+    both = ours_hit & emb_hit
+    rel = np.abs(t_ours[both] - t_emb[both]) / np.maximum(t_ours[both], 1e-30)
+    pct = np.percentile(rel, [50, 99, 100]) if both.any() else np.zeros(3)
+    return {"mismatches": int((ours_hit != emb_hit).sum()), "rel_t_p50_p99_max": pct.tolist()}
+
+
+HEADER = (
+    f"{'scene':>16} {'ours on':>9} {'structure':>9} {'triangles':>10} {'build s':>8} "
+    f"{'embree':>7} {'ours M rays/s':>19} {'embree M rays/s':>19} {'ours/embree':>17} "
+    f"{'hit/miss':>8} {'t rel p50':>9} {'p99':>9} {'max':>9}"
+)
+
+
+def print_row(row: dict, chosen: str) -> None:
+    """One row of the table: medians with their spread (least-most) in brackets."""
+
+    def spread(key: str, scale: float = 1.0) -> str:
+        lo, mid, hi = (row[f"{key}_low"], row[key], row[f"{key}_high"])
+        return f"{mid / scale:.2f} ({lo / scale:.2f}-{hi / scale:.2f})"
+
+    label = f"auto={chosen}" if row["structure"] == "auto" else row["structure"]
+    pct = row["rel_t_p50_p99_max"]
+    print(
+        f"{row['scene']:>16} {row['form']:>9} {label:>9} {row['triangles']:>10,} "
+        f"{row['ours_build_s']:>8.2f} {row['embree_build_s']:>7.2f} "
+        f"{spread('ours_rays_per_s', 1e6):>19} {spread('embree_rays_per_s', 1e6):>19} "
+        f"{spread('ratio'):>17} {row['mismatches']:>8} "
+        f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}",
+        flush=True,
+    )
 
 
 def main(argv=None) -> int:
@@ -162,7 +197,7 @@ def main(argv=None) -> int:
     p.add_argument("--only", default="tetra,teapot,gears")
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--levels", type=int, default=9, help="generated tetrahedron's recursion")
-    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--repeat", type=int, default=3, help="rounds of turns per row (3)")
     p.add_argument(
         "--structures",
         default="grid,bvh,auto",
@@ -170,6 +205,7 @@ def main(argv=None) -> int:
     )
     p.add_argument("--json", type=Path, help="write the rows to this JSON file")
     args = p.parse_args(argv)
+    core = pin_one_core()  # before Embree's and numba's threads start: they inherit it
     try:
         import embreex  # noqa: F401
     except ImportError:
@@ -183,11 +219,11 @@ def main(argv=None) -> int:
 
     numba.set_num_threads(1)
     print(
-        f"{'scene':>16} {'ours on':>9} {'structure':>9} {'triangles':>10} {'build s':>8} "
-        f"{'embree':>8} "
-        f"{'ours rays/s':>11} {'embree':>11} {'ratio':>6} {'hit/miss':>6} {'t rel p50':>9} "
-        f"{'p99':>9} {'max':>9}"
+        f"one thread, {pinned_text(core)}; process CPU seconds, ours and Embree in turns, "
+        f"{args.repeat} rounds a row: medians (least-most); ours/embree is the median of the "
+        f"rounds' paired ratios; build: one each"
     )
+    print(HEADER)
     structures = args.structures.split(",")
     rows = []
     for name in args.only.split(",") if args.only else []:

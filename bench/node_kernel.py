@@ -11,9 +11,11 @@ through numba's dispatcher.
 
 Each scene's engine is built as an image-space node builds it (its box the partition's scene
 box); its eye rays are traced tile by tile (`--tile` pixels square, as the dynamic tiles deal
-them), once with each kernel per round, `--repeat` rounds; the figures are the best round's
-tracing CPU seconds (thread time around each call) and their ratio. Both kernels must give the
-same colours and ray counts.
+them), once with each kernel per round, `--repeat` rounds, on one thread pinned to one core
+(`bench.timing`). The figures are tracing CPU seconds (thread time around each call) as
+median (least-most) over the rounds, and mesh / one-node as the median of the rounds' paired
+ratios (least-most). A call's microseconds (thread CPU), bound and dispatched, take turns the
+same way. Both kernels must give the same colours and ray counts.
 """
 
 import argparse
@@ -25,6 +27,14 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
+from bench.timing import (  # noqa: E402
+    Figure,
+    Turns,
+    interleaved,
+    pin_one_core,
+    pinned_text,
+    turns,
+)
 
 COUNTS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 
@@ -55,25 +65,30 @@ def timed(trace, batches):
     return cpu, np.concatenate(rgbs), counts
 
 
-def per_call(engine, trace, rays, calls: int = 2000) -> tuple[float, float]:
-    """Microseconds of one `trace(rays)` call (a single ray: the fixed cost a call pays)
-    through `engine`'s bound entry point, and through numba's dispatcher."""
+def per_call(engine, trace, rays, repeat: int, calls: int = 2000) -> tuple[Figure, Figure]:
+    """Thread CPU microseconds of one `trace(rays)` call (a single ray: the fixed cost a call
+    pays) through `engine`'s bound entry point ("bound") and through numba's dispatcher
+    ("dispatched"), `calls` calls a turn, the two taking turns `repeat` rounds."""
     from meshnode.engine.trace import trace_batch
 
     def each():
-        start = time.perf_counter()
         for _ in range(calls):
             trace(rays)
-        return 1e6 * (time.perf_counter() - start) / calls
 
-    bound = engine._trace_batch
-    fast = each()
-    engine._trace_batch = lambda key, *args: trace_batch(*args)
-    try:
-        typed = each()
-    finally:
-        engine._trace_batch = bound
-    return fast, typed
+    def dispatched():
+        bound = engine._trace_batch
+        engine._trace_batch = lambda key, *args: trace_batch(*args)
+        try:
+            each()
+        finally:
+            engine._trace_batch = bound
+
+    times, _ = interleaved({"bound": each, "dispatched": dispatched}, repeat, time.thread_time)
+
+    def micro(seconds: float) -> float:
+        return 1e6 * seconds / calls
+
+    return times.figure("bound").map(micro), times.figure("dispatched").map(micro)
 
 
 def main(argv=None) -> int:
@@ -93,13 +108,15 @@ def main(argv=None) -> int:
     from meshnode.engine import Engine
     from protocols.render import ImageSpec
 
+    core = pin_one_core()
     print(
-        f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread, "
-        f"best of {args.repeat} turns"
+        f"{args.size}x{args.size} at {args.spp} spp, {args.tile}-pixel tiles, one thread "
+        f"{pinned_text(core)}, {args.repeat} rounds in turns: thread CPU, median (least-most); "
+        f"mesh / one-node: the median of the rounds' paired ratios"
     )
     print(
-        f"{'scene':>10} {'tiles':>6} {'mesh kernel s':>13} {'one-node kernel s':>17} "
-        f"{'mesh / one-node':>15} {'call us bound':>13} {'dispatched':>10}"
+        f"{'scene':>10} {'tiles':>6} {'mesh kernel s':>19} {'one-node kernel s':>19} "
+        f"{'mesh / one-node':>16} {'call us bound':>19} {'dispatched':>19}"
     )
     rows, bad = [], []
     for name in args.only.split(","):
@@ -112,31 +129,32 @@ def main(argv=None) -> int:
 
         mesh = engine.trace_passing  # an object-space node's kernel: spans, passing
         mesh(batches[0][:1])  # its entry point looked up (and loaded) before it is timed
-        best = {"mesh": None, "one": None}
-        for _ in range(args.repeat):
-            for label, trace in (("mesh", mesh), ("one", engine.trace_node)):
-                got = timed(trace, batches)
-                if best[label] is None or got[0] < best[label][0]:
-                    best[label] = got
-        (m_cpu, m_rgb, m_counts), (o_cpu, o_rgb, o_counts) = best["mesh"], best["one"]
+        kernels = {"mesh": mesh, "one": engine.trace_node}
+        times, last = Turns(), {}
+        for _, label in turns(list(kernels), args.repeat):
+            cpu, *last[label] = timed(kernels[label], batches)
+            times.add(label, cpu)
+        (m_rgb, m_counts), (o_rgb, o_counts) = last["mesh"], last["one"]
         if m_counts != o_counts or not np.allclose(m_rgb, o_rgb, rtol=0, atol=1e-12):
             bad.append(name)
-        fast, typed = per_call(engine, mesh, batches[len(batches) // 2][:1])
+        bound, typed = per_call(engine, mesh, batches[len(batches) // 2][:1], args.repeat)
+        m, o, ratio = times.figure("mesh"), times.figure("one"), times.ratio("mesh", "one")
         rows.append(
             {
                 "scene": name,
                 "tiles": len(batches),
-                "mesh_kernel_cpu_seconds": m_cpu,
-                "one_node_kernel_cpu_seconds": o_cpu,
-                "ratio": m_cpu / o_cpu,
-                "call_us_bound": fast,
-                "call_us_dispatched": typed,
+                "clock": "thread CPU seconds, in turns",
+                **m.fields("mesh_kernel_cpu_seconds"),
+                **o.fields("one_node_kernel_cpu_seconds"),
+                **ratio.fields("ratio"),
+                **bound.fields("call_us_bound"),
+                **typed.fields("call_us_dispatched"),
                 "counts": o_counts,
             }
         )
         print(
-            f"{name:>10} {len(batches):>6} {m_cpu:>13.3f} {o_cpu:>17.3f} "
-            f"{m_cpu / o_cpu:>15.2f} {fast:>13.1f} {typed:>10.1f}"
+            f"{name:>10} {len(batches):>6} {m.text():>19} {o.text():>19} "
+            f"{ratio.text('{:.2f}'):>16} {bound.text('{:.1f}'):>19} {typed.text('{:.1f}'):>19}"
         )
     return finish(
         rows,

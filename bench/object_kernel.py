@@ -7,13 +7,15 @@ the same render; then both sets are traced again on this thread in turns, `--rou
     python -m bench.object_kernel [--scenes DIR] [--only tetra] [--mesh 3x3] [--overlap 100]
                                   [--size 768] [--spp 4] [--rounds 15] [--json FILE]
 
-Printed per scene: one node's and the mesh's tracing CPU seconds (best round), the mesh's
-work units over one node's (`meshnode.mesh.stats.work_units`: what the model counts), and the
-mesh's CPU over one node's (median over rounds, with quartiles: each round's two sides
-share the same spell of this machine's speed); then per engine its calls, rays, CPU
-seconds, and CPU nanoseconds per work unit beside one node's. A mesh CPU ratio above its
-work ratio is the cost the mesh kernel adds per unit (box spans, occupancy look-ups, rays
-written out). Run pinned to one core (`taskset -c 1`) for steadier figures.
+Timed as `bench.timing` says: this thread's CPU seconds, pinned to one core, one node's calls
+and the mesh's taking turns. Printed per scene: one node's and the mesh's tracing CPU seconds
+(median, least-most), the mesh's work units over one node's
+(`meshnode.mesh.stats.work_units`: what the model counts), and the mesh's CPU over one node's
+(the median of the rounds' paired ratios, with their quartiles and least-most: each round's
+two sides share the same spell of this machine's speed); then per engine its calls, rays,
+CPU seconds, and CPU nanoseconds per work unit beside one node's (one more replay). A mesh
+CPU ratio above its work ratio is the cost the mesh kernel adds per unit (box spans,
+occupancy look-ups, rays written out).
 """
 
 import argparse
@@ -26,6 +28,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_simulated_mesh_options, finish  # noqa: E402 (after the path is set)
+from bench.timing import Turns, pin_one_core, pinned_text, turns  # noqa: E402
 from host.planning.request import Request  # noqa: E402
 
 # Counted once where they happen, on one node and on a mesh alike.
@@ -92,32 +95,34 @@ def main(argv=None) -> int:
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     plan = {"mode": "object", "steal": True, "balance": "cost", "copies": True}
+    core = pin_one_core()
     print(
         f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
         f"{args.overlap:g} (cost cuts, stealing, copies), simulated; {args.rounds} rounds "
-        f"in turns on one thread"
+        f"in turns on one thread, {pinned_text(core)}; CPU seconds median (least-most)"
     )
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_nff(args.scenes / f"{name}.nff")
         one = captured(scene, 1, 1, args.size, args.spp, args.overlap, {})
         mesh = captured(scene, rows_, cols, args.size, args.spp, args.overlap, plan)
-        ratios, best_one, best_mesh = [], None, None
-        for _ in range(args.rounds):
-            c1, w1, n1 = replay(one)
-            cm, wm, nm = replay(mesh)
-            ratios.append(cm / c1)
-            best_one = c1 if best_one is None else min(best_one, c1)
-            best_mesh = cm if best_mesh is None else min(best_mesh, cm)
+        times, got = Turns(), {}
+        for _, side in turns(["one", "mesh"], args.rounds):
+            cpu, *got[side] = replay(one if side == "one" else mesh)
+            times.add(side, cpu)
+        (w1, n1), (wm, nm) = got["one"], got["mesh"]
         if n1 != nm:
             bad.append(f"{name}: one node {dict(n1)}, mesh {dict(nm)}")
-        q1, median, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+        ratio = times.ratio("mesh", "one")
+        ratios = ratio.samples
+        q1, _, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+        c_one, c_mesh = times.figure("one"), times.figure("mesh")
         per_engine: dict = {}
         replay(mesh, per_engine)
         print(
-            f"\n== {name}: one node {best_one:.3f} s, mesh {best_mesh:.3f} s (best rounds); "
-            f"work mesh / one {wm / w1:.3f}; CPU mesh / one median {median:.3f} "
-            f"(quartiles {q1:.3f}-{q3:.3f})"
+            f"\n== {name}: one node {c_one.text()} s, mesh {c_mesh.text()} s; "
+            f"work mesh / one {wm / w1:.3f}; CPU mesh / one median {ratio.median:.3f} "
+            f"(quartiles {q1:.3f}-{q3:.3f}, least-most {ratio.low:.3f}-{ratio.high:.3f})"
         )
         print(f"{'engine':>8} {'kernel':>7} {'calls':>6} {'rays':>9} {'CPU s':>7} {'ns/unit':>8}")
         engines = []
@@ -136,17 +141,19 @@ def main(argv=None) -> int:
             print(f"{i:>8} {kernel:>7} {calls:>6} {n_rays:>9} {cpu:>7.3f} {ns:>8.2f}")
         print(
             f"{'one node':>8} {'one':>7} {len(one):>6} {sum(len(c[1]) for c in one):>9} "
-            f"{c1:>7.3f} {1e9 * c1 / w1:>8.2f}"
+            f"{c_one.median:>7.3f} {1e9 * c_one.median / w1:>8.2f}"
         )
         rows.append(
             {
                 "scene": name,
                 "mesh": args.mesh,
-                "one_cpu_seconds": best_one,
-                "mesh_cpu_seconds": best_mesh,
+                "clock": "thread CPU seconds, in turns",
+                **c_one.fields("one_cpu_seconds"),
+                **c_mesh.fields("mesh_cpu_seconds"),
                 "work_ratio": wm / w1,
-                "cpu_ratio_median": median,
+                "cpu_ratio_median": ratio.median,
                 "cpu_ratio_quartiles": [q1, q3],
+                "cpu_ratio_least_most": [ratio.low, ratio.high],
                 "engines": engines,
             }
         )

@@ -13,12 +13,19 @@ as `host render --sampling S --spp N` without --camera) instead of the lens.
 Rows: uniform, jittered and adaptive sampling (one row set per threshold) of the lens (the
 first element's ellipse, generation area 2) at each number of rays per pixel. Columns: rays per
 pixel actually traced (adaptive traces two, and all N only where those differ by more than the
-threshold; with one ray it is plain one-ray sampling), the share of refined pixels, the best of
-`--repeat` tracing times (camera ray generation included, preprocessing and kernel loading not),
-the RMS error of the linear image against the reference, RMS x sqrt(seconds) (lower is better:
-it does not change with the sample count for plain Monte Carlo noise), and time and error
-relative to jittered sampling at the same count. Uniform sampling with one ray is the pinhole
-through the lens centre: its error is the depth of field missing altogether.
+threshold; with one ray it is plain one-ray sampling), the share of refined pixels, the frame's
+CPU seconds (the process's, every tracing thread's: camera ray generation included,
+preprocessing and kernel loading not; median over `--repeat` rounds, least-most beside it),
+the RMS error of the linear image against the reference, RMS x sqrt(CPU seconds) (lower is
+better: it does not change with the sample count for plain Monte Carlo noise), and time and
+error relative to jittered sampling at the same count (time: the median of the rounds' paired
+ratios, least-most beside it). Uniform sampling with one ray is the pinhole through the lens
+centre: its error is the depth of field missing altogether.
+
+Timed as `bench.timing` says, for a shared, noisy machine: CPU seconds, never the wall; the
+methods of one ray count taking turns (uniform, jittered, adaptive ..., uniform, jittered ...)
+so a round's renders share a spell of the machine; with `--threads 1` the process is pinned
+to one core.
 
 The reference is jittered with `--ref-rays` rays and a different seed, so its own noise is
 independent of the measured runs' and adds to their error in quadrature; its size is printed,
@@ -29,6 +36,7 @@ into `--out`.
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -39,6 +47,7 @@ if __package__ in (None, ""):  # run as `python bench/sampling.py`
 
 from bench.sampling_plot import plot  # noqa: E402 (after the path is set)
 from bench.sampling_runs import REF_SEED_OFFSET, Bench, measure, reference_error  # noqa: E402
+from bench.timing import pin_one_core, pinned_text  # noqa: E402
 
 DEFAULT_SCENE = ROOT / "bench" / "scenes" / "dof.nff"
 DEFAULT_CAMERA = ROOT / "host" / "cameras" / "thin_f2.8.toml"
@@ -80,7 +89,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=None,
         help="adaptive thresholds, comma-separated (renderer default)",
     )
-    p.add_argument("--repeat", type=int, default=3, help="best of N timings (3)")
+    p.add_argument("--repeat", type=int, default=3, help="rounds of turns (3)")
     p.add_argument("--seed", type=int, default=1, help="seed of the measured runs (1)")
     p.add_argument("--threads", type=int, default=0, help="tracing threads (0: one per core)")
     p.add_argument(
@@ -104,17 +113,20 @@ def format_table(rows: list[dict]) -> str:
     """The rows as a fixed-width text table."""
     head = (
         f"{'sampling':<15} {'spp':>4} {'thresh':>6} {'rays/px':>8} {'refined':>7} "
-        f"{'trace s':>8} {'RMS error':>10} {'RMS*sqrt(s)':>11} {'t/jit':>6} "
-        f"{'err/jit':>7}"
+        f"{'CPU s':>8} {'least-most':>15} {'RMS error':>10} {'RMS*sqrt(s)':>11} {'t/jit':>6} "
+        f"{'least-most':>11} {'err/jit':>7}"
     )
     lines = [head, "-" * len(head)]
     for r in rows:
         thresh = f"{r['threshold']:g}" if r["threshold"] is not None else "-"
         refined = f"{100 * r['refined']:.1f}%" if r["refined"] is not None else "-"
+        seconds = f"{r['seconds_low']:.4f}-{r['seconds_high']:.4f}"
+        ratios = f"{r['time_vs_jittered_low']:.2f}-{r['time_vs_jittered_high']:.2f}"
         lines.append(
             f"{r['method']:<15} {r['spp']:>4} {thresh:>6} {r['rays_per_pixel']:>8.2f} "
-            f"{refined:>7} {r['seconds']:>8.4f} {r['rms']:>10.5f} {r['merit']:>11.5f} "
-            f"{r['time_vs_jittered']:>6.2f} {r['error_vs_jittered']:>7.2f}"
+            f"{refined:>7} {r['seconds']:>8.4f} {seconds:>15} {r['rms']:>10.5f} "
+            f"{r['merit']:>11.5f} {r['time_vs_jittered']:>6.2f} {ratios:>11} "
+            f"{r['error_vs_jittered']:>7.2f}"
         )
     return "\n".join(lines)
 
@@ -124,16 +136,19 @@ def main(argv=None) -> int:
     error, write the plot and the reference image (and the rows as JSON)."""
     args = parse_args(argv)
     start = time.perf_counter()
+    # one thread compared with itself: pinned before any thread starts (they inherit it)
+    core = pin_one_core() if (args.threads or os.cpu_count() or 1) == 1 else None
     bench = Bench(args)
     reference, ref_stats, ref_seconds = bench.reference()
     cam = ref_stats["camera"]
-    print_intro(args, ref_stats, ref_seconds)
+    print_intro(args, ref_stats, ref_seconds, core)
     rows = measure(bench, reference)
     print()
     print(format_table(rows))
     print(
         "\nadaptive with 1 ray per pixel traces that one ray (no threshold, same as jittered); "
-        "RMS*sqrt(s): lower is better"
+        "RMS*sqrt(s): lower is better (s: the median CPU seconds); t/jit: the median of the "
+        "rounds' paired ratios"
     )
     slope, ref_error = reference_error(rows, args.ref_rays)
     print(
@@ -148,7 +163,9 @@ def main(argv=None) -> int:
             "width": args.width,
             "height": args.height,
             "ref_rays": args.ref_rays,
-            "ref_seconds": ref_seconds,
+            "ref_cpu_seconds": ref_seconds,
+            "clock": "frame process CPU seconds, methods of a count in turns",
+            "pinned_core": core,
             "repeat": args.repeat,
             "seed": args.seed,
             "jittered_rate": slope,
@@ -156,26 +173,30 @@ def main(argv=None) -> int:
             "rows": rows,
         }
         args.json.write_text(json.dumps(info, indent=2, default=str))
-    print(f"whole run {time.perf_counter() - start:.1f} s")
+    print(f"whole run {time.perf_counter() - start:.1f} s (wall)")
     return 0
 
 
-def print_intro(args: argparse.Namespace, ref_stats: dict, ref_seconds: float) -> None:
-    """What was measured: scene, optics, image, threads, the reference and the seeds."""
+def print_intro(args: argparse.Namespace, ref_stats: dict, ref_seconds: float, core) -> None:
+    """What was measured: scene, optics, image, threads (and the core pinned to), the
+    reference, the seeds and how the methods were timed."""
     cam = ref_stats["camera"]
     optics = (
         cam["source"]
         if args.pinhole
         else f"{cam['source']}  f/{cam['f_number']:.2f} focused at {cam['focus_distance_m']:g} m"
     )
+    threads = ref_stats["threads"]
+    pinned = pinned_text(core) if threads == 1 else "not pinned"
     print(
         f"scene {args.scene}  camera {optics}  {args.width}x{args.height}  "
-        f"{ref_stats['threads']} threads"
+        f"{threads} thread{'s' if threads > 1 else ''}, {pinned}"
     )
     ref_seed = args.seed + REF_SEED_OFFSET
     print(
-        f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, {ref_seconds:.2f} s;"
-        f"  measured runs: seed {args.seed}, best of {args.repeat}"
+        f"reference: jittered, {args.ref_rays} rays/pixel, seed {ref_seed}, "
+        f"{ref_seconds:.2f} CPU s;  measured runs: seed {args.seed}, each count's methods in "
+        f"turns, {args.repeat} rounds, process CPU seconds of each frame"
     )
 
 

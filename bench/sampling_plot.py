@@ -1,5 +1,6 @@
-"""The sampling benchmark's log-log plot of RMS error against tracing seconds (PNG, drawn with
-Pillow, no plotting library needed): one line per method, so their trade-offs read at a glance."""
+"""The sampling benchmark's log-log plot of RMS error against CPU seconds (PNG, drawn with
+Pillow, no plotting library needed): one line per method through the median seconds, a bar
+through each point from the least to the most, so trade-offs and noise read at a glance."""
 
 import math
 from pathlib import Path
@@ -70,7 +71,7 @@ def _draw_axes(draw, image, ax: LogAxes, title: str) -> None:
     draw.rectangle(ax.box, outline="black")
     draw.text(
         ((left + right) / 2, PLOT_SIZE[1] - 22),
-        "tracing seconds (log)",
+        "CPU seconds of the frame (log; median, bar: least-most)",
         fill="black",
         font=font,
         anchor="mm",
@@ -98,20 +99,27 @@ def _marker(draw, xy, shape: int, colour) -> None:
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
-    """Log-log PNG of RMS error against tracing seconds: one line per method, points labelled
-    with their rays per pixel, and a legend."""
+    """Log-log PNG of RMS error against CPU seconds: one line per method through the medians,
+    each point's least-most bar, points labelled with their rays per pixel, and a legend."""
     from PIL import Image, ImageDraw
 
     image = Image.new("RGB", PLOT_SIZE, "white")
     draw = ImageDraw.Draw(image)
-    ax = LogAxes([r["seconds"] for r in rows], [r["rms"] for r in rows])
+    spread = [r.get(k, r["seconds"]) for r in rows for k in ("seconds_low", "seconds_high")]
+    ax = LogAxes([r["seconds"] for r in rows] + spread, [r["rms"] for r in rows])
     _draw_axes(draw, image, ax, title)
     methods = list(dict.fromkeys(r["method"] for r in rows))
     small = _font(12)
     for i, method in enumerate(methods):
         colour = COLOURS[i % len(COLOURS)]
-        points = [(ax(r["seconds"], r["rms"]), r["spp"]) for r in rows if r["method"] == method]
-        points.sort(key=lambda p: p[1])
+        mine = [r for r in rows if r["method"] == method]
+        for r in mine:  # the spread of its CPU seconds over the rounds
+            lo = ax(r.get("seconds_low", r["seconds"]), r["rms"])
+            hi = ax(r.get("seconds_high", r["seconds"]), r["rms"])
+            draw.line([lo, hi], fill=colour, width=1)
+            draw.line([(lo[0], lo[1] - 3), (lo[0], lo[1] + 3)], fill=colour, width=1)
+            draw.line([(hi[0], hi[1] - 3), (hi[0], hi[1] + 3)], fill=colour, width=1)
+        points = sorted(((ax(r["seconds"], r["rms"]), r["spp"]) for r in mine), key=lambda p: p[1])
         draw.line([p for p, _ in points], fill=colour, width=2)
         for xy, spp in points:
             _marker(draw, xy, i, colour)

@@ -1,11 +1,14 @@
 """The sampling benchmark's measurements: one scene and engine built and warmed once, each
 camera-ray sampling method rendered at each ray count and compared with a many-ray reference,
-so methods differ only in how they place their rays."""
+so methods differ only in how they place their rays. Timed as `bench.timing` says: each
+frame's process CPU seconds, the methods of one ray count taking turns."""
 
 import argparse
 import math
 
 import numpy as np
+
+from bench.timing import Turns, turns
 
 METHODS = ("uniform", "jittered", "adaptive")
 REF_SEED_OFFSET = 7919  # the reference's seed: far from the measured runs'
@@ -49,39 +52,54 @@ class Bench:
             CameraSetup(self.camera, sampled, Focus(a.focus)),
         )
 
-    def render(self, settings, repeat: int = 1):
-        """(image, stats, best tracing seconds of `repeat` identical renders)."""
+    def render(self, settings):
+        """(image, stats, the frame's CPU seconds): the renderer's own process CPU seconds for
+        the frame, every thread's (making camera rays, tracing, adding them up; not the
+        engine's build or kernel loading)."""
         from host.planning.request import Request
         from host.run.oneprocess import render
 
-        best, image, stats = math.inf, None, None
-        for _ in range(repeat):
-            image, stats = render(Request(self.scene, *settings), built=self.engine)
-            best = min(best, stats["trace_seconds"])
-        return image, stats, best
+        image, stats = render(Request(self.scene, *settings), built=self.engine)
+        return image, stats, stats["frame_cpu_seconds"]
 
     def reference(self):
         """The many-ray jittered image, with a seed of its own."""
         a = self.args
         return self.render(self.settings("jittered", a.ref_rays, a.seed + REF_SEED_OFFSET))
 
-    def row(self, reference: np.ndarray, sampling: str, spp: int, threshold=None) -> dict:
-        """One measured configuration against the reference."""
-        s = self.settings(sampling, spp, self.args.seed, threshold or 0.0)
-        image, stats, seconds = self.render(s, self.args.repeat)
+    def in_turns(self, plan: list[tuple[str, float | None]], spp: int) -> tuple[Turns, dict]:
+        """Every (sampling, threshold) of `plan` at `spp` rays per pixel, taking turns
+        `--repeat` rounds: (their CPU seconds, each one's last (image, stats) by method)."""
+        a = self.args
+        settings = {method_name(s, t): self.settings(s, spp, a.seed, t or 0.0) for s, t in plan}
+        times, last = Turns(), {}
+        for _, name in turns(list(settings), a.repeat):
+            image, stats, seconds = self.render(settings[name])
+            times.add(name, seconds)
+            last[name] = image, stats
+        return times, last
+
+    def row(self, reference, sampling: str, spp: int, threshold, rendered, times: Turns) -> dict:
+        """One measured configuration against the reference: `rendered` its (image, stats),
+        `times` the CPU seconds of its count's turns (jittered's among them)."""
+        image, stats = rendered
+        name = method_name(sampling, threshold)
         cam = stats["camera"]
         adaptive = cam["threshold"] is not None  # adaptive with one ray is one plain ray
         error = rms(image, reference)
+        seconds = times.figure(name)
         return {
-            "method": method_name(sampling, threshold),
+            "method": name,
             "sampling": sampling,
             "spp": spp,
             "threshold": cam["threshold"] if adaptive else None,
             "rays_per_pixel": stats["rays"]["eye_rays"] / self.pixels,
             "refined": cam.get("refined_pixels", 0) / self.pixels if adaptive else None,
-            "seconds": seconds,
+            **seconds.fields("seconds"),
             "rms": error,
-            "merit": error * math.sqrt(seconds),
+            "merit": error * math.sqrt(seconds.median),
+            # this method's CPU over jittered's in the same round: their median and spread
+            **times.ratio(name, "jittered").fields("time_vs_jittered"),
         }
 
 
@@ -96,14 +114,20 @@ def rms(image: np.ndarray, reference: np.ndarray) -> float:
 
 
 def measure(bench: Bench, reference: np.ndarray) -> list[dict]:
-    """Every method at every sample count, with ratios to jittered at the same count."""
+    """Every method at every sample count (the methods of one count in turns), with time and
+    error relative to jittered at the same count; rows by method, then count."""
     a = bench.args
     plan = [("uniform", None), ("jittered", None)] + [("adaptive", t) for t in a.threshold]
-    rows = [bench.row(reference, sampling, spp, t) for sampling, t in plan for spp in a.spp]
+    got = {}
+    for spp in a.spp:
+        times, last = bench.in_turns(plan, spp)
+        for sampling, t in plan:
+            rendered = last[method_name(sampling, t)]
+            got[sampling, t, spp] = bench.row(reference, sampling, spp, t, rendered, times)
+    rows = [got[sampling, t, spp] for sampling, t in plan for spp in a.spp]
     jittered = {r["spp"]: r for r in rows if r["sampling"] == "jittered"}
     for r in rows:
         j = jittered[r["spp"]]
-        r["time_vs_jittered"] = r["seconds"] / j["seconds"] if j["seconds"] > 0 else math.nan
         r["error_vs_jittered"] = r["rms"] / j["rms"] if j["rms"] > 0 else math.nan
     return rows
 

@@ -9,7 +9,10 @@ author's published table, and whole-process wall times (warm and cold numba cach
 
 Tracing times exclude kernel loading (`render` warms up first) and preprocessing; rays/s is
 all rays (eye, reflected, refracted, shadow) over the best tracing time. Ray counts must be
-identical in every configuration of a scene: grid and hierarchy are both exact.
+identical in every configuration of a scene: grid and hierarchy are both exact. The process
+is pinned to one core (`bench.timing`; POV-Ray, its child, inherits it), and POV-Ray and our
+default take turns on trace CPU seconds: the goal's ratio is the median of the turns' paired
+ratios.
 
 --scaling needs no scene folder: it generates SPD tetra and balls at growing size factors
 (`bench.generate`: 4^n triangles, 1 + 9 + ... + 9^n spheres) and prints tracing time against
@@ -38,6 +41,7 @@ from bench.spd_report import (  # noqa: E402
 from bench.spd_runs import CountMismatchError, bench_scene, config_plan  # noqa: E402
 from bench.spd_scaling import main_scaling  # noqa: E402
 from bench.spd_wall import WALL_SCENES, wall_times  # noqa: E402
+from bench.timing import pin_one_core, pinned_text  # noqa: E402
 
 STRUCTURES = ("grid", "bvh", "auto")  # --structures; the default (auto) always runs
 DEFAULT_SCALING = "tetra:1-10,balls:1-6"  # 4 .. 1,048,576 triangles, 10 .. 597,871 spheres
@@ -133,14 +137,15 @@ def scene_files(folder: Path, only: str | None) -> list[Path]:
 def main(argv=None) -> int:
     """Run the benchmark, print it, optionally write JSON."""
     args = parse_args(argv)
+    core = pin_one_core()  # one thread throughout; children (POV-Ray) inherit the core
     if args.scaling is not None:
         return main_scaling(args)
     files = scene_files(args.scenes, args.only)
     with_pov = [p.stem for p in files if pov_file(args.scenes, p.stem)]
     print(
         f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
-        f"1 thread; {', '.join(sorted(set(args.structures) | {'auto'}))}; densities "
-        f"{args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
+        f"1 thread {pinned_text(core)}; {', '.join(sorted(set(args.structures) | {'auto'}))}; "
+        f"densities {args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
         f"{', '.join(with_pov) or 'none'}"
     )
     results = bench_scenes(args, files, with_pov)

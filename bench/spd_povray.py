@@ -1,15 +1,18 @@
 """POV-Ray 3.7 beside our default engine on the scenes that have a pov/NAME.pov, the two
-taking turns, and the project's goal (POV-Ray's trace time over ours) judged from the ratios."""
+taking turns on CPU seconds (`bench.timing`), and the project's goal (POV-Ray's trace time over
+ours) judged from the ratios."""
 
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 from bench.spd_runs import build, default_density, default_storage, run_config
+from bench.timing import Turns
 
 GOAL_SCENES = ("balls", "tetra", "gears", "rings", "teapot", "tree")
 GOAL_RATIO = 2.0  # the project's goal: POV-Ray's trace time over our default's
@@ -30,6 +33,8 @@ def find_povray() -> str | None:
 
 _POV_PATTERNS = {
     "trace_seconds": r"Trace Time:.*\(([\d.]+) seconds\)",
+    # the next line: "using 1 thread(s) with 2.021 CPU-seconds total"
+    "cpu_seconds": r"Trace Time:.*\n.*with ([\d.]+) CPU-seconds total",
     "rays": r"^Rays:\s+(\d+)",
     "shadow_rays": r"Shadow Ray Tests:\s+(\d+)",
     "shadow_rays_blocked": r"Shadow Ray Tests:\s+\d+\s+Succeeded:\s+(\d+)",
@@ -39,21 +44,27 @@ _POV_PATTERNS = {
 
 
 def parse_povray(text: str) -> dict:
-    """Trace time and ray statistics from POV-Ray's console output (absent counters: 0)."""
+    """Trace time (wall and CPU seconds) and ray statistics from POV-Ray's console output
+    (absent counters: 0; an absent trace time or its CPU seconds: an error)."""
     out = {}
     for key, pattern in _POV_PATTERNS.items():
         m = re.search(pattern, text, re.MULTILINE)
-        out[key] = (float(m.group(1)) if key == "trace_seconds" else int(m.group(1))) if m else 0
-    if "Trace Time:" not in text:
-        raise RuntimeError("no 'Trace Time:' in POV-Ray output:\n" + text[-2000:])
+        if m is None and key.endswith("seconds"):
+            raise RuntimeError(
+                "no 'Trace Time:' with its CPU-seconds in POV-Ray output:\n" + text[-2000:]
+            )
+        out[key] = (float(m.group(1)) if key.endswith("seconds") else int(m.group(1))) if m else 0
     return out
 
 
 def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
-    """Render `pov` at 512x512 on one thread `repeats` times; best trace time and counts.
-    `between()`, if given, runs after each POV-Ray run and returns our trace seconds: the two
-    tracers take turns, so a slow spell of this shared machine falls on both alike."""
-    runs, ours = [], []
+    """Render `pov` at 512x512 on one thread `repeats` times: its trace CPU seconds (median,
+    least-most, every run's; its wall trace seconds' median beside them) and counts.
+    `between()`, if given, runs after each POV-Ray run and returns our trace CPU seconds: the
+    two tracers take turns, so a slow spell of this shared machine falls on both alike, and
+    the ratio is the median of each turn's POV-Ray / ours. POV-Ray runs on this process's
+    cores (pinned to one by `bench.spd`: a child inherits it)."""
+    runs, times = [], Turns()
     with tempfile.TemporaryDirectory(prefix="bench-pov-") as tmp:
         cmd = [
             exe,
@@ -72,25 +83,30 @@ def run_povray(exe: str, pov: Path, repeats: int, between=None) -> dict:
             if done.returncode != 0:
                 raise RuntimeError(f"povray failed ({done.returncode}):\n{done.stderr[-2000:]}")
             runs.append(parse_povray(done.stderr + done.stdout))
+            times.add("povray", runs[-1]["cpu_seconds"])
             if between is not None:
-                ours.append(between())
-    best = min(runs, key=lambda r: r["trace_seconds"])
-    out = {**best, "trace_seconds_all": [r["trace_seconds"] for r in runs]}
-    if ours:
-        out["ours_default_seconds"] = min(ours)
-        out["ours_default_seconds_all"] = ours
+                times.add("ours", between())
+    out = {
+        **runs[-1],  # the counts: the same every run
+        **times.figure("povray").fields("cpu_seconds"),
+        "trace_seconds": statistics.median(r["trace_seconds"] for r in runs),
+        "trace_seconds_all": [r["trace_seconds"] for r in runs],
+    }
+    if between is not None:
+        out.update(times.figure("ours").fields("ours_default_cpu_seconds"))
+        out.update(times.ratio("povray", "ours").fields("ratio_default"))
     return out
 
 
 def default_runner(path: Path):
     """A function tracing `path` once with the default engine (built here, once) and returning
-    its trace seconds: our turns between POV-Ray's."""
+    its trace CPU seconds: our turns between POV-Ray's."""
     from host.scene.nff import read_nff
 
     scene = read_nff(path)
     storage, density = default_storage(), default_density()
     engine = build(scene, "auto", storage, density)
-    return lambda: run_config(scene, "auto", storage, density, 1, built=engine)["trace_seconds"]
+    return lambda: run_config(scene, "auto", storage, density, 1, built=engine)["trace_cpu_seconds"]
 
 
 def pov_file(scenes: Path, name: str) -> Path | None:
@@ -100,8 +116,10 @@ def pov_file(scenes: Path, name: str) -> Path | None:
 
 
 def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
-    """POV-Ray figures (best of `repeat`) and pov/ours ratios for every scene of `results`
-    that has a POV-Ray version."""
+    """POV-Ray figures (`repeat` turns with our default) and pov/ours CPU ratios for every
+    scene of `results` that has a POV-Ray version: pov/default the median of the turns'
+    paired ratios, pov/best POV-Ray's median over the best configuration's best (its own
+    pass, not in turns)."""
     wanted = [r for r in results if pov_file(scenes, r["scene"])]
     if not wanted:
         return {}
@@ -114,8 +132,7 @@ def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
         print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
         ours = default_runner(Path(r["file"]))
         pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat, between=ours)
-        pov["ratio_best"] = pov["trace_seconds"] / r["best_trace_seconds"]
-        pov["ratio_default"] = pov["trace_seconds"] / pov["ours_default_seconds"]
+        pov["ratio_best"] = pov["cpu_seconds"] / r["best_trace_cpu_seconds"]
         out["scenes"][r["scene"]] = pov
     return out
 

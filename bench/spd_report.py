@@ -33,7 +33,7 @@ def print_scene(r: dict) -> None:
         "config",
         "structure",
         "prep s",
-        "trace s",
+        "wall trace s",
         "Mrays/s",
         "tests/ray",
         "steps/ray",
@@ -130,10 +130,10 @@ def print_pov(results: list[dict], pov: dict) -> None:
     """Side-by-side tracing times and shadow/reflection counts against POV-Ray."""
     if not pov.get("available"):
         return
-    print("\n== POV-Ray 3.7 side by side (512x512, 1 thread, trace time only)")
+    print("\n== POV-Ray 3.7 side by side (512x512, 1 thread, trace CPU seconds only)")
     headers = [
         "scene",
-        "povray",
+        "povray CPU s",
         "ours best",
         "config",
         "ours default",
@@ -156,13 +156,13 @@ def print_pov(results: list[dict], pov: dict) -> None:
         rows.append(
             [
                 r["scene"],
-                f"{p['trace_seconds']:.3f}",
-                f"{r['best_trace_seconds']:.3f}",
-                r["best"],
-                f"{p['ours_default_seconds']:.3f}",
+                _spread(p, "cpu_seconds", 3),
+                f"{r['best_trace_cpu_seconds']:.3f}",
+                r["best_cpu"],
+                _spread(p, "ours_default_cpu_seconds", 3),
                 r["default"],
                 f"{p['ratio_best']:.2f}",
-                f"{p['ratio_default']:.2f}",
+                _spread(p, "ratio_default", 2),
                 c["shadow_rays"],
                 p["shadow_rays"],
                 c["shadow_rays_blocked"],
@@ -173,11 +173,19 @@ def print_pov(results: list[dict], pov: dict) -> None:
         )
     print(table(headers, rows))
     print(
-        f"(best of {pov['repeat']} each, ours' default taking turns with POV-Ray (ours best: "
-        "the scene's own pass); ratio > 1: we are faster; ours traces 513x513 "
+        f"(CPU seconds of the tracing thread, pinned to one core; POV-Ray and ours' default "
+        f"taking turns {pov['repeat']} times: median (least-most), pov/default the median of "
+        "the turns' paired ratios; ours best: the best configuration's best of the scene's own "
+        "pass, not in turns; ratio > 1: we are faster; ours traces 513x513 "
         "corner rays, POV-Ray 512x512 centres with adc_bailout; default = structure auto, "
         f"storage auto, density {default_density():g})"
     )
+
+
+def _spread(d: dict, key: str, digits: int) -> str:
+    """'median (least-most)' of the figure `key` in `d` (`bench.timing.Figure.fields`)."""
+    lo, mid, hi = d[f"{key}_low"], d[key], d[f"{key}_high"]
+    return f"{mid:.{digits}f} ({lo:.{digits}f}-{hi:.{digits}f})"
 
 
 def print_wall(wall: dict) -> None:
@@ -203,19 +211,19 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
         if p is None and w is None:
             continue
         parts = [
-            f"{r['scene']}: ours {r['best_trace_seconds']:.3f} s ({r['best']}), "
-            f"default {r['default_trace_seconds']:.3f} s ({r['default']})"
+            f"{r['scene']}: ours {r['best_trace_seconds']:.3f} s wall ({r['best']}), "
+            f"default {r['default_trace_seconds']:.3f} s wall ({r['default']})"
         ]
         if p:
             parts.append(
-                f"POV-Ray {p['trace_seconds']:.3f} s -> pov/ours {p['ratio_best']:.2f}"
-                f" best, {p['ratio_default']:.2f} default"
+                f"POV-Ray {p['cpu_seconds']:.3f} CPU s -> pov/ours {p['ratio_best']:.2f}"
+                f" best, {p['ratio_default']:.2f} default (CPU)"
             )
         if w:
             parts.append(f"process warm {w['warm_seconds']:.2f} s, cold {w['cold_seconds']:.2f} s")
         print("; ".join(parts))
     total = sum(r["best_trace_seconds"] for r in results)
-    print(f"all {len(results)} scenes: best tracing times sum to {total:.3f} s")
+    print(f"all {len(results)} scenes: best tracing times sum to {total:.3f} s wall")
     if pov.get("available"):
         print(goal_line(goal(pov)))
     checked = [r for r in results if r.get("published")]

@@ -3,7 +3,7 @@ configuration names and plan, and the goal line the benchmark's verdict rests on
 
 import pytest
 
-from bench.spd_povray import goal, goal_line
+from bench.spd_povray import goal, goal_line, parse_povray
 from bench.spd_published import compare_published, parse_published
 from bench.spd_runs import _label, config_plan, default_density
 from bench.spd_scaling import _chosen
@@ -117,6 +117,31 @@ def test_goal_sorts_scenes_by_the_default_ratio():
         "not met on gears 1.90; not measured: rings, teapot, tree"
     )
     assert goal({})["absent"] == ["balls", "tetra", "gears", "rings", "teapot", "tree"]
+
+
+POVRAY_OUTPUT = """Parser Time
+  Parse Time:       0 hours  0 minutes  0 seconds (0.038 seconds)
+              using 1 thread(s) with 0.037 CPU-seconds total
+  Bounding Time:    0 hours  0 minutes  0 seconds (0.011 seconds)
+              using 1 thread(s) with 0.010 CPU-seconds total
+Rays:               6996   Saved:                 0   Max Level: 5/5
+Shadow Ray Tests:             14855   Succeeded:                  4454
+Reflected Rays:                2900
+Render Time:
+  Photon Time:      No photons
+  Radiosity Time:   No radiosity
+  Trace Time:       0 hours  0 minutes  0 seconds (0.167 seconds)
+              using 1 thread(s) with 0.080 CPU-seconds total
+"""
+
+
+def test_povray_trace_cpu_seconds_are_the_trace_times_not_the_parsers():
+    got = parse_povray(POVRAY_OUTPUT)
+    assert got["trace_seconds"] == 0.167 and got["cpu_seconds"] == 0.080
+    assert (got["rays"], got["shadow_rays"], got["shadow_rays_blocked"]) == (6996, 14855, 4454)
+    assert got["reflected_rays"] == 2900 and got["refracted_rays"] == 0
+    with pytest.raises(RuntimeError, match="CPU-seconds"):
+        parse_povray(POVRAY_OUTPUT.replace("with 0.080 CPU-seconds total", ""))
 
 
 def test_scaling_says_what_auto_chose():

@@ -79,9 +79,11 @@ def test_mesh_over_tcp_equals_single_node(name, rows, cols, overlap):
     assert all(n["waves"] >= 3 for n in nodes)
     assert all(50e6 < n["peak_rss_bytes"] < 4e9 for n in nodes)  # reported, and plausible
     assert len(nodes) == rows * cols
-    # One statistics record: the figures every render carries mean the same both ways, and
-    # one summary prints either.
-    for key in ("scene", "image", "engine_spec", "total_rays"):
+    # One statistics record: the figures every render carries mean the same both ways (the
+    # SPD table's counts too, total internal reflections among them), and one summary prints
+    # either.
+    assert stats["rays"]["internal_reflections"] == ref_stats["rays"]["internal_reflections"]
+    for key in ("scene", "image", "engine_spec", "total_rays", "spd_counts"):
         assert stats[key] == ref_stats[key], key
     for s in (stats, ref_stats):
         assert set(COMMON) <= set(s) and not set(WALK_COUNTS) & set(s["rays"])

@@ -4,13 +4,15 @@ render's, summed from every node's STATS: how evenly the nodes worked and how mu
 scene each held (what object space saves).
 """
 
-from meshnode.engine.counters import WALK_COUNTS
+from meshnode.engine.counters import WALK_COUNTS, spd_counts
 from meshnode.mesh.stats import RAY_KINDS
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
 # What every render's statistics say, one process or a mesh, each with one meaning: the scene
 # file, the sized image and the engine spec asked for (wire forms), the rays by kind and in
-# all (the walks' work counted apart: WALK_COUNTS), seconds compiling kernels (a first run),
+# all (the walks' work counted apart: WALK_COUNTS), the four counts of the SPD author's
+# published table counted as that table counts them (`spd_counts`: a hit on a transmitter
+# that reflects totally counts as a refracted ray), seconds compiling kernels (a first run),
 # the seconds before the first primary ray could be traced (setup: building, loading, on a
 # mesh connecting and configuring too), the seconds after it (trace) and in all (wall), and
 # rays per second over the trace seconds.
@@ -20,6 +22,7 @@ COMMON = (
     "engine_spec",
     "rays",
     "total_rays",
+    "spd_counts",
     "compile_seconds",
     "setup_seconds",
     "trace_seconds",
@@ -48,6 +51,7 @@ def common(
         "rays": {k: v for k, v in rays.items() if k not in WALK_COUNTS},
         **{k: rays.get(k, 0) for k in WALK_COUNTS},
         "total_rays": total,
+        "spd_counts": spd_counts(rays),
         "compile_seconds": compile_seconds,
         "setup_seconds": setup,
         "trace_seconds": trace,
@@ -57,14 +61,21 @@ def common(
 
 
 def summary_line(out, stats: dict) -> str:
-    """The one summary of a render, from its COMMON figures: the image, the rays by kind, the
-    times and the rate; then a mesh's passes and imbalance, or one process's work per ray and
-    kernel variant."""
+    """The one summary of a render, from its COMMON figures: the image, the rays by kind (with
+    total internal reflections, the refracted count as the SPD author's table counts them),
+    the times and the rate; then a mesh's passes and imbalance, or one process's work per ray
+    and kernel variant."""
     r, image = stats["rays"], stats["image"]
+    refracted = f"{r.get('refracted_rays', 0)}"
+    if r.get("internal_reflections", 0):
+        refracted += (
+            f" (SPD {spd_counts(r)['refracted_rays']}: +{r['internal_reflections']} "
+            "total internal reflections)"
+        )
     text = (
         f"{out}: {image['width']}x{image['height']}  eye {r.get('eye_rays', 0)} (hit "
         f"{r.get('eye_hits', 0)})  reflected {r.get('reflected_rays', 0)}  refracted "
-        f"{r.get('refracted_rays', 0)}  shadow {r.get('shadow_rays', 0)} (blocked "
+        f"{refracted}  shadow {r.get('shadow_rays', 0)} (blocked "
         f"{r.get('shadow_rays_blocked', 0)})\n"
         f"setup {stats['setup_seconds']:.3f} s (compile {stats['compile_seconds']:.1f} s)  "
         f"trace {stats['trace_seconds']:.3f} s  wall {stats['wall_seconds']:.3f} s  "

@@ -103,6 +103,12 @@ def parser() -> argparse.ArgumentParser:
         default="off",
         help="object space without and with the neighbours' copies: off,on",
     )
+    p.add_argument(
+        "--budget-copies",
+        default="hottest",
+        help="object space under --max-share: the budget's room filled with copies of the "
+        "hottest cells or left empty, to compare: hottest,none",
+    )
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument(
         "--spp", type=int, help="rays per pixel with --size (default 1; 16 through --camera)"
@@ -189,7 +195,7 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
     shares = [float(v) for v in args.max_share.split(",")]
     shares = shares * len(meshes) if len(shares) == 1 else shares
     for (rows, cols), share in zip(meshes, shares, strict=True):
-        for mode, overlap, thr, cut, (steal, copy) in runs:
+        for mode, overlap, thr, cut, (steal, copy, budget) in runs:
             try:
                 got, cut, side, order = run_row(
                     args,
@@ -204,6 +210,7 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
                     steal,
                     copy,
                     share if mode == "object" else 1.0,
+                    budget,
                 )
             except BudgetError as e:  # a budget this scene cannot be divided within
                 print(f"{rows}x{cols:<3} refused: {e}")
@@ -218,6 +225,7 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
                 "cuts": cut,
                 "steal": steal,
                 "copies": copy,
+                "budget_copies": budget,
                 "tile": side,
                 "order": order,
             }
@@ -240,7 +248,8 @@ def row_plan(args, overlaps) -> list[tuple]:
     cuts = args.balance.split(",")
     steals = [s == "on" for s in args.steal.split(",")]
     copies = [s == "on" for s in args.copies.split(",")]
-    levers = [(st, cp) for st in steals for cp in copies]
+    budgets = args.budget_copies.split(",")
+    levers = [(st, cp, b) for st in steals for cp in copies for b in budgets]
     return [
         (m, o, t, c, lv)
         for m in args.modes.split(",")
@@ -249,7 +258,7 @@ def row_plan(args, overlaps) -> list[tuple]:
             [(o, c, lv) for o in overlaps for c in cuts for lv in levers]
             if m == "object"
             else [
-                (0.0, (t, int(side), order), (False, False))
+                (0.0, (t, int(side), order), (False, False, "none"))
                 for t in args.tiles.split(",")
                 for side in args.tile.split(",")
                 for order in args.orders.split(",")
@@ -258,7 +267,9 @@ def row_plan(args, overlaps) -> list[tuple]:
     ]
 
 
-def run_row(args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, copy, share=1.0):
+def run_row(
+    args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, copy, share=1.0, budget="none"
+):
     """(what `on_mesh` returned, the row's cuts label, tile side, order) of one row: image
     space renders its tiling (overlap and cuts do not apply), object space its cuts."""
     rows, cols = mesh
@@ -298,8 +309,11 @@ def run_row(args, scene, image, camera, mesh, mode, overlap, thr, cut, steal, co
         together=args.together,
         camera=camera,
         max_share=share,
+        budget_copies=budget == "hottest",
     )
-    return got, cut + ("+steal" if steal else "") + ("+copies" if copy else ""), None, None
+    cut += ("+steal" if steal else "") + ("+copies" if copy else "")
+    cut += "+budget copies" if budget == "hottest" and share < 1 else ""
+    return got, cut, None, None
 
 
 if __name__ == "__main__":

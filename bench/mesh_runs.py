@@ -29,6 +29,7 @@ def on_mesh(
     order="rows",
     camera=None,
     max_share=1.0,
+    budget_copies=True,
 ):
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
@@ -68,7 +69,7 @@ def on_mesh(
                     image,
                     camera=camera,
                     plan=plan,
-                    auto=Auto(overlaps=OVERLAPS if auto else ()),
+                    auto=Auto(overlaps=OVERLAPS if auto else (), budget_copies=budget_copies),
                 ),
                 Nodes(addresses),
             )

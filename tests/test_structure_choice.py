@@ -77,6 +77,9 @@ def test_the_choice_is_the_smaller_total_and_says_when_the_other_would_pay():
     slower = Estimate("grid", 0.01, 0.5, 0.7, 7e-7, 200)
     chosen, why = choose([quick_build, slower], 1e6)
     assert chosen is quick_build and "from 1.67e+06 rays" in why
+    tie = Estimate("grid", 0.0, 0.01, 1.0, 1e-6, 100)
+    chosen, why = choose([quick_build, tie], 1e6)  # the first, compared with the other
+    assert chosen is quick_build and why.endswith("the hierarchy builds and traces sooner")
 
 
 def test_the_grid_forecast_follows_the_build_and_runs_before_it():

@@ -209,9 +209,9 @@ NAMES = {"bvh": "hierarchy", "grid": "grid"}
 
 
 def choose(estimates: list[Estimate], rays: float) -> tuple[Estimate, str]:
-    """The estimate of smaller total (the first on a tie), and why, with every estimate."""
+    """Of two estimates, the one of smaller total (the first on a tie), and why, with both."""
     chosen = min(estimates, key=lambda e: e.total)
-    other = max(estimates, key=lambda e: e.total)  # of two
+    other = next(e for e in estimates if e is not chosen)
     each = "; ".join(
         f"{NAMES[e.structure]} {e.load + e.build:.3g} s to build + {e.trace:.3g} s to trace"
         f" = {e.total:.3g} s ({e.bytes / 1e6:.3g} MB)"
@@ -223,9 +223,11 @@ def choose(estimates: list[Estimate], rays: float) -> tuple[Estimate, str]:
     elif saves <= 0:  # builds sooner, traces slower
         pays = -saves / (chosen.per_ray - other.per_ray)
         why = f"the {name} builds sooner; the other's faster tracing pays back from {pays:.3g} rays"
-    else:
+    elif chosen.per_ray < other.per_ray:
         pays = saves / (other.per_ray - chosen.per_ray)
         why = f"the {name} traces faster, which pays back its build from {pays:.3g} rays"
+    else:  # a tie, the first taken
+        why = f"the {name} is expected as soon"
     return chosen, f"expected for {rays:.3g} rays: {each}: {why}"
 
 

@@ -59,16 +59,17 @@ def test_empty_and_single_object_nodes():
     assert g[0] == 0 and t[0] == 4.0
 
 
-def test_auto_takes_the_grid_for_nested_boxes_and_the_hierarchy_elsewhere():
-    # 200 nested spheres: every box holds the next, a hierarchy cannot separate them.
-    nested = make_scene(spheres=[((0, 0, 0), 1.0 + 0.01 * i, 0) for i in range(200)])
-    engine = Engine(nested)
-    assert engine.structure == "grid"
-    assert "nest" in engine.stats["structure_reason"]
+def test_auto_takes_the_structure_expected_sooner_and_flags_force_either():
+    # (tests/test_structure_choice.py: how the render's ray count and build times decide)
     tetra = Engine(read_nff(spd_scene("tetra_s3.nff")))
-    assert tetra.structure == "bvh" and tetra.stats["bvh"]["expected_tests"] <= 16
-    assert "tests" in tetra.stats["structure_reason"]
-    assert Engine(read_nff(spd_scene("tetra_s3.nff")), structure="grid").structure == "grid"
+    estimates = tetra.stats["structure_estimates"]
+    assert tetra.structure == "bvh"
+    assert estimates["bvh"]["total_seconds"] < estimates["grid"]["total_seconds"]
+    assert "the hierarchy builds and traces sooner" in tetra.stats["structure_reason"]
+    for flag in ("grid", "bvh"):
+        forced = Engine(read_nff(spd_scene("tetra_s3.nff")), structure=flag)
+        assert forced.structure == flag and forced.stats["structure_estimates"] is None
+        assert forced.stats["structure_reason"] == f"forced by flag ({flag})"
 
 
 def test_directions_that_are_zero_or_not_finite_are_refused_by_index():

@@ -1,7 +1,9 @@
 """A one-process render's setup, step by step: on a first run each step's kernels compile for
 seconds to tens of seconds with nothing else to show, so each compiled step is said as it ends
 (with its seconds and the steps still to come), and the setup's seconds are split into
-compiling, loading kernels from the disk cache, and building the engine, for the summary."""
+compiling, loading kernels from the disk cache, and building the engine, for the summary (the
+structure build's step loads its build kernels first and says for how long: `Engine.stats`
+structure_load_seconds)."""
 
 import sys
 import time
@@ -18,14 +20,16 @@ class Setup:
 
     def __init__(self, clock: CompileClock, say=None):
         self.clock, self.say = clock, say
-        self.steps: dict[str, tuple[float, float]] = {}  # step -> (wall, compiling) seconds
+        # step -> (wall, compiling, loading kernels or compiling them) seconds
+        self.steps: dict[str, tuple[float, float, float]] = {}
 
-    def run(self, step: str, fn):
-        """`fn()` as setup step `step` (one of STEPS)."""
+    def run(self, step: str, fn, loading=None):
+        """`fn()` as setup step `step` (one of STEPS); `loading(fn())`: the seconds of it
+        spent loading or compiling kernels, where the rest builds (None: all of it loads)."""
         start, before = time.perf_counter(), self.clock.seconds
         out = fn()
         wall, compiled = time.perf_counter() - start, self.clock.seconds - before
-        self.steps[step] = (wall, compiled)
+        self.steps[step] = (wall, compiled, wall if loading is None else loading(out))
         if compiled >= SAID and self.say is not None:
             later = STEPS[STEPS.index(step) + 1 :]
             then = f"; then the {', the '.join(later)}" if later else ""
@@ -33,15 +37,18 @@ class Setup:
         return out
 
     def seconds(self) -> dict[str, float]:
-        """compile: numba compiling; load: kernels loaded from the disk cache and run once;
-        build: the engine built from the scene (its tables, hierarchy or grid)."""
-        # (compiles on other threads count too: never below 0)
-        wall = {s: max(0.0, w - c) for s, (w, c) in self.steps.items()}
-        return {
-            "compile_seconds": sum(c for _, c in self.steps.values()),
-            "load_seconds": sum(v for s, v in wall.items() if s != "structure build"),
-            "build_seconds": wall.get("structure build", 0.0),
-        }
+        """compile: numba compiling; load: kernels loaded from the disk cache and run once
+        (numba's start-up with the first); build: the engine built from the scene (its
+        tables, hierarchy or grid)."""
+        compiled = sum(c for _, c, _ in self.steps.values())
+        load = build = 0.0
+        for wall, c, loading in self.steps.values():
+            # compiling happens while kernels load (compiles on other threads count too:
+            # never below 0)
+            rest = max(0.0, wall - c)
+            loaded = min(rest, max(0.0, loading - c))
+            load, build = load + loaded, build + rest - loaded
+        return {"compile_seconds": compiled, "load_seconds": load, "build_seconds": build}
 
 
 def say_on_stderr(line: str) -> None:

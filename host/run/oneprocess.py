@@ -20,6 +20,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import compile_clock
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
+from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
@@ -46,9 +47,14 @@ def render(
     announce = _compiling if progress else None
     with compile_clock() as clock:  # a first run's compiling told apart from the rest
         setup = Setup(clock, say_on_stderr if progress else None)
+        # the structure ("auto") is chosen for the rays the whole render is expected to trace
+        eye = eye_ray_count(image, camera is not None)
         tracer = built or setup.run(
             "structure build",
-            lambda: Engine.from_spec(scene, engine, max_depth=image.depth, announce=announce),
+            lambda: Engine.from_spec(
+                scene, engine, max_depth=image.depth, announce=announce, eye_rays_expected=eye
+            ),
+            loading=lambda e: e.stats["structure_load_seconds"],
         )
         setup.run("tracing kernel", tracer.warmup)
         if camera is None:  # compiled here, not while timed

@@ -15,51 +15,21 @@ import numpy as np
 
 from meshnode.engine import kernelcache
 from meshnode.engine.bound import Bound, array_key
-from meshnode.engine.bvh import Bvh, empty_arrays
+from meshnode.engine.bvh import empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
-from meshnode.engine.grid import box_only, build_grid
+from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
-from meshnode.engine.tables import MAT_TRANSMIT, Shading, Tables, build_tables
+from meshnode.engine.structure import build_structure
+from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays
+from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
 from meshnode.engine.trace import first_hits, routed, trace_batch
 from meshnode.engine.variants import KERNELS, variant_of
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
 from protocols.scene import SCENE_TABLES, SceneData
 from protocols.spec import default
-
-# Above this many objects tested per ray crossing the node (the hierarchy's surface area
-# forecast) the grid is chosen: bounding boxes that nest or overlap (SPD shells: 159) are
-# what a hierarchy cannot separate and the grid's exact voxel-overlap tests can. Measured
-# with bench.spd: rings (5.0) bvh 1.14 s vs grid 1.17 s; shells, one thread at 512x512, build
-# and trace: grid 0.20 + 0.53 s (its refining stopped at MAX_REFS_PER_OBJECT; refined on it
-# took 20.5 + 0.28 s) against the hierarchy's 0.50 + 0.42 s. (Which pays over a long render
-# depends on its ray count, which the engine is not told: issue 42.)
-GRID_ABOVE_TESTS = 16.0
-
-
-def choose_structure(tables: Tables, asked: str, resolution) -> tuple[Bvh | None, str]:
-    """The hierarchy for these objects, or None for the grid, and why (`asked` "auto" lets
-    the objects say: the hierarchy unless its forecast tests per ray exceed GRID_ABOVE_TESTS)."""
-    if asked == "grid" or (asked == "auto" and resolution is not None):
-        return None, "forced by flag (grid)" if asked == "grid" else "a grid resolution was given"
-    with kernelcache.compiled_once("build/bvh"):
-        bvh = Bvh(tables.lo, tables.hi, tables.offsets)
-    tests = bvh.stats["expected_tests"]
-    if asked == "bvh":
-        return bvh, "forced by flag (bvh)"
-    if tests > GRID_ABOVE_TESTS:
-        return None, (
-            f"a hierarchy would test {tests:.3g} objects per ray crossing the node "
-            f"(above {GRID_ABOVE_TESTS:g}): the objects' boxes nest or overlap, and "
-            "the grid's exact voxel overlap tests separate them"
-        )
-    return bvh, (
-        f"a hierarchy tests {tests:.3g} objects per ray crossing the node (at most "
-        f"{GRID_ABOVE_TESTS:g}): it adapts to uneven crowding and builds in a fraction "
-        "of the grid's time"
-    )
 
 
 class Engine:
@@ -84,13 +54,17 @@ class Engine:
         announce=None,
         packets: bool = True,
         occupancy: tuple | None = None,
+        eye_rays_expected: float | None = None,
     ):
         """`announce(variant name)` is called, before anything compiles, when this variant's
         kernels are not in the disk cache yet (building the grid compiles some of them).
         `packets=False`: every ray walks alone (the reference packets are tested against).
         `occupancy` (voxels per axis, packed bits): the scene's occupancy map over
         `scene_box` (`Partition.occ_res`, `occ_bits`), so a mesh node ends or skips segments
-        with only empty space ahead; None: nothing skipped."""
+        with only empty space ahead; None: nothing skipped. `eye_rays_expected`: the primary
+        rays this engine is expected to take on in the render (a mesh node's share of them),
+        with which an "auto" structure is chosen for the rays they bring
+        (`structure_cost.expected_rays`); None: an SPD render's."""
         start = time.perf_counter()
         keep_freed_memory()  # batches reuse freed memory instead of faulting in new pages
         self.scene = scene
@@ -104,17 +78,26 @@ class Engine:
             lo, hi = tb.lo.min(axis=0), tb.hi.max(axis=0)
         else:
             lo, hi = np.zeros(3), np.ones(3)
-        self.bvh, why = None, "brute force: every object against every ray"
-        if not self.brute:
-            self.bvh, why = choose_structure(tb, structure, resolution)
+        eye = UNTOLD_EYE_RAYS if eye_rays_expected is None else eye_rays_expected
+        self.rays_expected = expected_rays(scene, eye, max_depth)
+        # (brute force builds the grid as before: its box bounds the rays)
+        built = build_structure(
+            tb,
+            (lo, hi),
+            asked="grid" if self.brute else structure,
+            resolution=resolution,
+            density=density,
+            storage=storage,
+            rays=self.rays_expected,
+        )
+        self.bvh = built.bvh
         self.structure = "bvh" if self.bvh is not None else "grid"
         if self.bvh is not None:
             self.tables = tb = tb.permuted(self.bvh.order)  # leaves become runs of ids
             self.grid = box_only(lo, hi)
             self.bvh_arrays = self.bvh.arrays()
         else:
-            with kernelcache.compiled_once("build/grid"):
-                self.grid = build_grid(tb, lo, hi, density=density, storage=storage, res=resolution)
+            self.grid = built.grid
             self.bvh_arrays = empty_arrays()
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
@@ -170,7 +153,17 @@ class Engine:
                 "objects of that kind, lights, or transmitting materials"
             ),
             "structure": self.structure,
-            "structure_reason": why,
+            "structure_reason": (
+                "brute force: every object against every ray" if self.brute else built.reason
+            ),
+            # each structure's expected seconds (load, build, trace, total) and bytes for
+            # this render's expected rays, when "auto" chose by them
+            "structure_estimates": built.estimates,
+            "rays_expected": self.rays_expected,
+            # the structure's build kernels loaded from the disk cache (or compiled), and
+            # the build (in "auto", the hierarchy's too)
+            "structure_load_seconds": built.load_seconds,
+            "structure_build_seconds": built.build_seconds,
             "grid": self.grid.stats,
             "bvh": None if self.bvh is None else self.bvh.stats,
             "packet": PACKET if self.bvh is not None and self.packets else 1,
@@ -222,7 +215,8 @@ class Engine:
     ) -> "Engine":
         """The engine `spec` describes, over `scene`: the one place an EngineSpec becomes an
         engine, so no caller can drop one of its fields (`threads` is the caller's: how many
-        threads run it). `placement`: box, scene_box, occupancy, announce, packets."""
+        threads run it). `placement`: box, scene_box, occupancy, announce, packets,
+        eye_rays_expected."""
         return cls(
             scene,
             density=spec.density,

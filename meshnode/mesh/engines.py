@@ -35,7 +35,11 @@ class EngineCache:
     ) -> tuple[Engine, bool]:
         """(engine, whether it was reused) for `scene` built as `spec` says, at `placement`
         (Engine.from_spec's keywords)."""
-        key = _engine_key(scene, {"spec": spec, **placement})
+        # The primary rays an engine is told to expect choose its structure, not what it
+        # traces: a kept engine serves a render of any size or sampling (in the structure
+        # chosen for the render it was built for).
+        built_from = {k: v for k, v in placement.items() if k != "eye_rays_expected"}
+        key = _engine_key(scene, {"spec": spec, **built_from})
         engine = self.engines.pop(key, None)
         reused = engine is not None
         if engine is None:

@@ -18,6 +18,7 @@ from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
+from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
 from meshnode.mesh.engines import EngineCache
@@ -115,7 +116,11 @@ class NodeCore:
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
 
     def _options(self, node: int) -> dict:
-        """Node `node`'s engine: the render's EngineSpec whole, at its box."""
+        """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary
+        rays it is expected to take on (its structure is chosen for them and the rays they
+        bring): taken as an even share of the render's, 1/nodes, in object space as in
+        image space (a node's own rectangle or tiles; in object space the rays passed on
+        from neighbours add to it, and crowded boxes take more than others)."""
         spec, part = self.spec, self.part
         return dict(
             spec=spec.engine,
@@ -123,6 +128,7 @@ class NodeCore:
             scene_box=part.scene_box,
             max_depth=spec.image.depth,
             occupancy=(part.occ_res, part.occ_bits),
+            eye_rays_expected=eye_ray_count(spec.image, spec.camera is not None) / spec.plan.nodes,
         )
 
     @property

@@ -1,0 +1,106 @@
+"""The node's acceleration structure, the hierarchy or the uniform grid: as asked, or for "auto"
+the one `structure_cost` expects to finish the render sooner (its build, memory and tracing of
+the render's expected rays). Each structure's build kernels are loaded on a one-object call
+before the timed build, so loading them from the disk cache (with numba's start-up, which the
+first kernel a process runs pays) and building are timed apart (DESIGN.md 4).
+"""
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshnode.engine import kernelcache
+from meshnode.engine.bvh import Bvh
+from meshnode.engine.grid import Grid, build_grid
+from meshnode.engine.structure_cost import (
+    choose,
+    grid_estimate,
+    grid_forecast,
+    hierarchy_estimate,
+)
+from meshnode.engine.tables import Tables
+
+
+@dataclass
+class Structure:
+    """What `build_structure` built and why; exactly one of `bvh` and `grid` is set."""
+
+    bvh: Bvh | None
+    grid: Grid | None
+    reason: str
+    estimates: dict | None  # "bvh"/"grid" -> Estimate.to_dict(), when chosen by them
+    load_seconds: float = 0.0  # the build kernels loaded (or compiled, on a first run)
+    build_seconds: float = 0.0  # the structures built (in "auto", the hierarchy too)
+
+
+def build_structure(
+    tables: Tables,
+    box: tuple,
+    *,
+    asked: str,
+    resolution,
+    density: float,
+    storage: str,
+    rays: float,
+) -> Structure:
+    """The structure `asked` ("grid", "bvh", "auto") over `box` (lo, hi): "auto" takes the
+    grid when a `resolution` is given, else the one of smaller expected total seconds for
+    `rays` rays (the hierarchy is built either way: its forecast is the estimate's)."""
+    lo, hi = box
+    timer = _Timer()
+    if asked == "grid" or (asked == "auto" and resolution is not None):
+        why = "forced by flag (grid)" if asked == "grid" else "a grid resolution was given"
+        grid = timer.grid(tables, lo, hi, density, storage, resolution)
+        return timer.done(Structure(None, grid, why, None))
+    bvh = timer.bvh(tables)
+    if asked == "bvh":
+        return timer.done(Structure(bvh, None, "forced by flag (bvh)", None))
+    start, s = time.perf_counter(), bvh.stats
+    hierarchy = hierarchy_estimate(
+        tables.n, s["expected_tests"], s["expected_visits"], rays, s["structure_bytes"]
+    )
+    grid = grid_estimate(grid_forecast(tables.lo, tables.hi, lo, hi, density), rays)
+    chosen, why = choose([hierarchy, grid], rays)
+    timer.build += time.perf_counter() - start  # choosing counts as building
+    estimates = {e.structure: e.to_dict() for e in (hierarchy, grid)}
+    if chosen is hierarchy:
+        return timer.done(Structure(bvh, None, why, estimates))
+    built = timer.grid(tables, lo, hi, density, storage, None)
+    return timer.done(Structure(None, built, why, estimates))
+
+
+class _Timer:
+    """Seconds loading build kernels (a one-object build first) and building, kept apart."""
+
+    def __init__(self):
+        self.load = self.build = 0.0
+
+    def _timed(self, load, build):
+        start = time.perf_counter()
+        load()
+        middle = time.perf_counter()
+        out = build()
+        self.load += middle - start
+        self.build += time.perf_counter() - middle
+        return out
+
+    def bvh(self, tb: Tables) -> Bvh:
+        with kernelcache.compiled_once("build/bvh"):
+            return self._timed(
+                lambda: Bvh(tb.lo[:1], tb.hi[:1], np.minimum(tb.offsets, 1)),
+                lambda: Bvh(tb.lo, tb.hi, tb.offsets),
+            )
+
+    def grid(self, tb: Tables, lo, hi, density, storage, resolution) -> Grid:
+        # One voxel: every object counted once, on the kernels of this node's kinds.
+        one = np.ones(3, np.int64)
+        with kernelcache.compiled_once("build/grid"):
+            return self._timed(
+                lambda: build_grid(tb, lo, hi, density=density, storage=storage, res=one),
+                lambda: build_grid(tb, lo, hi, density=density, storage=storage, res=resolution),
+            )
+
+    def done(self, structure: Structure) -> Structure:
+        structure.load_seconds, structure.build_seconds = self.load, self.build
+        return structure

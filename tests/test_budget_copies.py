@@ -13,6 +13,7 @@ from host.planning.prepass import coarse_pass, costs
 from host.planning.replicas import _holds, _passes, choose_copies, with_replicas
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
+from host.scene.subset import subset
 from protocols.render import ImageSpec, MeshPlan, RenderSpec
 from protocols.spec import SpecError
 from tests.conftest import spd_scene
@@ -149,3 +150,41 @@ def test_no_copies_when_asked_for_none():
     )
     planned = plan_render(request)
     assert planned.spec.plan.holds == () and planned.balance["budget"]["copies"] == "none asked"
+
+
+def test_boxes_grown_into_the_room_left_keep_the_budget_and_the_image():
+    # After the copies, nodes whose cells hold fewer objects than the budget allows grow
+    # their boxes (rays stay on them longer): every node stays within the share, fewer rays
+    # are passed, and the image and counts are the single node's; growth is kept only where
+    # the simulated busiest node carries less.
+    from host.planning.growth import _grown, _passed, _simulated, grown_within
+    from host.run.framebuffer import Framebuffer
+    from meshnode.mesh.simulator import simulate
+
+    scene = read_nff(spd_scene("teapot.nff"))
+    ref, ref_counts = single(scene, 64)
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.25, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    part, keep = partition(scene, spec)
+    spec, part, _ = with_replicas(scene, spec, part, keep)
+    wider, kept, growth = _grown(scene, spec, part, keep, range(9))
+    assert any(growth)
+    assert within(spec.plan, holdings(scene, spec, wider, kept))
+    assert all(kept[n].sum() > keep[n].sum() for n, g in enumerate(growth) if g)
+    assert _passed(_simulated(scene, spec, wider, kept)) < _passed(
+        _simulated(scene, spec, part, keep)
+    )
+    out = simulate([subset(scene, kept[n]) for n in range(9)], spec, wider)
+    w, h = spec.image.size
+    fb = Framebuffer(w, h, spec.corners, spec.ids_per_cell)
+    for d in out.deposits:
+        fb.add(d["pixel"], d["rgb"])
+    totals = out.totals()
+    assert {k: totals[k] for k in ref_counts} == ref_counts
+    np.testing.assert_allclose(fb.image(), ref, rtol=0, atol=1e-5)
+    _, _, report = grown_within(scene, spec, part, keep)
+    ratios = [t["simulated_busiest_vs_plan"] for t in report["tried"]]
+    if any(report["chosen"]):
+        assert min(ratios) <= 1
+    else:
+        assert all(r >= 1 for r in ratios)

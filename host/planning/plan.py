@@ -12,6 +12,7 @@ import numpy as np
 
 from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
+from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
@@ -80,11 +81,11 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
 def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool = True):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
-    that keeps it, its room then filled (`copies`) with copies of the hottest cells where the
-    pre-pass says they pay (`host.planning.replicas`); BudgetError naming the smallest share reached
-    when none does. Under a byte
-    bound the nodes build hierarchies (their memory is known before they are built; a
-    grid's is not: shells' took 260 MB for 1.5 MB of objects)."""
+    that keeps it, its room then filled (`copies`) with copies of the hottest cells and wider
+    boxes where the pre-pass says they pay (`host.planning.replicas`, `growth`); BudgetError
+    naming the smallest share reached when none does. Under a byte bound the nodes build
+    hierarchies (their memory is known before they are built; a grid's is not: shells'
+    took 260 MB for 1.5 MB of objects)."""
     gave_up = []
     if spec.plan.node_bytes and spec.engine.structure == "auto":
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
@@ -105,8 +106,14 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool 
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
     spec, part, chosen = with_replicas(scene, spec, part, keep)
-    held = holdings(scene, spec, part, keep) if chosen["chosen"] else held
-    return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": chosen}
+    part, keep, growth = grown_within(scene, spec, part, keep)
+    held = holdings(scene, spec, part, keep)
+    return (
+        spec,
+        part,
+        keep,
+        {**report(spec.plan, held, gave_up), "copies": chosen, "growth": growth},
+    )
 
 
 def _objects_within(scene: SceneData, spec: RenderSpec):

@@ -251,40 +251,6 @@ def test_the_dealer_deals_every_tile_once_and_closes_every_node():
         assert dealer.tiles_per_node() == np.bincount(owners, minlength=nodes).tolist()
 
 
-def test_the_tail_is_dealt_to_nodes_holding_none_so_they_finish_closer():
-    # A tile queued behind another (the buffer) at the frame's end can leave one node two
-    # tiles late while the others idle; dealing the tail only to nodes holding none is list
-    # scheduling, within one tile. Over the same heavy-tailed tile costs, the tail rule
-    # ends the frames sooner and leaves fewer nodes over a tile apart than the buffer alone.
-    import heapq
-
-    from meshnode.mesh.dealer import TileDealer
-
-    def frame(seed, tail):
-        rng = np.random.default_rng(seed)
-        count, nodes = int(rng.integers(20, 200)), int(rng.integers(2, 17))
-        cost = rng.pareto(1.5, count) + 0.1  # a few tiles far dearer than the rest
-        dealer = TileDealer(range(count), nodes, 2, tail=tail)
-        queue = {n: list(t) for n, (t, _) in dealer.first().items()}
-        events = [(cost[q[0]], n) for n, q in queue.items() if q]
-        heapq.heapify(events)
-        finish = [0.0] * nodes
-        while events:  # each node traces its tiles in turn; the host deals as they finish
-            t, n = heapq.heappop(events)
-            queue[n].pop(0)
-            finish[n] = t
-            queue[n] += dealer.finished(n)[0]
-            if queue[n]:
-                heapq.heappush(events, (t + cost[queue[n][0]], n))
-        assert sum(dealer.tiles_per_node()) == count
-        return max(finish), max(finish) - min(finish) > cost.max() + 1e-9
-
-    tail = [frame(seed, None) for seed in range(300)]
-    buffered = [frame(seed, 0) for seed in range(300)]
-    assert sum(t for t, _ in tail) < 0.99 * sum(t for t, _ in buffered)
-    assert sum(apart for _, apart in tail) < 0.5 * sum(apart for _, apart in buffered)
-
-
 def test_dynamic_tiles_are_dealt_from_the_centre_out_and_each_once():
     # MeshPlan.order "centre": the first tile dealt holds the image's middle, each tile is
     # no nearer the middle (in rings of tiles) than the one before, and the last are on the

@@ -23,31 +23,14 @@ def deal_order(rects, order: str) -> list[int]:
     )
 
 
-# The tail, in rounds of every node's buffer: the later it starts, the more of the frame's end
-# waits a message flight per tile (a node holds none while its next is dealt); simulated
-# list scheduling of heavy-tailed tile costs, 2-16 nodes, buffer 2: makespan over the ideal
-# 2.41 with no tail, 2.36 from one round, 2.34 from two, 2.33 throughout.
-TAIL_ROUNDS = 2
-
-
 class TileDealer:
     """The host's side of dynamic image space: `buffer` tiles to every node at first, then
     one more whenever a node reports one finished, until none are left; then each node that
     reports is told it gets no more. `tiles`: the tile indices in the order they are dealt.
-    Once `tail` tiles or fewer are left (default: TAIL_ROUNDS times what the buffers hold),
-    a node gets one only when it holds none: a tile queued behind another on one node while
-    a second runs dry is what leaves the nodes finishing apart (list scheduling, which this
-    becomes, finishes every node within one tile of the others; a queue can make it two).
     Pure: the host and the simulated mesh both drive it."""
 
     def __init__(
-        self,
-        tiles,
-        nodes: int,
-        buffer: int,
-        share_owners: bool = False,
-        count: int | None = None,
-        tail: int | None = None,
+        self, tiles, nodes: int, buffer: int, share_owners: bool = False, count: int | None = None
     ):
         self.left = deque(tiles)
         self.nodes, self.buffer = nodes, max(1, buffer)
@@ -55,8 +38,6 @@ class TileDealer:
         # tile -> node dealt it; -1: not yet (or never: `count` tiles, `tiles` those to deal)
         self.owner = np.full(len(self.left) if count is None else count, -1, np.int64)
         self.told: set[int] = set()  # nodes told they get no more
-        self.held = np.zeros(nodes, np.int64)  # tiles dealt to each node and not yet done
-        self.tail = TAIL_ROUNDS * nodes * self.buffer if tail is None else tail
 
     def first(self) -> dict[int, tuple[list[int], bool]]:
         """Each node's first tiles, dealt round-robin, and whether that is all it gets (a
@@ -70,13 +51,9 @@ class TileDealer:
 
     def finished(self, node: int) -> tuple[list[int], bool]:
         """A node finished a tile: (its next tiles, whether it gets no more after them);
-        a node is told it gets no more once: ([], False) after that, as in the last round
-        while it still holds a tile."""
-        self.held[node] = max(0, self.held[node] - 1)
-        if self.left and (len(self.left) > self.tail or self.held[node] == 0):
-            return [self._deal(node)], False
+        a node is told it gets no more once: ([], False) after that."""
         if self.left:
-            return [], False  # it asks again when the tile it holds is done
+            return [self._deal(node)], False
         return [], self._last(node)
 
     def _last(self, node: int) -> bool:
@@ -87,7 +64,6 @@ class TileDealer:
     def _deal(self, node: int) -> int:
         tile = self.left.popleft()
         self.owner[tile] = node
-        self.held[node] += 1
         return tile
 
     def owners(self) -> np.ndarray:

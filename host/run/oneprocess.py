@@ -19,8 +19,6 @@ from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import compile_clock
-from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
-from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
 
@@ -144,6 +142,8 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
 def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, tracer: Engine):
     """(camera spec, its info for the stats), focused (autofocus probes the scene) and its
     ray kernels compiled, before the frame is timed."""
+    from meshnode.engine.lenscamera import camera_rays, rect_pixels  # a camera's only
+
     spec, info = camera.spec(scene, image, lambda: tracer)
     width, height = image.size
     pixel = rect_pixels((0, width, 0, height), width)[:1]
@@ -153,6 +153,9 @@ def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, trace
 
 def _render_camera(job: _Job, spec, info):
     """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
+    from meshnode.engine.lenscamera import camera_batches, rect_pixels  # a camera's only
+    from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
+
     view, (width, height), seed = job.scene.view, job.image.size, job.image.seed
     spp = job.image.spp  # rays per pixel asked for, of which the camera traces per_pixel
     fb = Framebuffer(width, height, corners=False, spp=1)
@@ -196,12 +199,22 @@ def _bounded_map(pool, fn, jobs, inflight: int):
         yield pending.popleft().result()
 
 
+class _NoBar:
+    """A quiet render's progress bar: nothing, and tqdm not even imported."""
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def _progress(total, enabled: bool):
+    if not enabled:
+        return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(
-        total=total, unit="band", desc="tracing", file=sys.stderr, disable=not enabled, leave=False
-    )
+    return tqdm(total=total, unit="band", desc="tracing", file=sys.stderr, leave=False)
 
 
 def _stats(job: _Job, totals, trace_seconds, threads) -> dict:

@@ -11,11 +11,13 @@ together 0.45 s of CPU of a 1.3 s `meshtrace render tetra.nff --spd` (`bench.sta
 `install()`, called once by `meshnode.engine`, leaves each to the first compile:
 
 - a load readies only what loaded code runs on: numba's runtime (NRT, the allocator of
-  kernels that make arrays). A miss compiles, and numba's compiler refreshes its target
-  itself first (`CompilerBase`), extensions included, so compiling is as before. (One
-  compiler module puts symbols in the linker's table when imported: numba.cpython.hashing,
-  its hash secret for strings and bytes; a kernel hashing those would need it imported
-  before it loads. None does: kernels take arrays and numbers.);
+  kernels that make arrays), whose few functions numba compiles anew in every process
+  (45 ms): they are kept compiled in the kernel cache folder like a kernel. A miss
+  compiles, and numba's compiler refreshes its target itself first (`CompilerBase`),
+  extensions included, so compiling is as before. (One compiler module puts symbols in the
+  linker's table when imported: numba.cpython.hashing, its hash secret for strings and
+  bytes; a kernel hashing those would need it imported before it loads. None does: kernels
+  take arrays and numbers.);
 - the scan for extensions (`numba_extensions` entry points) is made before a compile, not
   before every first call: a load needs none (meshtrace kernels take no extension's types);
 - a loaded environment gets its module's globals if the module is imported, else a stand-in
@@ -33,9 +35,11 @@ Each is best effort: with a numba or scipy laid out otherwise it is left out.
 MESHTRACE_PLAIN_NUMBA=1 leaves numba as it is (to tell whether a fault is ours).
 """
 
+import hashlib
 import importlib.machinery
 import importlib.util
 import os
+import pickle
 import sys
 
 BLAS = "scipy.linalg.cython_blas"
@@ -46,12 +50,14 @@ def install() -> None:
     if os.environ.get("MESHTRACE_PLAIN_NUMBA") == "1":
         return
     from numba.core import caching, dispatcher, entrypoints, environment, runtime
+    from numba.core.runtime import nrtdynmod
 
     if not hasattr(caching.Cache.load_overload, "readies_runtime_only"):
         _loads_ready_the_runtime_only(caching.Cache, runtime.rtsys, entrypoints)
         _extensions_before_compiling(dispatcher._DispatcherBase)
         _environments_without_imports(environment)
         _cache_folders_checked_once(caching)
+        _runtime_kept_compiled(nrtdynmod)
 
 
 def _blas_alone() -> None:
@@ -138,3 +144,48 @@ def _cache_folders_checked_once(caching) -> None:
             checked.add(path)
 
     locator.ensure_cache_path = ensure_cache_path
+
+
+def _runtime_kept_compiled(nrtdynmod) -> None:
+    """numba's runtime functions (`nrtdynmod.compile_nrt_functions`) loaded from a file in
+    the kernel cache folder, compiled and written there when it is missing or unreadable."""
+    needed = ("create_nrt_module", "compile_nrt_functions")
+    if not all(hasattr(nrtdynmod, name) for name in needed):
+        return
+    compile_anew = nrtdynmod.compile_nrt_functions
+
+    def compile_nrt_functions(ctx):
+        import llvmlite
+        import numba
+
+        codegen = ctx.codegen()
+        key = repr((numba.__version__, llvmlite.__version__, codegen.magic_tuple()))
+        path = os.path.join(numba.config.CACHE_DIR, f"nrt-{_digest(key)}.pickle")
+        try:
+            with open(path, "rb") as f:
+                return codegen.unserialize_library(pickle.load(f))
+        except Exception:  # missing, unreadable or stale: compiled below
+            pass
+        try:
+            ir_module, library = nrtdynmod.create_nrt_module(ctx)
+            library.enable_object_caching()
+            library.add_ir_module(ir_module)
+            library.finalize()
+            state = library.serialize_using_object_code()
+        except Exception:  # numba's own way, kept out of the cache
+            return compile_anew(ctx)
+        try:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            temporary = f"{path}.{os.getpid()}"
+            with open(temporary, "wb") as f:
+                pickle.dump(state, f)
+            os.replace(temporary, path)  # whole or not at all, for processes reading it
+        except OSError:  # a read-only cache: compiled again next time
+            pass
+        return library
+
+    nrtdynmod.compile_nrt_functions = compile_nrt_functions
+
+
+def _digest(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -5,10 +5,13 @@ are in the disk cache it loads them without readying numba's compiler
 
 import ast
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from tests.conftest import EXAMPLE
 
@@ -90,8 +93,6 @@ def test_a_one_process_render_imports_only_what_it_runs(tmp_path):
 
 
 def test_numba_left_as_it_is_renders_the_same_image(tmp_path):
-    import os
-
     _render(tmp_path, "first")
     _, ours = _render(tmp_path, "ours")
     plain_modules, plain = _render(tmp_path, "plain", {**os.environ, "MESHTRACE_PLAIN_NUMBA": "1"})
@@ -178,3 +179,53 @@ def test_no_kernel_calls_blas():
                 if attr or matmul:
                     found.append(f"{path.name}:{node.lineno} in {fn.name}")
     assert not found, found
+
+
+# A first render from an empty cache, in this tree, saying what it compiled where: numba's
+# misses of the tracing kernel in the render's own process, and the setup's statistics.
+COLD = """
+import sys
+from host.planning.request import Request
+from host.run.oneprocess import render
+from host.scene.nff import read_nff
+from meshnode.engine.trace import trace_batch
+from protocols.render import ImageSpec
+
+img, stats = render(Request(read_nff(sys.argv[1]), ImageSpec(width=16, height=12)), progress=True)
+print(sum(trace_batch.stats.cache_misses.values()), sum(trace_batch.stats.cache_hits.values()))
+print(stats["compile_aside_seconds"], stats["rays"]["eye_rays"])
+"""
+SPHERES = """v
+from 0 0 -5
+at 0 0 0
+up 0 1 0
+angle 40
+hither 0.1
+resolution 16 12
+f 1 0.5 0.5 0.8 0 10 0 1
+s 0 0 0 1
+s 1.5 0 1 0.5
+"""
+
+
+@pytest.mark.slow
+def test_a_cold_first_render_compiles_its_tracing_kernel_in_a_second_process(tmp_path):
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if cores < 2:
+        pytest.skip("one core: the render compiles its tracing kernel itself")
+    scene = tmp_path / "spheres.nff"
+    scene.write_text(SPHERES)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}  # empty: all compiles
+    r = subprocess.run(
+        [sys.executable, "-c", COLD, str(scene)],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+        env=env,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr
+    misses, hits, aside, eye_rays = r.stdout.split()
+    assert (misses, hits) == ("0", "1")  # loaded from the cache the second process filled
+    assert float(aside) > 0 and int(eye_rays) == 16 * 12
+    assert "compiled the tracing kernel in a second process in" in r.stderr

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from host.camera.setup import CameraSetup
 from host.planning.request import Request
+from host.run.aside import CompileAside
 from host.run.firstrun import STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from host.run.summary import common
@@ -41,19 +42,21 @@ def render(
     engine already built for this scene and engine spec (benchmarks reuse one); `watch`: a
     `host.live.monitor.Monitor` told of every traced job (the live view)."""
     scene, image, engine, camera = request.scene, request.sized, request.engine, request.camera
-    announce = _compiling if progress else None
-    with compile_clock() as clock:  # a first run's compiling told apart from the rest
-        setup = Setup(clock, say_on_stderr if progress else None)
+    say = say_on_stderr if progress else None
+    # a first run's compiling told apart from the rest; its tracing kernel compiled aside
+    with compile_clock() as clock, CompileAside(say) as aside:
+        setup = Setup(clock, say)
+        announce = aside.announce(_compiling if progress else None)
         tracer = built or setup.run(
             "structure build",
             lambda: Engine.from_spec(scene, engine, max_depth=image.depth, announce=announce),
         )
-        setup.run("tracing kernel", tracer.warmup)
+        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
         if camera is None:  # compiled here, not while timed
             setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
         else:
             lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
-    job = _Job(scene, image, engine, tracer, progress, watch, setup.seconds())
+    job = _Job(scene, image, engine, tracer, progress, watch, aside.account(setup.seconds()))
     if camera is not None:
         return _render_camera(job, *lens)
     width, height = image.size

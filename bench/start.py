@@ -10,9 +10,11 @@ Warm: the two commands run as child processes taking turns (import numba, render
 numba, render ...; `bench.timing`), `--turns` rounds, after one untimed run of each (it fills
 the kernel cache and writes the bytecode caches an installed copy has). Printed per command:
 its wall and CPU seconds (user + system, `RUSAGE_CHILDREN`), each a median (least-most), and
-the render's medians less import numba's. The render is this tree's (`host.cli` from the
-repository root), run as the `meshtrace` script runs it; `--against DIR` adds the render of
-another checkout (the code before a change: `git worktree add DIR COMMIT`) to the turns.
+the render's medians less import numba's, then the median (least-most) of each round's
+render less its import numba (the pair shares a spell of this shared machine). The render
+is this tree's (`host.cli` from the repository root), run as the `meshtrace` script runs
+it; `--against DIR` adds the render of another checkout (the code before a change: `git
+worktree add DIR COMMIT`) to the turns.
 
 Cold: each scene rendered once in a child with NUMBA_CACHE_DIR an empty folder (the kernel
 cache, `meshnode.engine.jit`); printed: wall and CPU seconds, and the seconds each setup step
@@ -34,7 +36,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.timing import Turns, child_cpu, turns  # noqa: E402 (after the path is set)
+from bench.timing import Figure, Turns, child_cpu, turns  # noqa: E402 (after the path is set)
 
 ROOT = Path(__file__).resolve().parents[1]
 # What the `meshtrace` console script runs (pyproject [project.scripts]), by that name.
@@ -104,8 +106,18 @@ def warm(scene: str, rounds: int, spd: bool, against: str | None = None) -> int:
     for name in list(subjects)[1:]:
         dw = walls.figure(name).median - walls.figure("import numba").median
         dc = cpus.figure(name).median - cpus.figure("import numba").median
-        print(f"{name} - import numba (difference of medians): wall {dw:+.3f} s, CPU {dc:+.3f} s")
+        pw, pc = (paired(t, name, "import numba").text("{:+.3f}") for t in (walls, cpus))
+        print(
+            f"{name} - import numba: difference of medians wall {dw:+.3f} s, CPU {dc:+.3f} s; "
+            f"of each round's pair, median (least-most): wall {pw}, CPU {pc}"
+        )
     return 0
+
+
+def paired(times: Turns, a: str, b: str) -> Figure:
+    """Each round's `a` seconds less its `b` seconds: a pair shares its spell of the machine."""
+    sa, sb = times.seconds[a], times.seconds[b]
+    return Figure.of(x - y for x, y in zip(sa, sb, strict=True))
 
 
 def cold(scenes: list[str], spd: bool, against: str | None = None, rounds: int = 1) -> int:

@@ -21,6 +21,20 @@ def test_each_warmup_scene_makes_the_engine_choose_its_variant():
         assert variant_of(build_tables(variant_scene(v))) == v
 
 
+def test_every_variant_is_found_by_its_name_and_only_those():
+    from meshnode.engine.variants import Variant
+
+    for v in all_variants():
+        assert Variant.parse(v.name) == v == Variant.parse(v.name + "/bvh")
+    for name in ("spheres", "cones+spheres/flat/shadows/refraction", "empty/smooth/x/y"):
+        try:
+            Variant.parse(name)
+        except ValueError as e:
+            assert name in str(e)
+        else:
+            raise AssertionError(f"{name!r} parsed")
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     counts=st.lists(st.integers(0, 2), min_size=4, max_size=4),

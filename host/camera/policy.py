@@ -9,7 +9,6 @@ tells the user once, by option name, what is changed or changes nothing.
 from collections.abc import Callable
 from dataclasses import replace
 
-from host.camera.lensfile import read_camera
 from host.camera.setup import CameraSetup, Focus, PinholeSetup
 from protocols.camera import CameraSampling
 from protocols.render import ImageSpec
@@ -39,6 +38,8 @@ def lens_camera(
     """The image, and the camera of a camera file or lens table, made from the given fields
     of ImageSpec, CameraSampling and Focus: rays per pixel are the image's spp, LENS_SPP
     unless given."""
+    from host.camera.lensfile import read_camera  # the lens code: a pinhole never loads it
+
     pictured = ImageSpec(**{"spp": LENS_SPP, **image})
     sampled = CameraSampling(**sampling)
     warn_unused(sampled, pictured.spp, {**image, **sampling}, warn)

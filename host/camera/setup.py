@@ -3,23 +3,25 @@ rays are sampled; `spec` turns it into the CameraSpec every node makes rays from
 pinhole sampled other than by plain jitter is set up the same way (PinholeSetup).
 
 Focusing is the host's alone (it may need a probe pass through the scene), so `Focus` is a
-host record; the sampling travels to the nodes inside the CameraSpec.
+host record; the sampling travels to the nodes inside the CameraSpec. The lens code (optics,
+pupil and camera-ray kernels, autofocus) is imported by the methods that use it: a pinhole
+render never loads it.
 """
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from host.camera.autofocus import autofocus_distance
-from host.camera.lens import Camera, describe, focused
 from meshnode.engine.camera import view_basis
-from meshnode.engine.lenscamera import camera_rays
-from meshnode.engine.pupil import exit_pupil
 from protocols import dtypes
 from protocols.camera import CameraSampling, CameraSpec, Generation
 from protocols.render import ImageSpec
 from protocols.spec import Spec
+
+if TYPE_CHECKING:
+    from host.camera.lens import Camera
 
 FOCUS_WORDS = ("auto", "infinity")
 
@@ -56,7 +58,7 @@ class Focus(Spec):
 class CameraSetup:
     """The camera of a render before focusing: optics, focus request, sampling."""
 
-    camera: Camera
+    camera: "Camera"
     sampling: CameraSampling = field(default_factory=CameraSampling)
     focus: Focus = field(default_factory=Focus)
 
@@ -64,6 +66,10 @@ class CameraSetup:
         """The camera focused and stopped as asked, as the spec every node makes rays from,
         and what the statistics say of it; `probe_engine()` gives an engine over the scene if
         autofocus needs a probe pass."""
+        from host.camera.autofocus import autofocus_distance
+        from host.camera.lens import describe, focused
+        from meshnode.engine.pupil import exit_pupil
+
         w, h = image.size
         probe: dict = {}
 
@@ -158,6 +164,8 @@ def leaving_share(spec: CameraSpec, view, width: int, height: int, centre=False)
     render samples them) at each of up to 32 x 32 pixels spread over the image, or of 256
     uniform rays from the centre pixel: a lens that blocks most rays wastes most of the work
     (the CLI warns)."""
+    from meshnode.engine.lenscamera import camera_rays
+
     s = spec.sampling
     if centre:
         rays = 256

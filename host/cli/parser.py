@@ -17,8 +17,8 @@ from host.cli.options import (
     share,
 )
 from host.planning.holding import OVERLAPS
-from host.planning.plan import PLAN_MODES
-from host.run.meshclient import NODE_LOSS
+from host.planning.request import PLAN_MODES
+from host.run.errors import NODE_LOSS
 from host.scene.formats import FORMATS
 from meshnode.transport.tls import add_tls_options
 from protocols.render import (
@@ -44,6 +44,19 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+class _Version(argparse.Action):
+    """--version: the installed version, looked up only when asked for (reading the
+    distribution's metadata took 7 ms of every command's start)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, **kwargs):
+        shown = "show program's version number and exit"  # argparse's own words
+        super().__init__(option_strings, dest, nargs=0, help=shown)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {_version()}")
+        parser.exit()
+
+
 def prog() -> str:
     """`meshtrace` when run by that name (the same commands as `host`, which /usr/bin/host,
     the DNS lookup tool, shadows outside a virtual environment), else `host`."""
@@ -55,7 +68,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=prog(), description="Meshtrace host: render scenes (NFF, OBJ, PLY, Open Inventor)."
     )
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    p.add_argument("--version", action=_Version)
     sub = p.add_subparsers(dest="command", required=True)
     _render_parser(sub)
     _cluster_file_parser(sub)

@@ -1,15 +1,15 @@
 """`host render`: the scene read, the render's records made from the options, the run
 placed (one process, a local mesh or a cluster), the images and statistics written, and a
 summary. Wiring only: the camera policy is `host.camera.policy`, the output paths
-`host.run.outputs`.
+`host.run.outputs`. A mesh's modules (asyncio, the links, the planner's simulator, the
+progress bar) are imported only when a mesh renders: a one-process render starts without them.
 """
 
-import asyncio
 import json
 import os
 import re
-import secrets
 import sys
+from typing import TYPE_CHECKING
 
 from host.camera.policy import fit_aspect, lens_camera, pinhole
 from host.camera.setup import Focus
@@ -18,17 +18,16 @@ from host.planning.budget import check_divisible
 from host.planning.holding import OVERLAPS
 from host.planning.request import Auto, Request
 from host.run.cluster import parse_mesh, read_cluster
-from host.run.connections import Nodes
 from host.run.errors import MeshError
-from host.run.localmesh import LocalMesh
-from host.run.meshclient import primary_rays, render_on_mesh
 from host.run.oneprocess import render
 from host.run.outputs import output_paths, write_images
 from host.run.summary import summary_line
 from host.scene.formats import SceneError, read_scene
-from meshnode.transport.tls import TlsFiles
 from protocols.camera import CameraSampling
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+if TYPE_CHECKING:
+    from host.run.connections import Nodes
 
 CAMERA_ONLY = (CameraSampling, Focus)
 PINHOLE_TOO = ("sampling", "threshold")  # CameraSampling fields the pinhole takes as well
@@ -217,6 +216,8 @@ def _run(scene, image, engine, camera, args, watch=None):
     """Single node in this process, a local mesh of processes, or a running cluster;
     `watch`: the live view's monitor, or None."""
     if args.cluster:
+        from host.run.connections import Nodes
+        from meshnode.transport.tls import TlsFiles
         from protocols.handshake import read_secret
 
         rows, cols, addresses = read_cluster(args.cluster)
@@ -242,6 +243,11 @@ def _run(scene, image, engine, camera, args, watch=None):
         img, stats = render(request, progress=not args.quiet, watch=watch)
         stats["plan"] = {"choice": "one process", "threads": threads, "why": why}
         return img, stats
+    import secrets
+
+    from host.run.connections import Nodes
+    from host.run.localmesh import LocalMesh
+
     secret = secrets.token_hex(32).encode()  # this render's own: other users cannot join
     with LocalMesh(plan.nodes, secret=secret) as addresses:
         img, stats = _mesh(request, Nodes(addresses, secret=secret), args, watch)
@@ -280,9 +286,13 @@ def _auto_overlap(args) -> bool:
     return getattr(args, "MeshPlan.overlap", None) == "auto"
 
 
-def _mesh(request: Request, nodes: Nodes, args, watch=None):
+def _mesh(request: Request, nodes: "Nodes", args, watch=None):
     """The render on the mesh at `nodes`, with a progress bar of its primary rays."""
+    import asyncio
+
     from tqdm import tqdm
+
+    from host.run.meshclient import primary_rays, render_on_mesh
 
     total = primary_rays(request.sized, request.camera)
     plan = request.plan

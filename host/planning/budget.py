@@ -11,15 +11,17 @@ the neighbours' copies, and the overlap.
 """
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from host.planning.holding import engine_bytes
-from host.planning.partition import partition
 from host.scene.subset import subset
-from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
+
+if TYPE_CHECKING:
+    from protocols.partition import Partition
 
 
 class BudgetError(ValueError):
@@ -31,7 +33,7 @@ def budgeted(plan) -> bool:
     return plan.mode == "object" and (plan.max_share < 1.0 or plan.node_bytes > 0)
 
 
-def holdings(scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray) -> dict:
+def holdings(scene: SceneData, spec: RenderSpec, part: "Partition", keep: np.ndarray) -> dict:
     """What each node would hold under this plan: the objects (its own box's and its copies',
     each counted once), their share of the scene's, and its engines' bytes (as
     `Engine.nbytes` counts them: `engine_bytes` of each box held, with the occupancy map)."""
@@ -108,6 +110,8 @@ def check_divisible(scene: SceneData, spec: RenderSpec) -> None:
     plan = spec.plan
     if plan.mode != "object" or plan.max_share >= 1.0:
         return
+    from host.planning.partition import partition  # only a share-bound object space cuts here
+
     last = ([plan, *retreats(plan)])[-1]  # what the plan gives up last is given up here
     at = replace(spec, plan=replace(last, node_bytes=0))
     part, keep = partition(scene, at)

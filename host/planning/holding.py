@@ -8,7 +8,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from host.planning.prepass import coarse_mesh, node_costs
 from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
 from protocols.scene import SCENE_TABLES, SceneData
@@ -34,6 +33,8 @@ def engine_bytes(scene: SceneData) -> int:
 def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:
     """Bytes of the largest node's engines with these cuts (`engine_bytes`): its own, and
     under MeshPlan.copies its linked neighbours' too."""
+    from host.planning.prepass import coarse_mesh  # the mesh simulator: planning a mesh only
+
     own = [engine_bytes(s) for s in coarse_mesh(scene, spec, xs, ys, cells)[2]]
     return max(sum(own[m] for m in spec.plan.held(n)) for n in range(spec.plan.nodes))
 
@@ -47,6 +48,8 @@ def choose_holding(
     those whose largest node's engine takes at most FITS of `memory` (0: not known, every
     overlap); with the map or without, whichever lightens the busiest node (the map's walk
     costs, in a fractal of many small empty cubes, more than the passes it saves)."""
+    from host.planning.prepass import node_costs  # the mesh simulator: planning a mesh only
+
     plan = spec.plan
     tried, too_big = {}, []
     for overlap in sorted({plan.overlap, *overlaps}):

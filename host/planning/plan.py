@@ -20,7 +20,7 @@ from host.planning.prepass import node_costs
 from host.planning.replicas import with_replicas
 from host.planning.request import Request
 from protocols.partition import Partition
-from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, RenderSpec
+from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import SceneData
 
 
@@ -145,9 +145,6 @@ def _probe_engine(scene: SceneData, image: ImageSpec, engine: EngineSpec):
 
     width, height = image.size
     return probe_engine(scene, width, height, engine)
-
-
-PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES
 
 
 def choose_mode(

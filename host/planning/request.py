@@ -15,6 +15,8 @@ from host.camera.setup import CameraSetup
 from protocols.render import MODES, EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import SceneData
 
+PLAN_MODES = ("auto", *MODES)  # what a user may ask for; nodes only ever run MODES
+
 
 @dataclass(frozen=True)
 class Auto:
@@ -31,7 +33,7 @@ class Auto:
     budget_copies: bool = True
 
     def __post_init__(self):
-        if self.mode is not None and self.mode not in ("auto", *MODES):
+        if self.mode is not None and self.mode not in PLAN_MODES:
             raise ValueError(f"mode {self.mode!r}: want auto or one of {MODES}")
         if self.node_memory is not None and self.node_memory <= 0:
             raise ValueError(f"node memory {self.node_memory}: want a positive number of bytes")

@@ -2,6 +2,8 @@
 from a failing one because a re-plan can go on without it.
 """
 
+NODE_LOSS = ("replan", "fail")  # what the host does when a node is lost (--on-node-loss)
+
 
 class MeshError(RuntimeError):
     """The render failed on the mesh; the message names the node."""

@@ -21,7 +21,7 @@ from host.planning.plan import Planned, choose_mode, plan_render, smallest_memor
 from host.planning.request import Request
 from host.run.collector import Collector, tiles_message
 from host.run.connections import Nodes, close_all, configure, connect_all, give_up
-from host.run.errors import MeshError, NodeLost
+from host.run.errors import NODE_LOSS, MeshError, NodeLost
 from host.run.framebuffer import Framebuffer
 from host.run.kept import Kept, keeps_tiles, kept_after, recovery, with_kept_tiles
 from host.run.summary import common, summarise
@@ -138,9 +138,6 @@ async def render_on_mesh(
     summary["mode"] = {"choice": plan.mode, "why": why, "node_memory_bytes": memories}
     summary["connect_seconds"] = connect
     return fb.image(), summary
-
-
-NODE_LOSS = ("replan", "fail")
 
 
 def shrink(plan: MeshPlan, nodes: int) -> MeshPlan:

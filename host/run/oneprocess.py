@@ -13,15 +13,14 @@ from dataclasses import dataclass, field
 
 from host.camera.setup import CameraSetup
 from host.planning.request import Request
+from host.run.aside import CompileAside
 from host.run.firstrun import STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import compile_clock
-from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.structure_cost import eye_ray_count
-from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
 
@@ -44,9 +43,11 @@ def render(
     engine already built for this scene and engine spec (benchmarks reuse one); `watch`: a
     `host.live.monitor.Monitor` told of every traced job (the live view)."""
     scene, image, engine, camera = request.scene, request.sized, request.engine, request.camera
-    announce = _compiling if progress else None
-    with compile_clock() as clock:  # a first run's compiling told apart from the rest
-        setup = Setup(clock, say_on_stderr if progress else None)
+    say = say_on_stderr if progress else None
+    # a first run's compiling told apart from the rest; its tracing kernel compiled aside
+    with compile_clock() as clock, CompileAside(say) as aside:
+        setup = Setup(clock, say)
+        announce = aside.announce(_compiling if progress else None)
         # the structure ("auto") is chosen for the rays the whole render is expected to trace
         eye = eye_ray_count(image, camera is not None)
         tracer = built or setup.run(
@@ -56,12 +57,12 @@ def render(
             ),
             loading=lambda e: e.stats["structure_load_seconds"],
         )
-        setup.run("tracing kernel", tracer.warmup)
+        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
         if camera is None:  # compiled here, not while timed
             setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
         else:
             lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
-    job = _Job(scene, image, engine, tracer, progress, watch, setup.seconds())
+    job = _Job(scene, image, engine, tracer, progress, watch, aside.account(setup.seconds()))
     if camera is not None:
         return _render_camera(job, *lens)
     width, height = image.size
@@ -150,6 +151,8 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
 def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, tracer: Engine):
     """(camera spec, its info for the stats), focused (autofocus probes the scene) and its
     ray kernels compiled, before the frame is timed."""
+    from meshnode.engine.lenscamera import camera_rays, rect_pixels  # a camera's only
+
     spec, info = camera.spec(scene, image, lambda: tracer)
     width, height = image.size
     pixel = rect_pixels((0, width, 0, height), width)[:1]
@@ -159,6 +162,9 @@ def _camera_ready(scene: SceneData, image: ImageSpec, camera: CameraSetup, trace
 
 def _render_camera(job: _Job, spec, info):
     """Camera rays, in batches of bounded size; adaptive sampling in two passes."""
+    from meshnode.engine.lenscamera import camera_batches, rect_pixels  # a camera's only
+    from meshnode.mesh.adaptive import RAYS_PER_BATCH, AdaptiveFilm
+
     view, (width, height), seed = job.scene.view, job.image.size, job.image.seed
     spp = job.image.spp  # rays per pixel asked for, of which the camera traces per_pixel
     fb = Framebuffer(width, height, corners=False, spp=1)
@@ -202,12 +208,22 @@ def _bounded_map(pool, fn, jobs, inflight: int):
         yield pending.popleft().result()
 
 
+class _NoBar:
+    """A quiet render's progress bar: nothing, and tqdm not even imported."""
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def _progress(total, enabled: bool):
+    if not enabled:
+        return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(
-        total=total, unit="band", desc="tracing", file=sys.stderr, disable=not enabled, leave=False
-    )
+    return tqdm(total=total, unit="band", desc="tracing", file=sys.stderr, leave=False)
 
 
 def _stats(job: _Job, totals, trace_seconds, threads) -> dict:

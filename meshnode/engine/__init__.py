@@ -4,6 +4,9 @@
 Python API, nodes run it on their own objects.
 """
 
+from meshnode.engine import loading
 from meshnode.engine.engine import Engine
+
+loading.install()  # before the first kernel loads: only what loading needs is readied
 
 __all__ = ["Engine"]

@@ -11,7 +11,6 @@ freed heap stays mapped for reuse.
 """
 
 import ctypes
-import ctypes.util
 import platform
 
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
@@ -29,7 +28,7 @@ def keep_freed_memory() -> bool:
         return True
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return False
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    libc = _libc()
     _done = bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_ABOVE)) and bool(
         libc.mallopt(M_TRIM_THRESHOLD, TRIM_ABOVE)
     )
@@ -42,5 +41,10 @@ def give_back() -> bool:
     the idle hours after (glibc's malloc_trim; elsewhere nothing). Returns whether any was."""
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return False
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-    return bool(libc.malloc_trim(0))
+    return bool(_libc().malloc_trim(0))
+
+
+def _libc():
+    """The C library this process runs on: its own symbols (ctypes.util.find_library would
+    run ldconfig in a subprocess, 3 ms of every render's start, to find the same one)."""
+    return ctypes.CDLL(None)

@@ -35,6 +35,26 @@ class Variant(NamedTuple):
             ]
         )
 
+    @classmethod
+    def parse(cls, name: str) -> "Variant":
+        """The variant whose `name` this is (`meshnode warmup --variant`), or the engine's
+        `kernel_variant` with its storage after it (storages share a variant); ValueError
+        for a name no variant has."""
+        parts = name.split("/")
+        if len(parts) == 5 and parts[4] in ("csr", "hash", "bvh", "brute-force"):
+            parts, name = parts[:4], name.rsplit("/", 1)[0]
+        if len(parts) == 4:
+            kinds = () if parts[0] == "empty" else tuple(parts[0].split("+"))
+            flags = (parts[1] == "smooth", parts[2] == "shadows", parts[3] == "refraction")
+            variant = cls(kinds, *flags)
+            if variant.name == name and variant in all_variants():
+                return variant
+        raise ValueError(
+            f"no kernel variant is named {name!r}: KINDS/smooth|flat/shadows|no-shadows/"
+            "refraction|no-refraction, KINDS one or more of "
+            f"{'+'.join(OBJECT_KINDS)} in that order, or empty"
+        )
+
 
 def variant_of(tables: Tables) -> Variant:
     """The variant the engine compiles for these tables: the engine's one choice function."""

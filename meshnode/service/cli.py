@@ -5,6 +5,7 @@ time."""
 import argparse
 import sys
 
+from meshnode.engine.variants import KERNELS
 from meshnode.mesh.scheduler import INCOMING_HIGH
 from meshnode.service.config import KEEP_ENGINES, OBJECT_SHARE
 from meshnode.transport.tls import NO_TLS, TlsFiles, add_tls_options
@@ -24,6 +25,22 @@ def parser() -> argparse.ArgumentParser:
         "--common",
         action="store_true",
         help="only the variant with every primitive kind, lights and refraction",
+    )
+    w.add_argument(
+        "--variant",
+        action="append",
+        type=_variant,
+        metavar="NAME",
+        help="only this variant, as a render's statistics name it (e.g. "
+        "triangles/flat/shadows/no-refraction; repeatable): no common kernels and no "
+        "hierarchy build (a first render compiles its tracing kernel so, beside itself)",
+    )
+    w.add_argument(
+        "--kernels",
+        type=_kernels,
+        default=KERNELS,
+        metavar="K,K",
+        help=f"with --variant: which of its kernels, of {', '.join(KERNELS)} (default all)",
     )
     s = sub.add_parser("serve", help="serve as a mesh node")
     s.add_argument(
@@ -82,7 +99,7 @@ def parse(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse(argv)
     if args.command == "warmup":
-        return _warmup(args.common)
+        return _warmup(args.common, args.variant, args.kernels)
     try:
         secret = serving_secret(args)
         tls = TlsFiles(args.tls_cert, args.tls_key, args.tls_ca)
@@ -119,13 +136,34 @@ def _share(text: str) -> float:
     return value
 
 
-def _warmup(common: bool) -> int:
+def _variant(name: str):
+    from meshnode.engine.variants import Variant
+
+    try:
+        return Variant.parse(name)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _kernels(text: str) -> tuple[str, ...]:
+    names = tuple(k.strip() for k in text.split(",") if k.strip())
+    unknown = sorted(set(names) - set(KERNELS))
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(f"{text!r}: want some of {', '.join(KERNELS)}")
+    return names
+
+
+def _warmup(common: bool, variants=None, kernels=KERNELS) -> int:
     from meshnode.engine.variants import all_variants
     from meshnode.service.warmup import ALL_KINDS, warmup
 
     def report(i, n, name):
         print(f"meshnode: kernels {i + 1}/{n}: {name}", file=sys.stderr, flush=True)
 
+    if variants:
+        seconds = warmup(variants, report, common=False, kernels=kernels, builds=False)
+        print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
+        return 0
     seconds = warmup([ALL_KINDS] if common else all_variants(), report)
     print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
     return 0

@@ -46,11 +46,14 @@ def variant_scene(variant: Variant) -> SceneData:
     return scene
 
 
-def warmup(variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERNELS) -> float:
+def warmup(
+    variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERNELS, builds: bool = True
+) -> float:
     """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
     `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
     returns the seconds. `kernels`: which of each variant's (`Engine.warmup`; a node can
-    need any). `report(i, n, name)` is called before each variant."""
+    need any); `builds`: the hierarchy's build kernels too (the same for every variant).
+    `report(i, n, name)` is called before each variant."""
     from meshnode.engine import Engine
 
     start = time.perf_counter()
@@ -62,7 +65,7 @@ def warmup(variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERN
         # both structures' code, and the hierarchy's build kernels are the same for all.
         scene = variant_scene(variant)
         Engine(scene, structure="grid").warmup(kernels)
-        if i == 0:
+        if i == 0 and builds:
             Engine(scene, structure="bvh")
     if common:
         _common_warmup()

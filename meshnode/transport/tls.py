@@ -8,12 +8,20 @@ listening with a certificate and key takes only TLS connections; with a CA it al
 a client certificate signed by that CA (mutual TLS) and checks its neighbours' certificates
 against it when it dials them. Hostnames are always checked: certificates must name the
 addresses peers dial (DNS names, or IP addresses as IP subject alternative names).
+
+`ssl` is imported when a context is made: the options alone (a render's command line) need
+none of it.
 """
 
-import ssl
-from dataclasses import dataclass
+from __future__ import annotations
 
-MIN_VERSION = ssl.TLSVersion.TLSv1_2
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import ssl
+
+MIN_VERSION = "TLSv1_2"  # the oldest `ssl.TLSVersion` a link accepts
 
 
 @dataclass(frozen=True)
@@ -37,8 +45,10 @@ class TlsFiles:
         """The listening side's context: None without a certificate (plain TCP)."""
         if self.cert is None:
             return None
+        import ssl
+
         ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-        ctx.minimum_version = MIN_VERSION
+        ctx.minimum_version = ssl.TLSVersion[MIN_VERSION]
         _load(ctx, self)
         if self.ca is not None:
             ctx.verify_mode = ssl.CERT_REQUIRED
@@ -49,14 +59,18 @@ class TlsFiles:
         (against the CA, or the system's) and its hostname, and offers our certificate."""
         if not self.enabled:
             return None
+        import ssl
+
         ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH)
-        ctx.minimum_version = MIN_VERSION
+        ctx.minimum_version = ssl.TLSVersion[MIN_VERSION]
         _load(ctx, self)
         return ctx
 
 
 def _load(ctx: ssl.SSLContext, files: TlsFiles) -> None:
     """Certificate, key and CA into `ctx`, failing with the file that could not be used."""
+    import ssl
+
     try:
         if files.cert is not None:
             ctx.load_cert_chain(files.cert, files.key)

@@ -2,7 +2,7 @@
 `python -c "import numba"`, and a cold first render (empty kernel cache) with its compile
 steps.
 
-    python -m bench.start --scene /work/shared/scenes/tetra.nff --turns 7
+    python -m bench.start --scene $MESHTRACE_SCENES/tetra.nff --turns 7
     python -m bench.start --cold --scene host/examples/showcase.nff --scene tetra.nff
     python -m bench.start --against /tmp/before   # and another checkout's render, in turns
 
@@ -155,14 +155,17 @@ def main(argv=None) -> int:
     p.add_argument(
         "--scene",
         action="append",
-        help="scene file (repeatable with --cold; default /work/shared/scenes/tetra.nff)",
+        help="scene file (repeatable with --cold; default $MESHTRACE_SCENES/tetra.nff)",
     )
     p.add_argument("--turns", type=int, help="rounds in turns (7 of import numba, render; cold: 1)")
     p.add_argument("--cold", action="store_true", help="first renders from an empty cache")
     p.add_argument("--no-spd", dest="spd", action="store_false", help="render without --spd")
     p.add_argument("--against", metavar="DIR", help="another checkout's render, in turns")
     args = p.parse_args(argv)
-    scenes = [str(Path(s).resolve()) for s in args.scene or ["/work/shared/scenes/tetra.nff"]]
+    default = os.environ.get("MESHTRACE_SCENES")
+    if not args.scene and not default:
+        p.error("give --scene (or set MESHTRACE_SCENES to the SPD scenes' folder)")
+    scenes = [str(Path(s).resolve()) for s in args.scene or [Path(default) / "tetra.nff"]]
     if args.cold:
         return cold(scenes, args.spd, args.against, args.turns or 1)
     if len(scenes) != 1:

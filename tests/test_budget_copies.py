@@ -157,7 +157,8 @@ def test_boxes_grown_into_the_room_left_keep_the_budget_and_the_image():
     # their boxes (rays stay on them longer): every node stays within the share, fewer rays
     # are passed, and the image and counts are the single node's; growth is kept only where
     # the simulated busiest node carries less.
-    from host.planning.growth import _grown, _passed, _simulated, grown_within
+    from host.planning.growth import _grown, grown_within
+    from host.planning.prepass import partition_pass, rays_passed
     from host.run.framebuffer import Framebuffer
     from meshnode.mesh.simulator import simulate
 
@@ -171,8 +172,8 @@ def test_boxes_grown_into_the_room_left_keep_the_budget_and_the_image():
     assert any(growth)
     assert within(spec.plan, holdings(scene, spec, wider, kept))
     assert all(kept[n].sum() > keep[n].sum() for n, g in enumerate(growth) if g)
-    assert _passed(_simulated(scene, spec, wider, kept)) < _passed(
-        _simulated(scene, spec, part, keep)
+    assert rays_passed(partition_pass(scene, spec, wider, kept)) < rays_passed(
+        partition_pass(scene, spec, part, keep)
     )
     out = simulate([subset(scene, kept[n]) for n in range(9)], spec, wider)
     w, h = spec.image.size

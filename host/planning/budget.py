@@ -40,14 +40,21 @@ def holdings(scene: SceneData, spec: RenderSpec, part: "Partition", keep: np.nda
     plan = spec.plan
     total = keep.shape[1]
     held = [keep[plan.held(n)].any(axis=0) for n in range(plan.nodes)]
-    own = [engine_bytes(subset(scene, keep[n])) for n in range(plan.nodes)]
-    occ = int(np.prod(part.occ_res))  # a byte a voxel, on every engine the node builds
+    own = cell_bytes(scene, part, keep)
     counts = [int(h.sum()) for h in held]
     return {
         "objects": counts,
         "share": [c / total if total else 0.0 for c in counts],
-        "engine_bytes": [sum(own[m] + occ for m in plan.held(n)) for n in range(plan.nodes)],
+        "engine_bytes": [sum(own[m] for m in plan.held(n)) for n in range(plan.nodes)],
     }
+
+
+def cell_bytes(scene: SceneData, part: "Partition", keep: np.ndarray, cells=None) -> list[int]:
+    """Each cell's engine bytes (of `cells`, default all) as a node holding it counts them:
+    `engine_bytes` of its box's objects and the occupancy map, a byte a voxel."""
+    occ = int(np.prod(part.occ_res))
+    cells = range(len(keep)) if cells is None else cells
+    return [engine_bytes(subset(scene, keep[m])) + occ for m in cells]
 
 
 def within(plan, held: dict) -> bool:

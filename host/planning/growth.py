@@ -15,14 +15,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from host.planning.budget import holdings, within
+from host.planning.budget import cell_bytes
 from host.planning.cells import grown, traced
 from host.planning.clip import holders
-from host.planning.prepass import coarse_mesh, costs
-from host.scene.subset import subset
-from meshnode.mesh.simulator import simulate
+from host.planning.prepass import costs, partition_pass, rays_passed
 from protocols.partition import Partition
-from protocols.render import EVERYWHERE, RenderSpec
+from protocols.render import RenderSpec
 from protocols.scene import SceneData
 
 GROWTHS = (80.0, 40.0, 20.0, 10.0, 5.0)  # percent of a cell's size, the widest tried first
@@ -36,9 +34,9 @@ def grown_within(
     allow, all of them or only those not among the busiest (BUSY), whichever the simulated
     mesh finds lightens its busiest node more (or as much, with fewer rays passed); else the
     partition as it was."""
-    before = _simulated(scene, spec, part, keep)
+    before = partition_pass(scene, spec, part, keep)
     load = costs(before)
-    busiest, passed = float(load.max()), _passed(before)
+    busiest, passed = float(load.max()), rays_passed(before)
     order = np.argsort(load, kind="stable").tolist()  # the least loaded first to take room
     tried, best = [], (busiest, passed, part, keep, [0.0] * spec.plan.nodes)
     for who in ("all", "not the busiest"):
@@ -46,11 +44,11 @@ def grown_within(
         wider, kept, growth = _grown(scene, spec, part, keep, nodes)
         if not any(growth) or any(growth == t["growth"] for t in tried):
             continue
-        after = _simulated(scene, spec, wider, kept)
+        after = partition_pass(scene, spec, wider, kept)
         now = float(costs(after).max())
         tried.append({"nodes": who, "growth": growth, "simulated_busiest_vs_plan": now / busiest})
-        if (now, _passed(after)) < best[:2]:
-            best = (now, _passed(after), wider, kept, growth)
+        if (now, rays_passed(after)) < best[:2]:
+            best = (now, rays_passed(after), wider, kept, growth)
     report = {"tried": tried, "simulated_rays_passed": passed}
     if best[2] is part:
         why = "no node has room to grow" if not tried else "no growth lightened the busiest"
@@ -61,11 +59,25 @@ def grown_within(
 
 def _grown(scene, spec, part, keep, nodes) -> tuple[Partition, np.ndarray, list]:
     """(partition, holders, growth per node): each of `nodes` in turn grown by the widest of
-    GROWTHS that keeps every node within the budget (its copies' holders too)."""
+    GROWTHS that keeps every node holding it within the budget (its copies' holders too:
+    only their holdings change, so only they are checked, the grown box's bytes counted
+    anew)."""
     plan = spec.plan
     los, his = np.array(part.los, float), np.array(part.his, float)
     cells = np.array(part.cell_los, float), np.array(part.cell_his, float)
     kept, chosen = keep.copy(), [0.0] * plan.nodes
+    size = cell_bytes(scene, part, keep) if plan.node_bytes else [0] * plan.nodes
+    limit = plan.max_share * keep.shape[1] + 1e-9
+
+    def fits(trial: np.ndarray, sizes: list, n: int) -> bool:
+        for h in plan.holders(n):
+            held = plan.held(h)
+            if np.count_nonzero(trial[held].any(axis=0)) > limit:
+                return False
+            if plan.node_bytes and sum(sizes[m] for m in held) > plan.node_bytes:
+                return False
+        return True
+
     for n in nodes:
         for growth in GROWTHS:
             if growth <= plan.overlap:
@@ -73,9 +85,11 @@ def _grown(scene, spec, part, keep, nodes) -> tuple[Partition, np.ndarray, list]
             lo, hi = grown(cells[0][n : n + 1], cells[1][n : n + 1], growth)
             trial = kept.copy()
             trial[n] = holders(scene, *traced(lo, hi))[0]
-            at = replace(part, los=_rows(los, n, lo[0]), his=_rows(his, n, hi[0]))
-            if within(plan, holdings(scene, spec, at, trial)):
-                los[n], his[n], kept, chosen[n] = lo[0], hi[0], trial, growth
+            sizes = list(size)
+            if plan.node_bytes:
+                (sizes[n],) = cell_bytes(scene, part, trial, [n])
+            if fits(trial, sizes, n):
+                los[n], his[n], kept, size, chosen[n] = lo[0], hi[0], trial, sizes, growth
                 break
     return replace(part, los=_rows(los), his=_rows(his)), kept, chosen
 
@@ -86,17 +100,3 @@ def _rows(a: np.ndarray, n: int | None = None, row=None) -> tuple:
     if n is not None:
         b[n] = row
     return tuple(tuple(float(v) for v in r) for r in b)
-
-
-def _simulated(scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray):
-    """The mesh simulated on the coarse image with these boxes and holders (the coarse
-    partition's own tiles, the boxes given)."""
-    cells = np.array(part.cell_los), np.array(part.cell_his)
-    occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
-    coarse, cpart, _ = coarse_mesh(scene, spec, None, None, cells, occupancy)
-    cpart = replace(cpart, los=part.los, his=part.his)
-    return simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, cpart)
-
-
-def _passed(outcome) -> int:
-    return int(sum(r.rays_sent for r in outcome.nodes))

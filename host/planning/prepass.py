@@ -16,7 +16,7 @@ from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
-from protocols.render import ImageSpec, RenderSpec
+from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
 
 COARSE = 64  # coarse samples along the longer image axis
 
@@ -62,6 +62,21 @@ def coarse_pass(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
     """The simulated mesh's Outcome on the coarse image (`node_costs`' arguments)."""
     coarse, part, scenes = coarse_mesh(scene, spec, xs, ys, cells, occupancy)
     return simulate(scenes, coarse, part)
+
+
+def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray):
+    """The simulated mesh's Outcome on the coarse image with a partition's own cells, map,
+    boxes (grown as they may be, node by node) and holders (`keep`)."""
+    cells = np.array(part.cell_los), np.array(part.cell_his)
+    occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
+    coarse, cpart, _ = coarse_mesh(scene, spec, None, None, cells, occupancy)
+    cpart = replace(cpart, los=part.los, his=part.his)
+    return simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, cpart)
+
+
+def rays_passed(outcome) -> int:
+    """Rays the simulated nodes sent each other, in all."""
+    return int(sum(r.rays_sent for r in outcome.nodes))
 
 
 def costs(outcome) -> np.ndarray:

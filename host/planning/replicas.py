@@ -18,13 +18,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from host.planning.budget import budgeted, holdings, within
-from host.planning.holding import engine_bytes, ratio
-from host.planning.prepass import coarse_pass, costs
+from host.planning.budget import budgeted, cell_bytes, holdings, within
+from host.planning.holding import ratio
+from host.planning.prepass import costs, partition_pass, rays_passed
 from host.planning.rectangles import spread
-from host.scene.subset import subset
 from protocols.partition import Partition
-from protocols.render import EVERYWHERE, RenderSpec
+from protocols.render import RenderSpec
 from protocols.scene import SceneData
 
 TRIES = (1.0, 0.5, 0.25)  # shares of the copies chosen (hottest first) simulated, in turn
@@ -42,10 +41,8 @@ def with_replicas(
         why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
         return spec, part, {"chosen": [], "why": why or "no memory budget on a mesh"}
     began = time.process_time()
-    cells = (np.asarray(part.cell_los), np.asarray(part.cell_his))
-    occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
-    before = coarse_pass(scene, spec, None, None, cells, occupancy)
-    busiest, passed = float(costs(before).max()), _passed(before)
+    before = partition_pass(scene, spec, part, keep)
+    busiest, passed = float(costs(before).max()), rays_passed(before)
     added = choose_copies(scene, spec, part, keep, costs(before), _passes(before))
     report = {"simulated_load": costs(before).tolist(), "simulated_rays_passed": passed}
     if not added:
@@ -56,10 +53,10 @@ def with_replicas(
         if tuple(map(list, holds)) in tried.values():
             continue
         at = replace(spec, plan=replace(plan, copies=True, holds=holds))
-        after = coarse_pass(scene, at, None, None, cells, occupancy)
+        after = partition_pass(scene, at, part, keep)
         now = float(costs(after).max())
-        tried[ratio(now, busiest), _passed(after)] = tuple(map(list, holds))
-        if now < busiest or (now == busiest and _passed(after) < passed):
+        tried[ratio(now, busiest), rays_passed(after)] = tuple(map(list, holds))
+        if now < busiest or (now == busiest and rays_passed(after) < passed):
             if not within(at.plan, holdings(scene, at, part, keep)):  # choose_copies keeps it
                 raise AssertionError("copies chosen past the memory budget")
             return (
@@ -96,8 +93,7 @@ def choose_copies(
     takes most from (`passes`, nodes x nodes), else the least loaded (each holder's load
     its cells' shares)."""
     plan, nodes = spec.plan, spec.plan.nodes
-    occ = int(np.prod(part.occ_res))
-    own = [engine_bytes(subset(scene, keep[m])) + occ for m in range(nodes)]
+    own = cell_bytes(scene, part, keep)
     held = [{n} for n in range(nodes)]
     mask = [keep[n].copy() for n in range(nodes)]
     size = list(own)
@@ -156,7 +152,3 @@ def _passes(outcome) -> np.ndarray:
         for m, rays in record.sent_to.items():
             out[n, m] += rays
     return out
-
-
-def _passed(outcome) -> int:
-    return int(sum(r.rays_sent for r in outcome.nodes))

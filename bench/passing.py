@@ -1,20 +1,26 @@
-"""How many rays a node gathers for a neighbour before sending them (`meshnode.mesh.driver.
-PASS_RAYS`), measured where it matters: a budgeted object-space render that passes millions of
-rays, on local meshes whose nodes gather each size, in turns.
+"""How rays are gathered for passing, measured where it matters: a budgeted object-space render
+that passes millions of rays, on local meshes whose nodes each gather another way, in turns.
+A setting is RAYS/AGE/BATCH/EYE: rays leaving for a neighbour are sent once RAYS wait
+(`meshnode.mesh.driver.PASS_RAYS`) or they have waited AGE batches (`PASS_AGE`), queued
+incoming messages are merged into batches of up to BATCH rays
+(`meshnode.mesh.scheduler.PASSED_BATCH`), and eye rays are made EYE a batch
+(`meshnode.mesh.node.EYE_BATCH`); an absent part keeps the production value.
 
     python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
-                            [--size 384] [--spp 16] [--pass-rays 4096,16384] [--turns 2]
+                            [--size 384] [--spp 16] [--passing 16384/4/4096,16384/16/16384]
+                            [--turns 2]
 
-Each turn renders the scene once on every size's mesh (after a first, warming render on each),
-in the same order, so the machine's noise falls on all of them alike. Printed per render: the
-nodes' user and system CPU summed from /proc over the frame, their minor page faults, the
-busiest node's frame CPU and the rays passed; then each size's medians over the turns and the
-ratio of its summed CPU to the first size's. Every render's ray counts must equal the first's
-and its image be within 1e-5 of it (object space sums a pixel's deposits in the order they
-arrive; exit 1 if not).
+Each turn renders the scene once on every setting's mesh (after a first, warming render on
+each), in the same order, so the machine's noise falls on all of them alike. Printed per
+render: the nodes' user and system CPU summed from /proc over the frame, their minor page
+faults, the busiest node's frame CPU, the rays passed and the RAYS messages sent; then each
+setting's medians over the turns and the ratio of its summed CPU and of its busiest node's
+frame CPU to the first setting's. Every render's ray counts must equal the first's and its
+image be within 1e-5 of it (object space sums a pixel's deposits in the order they arrive;
+exit 1 if not).
 
-`python -m bench.passing serve ... --pass-rays N` is such a node: the production service with
-only that constant changed.
+`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE` is such a node: the production
+service with only those constants changed.
 """
 
 import argparse
@@ -32,14 +38,29 @@ from bench import add_scenes_option, finish  # noqa: E402
 
 
 def serve(argv: list[str]) -> int:
-    """A node whose driver gathers `--pass-rays N` rays per neighbour before sending."""
-    from meshnode.mesh import driver
+    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE` says."""
+    from meshnode.mesh import driver, node, scheduler
     from meshnode.service import cli
 
-    at = argv.index("--pass-rays")
-    driver.PASS_RAYS = int(argv[at + 1])
+    at = argv.index("--passing")
+    rays, age, batch, eye = setting(argv[at + 1])
+    driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH = rays, age, batch
+    node.EYE_BATCH = eye
     del argv[at : at + 2]
     return cli.main(argv)
+
+
+def setting(text: str) -> tuple[int, int, int, int]:
+    """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH) of a RAYS/AGE/BATCH/EYE setting, absent
+    parts the production values."""
+    from meshnode.mesh import driver, node, scheduler
+
+    parts = text.split("/")
+    default = (driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH, node.EYE_BATCH)
+    if len(parts) > 4 or not all(p.isdigit() or p == "" for p in parts):
+        raise SystemExit(f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE (whole numbers)")
+    parts += [""] * (4 - len(parts))
+    return tuple(int(p) if p else d for p, d in zip(parts, default, strict=True))
 
 
 def _proc(pid: int) -> tuple[int, float, float]:
@@ -60,6 +81,11 @@ def _render(request, mesh, addresses) -> tuple[np.ndarray, dict, tuple]:
     return img, stats, spent
 
 
+def _messages(stats: dict) -> int:
+    """Messages the nodes sent each other (RAYS and PIXELS) over the frame."""
+    return sum(link["messages_out"] for n in stats["nodes"] for link in n["links"].values())
+
+
 def _counts(stats: dict) -> dict:
     from meshnode.engine.counters import RAY_COUNTS
 
@@ -67,7 +93,7 @@ def _counts(stats: dict) -> dict:
 
 
 def bench_scene(args, name: str, rows: list, bad: list) -> None:
-    """Every --pass-rays size's mesh up at once, rendered in turns."""
+    """Every --passing setting's mesh up at once, rendered in turns."""
     from contextlib import ExitStack
 
     from host.planning.request import Request
@@ -81,21 +107,21 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
     request = Request(
         read_nff(args.scenes / f"{name}.nff"), image, EngineSpec(threads=1), None, plan
     )
-    sizes = [int(v) for v in args.pass_rays.split(",")]
+    sizes = [v.strip() for v in args.passing.split(",")]
+    for v in sizes:
+        setting(v)
     print(
         f"\n{name} {args.mesh}, at most {args.share:.0%} of the objects a node, "
         f"{args.size}x{args.size} at {args.spp} spp"
     )
     print(
-        f"{'pass rays':>9} {'turn':>4} {'user s':>7} {'sys s':>6} {'faults':>7} "
-        f"{'busiest frame s':>15} {'rays passed':>11}"
+        f"{'setting':>16} {'turn':>4} {'user s':>7} {'sys s':>6} {'faults':>7} "
+        f"{'busiest frame s':>15} {'rays passed':>11} {'messages':>8}"
     )
     with ExitStack() as stack:
         meshes = []
         for size in sizes:
-            mesh = LocalMesh(
-                r * c, once=False, module="bench.passing", options=["--pass-rays", str(size)]
-            )
+            mesh = LocalMesh(r * c, once=False, module="bench.passing", options=["--passing", size])
             meshes.append((size, mesh, stack.enter_context(mesh)))
         ref = None
         for _, mesh, addresses in meshes:  # kernels loaded, engines built and cached
@@ -107,25 +133,27 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
                 img, stats, (faults, user, system) = _render(request, mesh, addresses)
                 off = float(np.abs(img - ref[0]).max())
                 if off > 1e-5 or _counts(stats) != ref[1]:
-                    bad.append(f"{name} pass rays {size} turn {turn}: {off:.3g} off, or counts")
+                    bad.append(f"{name} setting {size} turn {turn}: {off:.3g} off, or counts")
                 busiest = stats["busiest_node_frame_cpu_seconds"]
                 got[size].append((user + system, busiest))
                 print(
-                    f"{size:>9} {turn:>4} {user:7.2f} {system:6.2f} {faults:7d} "
-                    f"{busiest:15.3f} {stats['rays_passed']:>11}"
+                    f"{size:>16} {turn:>4} {user:7.2f} {system:6.2f} {faults:7d} "
+                    f"{busiest:15.3f} {stats['rays_passed']:>11} {_messages(stats):>8}"
                 )
     first = statistics.median(t for t, _ in got[sizes[0]])
+    first_busiest = statistics.median(b for _, b in got[sizes[0]])
     for size in sizes:
         total = statistics.median(t for t, _ in got[size])
         busiest = statistics.median(b for _, b in got[size])
         print(
-            f"{size:>9} median: nodes' CPU {total:.2f} s ({total / first:.2f} of "
-            f"{sizes[0]}'s), busiest node's frame {busiest:.3f} s"
+            f"{size:>16} median: nodes' CPU {total:.2f} s ({total / first:.2f} of "
+            f"{sizes[0]}'s), busiest node's frame {busiest:.3f} s "
+            f"({busiest / first_busiest:.2f} of {sizes[0]}'s)"
         )
         rows.append(
             {
                 "scene": name,
-                "pass_rays": size,
+                "setting": size,
                 "nodes_cpu_seconds": got[size],
                 "median_nodes_cpu_seconds": total,
                 "median_busiest_frame_cpu": busiest,
@@ -144,7 +172,11 @@ def main(argv=None) -> int:
     p.add_argument("--share", type=float, default=0.25, help="--max-share of every node")
     p.add_argument("--size", type=int, default=384)
     p.add_argument("--spp", type=int, default=16)
-    p.add_argument("--pass-rays", default="4096,16384", help="sizes to compare, the first the base")
+    p.add_argument(
+        "--passing",
+        default="16384/4/4096,16384/16/16384",
+        help="RAYS/AGE/BATCH/EYE settings to compare, the first the base",
+    )
     p.add_argument("--turns", type=int, default=2)
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)

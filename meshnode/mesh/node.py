@@ -83,7 +83,7 @@ class NodeCore:
         scene: SceneData,
         spec: RenderSpec,
         part: Partition,
-        eye_batch: int = EYE_BATCH,
+        eye_batch: int | None = None,
         engines: EngineCache | None = None,
         copies: dict[int, SceneData] | None = None,
     ):
@@ -93,7 +93,7 @@ class NodeCore:
             if spec.plan.mode == "image"
             else (COPIES_EYE_BATCH if spec.plan.copies else 0)
         )
-        self.eye_batch = max(eye_batch, least)
+        self.eye_batch = max(EYE_BATCH if eye_batch is None else eye_batch, least)
         self.feed = TileFeed() if spec.plan.dynamic else None
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes

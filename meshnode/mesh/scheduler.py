@@ -23,7 +23,10 @@ from protocols.errors import BadFrame
 from protocols.state import EVERY_STATE, State
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
-PASSED_BATCH = 4096  # queued incoming messages merged into one batch of up to this many rays
+# Queued incoming messages merged into one batch of up to this many rays: a batch costs a
+# kernel call, its scratch, its routing and a hand-off to the tracing thread whatever its size
+# (with the driver's PASS_AGE: `python -m bench.passing`)
+PASSED_BATCH = 16384
 # Passed rays wait for a primary batch until this many are queued: a neighbour's batch
 # sends a few dozen rays here, and traced one message at a time each paid a kernel call
 # (~30 us) for a few microseconds of tracing.

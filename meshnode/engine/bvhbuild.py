@@ -196,6 +196,8 @@ def _partition(rec, ids, start, end, axis, b, cmin, scale, nb, sides):
 def _kind_split(rec, ids, start, end, off):
     """Sort the few rec/ids[start:end] by id (insertion sort) and return where the first kind
     ends: `end` when they are all of one kind (local ids are grouped by kind)."""
+    if end - start < 2:
+        return end
     for i in range(start + 1, end):
         u = ids[i]
         r0, r1, r2, r3, r4, r5 = rec[i, 0], rec[i, 1], rec[i, 2], rec[i, 3], rec[i, 4], rec[i, 5]

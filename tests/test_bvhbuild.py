@@ -6,12 +6,12 @@ and first hits on a generated mesh equal brute force's."""
 import numpy as np
 import pytest
 
+from bench.embree import flat_scene
 from bench.generate import tetra_triangles
 from meshnode.engine import Engine
 from meshnode.engine.bvh import LEAF_CAP
 from meshnode.engine.bvhbuild import Bvh, build_tree
-from protocols import dtypes
-from protocols.scene import SceneData
+from protocols.scene import View
 
 
 def check_tree(lo, hi, off):
@@ -80,13 +80,7 @@ def test_coincident_tiny_and_huge_coordinates_build_valid_trees():
 def test_generated_mesh_first_hits_equal_brute_force():
     """A 16,384-triangle tetrahedron: random rays through it hit what brute force hits, the
     nearest at the same distance and, on equal distances, the lower id."""
-    tris = tetra_triangles(7)
-    scene = SceneData()
-    scene.materials = np.array([((0.8, 0.8, 0.8), 0.8, 0.0, 1.0, 0.0, 1.0)], dtypes.MATERIAL)
-    t = np.zeros(len(tris), dtypes.TRIANGLE)
-    t["gid"] = np.arange(len(tris))
-    t["v"] = tris
-    scene.triangles = t
+    scene = flat_scene(View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0), tetra_triangles(7))
     engine = Engine(scene, structure="bvh")
     assert engine.structure == "bvh" and engine.stats["structure_build_seconds"] > 0
     rng = np.random.default_rng(5)

@@ -80,7 +80,7 @@ import time
 import numpy as np
 from bench.structure_cost import nested_spheres
 from host.scene.nff import read_nff
-from meshnode.engine.bvh import Bvh
+from meshnode.engine.bvhbuild import Bvh
 from meshnode.engine.grid import build_grid
 from meshnode.engine.tables import build_tables
 tb = build_tables({scene})
@@ -103,7 +103,7 @@ def measure(path: Path | None, size: int, repeat: int, nested: int = 0) -> dict:
     from host.run.oneprocess import render
     from host.scene.nff import read_nff
     from meshnode.engine import Engine
-    from meshnode.engine.bvh import Bvh
+    from meshnode.engine.bvhbuild import Bvh
     from meshnode.engine.grid import build_grid
     from meshnode.engine.structure_cost import grid_forecast
     from protocols.render import EngineSpec, ImageSpec

@@ -1,5 +1,5 @@
 """No module of the three packages is over 400 lines (issue 40), so a concept that grew gets
-its own module instead of a longer file. The exceptions are the three hot numba kernels, whose
+its own module instead of a longer file. The exceptions are the two hot numba kernels, whose
 docstrings say why they stay whole (numba inlines only within one compilation unit); they must
 keep saying so. bench/ and tests/ are not held to it."""
 
@@ -9,7 +9,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LIMIT = 400
-HOT_KERNELS = {"meshnode/engine/trace.py", "meshnode/engine/traverse.py", "meshnode/engine/bvh.py"}
+HOT_KERNELS = {"meshnode/engine/trace.py", "meshnode/engine/traverse.py"}
 
 
 def _modules() -> list[Path]:

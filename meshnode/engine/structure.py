@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshnode.engine import kernelcache
-from meshnode.engine.bvh import Bvh
+from meshnode.engine.bvhbuild import Bvh
 from meshnode.engine.grid import Grid, build_grid
 from meshnode.engine.structure_cost import (
     choose,

@@ -104,7 +104,7 @@ def run_link(batch: np.ndarray, batches: int) -> tuple[float, float]:
     async def send():
         link = await Link.connect(f"127.0.0.1:{port}", "receiver")
         for _ in range(batches):
-            await link.send(make(Kind.RAYS, rays=batch, dest=1))
+            await link.send(make(Kind.RAYS, rays=batch, dest=1, cell=1))
         await link.send(make(Kind.SHUTDOWN))
         await link.writer.drain()
         await link.close()
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     batch = np.zeros(args.rays_per_batch, RAY)
     batch["d"] = (0.0, 0.0, 1.0)
     batch["pixel"] = np.arange(len(batch))
-    frame = encode(make(Kind.RAYS, rays=batch, dest=1))
+    frame = encode(make(Kind.RAYS, rays=batch, dest=1, cell=1))
     mb = len(frame) * args.batches / 1e6
     rays = args.batches * args.rays_per_batch
     print(

@@ -13,6 +13,7 @@ from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
 from protocols.scene import TABLE_DTYPES
 
+# 14: RAYS.cell (the engine a ray is for: a copy its node holds), MeshPlan.forward;
 # 13: MeshPlan.holds (a budget's copies, node by node);
 # 12: CameraSampling.rays gone (CONFIG's camera takes its rays per pixel from ImageSpec.spp),
 # CONFIG.scene (protocols.scene.SceneHeader) for CONFIG.view and CONFIG.background;
@@ -20,7 +21,7 @@ from protocols.scene import TABLE_DTYPES
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 13
+PROTOCOL_VERSION = 14
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 # PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a
@@ -86,7 +87,7 @@ FIELDS = {
         "render_id": bytes,
     },
     Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
-    Kind.RAYS: {"rays": dtypes.RAY, "dest": int},
+    Kind.RAYS: {"rays": dtypes.RAY, "dest": int, "cell": int},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
     Kind.STATE: {"wave": int, "state": int},
     Kind.ECHO: {"wave": int, "dirty": bool, "sent": int, "received": int},

@@ -32,6 +32,7 @@ BALANCES = ("even", "cost", "objects")
 MODES = ("object", "image")
 TILINGS = ("none", "static", "dynamic")
 ORDERS = ("rows", "centre")  # dynamic tiles: dealt row by row, or from the image's centre out
+FORWARDS = ("owner", "nearest")  # under holds: a cell's rays to its owner, or its nearest holder
 
 
 @dataclass(frozen=True)
@@ -145,7 +146,11 @@ class MeshPlan(Spec):
     objects, whatever the view (`host.planning.objectcells`). `max_share` and `node_bytes`
     are a memory budget (object space): no node holds more than `max_share` of the scene's
     objects, its copies counted, nor engines over `node_bytes` bytes (0: no bound); the
-    host plans within them and every node checks its own engines against `node_bytes`."""
+    host plans within them and every node checks its own engines against `node_bytes`.
+    `forward` (with holds): a ray entering a cell whose engine its node does not hold goes
+    to the cell's owner ("owner"), or to whichever of the cell's holders is fewest hops away
+    ("nearest", the owner on a tie): a copy then takes on the rays of the nodes around it,
+    not only its holder's own, as R2E2 hands rays to a node holding what they need."""
 
     rows: int = 1
     cols: int = 1
@@ -162,6 +167,7 @@ class MeshPlan(Spec):
     holds: tuple = ()
     max_share: float = 1.0
     node_bytes: int = 0
+    forward: str = "nearest"
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -184,6 +190,7 @@ class MeshPlan(Spec):
             self.fail("copies", "neighbours' copies are object space's (image space holds all)")
         self._check_shared()
         self._check_holds()
+        self.want_choice("forward", FORWARDS)
         self.want_number("max_share", 0.0, 1.0, open_lo=True)
         self.want_int("node_bytes", 0, 1 << 60)
         if self.mode == "image" and (self.max_share < 1 or self.node_bytes):
@@ -248,6 +255,19 @@ class MeshPlan(Spec):
     def holders(self, node: int) -> list[int]:
         """The nodes that hold `node`'s engine: itself first, then the others in order."""
         return [node, *(n for n in range(self.nodes) if n != node and node in self.held(n))]
+
+    def takers(self, node: int) -> list[int]:
+        """For each cell, the node `node` hands a ray entering it to (`forward`): itself
+        where it holds the cell's engine, else the owner, or under holds and "nearest" the
+        holder fewest hops away (the owner, then the lowest number, on a tie)."""
+        held = set(self.held(node))
+        if not self.holds or self.forward == "owner":
+            return [node if c in held else c for c in range(self.nodes)]
+        torus = Torus(self.rows, self.cols)
+        return [
+            node if c in held else min(self.holders(c), key=lambda h: torus.distance(node, h))
+            for c in range(self.nodes)
+        ]
 
     @property
     def dynamic(self) -> bool:

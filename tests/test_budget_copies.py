@@ -48,6 +48,46 @@ def test_any_cells_held_give_the_single_node_image(shape):
     assert sum(r.rays_sent for r in records) < sum(r.rays_sent for r in alone)
 
 
+@pytest.mark.parametrize("shape", [(3, 3), (2, 3)])
+def test_rays_handed_to_the_owner_or_the_nearest_holder_give_the_single_node_image(shape):
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    ref, ref_counts = single(scene)
+    nodes = shape[0] * shape[1]
+    holds = _random_holds(nodes, nodes)
+    got = {}
+    for forward in ("owner", "nearest"):
+        img, totals, records, _ = render_mesh(
+            scene,
+            *shape,
+            1.0,
+            32,
+            32,
+            balance="objects",
+            copies=True,
+            holds=holds,
+            forward=forward,
+        )
+        assert {k: totals[k] for k in ref_counts} == ref_counts
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+        got[forward] = [dict(r.sent_to) for r in records]
+    # handed to the nearest holder, the rays take other routes than to the owners
+    assert got["owner"] != got["nearest"]
+
+
+def test_a_cell_rays_are_handed_to_its_nearest_holder_the_owner_on_a_tie():
+    # 3x3 torus (rows 0-2, 3-5, 6-8): node 0 holds cell 8, node 5 holds cells 0 and 7
+    plan = MeshPlan(3, 3, copies=True, holds=((8,), (), (), (), (), (0, 7), (), (), ()))
+    # from 4: cell 0 to 5 (one hop, 0 two); 7 and 5 both one hop, 8 and 0 both two: owners
+    assert plan.takers(4) == [5, 1, 2, 3, 4, 5, 6, 7, 8]
+    # from 2: cell 7 to 5 (one hop, 7 two); 0 and 5 both one hop: the owner
+    assert plan.takers(2) == [0, 1, 2, 3, 4, 5, 6, 5, 8]
+    assert plan.takers(0) == [0, 1, 2, 3, 4, 5, 6, 7, 0]  # its own copy of 8 traces here
+    owner = MeshPlan(3, 3, copies=True, holds=plan.holds, forward="owner")
+    assert owner.takers(4) == [0, 1, 2, 3, 4, 5, 6, 7, 8]
+    with pytest.raises(SpecError, match="forward"):
+        MeshPlan(3, 3, forward="anyone")
+
+
 def test_holds_are_checked_as_a_peer_sends_them():
     MeshPlan(2, 2, copies=True, holds=((1,), (), (0, 3), ())).check()
     bad = [

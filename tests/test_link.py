@@ -60,7 +60,7 @@ async def test_a_frame_over_the_limit_fails_by_peer_and_kind():
     link = fake_link("node 3 (10.0.0.3:7700)", max_frame=4096)
     rays = np.zeros(1000, RAY)  # about 100 kB: far over the 4 kB frame
     ok = make(Kind.SHUTDOWN)
-    error = await first_error([ok, make(Kind.RAYS, rays=rays, dest=3), ok], link)
+    error = await first_error([ok, make(Kind.RAYS, rays=rays, dest=3, cell=3), ok], link)
     assert isinstance(error, SendFailed) and isinstance(error.__cause__, FrameTooLarge)
     assert "could not send RAYS to node 3 (10.0.0.3:7700)" in str(error)
     assert "exceeds the 4096 limit" in str(error)
@@ -149,7 +149,7 @@ def test_large_frames_are_received_in_place_and_reading_pauses_until_taken():
     receiver = Receiver(None, transport, FrameDecoder(), b"", {"bytes_in": 0})
     rays = np.zeros(40_000, RAY)  # about 4 MB a frame: most of it read straight into place
     rays["pixel"] = np.arange(len(rays))
-    frames = [encode(make(Kind.RAYS, rays=rays, dest=k)) for k in range(3)]
+    frames = [encode(make(Kind.RAYS, rays=rays, dest=k, cell=k)) for k in range(3)]
     small = encode(make(Kind.SHUTDOWN))
     direct = _deliver(receiver, b"".join([frames[0], small, frames[1], frames[2]]), 65536)
     assert direct > 0.9 * 3 * len(frames[0]) / 65536  # not through the scratch buffer

@@ -26,7 +26,7 @@ def ray_batch(n):
 def test_frames_survive_every_split_point():
     rays = ray_batch(5)
     msgs = [
-        make(Kind.RAYS, rays=rays, dest=2),
+        make(Kind.RAYS, rays=rays, dest=2, cell=2),
         make(Kind.SHUTDOWN),
         make(Kind.ERROR, reason="x" * 300),
     ]
@@ -49,7 +49,7 @@ def test_oversized_frame_is_refused_before_buffering():
     with pytest.raises(FrameTooLarge):
         dec.feed((10**6).to_bytes(4, "big") + b"\0" * 10)
     with pytest.raises(FrameTooLarge):
-        encode(make(Kind.RAYS, rays=ray_batch(100), dest=0), max_frame=1000)
+        encode(make(Kind.RAYS, rays=ray_batch(100), dest=0, cell=0), max_frame=1000)
 
 
 @pytest.mark.parametrize(
@@ -88,7 +88,7 @@ def test_arrays_follow_the_map_aligned_and_arrive_as_writable_views():
             np.testing.assert_array_equal(a, message[key])
             assert a.flags.aligned and a.flags.writeable
             assert a.ctypes.data % ALIGN == 0
-    frame = bytearray(encode(make(Kind.RAYS, rays=ray_batch(2), dest=0)))
+    frame = bytearray(encode(make(Kind.RAYS, rays=ray_batch(2), dest=0, cell=0)))
     frame += b"\0" * 8  # bytes after the arrays: refused, never ignored
     frame[:4] = (len(frame) - 4).to_bytes(4, "big")
     with pytest.raises(BadFrame, match="bytes after the map's arrays"):
@@ -99,7 +99,7 @@ def test_message_fields_are_checked():
     with pytest.raises(TypeError):
         make(Kind.RAYS, rays=ray_batch(1))  # missing dest
     with pytest.raises(BadFrame):
-        make(Kind.RAYS, rays=np.zeros(2, dtypes.DEPOSIT), dest=0)
+        make(Kind.RAYS, rays=np.zeros(2, dtypes.DEPOSIT), dest=0, cell=0)
     with pytest.raises(UnknownKind):
         parse({"k": 99})
     with pytest.raises(BadFrame):

@@ -282,7 +282,8 @@ def neighbour_message(f: "Fuzzer") -> dict:
                 bad = ~np.isfinite(mutated["o"]).all(1) | ~np.isfinite(mutated["d"]).all(1)
                 mutated[bad] = rays[bad]
             rays = mutated
-        return make(Kind.RAYS, rays=rays, dest=dest)
+        cell = rng.choice([1, 1, 1, 0, 2, -1, 2**40])
+        return make(Kind.RAYS, rays=rays, dest=dest, cell=cell)
     if r < 0.65:
         deposits = np.zeros(rng.randint(0, 16), dtypes.DEPOSIT)
         deposits["pixel"] = rng.choice([0, 63, 64, -1, 2**62])

@@ -32,11 +32,13 @@ class Driver:
     Subclasses send: RAYS, PIXELS, STEAL and GIVE are counted messages, so their `post_*`
     tell the scheduler (`Scheduler.message_out`); termination's probes and echoes are not.
     Rays leaving for another node wait here until PASS_RAYS of them or PASS_AGE batches have
-    gathered, or the node has nothing in flight (`Flush`)."""
+    gathered, or the node has nothing in flight (`Flush`); rays for a cell go to the node
+    the plan hands them to (`MeshPlan.takers`: its owner, or its nearest holder)."""
 
     def __init__(self, node: int, sched: Scheduler, core: NodeCore | None = None):
         self.node, self.sched, self.core = node, sched, core
-        self.leaving: dict[int, list] = {}  # dest -> [batches of rays, rays, batches waited]
+        # (dest, cell) -> [batches of rays, rays, batches waited]
+        self.leaving: dict[tuple[int, int], list] = {}
         self.traced = TracedTiles()  # dynamic image space: tiles wholly traced here
 
     def act(self, step) -> None:
@@ -89,12 +91,13 @@ class Driver:
                 self.post_pixels(dest, deposits)
         for waiting in self.leaving.values():
             waiting[2] += 1
-        for dest, passed in batch.outgoing.items():
-            waiting = self.leaving.setdefault(dest, [[], 0, 0])
+        takers = self.core.takers
+        for cell, passed in batch.outgoing.items():
+            waiting = self.leaving.setdefault((takers[cell], cell), [[], 0, 0])
             waiting[0].append(passed)
             waiting[1] += len(passed)
-        for dest in [d for d, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]:
-            self.send_leaving(dest)
+        for key in [k for k, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]:
+            self.send_leaving(key)
         for taker, rays in batch.held.items():
             self.sched.rays_in(rays, message=False, taker=taker)
         if step is not None and step.tile >= 0:
@@ -102,11 +105,12 @@ class Driver:
             if self.traced.done:  # out now, with its deposits: kept if another node is lost
                 self.flush()
 
-    def send_leaving(self, dest: int | None = None) -> None:
-        """Send the rays waiting to leave for `dest` (None: for every node) as one message."""
-        for d in list(self.leaving) if dest is None else [dest]:
-            parts, _, _ = self.leaving.pop(d)
-            self.post_rays(d, parts[0] if len(parts) == 1 else np.concatenate(parts))
+    def send_leaving(self, key: tuple[int, int] | None = None) -> None:
+        """Send the rays waiting to leave for (node, cell) `key` (None: every key's) as one
+        message each."""
+        for dest, cell in list(self.leaving) if key is None else [key]:
+            parts, _, _ = self.leaving.pop((dest, cell))
+            self.post_rays(dest, parts[0] if len(parts) == 1 else np.concatenate(parts), cell)
 
     def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
         """Adaptive deposits the node's books send on, each toward its pixel's node."""
@@ -119,7 +123,8 @@ class Driver:
         (`batch_done`)."""
         raise NotImplementedError
 
-    def post_rays(self, dest: int, rays: np.ndarray) -> None:
+    def post_rays(self, dest: int, rays: np.ndarray, cell: int) -> None:
+        """RAYS for node `dest` to trace with cell `cell`'s engine (its own or a copy)."""
         raise NotImplementedError
 
     def post_pixels(self, dest: int, deposits: np.ndarray) -> None:

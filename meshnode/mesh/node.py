@@ -49,7 +49,8 @@ class Batch:
     """The outcome of tracing one batch on one node."""
 
     deposits: dict[int, np.ndarray]  # node (HOST: the host) -> DEPOSIT records it takes
-    outgoing: dict[int, np.ndarray]  # node -> RAY records it takes on
+    # cell -> RAY records its engine takes on, held elsewhere (`NodeCore.takers` says where)
+    outgoing: dict[int, np.ndarray]
     counts: dict[str, int] = field(default_factory=dict)
     # node -> RAY records its engine, held here (this node's own or a copy), takes on later
     held: dict[int, np.ndarray] = field(default_factory=dict)
@@ -98,6 +99,7 @@ class NodeCore:
         self.owned = [] if self.feed else part.rects_of(node)
         self.los, self.his = part.boxes
         self.cells = part.cells  # who takes a ray on (the boxes grown by the overlap hold it)
+        self.takers = spec.plan.takers(node)  # the node a cell's rays are handed to
         copies = copies or {}
         engines = engines or EngineCache()
         keep = 1 + len(copies)

@@ -192,8 +192,9 @@ class _Mesh:
         """A message arrives at node `dst` (-1: the host)."""
         sched = self.scheds[dst] if dst >= 0 else None
         if kind == "rays":
-            self.records[dst].rays_received += len(payload)
-            sched.rays_in(payload)
+            rays, cell = payload
+            self.records[dst].rays_received += len(rays)
+            sched.rays_in(rays, taker=cell)
         elif kind == "pixels":
             sched.message_in()
             self.nodes[dst].send_pixels(self.cores[dst].keep(payload))
@@ -243,10 +244,10 @@ class _Node(Driver):
         self.deliver(batch, step)
         self.sched.batch_done()
 
-    def post_rays(self, dest: int, rays) -> None:
+    def post_rays(self, dest: int, rays, cell: int) -> None:
         self.record.rays_sent += len(rays)
         self.record.sent_to[dest] += len(rays)
-        self.mesh._send(self.node, dest, "rays", rays)
+        self.mesh._send(self.node, dest, "rays", (rays, cell))
 
     def post_pixels(self, dest: int, deposits) -> None:
         self.mesh._send(self.node, dest, "pixels", deposits)

@@ -23,8 +23,11 @@ def check_dest(f: dict, kind: str, nodes: int) -> int:
 
 def check_rays(f: dict, nodes: int) -> None:
     """RAYS: rays the engine can trace (finite, of a known kind, depth >= 1) for a node of
-    the mesh; a NaN would poison every batch it joins."""
+    the mesh and one of its cells; a NaN would poison every batch it joins. (Whether the
+    node holds that cell's engine is its own check, `checked_cell`.)"""
     check_dest(f, "RAYS", nodes)
+    if not 0 <= f["cell"] < nodes:
+        raise BadFrame(f"RAYS.cell = {f['cell']}: no such cell")
     r = f["rays"]
     bad = first_untraceable(r) if len(r) else -1
     if bad >= 0:
@@ -32,6 +35,14 @@ def check_rays(f: dict, nodes: int) -> None:
             f"RAYS: ray {bad} of {len(r)} cannot be traced (each must be finite, of a known "
             "kind, depth >= 1)"
         )
+
+
+def checked_cell(f: dict, node: int, held) -> int:
+    """The cell whose engine node `node` traces these RAYS with: one it holds (its own, or a
+    copy, `MeshPlan.held`)."""
+    if f["cell"] not in held:
+        raise BadFrame(f"RAYS.cell = {f['cell']}: node {node} holds no engine of that cell")
+    return f["cell"]
 
 
 def check_pixels(f: dict, nodes: int) -> None:

@@ -27,6 +27,7 @@ from meshnode.service.config import Config, Objects
 from meshnode.service.inbound import (
     check_pixels,
     check_rays,
+    checked_cell,
     checked_chunks,
     checked_echo,
     checked_probe,
@@ -163,11 +164,12 @@ class Session(Driver):
             self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {describe(error)}"))
             self.wake.set()
 
-    def post_data(self, dest: int, kind: Kind, records: np.ndarray) -> None:
-        """A RAYS or PIXELS message toward node `dest`, counted as sent."""
+    def post_data(self, dest: int, kind: Kind, records: np.ndarray, cell: int = -1) -> None:
+        """A RAYS (for cell `cell`'s engine) or PIXELS message toward node `dest`, counted
+        as sent."""
         hop = self.router.next_hop(dest)
         if kind is Kind.RAYS:
-            message = make(Kind.RAYS, rays=records, dest=dest)
+            message = make(Kind.RAYS, rays=records, dest=dest, cell=cell)
             self.stats.rays_out[hop] += len(records)
         else:
             message = make(Kind.PIXELS, deposits=records, dest=dest)
@@ -224,9 +226,10 @@ class Session(Driver):
         # the frame's records as they arrived: aligned, writable, this message's own
         # (`protocols.framing`), so taken on without another copy
         if f["dest"] == self.node:
-            return self.sched.rays_in(f["rays"])
+            taker = checked_cell(f, self.node, self.config.render.plan.held(self.node))
+            return self.sched.rays_in(f["rays"], taker=taker)
         self.sched.message_in()
-        self.post_data(f["dest"], Kind.RAYS, f["rays"])
+        self.post_data(f["dest"], Kind.RAYS, f["rays"], f["cell"])
         return False
 
     def on_pixels(self, f: dict) -> None:
@@ -311,8 +314,8 @@ class Session(Driver):
             self.wake.set()
 
     # ------------------------------------------------------------------ the driver's sends
-    def post_rays(self, dest: int, rays: np.ndarray) -> None:
-        self.post_data(dest, Kind.RAYS, rays)
+    def post_rays(self, dest: int, rays: np.ndarray, cell: int) -> None:
+        self.post_data(dest, Kind.RAYS, rays, cell)
 
     def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
         self.post_data(dest, Kind.PIXELS, deposits)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from host.camera.setup import CameraSetup
 from host.planning.request import Request
 from host.run.aside import CompileAside
-from host.run.firstrun import STEPS, Setup, say_on_stderr
+from host.run.firstrun import PINHOLE_STEPS, STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from host.run.summary import common
 from meshnode.engine import Engine
@@ -46,7 +46,7 @@ def render(
     say = say_on_stderr if progress else None
     # a first run's compiling told apart from the rest; its tracing kernel compiled aside
     with compile_clock() as clock, CompileAside(say) as aside:
-        setup = Setup(clock, say)
+        setup = Setup(clock, say, PINHOLE_STEPS if camera is None else STEPS)
         announce = aside.announce(_compiling if progress else None)
         # the structure ("auto") is chosen for the rays the whole render is expected to trace
         eye = eye_ray_count(image, camera is not None)
@@ -57,10 +57,10 @@ def render(
             ),
             loading=lambda e: e.stats["structure_load_seconds"],
         )
-        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
-        if camera is None:  # compiled here, not while timed
+        if camera is None:  # compiled here, not while timed, and before the wait for aside
             setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
-        else:
+        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
+        if camera is not None:  # the lens's focusing traces: after the kernel
             lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
     job = _Job(scene, image, engine, tracer, progress, watch, aside.account(setup.seconds()))
     if camera is not None:

@@ -46,7 +46,7 @@ def test_a_stand_in_structure_compiles_the_kernel_a_built_one_runs_and_finds_not
         assert stand_in.kernel_variant == built.kernel_variant
         assert stand_in.kernel_variant.name.endswith("/" + structure)
         assert _signature(stand_in) == _signature(built)
-        o, d = np.zeros((2, 3)), np.array([[0.0, 0.0, 1.0], [0.3, -0.2, 1.0]])
+        o, d = np.zeros((2, 3)), np.array([[0.0, 0.0, 1.0], [0.05, -0.05, 1.0]])
         t, gid = stand_in.first_hits(o - (0, 0, 5), d)
         assert np.isinf(t).all() and (gid == -1).all()
         t, gid = built.first_hits(o - (0, 0, 5), d)

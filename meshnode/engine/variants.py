@@ -16,7 +16,8 @@ KERNELS = ("trace", "passing", "probe")
 
 # The structures a variant is compiled for: the tracing kernels walk one, the other is passed
 # as None and compiled out (a hierarchy's kernel carried the grid walk and brute force, a
-# grid's the hierarchy walk and the packets: 4-7 s of a cold tracing kernel's compile).
+# grid's the hierarchy walk and the packets: tetra's cold tracing kernel took 13 s of CPU
+# to compile, 9 s now; balls' on a grid 13 s, 6.5 s now; docs/measurements.md).
 # Brute force (the tests' reference) is a value of the grid's variant: it bounds its rays
 # by the grid's box and shares the grid's compiled kernels.
 STRUCTURES = ("grid", "bvh")
@@ -82,15 +83,15 @@ def variant_of(tables: Tables, structure: str) -> Variant:
     )
 
 
-def all_variants(structures=STRUCTURES) -> list[Variant]:
-    """Every variant `variant_of` can choose for `structures`: any set of kinds, smooth only
-    with triangles, refraction only with some object; lights or not (what `meshnode warmup`
-    compiles)."""
+def all_variants() -> list[Variant]:
+    """Every variant `variant_of` can choose: any set of kinds, smooth only with triangles,
+    refraction only with some object; lights or not; either structure (what `meshnode
+    warmup` compiles)."""
     out = []
     for n in range(len(OBJECT_KINDS) + 1):
         for kinds in itertools.combinations(OBJECT_KINDS, n):
             for smooth, shadows, refraction in itertools.product((False, True), repeat=3):
                 if (smooth and "triangles" not in kinds) or (refraction and not kinds):
                     continue
-                out.extend(Variant(kinds, smooth, shadows, refraction, s) for s in structures)
+                out.extend(Variant(kinds, smooth, shadows, refraction, s) for s in STRUCTURES)
     return out

@@ -56,9 +56,10 @@ def warmup(
     `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
     returns the seconds. `kernels`: which of each variant's (`Engine.warmup`; a node can
     need any); `builds`: each variant's structure built, its build kernels compiled with it
-    (the grid's are typed by the kinds, the hierarchy's the same for every variant), else
-    a stand-in of no objects (`Engine(stand_in=True)`: only the tracing kernels compile,
-    as beside a first render). `report(i, n, name)` is called before each variant."""
+    (the grid's are typed by the kinds; the hierarchy's, the same for every variant, at
+    least once: "auto" builds it whatever it then chooses), else a stand-in of no objects
+    (`Engine(stand_in=True)`: only the tracing kernels compile, as beside a first render).
+    `report(i, n, name)` is called before each variant."""
     from meshnode.engine import Engine
 
     start = time.perf_counter()
@@ -68,6 +69,8 @@ def warmup(
             report(i, len(variants), variant.name)
         scene = variant_scene(variant)
         Engine(scene, structure=variant.structure, stand_in=not builds).warmup(kernels)
+        if i == 0 and builds and variant.structure == "grid":
+            Engine(scene, structure="bvh")
     if common:
         _common_warmup()
     return time.perf_counter() - start

@@ -48,13 +48,10 @@ ARG WARMUP=all
 RUN pip install --no-cache-dir --disable-pip-version-check --no-deps . \
     && if [ "$WARMUP" = all ]; then meshnode warmup; \
        elif [ "$WARMUP" != none ]; then python -P -c 'import sys; \
-         from meshnode.engine.variants import STORAGES, all_variants; \
+         from meshnode.engine.variants import Variant; \
          from meshnode.service.warmup import warmup; \
-         known = {v.name: v for v in all_variants()}; \
-         names = [n.rpartition("/")[0] + "/" + STORAGES.get(n.rpartition("/")[2], "?") for n in sys.argv[1].split(",")]; \
-         unknown = [n for n in names if n not in known]; \
-         sys.exit(f"WARMUP: no kernel variant {unknown}") if unknown else None; \
-         print(f"kernels ready in {warmup([known[n] for n in names]):.1f} s")' "$WARMUP"; \
+         variants = [Variant.parse(n) for n in sys.argv[1].split(",")]; \
+         print(f"kernels ready in {warmup(variants):.1f} s")' "$WARMUP"; \
        fi \
     && mkdir -p /opt/meshtrace/kernels && chmod -R a+rX /opt/meshtrace \
     && chown -R 10001:10001 /opt/meshtrace/kernels

@@ -8,8 +8,9 @@
 #           made from Debian's packages with debootstrap, python3 and python3-venv)
 #   WARMUP  which kernel variants to compile: all (default), none (each container compiles
 #           what its render needs, on first use), or variant names as meshnode logs them,
-#           comma-separated (e.g. polygons/flat/shadows/refraction; the kernels every
-#           variant shares are compiled with them)
+#           comma-separated (e.g. polygons/flat/shadows/refraction/bvh, the last part the
+#           structure: bvh, or grid or its storage csr, hash or brute-force; the kernels
+#           every variant shares are compiled with them)
 #   PIP_INDEX_URL, PIP_EXTRA_INDEX_URL   a package index other than PyPI, if pip needs one
 #   PIP_CERT  a CA bundle in the base image for pip to trust (e.g. behind a TLS proxy)
 ARG BASE=python:3.11-slim
@@ -47,13 +48,10 @@ ARG WARMUP=all
 RUN pip install --no-cache-dir --disable-pip-version-check --no-deps . \
     && if [ "$WARMUP" = all ]; then meshnode warmup; \
        elif [ "$WARMUP" != none ]; then python -P -c 'import sys; \
-         from meshnode.engine.variants import all_variants; \
+         from meshnode.engine.variants import Variant; \
          from meshnode.service.warmup import warmup; \
-         known = {v.name: v for v in all_variants()}; \
-         names = [n.removesuffix("/bvh").removesuffix("/grid") for n in sys.argv[1].split(",")]; \
-         unknown = [n for n in names if n not in known]; \
-         sys.exit(f"WARMUP: no kernel variant {unknown}") if unknown else None; \
-         print(f"kernels ready in {warmup([known[n] for n in names]):.1f} s")' "$WARMUP"; \
+         variants = [Variant.parse(n) for n in sys.argv[1].split(",")]; \
+         print(f"kernels ready in {warmup(variants):.1f} s")' "$WARMUP"; \
        fi \
     && mkdir -p /opt/meshtrace/kernels && chmod -R a+rX /opt/meshtrace \
     && chown -R 10001:10001 /opt/meshtrace/kernels

@@ -33,7 +33,7 @@ from meshnode.engine.variants import Variant
 from meshnode.service.warmup import variant_scene
 if sys.argv[1] == "own":
     kernelcache.compiling = lambda name: contextlib.nullcontext()
-scene = variant_scene(Variant(("spheres", "polygons"), False, True, False))
+scene = variant_scene(Variant(("spheres", "polygons"), False, True, False, "grid"))
 Engine(scene, box=((-1, -1, -1), (0, 0, 0)), scene_box=((-5, -5, -5), (5, 5, 5))).warmup()
 """
 

@@ -127,7 +127,7 @@ def example_variants() -> tuple[set, set]:
     from host.scene.nff import read_nff
     from host.scene.subset import subset
     from meshnode.engine.tables import build_tables
-    from meshnode.engine.variants import variant_of
+    from meshnode.engine.variants import STRUCTURES, variant_of
     from protocols.render import MeshPlan, RenderSpec
 
     scene = read_nff(EXAMPLE)
@@ -135,30 +135,32 @@ def example_variants() -> tuple[set, set]:
     for size in ((40, 30), (None, None)):
         image = ImageSpec(width=size[0], height=size[1]).sized(scene.view)
         part, keep = partition(scene, RenderSpec(image, plan=MeshPlan(2, 2, mode="object")))
-        nodes |= {variant_of(build_tables(subset(scene, keep[n]))) for n in range(part.nodes)}
-    return {variant_of(build_tables(scene))}, nodes
+        tables = [build_tables(subset(scene, keep[n])) for n in range(part.nodes)]
+        nodes |= {variant_of(tb, s) for tb in tables for s in STRUCTURES}  # a node chooses
+    return {variant_of(build_tables(scene), s) for s in STRUCTURES}, nodes
 
 
 def warm_jobs() -> list:
-    """What the session compiles up front, heaviest first: the all-kinds variant's every
-    kernel, the common kernels (eye rays, routing, camera), then the one-node and mesh-node
-    kernels of the SPD scenes' variants (files or generated) and the README example's, and the
-    mesh-node kernel of its 2x2 nodes' (`example_variants`). The probe's kernel of other
+    """What the session compiles up front, heaviest first: the all-kinds variants' every
+    kernel (one variant per structure), the common kernels (eye rays, routing, camera), then
+    the one-node and mesh-node kernels of the SPD scenes' variants (files or generated; the
+    hierarchy's, which each chooses) and the README example's, and the mesh-node kernel of
+    its 2x2 nodes' (`example_variants`: either structure). The probe's kernel of other
     variants compiles where a test focuses on them (`Engine.warmup`: kernels apiece)."""
     from host.scene.nff import read_nff
     from meshnode.engine.tables import build_tables
     from meshnode.engine.variants import variant_of
-    from meshnode.service.warmup import ALL_KINDS, warmup
+    from meshnode.service.warmup import EVERY_KIND, warmup
 
-    jobs = [lambda: warmup([ALL_KINDS], common=False), lambda: warmup([], common=True)]
+    jobs = [lambda: warmup(EVERY_KIND, common=False), lambda: warmup([], common=True)]
     whole, nodes = example_variants()
     whole |= {
-        variant_of(build_tables(read_nff(spd_scene(n))))
+        variant_of(build_tables(read_nff(spd_scene(n))), "bvh")  # what each chooses
         for n in WARM_SCENES
         if (SCENES / n).exists() or not require_shared()
     }
-    kernels = {v: ("trace", "passing") for v in whole - {ALL_KINDS}}
-    kernels.update({v: ("passing",) for v in nodes - whole - {ALL_KINDS}})
+    kernels = {v: ("trace", "passing") for v in whole - set(EVERY_KIND)}
+    kernels.update({v: ("passing",) for v in nodes - whole - set(EVERY_KIND)})
     jobs += [lambda v=v: warmup([v], common=False, kernels=kernels[v]) for v in sorted(kernels)]
     return jobs
 

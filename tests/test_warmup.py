@@ -1,6 +1,7 @@
 """`meshnode warmup` compiles what a render needs: every kernel variant the engine's own choice
 function (`variant_of`) can pick, and a render in a fresh process after a warmup compiles
-nothing (numba's cache misses say so)."""
+nothing (numba's cache misses say so). The structure is part of a variant: an engine's
+tracing kernel holds the walk of its own structure only."""
 
 import subprocess
 import sys
@@ -16,17 +17,27 @@ from tests.conftest import make_scene
 
 def test_each_warmup_scene_makes_the_engine_choose_its_variant():
     variants = all_variants()
-    assert len(set(variants)) == len(variants) == 94
+    assert len(set(variants)) == len(variants) == 2 * 94  # each of 94 under either structure
     for v in variants:
-        assert variant_of(build_tables(variant_scene(v))) == v
+        assert variant_of(build_tables(variant_scene(v)), v.structure) == v
 
 
 def test_every_variant_is_found_by_its_name_and_only_those():
     from meshnode.engine.variants import Variant
 
     for v in all_variants():
-        assert Variant.parse(v.name) == v == Variant.parse(v.name + "/bvh")
-    for name in ("spheres", "cones+spheres/flat/shadows/refraction", "empty/smooth/x/y"):
+        assert Variant.parse(v.name) == v
+        kinds = v.name.rsplit("/", 1)[0]
+        # as a render's statistics name it: the grid's storage in the structure's place
+        storages = ("csr", "hash", "brute-force") if v.structure == "grid" else ("bvh",)
+        assert all(Variant.parse(f"{kinds}/{s}") == v for s in storages)
+    for name in (
+        "spheres",
+        "cones+spheres/flat/shadows/refraction/bvh",
+        "empty/smooth/x/y/grid",
+        "spheres/flat/shadows/refraction",  # no structure
+        "spheres/flat/shadows/refraction/octree",
+    ):
         try:
             Variant.parse(name)
         except ValueError as e:
@@ -56,7 +67,7 @@ def test_whatever_a_node_holds_its_variant_is_one_warmup_compiles(counts, lights
         materials=mats,
     )
     scene.triangles["smooth"] = smooth
-    assert variant_of(build_tables(scene)) in all_variants()
+    assert all(variant_of(build_tables(scene), s) in all_variants() for s in ("grid", "bvh"))
 
 
 FRESH_RENDER = """

@@ -6,10 +6,14 @@ build 5.5 s, the tracing kernel 25 s, the primary rays 1.2 s): numba compiles on
 a time in a process (its compiler lock, and the GIL). The tracing kernel needs no structure,
 only its variant's types, so when the engine announces a cold variant, before it builds
 anything, `meshnode warmup --variant NAME --kernels trace` starts compiling that kernel into
-the shared disk cache on another core; this process builds its structure and compiles the
-primary rays meanwhile, then waits for it and loads the kernel (`Engine.warmup` finds it
-marked warm). With one core, or if the second process fails, this process compiles the
-kernel itself, as before.
+the shared disk cache on another core (over a stand-in structure of no objects: it compiles
+no build kernel); this process builds its structure and compiles the primary rays meanwhile,
+then waits for it and loads the kernel (`Engine.warmup` finds it marked warm). With one core,
+or if the second process fails, this process compiles the kernel itself, as before.
+
+The variant names the structure, which "auto" chooses only after building the hierarchy:
+the engine announces the hierarchy's variant first (every SPD scene's choice) and, when it
+chooses the grid, the grid's; the second process is then started again for that one.
 """
 
 import os
@@ -35,6 +39,7 @@ class CompileAside:
     def __init__(self, say=None):
         self.say = say  # say(line) hears what the second process did; None: nothing is said
         self.proc: subprocess.Popen | None = None
+        self.variant: str | None = None  # the variant it compiles
         self.started = 0.0
         self.seconds = 0.0  # the second process's wall, start to end
         self.waited = 0.0  # this process's wait for it
@@ -43,6 +48,9 @@ class CompileAside:
         return self
 
     def __exit__(self, *exc) -> None:
+        self._stop()
+
+    def _stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
@@ -59,9 +67,12 @@ class CompileAside:
         return announce
 
     def start(self, variant: str) -> None:
-        """Compile `variant`'s tracing kernel in a second process (once, and not on one core)."""
-        if self.proc is not None or _cores() < 2:
+        """Compile `variant`'s tracing kernel in a second process (not on one core); one
+        compiling another variant (the structure foreseen, not chosen) is stopped first."""
+        if self.variant == variant or _cores() < 2:
             return
+        self._stop()
+        self.variant = variant
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
         command = ["warmup", "--variant", variant, "--kernels", "trace"]

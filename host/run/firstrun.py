@@ -11,15 +11,19 @@ import time
 from meshnode.engine.kernelcache import CompileClock
 
 STEPS = ("structure build", "tracing kernel", "primary rays")
+# A pinhole render's order: its primary rays compile while the tracing kernel compiles aside
+# (`host.run.aside`); a lens's primary rays focus by tracing, after the kernel.
+PINHOLE_STEPS = ("structure build", "primary rays", "tracing kernel")
 SAID = 0.05  # compiling shorter than this is not worth a line
 
 
 class Setup:
     """Runs the setup's steps under one `kernelcache.compile_clock()` (`clock`), timing each;
-    `say(line)` hears of every step that compiled (None: nothing is said)."""
+    `say(line)` hears of every step that compiled (None: nothing is said); `order`: the
+    steps in the order they run (STEPS or PINHOLE_STEPS)."""
 
-    def __init__(self, clock: CompileClock, say=None):
-        self.clock, self.say = clock, say
+    def __init__(self, clock: CompileClock, say=None, order=STEPS):
+        self.clock, self.say, self.order = clock, say, order
         # step -> (wall, compiling, loading kernels or compiling them) seconds
         self.steps: dict[str, tuple[float, float, float]] = {}
 
@@ -31,7 +35,7 @@ class Setup:
         wall, compiled = time.perf_counter() - start, self.clock.seconds - before
         self.steps[step] = (wall, compiled, wall if loading is None else loading(out))
         if compiled >= SAID and self.say is not None:
-            later = STEPS[STEPS.index(step) + 1 :]
+            later = self.order[self.order.index(step) + 1 :]
             then = f"; then the {', the '.join(later)}" if later else ""
             self.say(f"compiled the {step} in {compiled:.1f} s{then}")
         return out

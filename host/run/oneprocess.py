@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from host.camera.setup import CameraSetup
 from host.planning.request import Request
 from host.run.aside import CompileAside
-from host.run.firstrun import STEPS, Setup, say_on_stderr
+from host.run.firstrun import PINHOLE_STEPS, STEPS, Setup, say_on_stderr
 from host.run.framebuffer import Framebuffer
 from host.run.summary import common
 from meshnode.engine import Engine
@@ -46,8 +46,9 @@ def render(
     say = say_on_stderr if progress else None
     # a first run's compiling told apart from the rest; its tracing kernel compiled aside
     with compile_clock() as clock, CompileAside(say) as aside:
-        setup = Setup(clock, say)
-        announce = aside.announce(_compiling if progress else None)
+        order = PINHOLE_STEPS if camera is None else STEPS
+        setup = Setup(clock, say, order)
+        announce = aside.announce(_compiling(order) if progress else None)
         # the structure ("auto") is chosen for the rays the whole render is expected to trace
         eye = eye_ray_count(image, camera is not None)
         tracer = built or setup.run(
@@ -57,10 +58,10 @@ def render(
             ),
             loading=lambda e: e.stats["structure_load_seconds"],
         )
-        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
-        if camera is None:  # compiled here, not while timed
+        if camera is None:  # compiled here, not while timed, and before the wait for aside
             setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
-        else:
+        setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
+        if camera is not None:  # the lens's focusing traces: after the kernel
             lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
     job = _Job(scene, image, engine, tracer, progress, watch, aside.account(setup.seconds()))
     if camera is not None:
@@ -90,14 +91,22 @@ def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple
     ]
 
 
-def _compiling(variant: str) -> None:
-    """A first run compiles for tens of seconds before any progress: say why."""
-    steps = ", the ".join(STEPS)
-    print(
-        f"host: compiling kernels for {variant}, first run only: the {steps}",
-        file=sys.stderr,
-        flush=True,
-    )
+def _compiling(order):
+    """A first run compiles for tens of seconds before any progress: say why, and say the
+    variant again if the engine announces another (the structure chosen is not the one
+    foreseen: `Engine`)."""
+    said = []
+
+    def say(variant: str) -> None:
+        if said:
+            line = f"host: compiling kernels for {variant} instead (the structure chosen)"
+        else:
+            line = f"host: compiling kernels for {variant}, first run only: the "
+            line += ", the ".join(order)
+        said.append(variant)
+        print(line, file=sys.stderr, flush=True)
+
+    return say
 
 
 @dataclass(frozen=True)

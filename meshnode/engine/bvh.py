@@ -30,8 +30,8 @@ SLACK = 1.0 + 1e-12  # box exits are widened by this: round-off never loses a hi
 
 class BvhArrays(NamedTuple):
     """The hierarchy as the traversal kernels read it (`bvhbuild.Bvh.arrays`, its rows written
-    by `rows_of`); empty when the node uses the grid (a value, not a type: both structures
-    share a compiled variant).
+    by `rows_of`); None when the node uses the grid (a type: each structure has its own
+    compiled variant, `variants.Variant`).
 
     One 128-byte row per inner node (two cache lines), the rows flattened into one vector (a
     load is one index, not a row and a column: 9% faster walks, interleaved A/B): its two
@@ -46,12 +46,6 @@ class BvhArrays(NamedTuple):
 
     box: np.ndarray  # (N * ROW_COLS,) float64 rows: lo xyz, hi xyz of child 0, then child 1
     ref: np.ndarray  # (N * ROW_COLS,) int64 view of `box`: columns 12, 13 of a row the refs
-
-
-def empty_arrays() -> BvhArrays:
-    """The arrays of a node that walks its grid instead."""
-    box = np.zeros(0, np.float64)
-    return BvhArrays(box, box.view(np.int64))
 
 
 @kernel

@@ -15,13 +15,13 @@ import numpy as np
 
 from meshnode.engine import kernelcache
 from meshnode.engine.bound import Bound, array_key
-from meshnode.engine.bvh import empty_arrays
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
-from meshnode.engine.structure import build_structure
+from meshnode.engine.structure import build_structure, foreseen
+from meshnode.engine.structure import stand_in as stand_in_structure
 from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
 from meshnode.engine.trace import first_hits, routed, trace_batch
@@ -36,8 +36,10 @@ class Engine:
     """One node's tracing engine, specialised to the objects, materials and lights it holds.
 
     Absent primitive kinds, lights and transmitters are passed to the kernels as None, so the
-    compiled variant carries no code for them; `stats` says what was chosen and why.
-    `brute=True` tests every object against every ray (no grid): the reference for tests."""
+    compiled variant carries no code for them, and so is the structure not walked (the grid's
+    arrays beside a hierarchy, the hierarchy's beside a grid); `stats` says what was chosen
+    and why. `brute=True` tests every object against every ray (no walk; the grid's variant,
+    whose box bounds the rays): the reference for tests."""
 
     def __init__(
         self,
@@ -55,6 +57,7 @@ class Engine:
         packets: bool = True,
         occupancy: tuple | None = None,
         eye_rays_expected: float | None = None,
+        stand_in: bool = False,
     ):
         """`announce(variant name)` is called, before anything compiles, when this variant's
         kernels are not in the disk cache yet (building the grid compiles some of them).
@@ -64,15 +67,20 @@ class Engine:
         with only empty space ahead; None: nothing skipped. `eye_rays_expected`: the primary
         rays this engine is expected to take on in the render (a mesh node's share of them),
         with which an "auto" structure is chosen for the rays they bring
-        (`structure_cost.expected_rays`); None: an SPD render's."""
+        (`structure_cost.expected_rays`); None: an SPD render's. `stand_in`: the structure
+        ("grid" or "bvh", not "auto") holds no objects and is made without its build
+        kernels (`structure.stand_in`): an engine that only compiles its tracing kernels, as
+        `meshnode warmup --variant` does beside a first render; it finds no hit."""
         start = time.perf_counter()
         keep_freed_memory()  # batches reuse freed memory instead of faulting in new pages
         self.scene = scene
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)
         objects = _distinct(tb.gid)  # before renumbering: scenes list their ids in order
-        if announce is not None and not kernelcache.is_warm(variant_of(tb).name):
-            announce(variant_of(tb).name)
+        asked = "grid" if self.brute else structure
+        # The tracing kernel's variant depends on the structure, known before it is built but
+        # where "auto" chooses the grid: announced again then (`host.run.aside` restarts).
+        announced = self._announce(announce, variant_of(tb, foreseen(asked, resolution)))
         if box is not None:
             lo, hi = (np.asarray(b, float) for b in box)
         elif tb.n:
@@ -84,24 +92,33 @@ class Engine:
         eye = UNTOLD_EYE_RAYS if eye_rays_expected is None else eye_rays_expected
         self.rays_expected = expected_rays(scene, eye, max_depth)
         # (brute force builds the grid as before: its box bounds the rays)
-        built = build_structure(
-            tb,
-            (lo, hi),
-            asked="grid" if self.brute else structure,
-            resolution=resolution,
-            density=density,
-            storage=storage,
-            rays=self.rays_expected,
-        )
+        if stand_in:
+            built = stand_in_structure(tb, (lo, hi), foreseen(asked, resolution))
+        else:
+            built = build_structure(
+                tb,
+                (lo, hi),
+                asked=asked,
+                resolution=resolution,
+                density=density,
+                storage=storage,
+                rays=self.rays_expected,
+            )
         self.bvh = built.bvh
         self.structure = "bvh" if self.bvh is not None else "grid"
+        # the structure not walked is passed as None: its walk is compiled out
         if self.bvh is not None:
             self.tables = tb = tb.permuted(self.bvh.order)  # leaves become runs of ids
             self.grid = box_only(lo, hi)
-            self.bvh_arrays = self.bvh.arrays()
+            self.bvh_arrays, self.grid_arrays = self.bvh.arrays(), None
         else:
             self.grid = built.grid
-            self.bvh_arrays = empty_arrays()
+            self.bvh_arrays, self.grid_arrays = None, self.grid.arrays()
+        self.kernel_variant = variant_of(tb, self.structure)
+        if self.kernel_variant != announced:
+            self._announce(announce, self.kernel_variant)
+        # the node's box, as the tracing kernel reads it: the grid's, or a one-voxel grid's
+        self.box = (self.grid.lo, self.grid.cell, self.grid.res)
         # A mesh node's box is part of the scene's; rays leaving it inside the scene go on.
         sb = (self.grid.lo, self.grid.hi) if scene_box is None else scene_box
         self.scene_lo, self.scene_hi = (np.asarray(b, float) for b in sb)
@@ -145,7 +162,6 @@ class Engine:
         )
         self.geometry = tb.geometry()
         self._trace_batch = Bound(trace_batch)  # this engine's tables: the same every call
-        self.grid_arrays = self.grid.arrays()
         self.preprocess_seconds = time.perf_counter() - start
         self.stats = {
             "objects": objects,
@@ -190,6 +206,14 @@ class Engine:
         }
         self.stats["engine_bytes"] = self.nbytes()
 
+    @staticmethod
+    def _announce(announce, variant):
+        """`announce(variant's name)` if given and the variant is not in the disk cache; the
+        variant either way."""
+        if announce is not None and not kernelcache.is_warm(variant.name):
+            announce(variant.name)
+        return variant
+
     def nbytes(self) -> int:
         """Bytes of every array this engine keeps (its tables, structure, occupancy map and
         the records it was built from): what a node's memory budget bounds
@@ -199,8 +223,8 @@ class Engine:
             self.tables.__dict__.values(),
             self.geometry,
             self.shading,
-            self.grid_arrays,
-            self.bvh_arrays,
+            self.grid_arrays or (),
+            self.bvh_arrays or (),
             self.occupancy,
             (getattr(self.scene, k) for k in SCENE_TABLES),
         )
@@ -233,7 +257,7 @@ class Engine:
     def variant(self) -> str:
         """Name of the compiled variant, e.g. 'spheres+polygons/flat/shadows/no-refraction/csr'."""
         storage = "brute-force" if self.brute else ("bvh" if self.bvh else self.grid.storage)
-        return f"{variant_of(self.tables).name}/{storage}"
+        return f"{self.kernel_variant.name.rsplit('/', 1)[0]}/{storage}"
 
     @property
     def runs(self) -> tuple[str, ...]:
@@ -252,7 +276,7 @@ class Engine:
         return all(kernelcache.is_warm(self._mark(k)) for k in kernels)
 
     def _mark(self, kernel: str) -> str:
-        return f"{variant_of(self.tables).name}/{kernel}"
+        return f"{self.kernel_variant.name}/{kernel}"
 
     def warmup(self, kernels=None) -> float:
         """Compile (or load from the disk cache) kernels of this variant on a one-ray batch, so
@@ -266,7 +290,7 @@ class Engine:
         if unknown:
             raise ValueError(f"unknown kernels {sorted(unknown)}: choose from {KERNELS}")
         cold = not self._warm(kernels)
-        with kernelcache.compiling(variant_of(self.tables).name) if cold else nullcontext():
+        with kernelcache.compiling(self.kernel_variant.name) if cold else nullcontext():
             self._run_once(kernels)
         self.stats["kernel_load_seconds"] = seconds = time.perf_counter() - start
         return seconds
@@ -284,7 +308,7 @@ class Engine:
             self.trace_passing(ray)
         if "probe" in kernels:
             self.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
-        kernelcache.mark_warm(variant_of(self.tables).name)  # its grid's kernels too
+        kernelcache.mark_warm(self.kernel_variant.name)
         for k in kernels:
             kernelcache.mark_warm(self._mark(k))
 
@@ -366,6 +390,7 @@ class Engine:
             self.bvh_arrays,
             self.packets,
             self.occupancy,
+            self.box,
         )
         # a view, not a copy: copying records costs ~10 us a call, and the buffer was made
         # for this call alone (callers route the passed rays into new arrays at once)

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshnode.engine import kernelcache
+from meshnode.engine.bvh import ROW_COLS
 from meshnode.engine.bvhbuild import Bvh
-from meshnode.engine.grid import Grid, build_grid
+from meshnode.engine.grid import Grid, box_only, build_grid
 from meshnode.engine.structure_cost import (
     choose,
     grid_estimate,
@@ -32,6 +33,30 @@ class Structure:
     estimates: dict | None  # "bvh"/"grid" -> Estimate.to_dict(), when chosen by them
     load_seconds: float = 0.0  # the build kernels loaded (or compiled, on a first run)
     build_seconds: float = 0.0  # the structures built (in "auto", the hierarchy too)
+
+
+def foreseen(asked: str, resolution) -> str:
+    """The structure `build_structure` is expected to build, known before it builds: the one
+    asked, the grid for "auto" with a `resolution`, else the hierarchy ("auto" chooses it
+    for every SPD scene; where it takes the grid the engine finds out after the build)."""
+    if asked == "grid" or (asked == "auto" and resolution is not None):
+        return "grid"
+    return "bvh"
+
+
+def stand_in(tables: Tables, box: tuple, structure: str) -> Structure:
+    """A `structure` of no objects over `box`, of the same kernel types as a built one, made
+    without running (or compiling) any build kernel: an engine over it compiles its variant's
+    tracing kernels (`meshnode warmup --variant`, beside a first render) and finds no hit."""
+    if structure == "grid":
+        return Structure(None, box_only(*box), "a stand-in of no objects", None)
+    bvh = Bvh.__new__(Bvh)  # one inner node whose two child boxes are empty (lo > hi)
+    bvh.rows = np.zeros((1, ROW_COLS))
+    bvh.rows[0, [0, 1, 2, 6, 7, 8]] = np.inf
+    bvh.rows[0, [3, 4, 5, 9, 10, 11]] = -np.inf
+    bvh.order = np.arange(tables.n, dtype=np.int64)
+    bvh.stats = {"structure_bytes": int(bvh.rows.nbytes), "stand_in": True}
+    return Structure(bvh, None, "a stand-in of no objects", None)
 
 
 def build_structure(

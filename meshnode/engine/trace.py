@@ -92,10 +92,11 @@ def _packets():
 @kernel
 def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
-    among the objects of the `Geometry` geo through the `BvhArrays` bvh if it is not empty
-    (PACKET neighbouring rays at a time, `packet_walk`, while they stay coherent enough,
-    `keep_packets`), else the `GridArrays` grid (or all, with brute). Directions are made
-    unit length here: distances are in scene units.
+    among the objects of the `Geometry` geo through the `BvhArrays` bvh (PACKET neighbouring
+    rays at a time, `packet_walk`, while they stay coherent enough, `keep_packets`), or with
+    bvh None the `GridArrays` grid (or all, with brute). The structure is a type: the one
+    passed None is compiled out, walk and all (`variants.Variant.structure`). Directions
+    are made unit length here: distances are in scene units.
     Returns (t, gid, index of the first ray with a zero or non-finite direction or a
     non-finite origin, or -1); the caller refuses those."""
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
@@ -103,10 +104,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
     t_out = np.full(n, math.inf)
     g_out = np.full(n, -1, np.int64)
     mail = np.full(gid.shape[0], -1, np.int64)
-    # Decided once, outside the loop: reading a tuple's field in the loop costs reference
-    # counting on every array of the tuple (5x the whole walk of a ray that misses).
-    use_bvh = bvh.box.shape[0] > 0 and not brute
-    packets = use_bvh
+    packets = True  # with a hierarchy, until they stop paying (`keep_packets`)
     f, origin, best_u, pstack, refs, idx = _packets()
     stack = np.empty(2 * BVH_STACK)
     m = walked = entered = tested = 0
@@ -124,7 +122,7 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
         dy *= k
         dz *= k
         counters[SEGMENTS] += 1
-        if packets:
+        if bvh is not None and packets:
             _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1)
             idx[m] = i
             m += 1
@@ -158,7 +156,9 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
                 tested += v
                 packets = keep_packets(walked, entered, tested)
             continue
-        if use_bvh:
+        # Each walk under `is not None` of its own structure: numba prunes a branch on an
+        # argument passed None, and types every other (the grid's walk of None fails)
+        if bvh is not None:
             t, u = bvh_walk(
                 ox,
                 oy,
@@ -184,56 +184,59 @@ def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
                 cone,
                 bvh,
             )
-        elif brute:
-            t, u = brute_force(
-                ox,
-                oy,
-                oz,
-                dx,
-                dy,
-                dz,
-                t_lo,
-                math.inf,
-                -1,
-                False,
-                counters,
-                gid,
-                off,
-                sph,
-                tri,
-                poly,
-                pinfo,
-                puv,
-                pband,
-                cone,
-            )
-        else:
-            t, u = walk(
-                ox,
-                oy,
-                oz,
-                dx,
-                dy,
-                dz,
-                t_lo,
-                math.inf,
-                -1,
-                False,
-                -1,
-                i,
-                mail,
-                counters,
-                gid,
-                off,
-                sph,
-                tri,
-                poly,
-                pinfo,
-                puv,
-                pband,
-                cone,
-                grid,
-            )
+        elif grid is not None:
+            if brute:
+                t, u = brute_force(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    math.inf,
+                    -1,
+                    False,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                )
+            else:
+                t, u = walk(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    t_lo,
+                    math.inf,
+                    -1,
+                    False,
+                    -1,
+                    i,
+                    mail,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                    grid,
+                )
+        else:  # no structure: never, but numba types each branch
+            t, u = math.inf, -1
         t_out[i] = t
         if u >= 0:
             g_out[i] = gid[u]
@@ -354,15 +357,19 @@ def trace_batch(
     bvh,
     in_packets,
     occ,
+    box,
 ):
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
-    The objects are the `Geometry` geo in the `BvhArrays` bvh, or when that is empty the
-    `GridArrays` grid (or all tested, with brute); the grid's box is the node's box always,
-    shaded by the `Shading` shading. `lights` (rows by LIGHT_* columns) None compiles out
+    The objects are the `Geometry` geo in the `BvhArrays` bvh, or with bvh None the
+    `GridArrays` grid (or all tested, with brute), shaded by the `Shading` shading. The
+    structure is a type, like the kinds: the one passed None is compiled out, its walk and
+    all (`variants.Variant.structure`). `lights` (rows by LIGHT_* columns) None compiles out
     shadow rays, `transmit` (each material's transmittance) None compiles out refraction.
+    `box` (corner, voxel size, voxels per axis: the grid's, or a one-voxel box's beside a
+    hierarchy, `grid.box_only`) is the node's box.
 
-    On a mesh node `out` is a RAY array: a segment that is not in this node's box (the grid's)
+    On a mesh node `out` is a RAY array: a segment that is not in this node's box
     where it starts, or leaves it before ending, is written there with t_min where to resume
     (origin and direction unchanged, so every node computes the same t), and the grown array
     and the count written are returned. A hit beyond the box is not trusted (an object held
@@ -376,7 +383,7 @@ def trace_batch(
     # reads in the ray loop made balls and rings trace 10% slower.
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     mat, materials, tri_n, amb, background, max_depth, t_eps = shading
-    glo, cell, res = grid.glo, grid.cell, grid.res
+    glo, cell, res = box
     occ_lo, occ_cell, occ_res, occ_clear = occ
     n_lights = 0 if lights is None else lights.shape[0]
     cap = int(max_depth) * (n_lights + 2) + 4
@@ -387,14 +394,17 @@ def trace_batch(
     sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
-    use_bvh = bvh.box.shape[0] > 0  # once: see first_hits
     # With a hierarchy the batch's own rays (all but shadow rays) find their first hits in
     # packets of neighbours (`_packet_hits`) before their trees are traced one by one. Each
     # is the walk the loop below would make (same span, same origin); on an object-space
     # node a hit beyond the box is then dropped as a walk's would be, and the hit of a ray
     # that starts outside the box is never read (it goes on first).
-    packets = in_packets and use_bvh and not brute
-    first_t, first_u, first_r = _packet_hits(rays, packets, counters, geo, bvh, out)
+    if bvh is not None:
+        packets = in_packets
+        first_t, first_u, first_r = _packet_hits(rays, packets, counters, geo, bvh, out)
+    else:
+        packets = False
+        first_t, first_u, first_r = np.empty(0), np.empty(0, np.int64), np.empty((0, 3))
     # Shadow cache: the object that last blocked each light is tried first (walk's hint).
     blocker = np.full(max(n_lights, 1), -1, np.int64)
     fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
@@ -522,30 +532,9 @@ def trace_batch(
                 t, u = math.inf, -1  # only empty voxels lie ahead
             elif in_packet:
                 t, u = first_t[i], first_u[i]
-            elif brute:
-                t, u = brute_force(
-                    ox,
-                    oy,
-                    oz,
-                    dx,
-                    dy,
-                    dz,
-                    t_lo,
-                    t_hi,
-                    origin,
-                    shadow,
-                    counters,
-                    gid,
-                    off,
-                    sph,
-                    tri,
-                    poly,
-                    pinfo,
-                    puv,
-                    pband,
-                    cone,
-                )
-            elif use_bvh:
+            # Each walk under `is not None` of its own structure: numba prunes a branch on
+            # an argument passed None, and types every other (the grid's walk of None fails)
+            elif bvh is not None:
                 hint = blocker[light] if shadow else -1
                 t, u = bvh_walk(
                     ox,
@@ -572,34 +561,60 @@ def trace_batch(
                     cone,
                     bvh,
                 )
-            else:
-                hint = blocker[light] if shadow else -1
-                t, u = walk(
-                    ox,
-                    oy,
-                    oz,
-                    dx,
-                    dy,
-                    dz,
-                    t_lo,
-                    t_hi,
-                    origin,
-                    shadow,
-                    hint,
-                    ray_id,
-                    mail,
-                    counters,
-                    gid,
-                    off,
-                    sph,
-                    tri,
-                    poly,
-                    pinfo,
-                    puv,
-                    pband,
-                    cone,
-                    grid,
-                )
+            elif grid is not None:
+                if brute:
+                    t, u = brute_force(
+                        ox,
+                        oy,
+                        oz,
+                        dx,
+                        dy,
+                        dz,
+                        t_lo,
+                        t_hi,
+                        origin,
+                        shadow,
+                        counters,
+                        gid,
+                        off,
+                        sph,
+                        tri,
+                        poly,
+                        pinfo,
+                        puv,
+                        pband,
+                        cone,
+                    )
+                else:
+                    hint = blocker[light] if shadow else -1
+                    t, u = walk(
+                        ox,
+                        oy,
+                        oz,
+                        dx,
+                        dy,
+                        dz,
+                        t_lo,
+                        t_hi,
+                        origin,
+                        shadow,
+                        hint,
+                        ray_id,
+                        mail,
+                        counters,
+                        gid,
+                        off,
+                        sph,
+                        tri,
+                        poly,
+                        pinfo,
+                        puv,
+                        pband,
+                        cone,
+                        grid,
+                    )
+            else:  # no structure: never, but numba types each branch
+                t, u = math.inf, -1
             root = False
             if out is not None:
                 if u >= 0 and not shadow and t > n1:

@@ -24,7 +24,8 @@ def parser() -> argparse.ArgumentParser:
     w.add_argument(
         "--common",
         action="store_true",
-        help="only the variant with every primitive kind, lights and refraction",
+        help="only the variants with every primitive kind, lights and refraction (one "
+        "per structure)",
     )
     w.add_argument(
         "--variant",
@@ -32,8 +33,9 @@ def parser() -> argparse.ArgumentParser:
         type=_variant,
         metavar="NAME",
         help="only this variant, as a render's statistics name it (e.g. "
-        "triangles/flat/shadows/no-refraction; repeatable): no common kernels and no "
-        "hierarchy build (a first render compiles its tracing kernel so, beside itself)",
+        "triangles/flat/shadows/no-refraction/bvh; the grid's storage, csr, hash or "
+        "brute-force, names the grid's; repeatable): no common kernels and no structure "
+        "build (a first render compiles its tracing kernel so, beside itself)",
     )
     w.add_argument(
         "--kernels",
@@ -155,7 +157,7 @@ def _kernels(text: str) -> tuple[str, ...]:
 
 def _warmup(common: bool, variants=None, kernels=KERNELS) -> int:
     from meshnode.engine.variants import all_variants
-    from meshnode.service.warmup import ALL_KINDS, warmup
+    from meshnode.service.warmup import EVERY_KIND, warmup
 
     def report(i, n, name):
         print(f"meshnode: kernels {i + 1}/{n}: {name}", file=sys.stderr, flush=True)
@@ -164,7 +166,7 @@ def _warmup(common: bool, variants=None, kernels=KERNELS) -> int:
         seconds = warmup(variants, report, common=False, kernels=kernels, builds=False)
         print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
         return 0
-    seconds = warmup([ALL_KINDS] if common else all_variants(), report)
+    seconds = warmup(EVERY_KIND if common else all_variants(), report)
     print(f"kernels ready in {seconds:.2f} s", file=sys.stderr)
     return 0
 

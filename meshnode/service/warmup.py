@@ -1,21 +1,24 @@
 """`meshnode warmup`: compile every kernel variant the engine can choose into the disk cache,
 so a node (or a container image built with it) never compiles while a render waits.
 
-The engine compiles one variant per set of primitive kinds, smooth triangles, lights and
-transmitters (`meshnode.engine.engine.Variant`); which one a node needs depends on the objects
-its box holds, so a node of a mesh can need any of them. Each variant is compiled on a tiny
-scene that makes the engine choose exactly it.
+The engine compiles one variant per set of primitive kinds, smooth triangles, lights,
+transmitters and structure (`meshnode.engine.variants.Variant`); which one a node needs depends
+on the objects its box holds, so a node of a mesh can need any of them. Each variant is
+compiled on a tiny scene that makes the engine choose exactly it.
 """
 
 import time
 
 import numpy as np
 
-from meshnode.engine.variants import KERNELS, Variant
+from meshnode.engine.variants import KERNELS, STRUCTURES, Variant
 from protocols import dtypes
 from protocols.scene import OBJECT_KINDS, SceneData, View
 
-ALL_KINDS = Variant(OBJECT_KINDS, True, True, True)
+ALL_KINDS = Variant(OBJECT_KINDS, True, True, True, "bvh")
+# The variants with every kind, one per structure (`meshnode warmup --common`; the tests'):
+# what an engine over `variant_scene(ALL_KINDS)` compiles, whichever structure it chooses.
+EVERY_KIND = [ALL_KINDS._replace(structure=s) for s in STRUCTURES]
 
 
 def variant_scene(variant: Variant) -> SceneData:
@@ -47,12 +50,15 @@ def variant_scene(variant: Variant) -> SceneData:
 
 
 def warmup(
-    variants=(ALL_KINDS,), report=None, common: bool = True, kernels=KERNELS, builds: bool = True
+    variants=EVERY_KIND, report=None, common: bool = True, kernels=KERNELS, builds: bool = True
 ) -> float:
-    """Compile (or load) the kernels of `variants` (default: the all-kinds one; every one:
+    """Compile (or load) the kernels of `variants` (default: the all-kinds ones; every one:
     `all_variants()`) and, with `common`, the pinhole eye rays, ray routing and the camera;
     returns the seconds. `kernels`: which of each variant's (`Engine.warmup`; a node can
-    need any); `builds`: the hierarchy's build kernels too (the same for every variant).
+    need any); `builds`: each variant's structure built, its build kernels compiled with it
+    (the grid's are typed by the kinds; the hierarchy's, the same for every variant, at
+    least once: "auto" builds it whatever it then chooses), else a stand-in of no objects
+    (`Engine(stand_in=True)`: only the tracing kernels compile, as beside a first render).
     `report(i, n, name)` is called before each variant."""
     from meshnode.engine import Engine
 
@@ -61,11 +67,9 @@ def warmup(
     for i, variant in enumerate(variants):
         if report is not None:
             report(i, len(variants), variant.name)
-        # The grid's build kernels are typed by the variant too; the tracing kernels hold
-        # both structures' code, and the hierarchy's build kernels are the same for all.
         scene = variant_scene(variant)
-        Engine(scene, structure="grid").warmup(kernels)
-        if i == 0 and builds:
+        Engine(scene, structure=variant.structure, stand_in=not builds).warmup(kernels)
+        if i == 0 and builds and variant.structure == "grid":
             Engine(scene, structure="bvh")
     if common:
         _common_warmup()

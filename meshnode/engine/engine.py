@@ -76,7 +76,7 @@ class Engine:
         self.scene = scene
         self.brute = bool(brute)
         self.tables = tb = build_tables(scene)
-        objects = _distinct(tb.gid)  # before renumbering: scenes list their ids in order
+        objects = tb.objects  # before renumbering: scenes list their ids in order
         asked = "grid" if self.brute else structure
         # The tracing kernel's variant depends on the structure, known before it is built but
         # where "auto" chooses the grid: announced again then (`host.run.aside` restarts).
@@ -396,12 +396,3 @@ class Engine:
         # for this call alone (callers route the passed rays into new arrays at once)
         passed = None if out is None else out[:n_out]
         return out_rgb, dict(zip(COUNTER_NAMES, counters.tolist(), strict=True)), passed
-
-
-def _distinct(gid: np.ndarray) -> int:
-    """How many distinct scene ids: len(np.unique(gid)) without its hash table (0.8 s on a
-    million ids), and without a sort where the ids increase."""
-    if len(gid) < 2 or bool(np.all(gid[1:] > gid[:-1])):
-        return len(gid)
-    ordered = np.sort(gid)
-    return 1 + int(np.count_nonzero(ordered[1:] != ordered[:-1]))

@@ -86,6 +86,17 @@ class Tables:
     def n(self) -> int:
         return len(self.gid)
 
+    @property
+    def objects(self) -> int:
+        """How many distinct scene ids (an object straddling kinds' tables counts once):
+        len(np.unique(gid)) without its hash table (0.8 s on a million ids), and without a
+        sort where the ids increase."""
+        gid = self.gid
+        if len(gid) < 2 or bool(np.all(gid[1:] > gid[:-1])):
+            return len(gid)
+        ordered = np.sort(gid)
+        return 1 + int(np.count_nonzero(ordered[1:] != ordered[:-1]))
+
     def permuted(self, order: np.ndarray) -> "Tables":
         """These tables with local id j holding the object of old id order[j]; `order` must
         keep every kind in its own range. A hierarchy orders its leaves so: each leaf is then

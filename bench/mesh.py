@@ -107,8 +107,7 @@ def parser() -> argparse.ArgumentParser:
         "--budget-copies",
         default="hottest",
         help="object space under --max-share: the budget's room filled with copies of the "
-        "hottest cells (rays for a cell handed to its nearest holder, or with hottest-owner to "
-        "its owner) or left empty, to compare: hottest,hottest-owner,none",
+        "hottest cells or left empty, to compare: hottest,none",
     )
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument(
@@ -310,12 +309,10 @@ def run_row(
         together=args.together,
         camera=camera,
         max_share=share,
-        budget_copies=budget in ("hottest", "hottest-owner"),
-        forward="owner" if budget == "hottest-owner" else "nearest",
+        budget_copies=budget == "hottest",
     )
     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
-    if budget != "none" and share < 1:
-        cut += "+budget copies" + (" to owners" if budget == "hottest-owner" else "")
+    cut += "+budget copies" if budget == "hottest" and share < 1 else ""
     return got, cut, None, None
 
 

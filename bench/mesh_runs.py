@@ -30,7 +30,6 @@ def on_mesh(
     camera=None,
     max_share=1.0,
     budget_copies=True,
-    forward="nearest",
 ):
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
@@ -58,7 +57,6 @@ def on_mesh(
         copies=copies,
         order=order,
         max_share=max_share,
-        forward=forward,
     )
     runs, singles, windows = [], [], []
 

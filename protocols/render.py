@@ -150,7 +150,8 @@ class MeshPlan(Spec):
     `forward` (with holds): a ray entering a cell whose engine its node does not hold goes
     to the cell's owner ("owner"), or to whichever of the cell's holders is fewest hops away
     ("nearest", the owner on a tie): a copy then takes on the rays of the nodes around it,
-    not only its holder's own, as R2E2 hands rays to a node holding what they need."""
+    not only its holder's own, as R2E2 hands rays to a node holding what they need (the
+    budget's copies choose by the simulated mesh, `host.planning.replicas`)."""
 
     rows: int = 1
     cols: int = 1
@@ -167,7 +168,7 @@ class MeshPlan(Spec):
     holds: tuple = ()
     max_share: float = 1.0
     node_bytes: int = 0
-    forward: str = "nearest"
+    forward: str = "owner"
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)

@@ -76,7 +76,9 @@ def test_rays_handed_to_the_owner_or_the_nearest_holder_give_the_single_node_ima
 
 def test_a_cell_rays_are_handed_to_its_nearest_holder_the_owner_on_a_tie():
     # 3x3 torus (rows 0-2, 3-5, 6-8): node 0 holds cell 8, node 5 holds cells 0 and 7
-    plan = MeshPlan(3, 3, copies=True, holds=((8,), (), (), (), (), (0, 7), (), (), ()))
+    plan = MeshPlan(
+        3, 3, copies=True, holds=((8,), (), (), (), (), (0, 7), (), (), ()), forward="nearest"
+    )
     # from 4: cell 0 to 5 (one hop, 0 two); 7 and 5 both one hop, 8 and 0 both two: owners
     assert plan.takers(4) == [5, 1, 2, 3, 4, 5, 6, 7, 8]
     # from 2: cell 7 to 5 (one hop, 7 two); 0 and 5 both one hop: the owner
@@ -84,6 +86,7 @@ def test_a_cell_rays_are_handed_to_its_nearest_holder_the_owner_on_a_tie():
     assert plan.takers(0) == [0, 1, 2, 3, 4, 5, 6, 7, 0]  # its own copy of 8 traces here
     owner = MeshPlan(3, 3, copies=True, holds=plan.holds, forward="owner")
     assert owner.takers(4) == [0, 1, 2, 3, 4, 5, 6, 7, 8]
+    assert MeshPlan(3, 3, copies=True, holds=plan.holds).forward == "owner"  # the default
     with pytest.raises(SpecError, match="forward"):
         MeshPlan(3, 3, forward="anyone")
 
@@ -162,6 +165,12 @@ def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():
     assert report["chosen"] and at.plan.holds, report["why"]
     assert report["tried"][-1]["simulated_busiest_vs_none"] < 1.0
     assert within(at.plan, holdings(scene, at, dealt, keep))
+    # rays handed to the nearest holders only where the simulated mesh said it lightens
+    forward = report["forward"]
+    assert at.plan.forward == forward["chosen"] and forward["why"]
+    if "simulated_busiest_nearest_vs_owner" in forward:
+        lighter = forward["simulated_busiest_nearest_vs_owner"] < 1.0
+        assert (forward["chosen"] == "nearest") == lighter
     # tiles of a copied cell are dealt over its holders
     takers, owners = np.array(dealt.takers), np.array(dealt.owner)
     assert any(o != t and t in at.plan.held(o) for o, t in zip(owners, takers, strict=True))

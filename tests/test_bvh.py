@@ -22,6 +22,20 @@ def leaves(engine: Engine) -> list[tuple[int, int]]:
     return [(int(p >> LEAF_BITS), int(p & LEAF_CAP)) for p in packed]
 
 
+def assert_hits_as_brute_force(scene, engine: Engine, seed: int, n: int, spread, least: int):
+    """`n` random rays from [-spread, spread]^3 toward near the origin hit, through `engine`,
+    what brute force hits: the same objects at the same distances, bit for bit (more than
+    `least` of them hit something, so the check is not of misses alone)."""
+    rng = np.random.default_rng(seed)
+    o = rng.uniform(-spread, spread, (n, 3))
+    d = rng.uniform(-0.5, 0.5, (n, 3)) - o
+    t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
+    assert (g_ref >= 0).sum() > least
+    t, g = engine.first_hits(o, d)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(t, t_ref)
+
+
 def test_every_leaf_is_a_run_of_one_kind_and_every_object_is_in_one_leaf():
     engine = Engine(random_scene(np.random.default_rng(4), n=80), structure="bvh")
     off = engine.tables.offsets
@@ -41,14 +55,7 @@ def test_objects_sharing_one_centre_split_into_capped_leaves_and_hit_as_brute_fo
     scene = make_scene(spheres=spheres, triangles=tris)
     engine = Engine(scene, structure="bvh")
     assert max(c for _, c in leaves(engine)) <= LEAF_CAP
-    rng = np.random.default_rng(2)
-    o = rng.uniform(-4, 4, (300, 3))
-    d = rng.uniform(-0.5, 0.5, (300, 3)) - o
-    t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
-    assert (g_ref >= 0).sum() > 100
-    t, g = engine.first_hits(o, d)
-    np.testing.assert_array_equal(g, g_ref)
-    np.testing.assert_array_equal(t, t_ref)
+    assert_hits_as_brute_force(scene, engine, seed=2, n=300, spread=4, least=100)
 
 
 def test_empty_and_single_object_nodes():

@@ -12,6 +12,7 @@ from meshnode.engine import Engine
 from meshnode.engine.bvh import LEAF_CAP
 from meshnode.engine.bvhbuild import Bvh, build_tree
 from protocols.scene import View
+from tests.test_bvh import assert_hits_as_brute_force
 
 
 def check_tree(lo, hi, off):
@@ -83,14 +84,7 @@ def test_generated_mesh_first_hits_equal_brute_force():
     scene = flat_scene(View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0), tetra_triangles(7))
     engine = Engine(scene, structure="bvh")
     assert engine.structure == "bvh" and engine.stats["structure_build_seconds"] > 0
-    rng = np.random.default_rng(5)
-    o = rng.uniform(-1.5, 1.5, (3000, 3))
-    d = rng.uniform(-0.5, 0.5, (3000, 3)) - o
-    t_ref, g_ref = Engine(scene, brute=True).first_hits(o, d)
-    assert (g_ref >= 0).sum() > 1000
-    got_t, got_g = engine.first_hits(o, d)
-    np.testing.assert_array_equal(got_g, g_ref)
-    np.testing.assert_array_equal(got_t, t_ref)
+    assert_hits_as_brute_force(scene, engine, seed=5, n=3000, spread=1.5, least=1000)
 
 
 def test_stats_report_the_tree():

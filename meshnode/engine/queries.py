@@ -13,6 +13,8 @@ from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.bvh import bvh_walk
 from meshnode.engine.counters import N_COUNTERS, SEGMENTS
 from meshnode.engine.jit import kernel
+from meshnode.engine.packet import PACKET, keep_packets, packet_walk
+from meshnode.engine.trace import _load, _packets
 from meshnode.engine.trace import first_hits as first_hits_kernel
 from meshnode.engine.traverse import brute_force, walk
 
@@ -83,8 +85,10 @@ def occluded(engine, origins, directions, t_max, leaving=None, t_min: float = 0.
 @kernel
 def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
     """Whether any object of the `Geometry` geo lies on each ray in (t_lo, t_hi[i]), walking
-    the `BvhArrays` bvh, or with bvh None the `GridArrays` grid (or all, with brute), each
-    walk stopping at the first hit found (any_hit). Ray i skips the object whose scene id is
+    the `BvhArrays` bvh (PACKET neighbouring rays at a time for their first hits before
+    t_hi, `packet_walk`, while they stay coherent enough, `keep_packets`; then each alone),
+    or with bvh None the `GridArrays` grid (or all, with brute), a lone ray's walk stopping
+    at the first hit found (any_hit). Ray i skips the object whose scene id is
     leaving[i] (-1: none) as the renderer's shadow rays skip the surface they leave
     (`traverse.test_object`). As the renderer's shadow rays towards one light, each ray
     first tests the last object that blocked one (the walks' hint): neighbouring rays are
@@ -97,6 +101,9 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
     hint = -1
+    packets = True  # with a hierarchy, until they stop paying (`keep_packets`)
+    f, origin, best_u, pstack, refs, idx = _packets()
+    m = walked = entered = tested = 0
     for i in range(n):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -111,6 +118,41 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
         dy *= k
         dz *= k
         counters[SEGMENTS] += 1
+        # With a hierarchy, PACKET neighbours walk it together for their first hits before
+        # t_hi (no early out: most shadow rays reach their light, and neighbours' rays to
+        # one light take much the same path), as first_hits' eye rays do.
+        if bvh is not None and packets:
+            _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, t_hi[i], leaving[i])
+            idx[m] = i
+            m += 1
+            if m == PACKET or i == n - 1:
+                e, v = packet_walk(
+                    f,
+                    origin,
+                    best_u,
+                    m,
+                    pstack,
+                    refs,
+                    counters,
+                    gid,
+                    off,
+                    sph,
+                    tri,
+                    poly,
+                    pinfo,
+                    puv,
+                    pband,
+                    cone,
+                    bvh,
+                )
+                for j in range(m):
+                    blocked[idx[j]] = best_u[j] >= 0
+                m = 0
+                walked += 1
+                entered += e
+                tested += v
+                packets = keep_packets(walked, entered, tested)
+            continue
         # Walk the structure present (the one passed None is compiled out, as in first_hits).
         if bvh is not None:
             _, u = bvh_walk(

@@ -20,6 +20,19 @@ build each), million rays per second both ways (median over the rounds, least-mo
 brackets), ours / Embree (the median of the rounds' paired ratios, each round's two sides
 sharing a spell of the machine, with their spread), and the first-hit agreement: hit/miss
 disagreements and percentiles of the relative difference of t where both hit.
+
+Each row is followed by its shadow rays ("shadow" in the triangles column): from every
+primary hit point where both sides hit, one ray towards each scene light that lies on the
+side of the surface the eye sees (Embree's geometric normal; the renderer casts no shadow
+ray towards a light behind the surface, which blocks it), ending at the light. Neither side
+skips the surface a ray leaves (Embree has no such rule): both get the same rays, their
+origins moved off the surface towards the light by 1e-4 of the scene's scale (far above
+float32 round-off of the points and triangles Embree is given) and t_max shortened by as
+much. The generated tetrahedron has no lights: it gets one fixed light above it, (0, 0, 5)
+(its triangles lie in [-1, 1]^3). Ours answers with `Engine.occluded` (stops at the first
+object found, one thread), Embree with `rtcOccluded1` per ray (embreex's OCCLUDED query),
+timed in turns as the primary rays; printed: both rates, ours / Embree, the occluded
+disagreements (in the hit/miss column), how many shadow rays and the share blocked.
 """
 
 import argparse
@@ -90,11 +103,19 @@ def ours(scene, structure: str) -> dict:
 
 
 def compare(
-    name: str, view, tris: np.ndarray, size: int, repeat: int, structures: list[str], native=None
+    name: str,
+    view,
+    tris: np.ndarray,
+    size: int,
+    repeat: int,
+    structures: list[str],
+    lights: np.ndarray,
+    native=None,
 ) -> list[dict]:
     """One row per structure (and per surface form: `native`, the scene's own polygons, if
     given, then Embree's triangles) of ours against Embree on identical rays, the two taking
-    turns `repeat` rounds."""
+    turns `repeat` rounds: primary rays, then shadow rays from their hits towards `lights`
+    ((L, 3) positions)."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
@@ -130,7 +151,27 @@ def compare(
             },
             repeat,
         )
+        shadow = shadow_rays(o, d, last["ours"][0], last["embree"], lights, tris)
+        so, sd, st = shadow["ours"]
+        so32, sd32, st32 = shadow["embree"]
+        n_shadow = len(so)
+        engine.occluded(so[:1], sd[:1], st[:1])  # kernel loaded (or compiled) before timing
+        shadow_times, shadow_last = interleaved(
+            {
+                "ours": lambda engine=engine, so=so, sd=sd, st=st: engine.occluded(so, sd, st),
+                "embree": lambda so32=so32, sd32=sd32, st32=st32: embree.run(
+                    so32, sd32, dists=st32, query="OCCLUDED"
+                ),
+            },
+            repeat,
+        )
         del engine, run["engine"]  # one engine alive at a time: the biggest scenes are large
+
+        def shadow_per_second(seconds: float, n_shadow=n_shadow) -> float:
+            return n_shadow / seconds
+
+        blocked_ours = shadow_last["ours"]
+        blocked_embree = np.asarray(shadow_last["embree"]) != -1  # geomID stays -1 if clear
         row = {
             "scene": name,
             "form": form,
@@ -148,10 +189,48 @@ def compare(
             # ours rays/s over Embree's: Embree's seconds over ours, paired by round
             **times.ratio("embree", "ours").fields("ratio"),
             **agreement(last["ours"][0], last["embree"]),
+            "shadow_rays": n_shadow,
+            "shadow_offset": shadow["offset"],
+            **shadow_times.figure("ours").fields("shadow_ours_seconds"),
+            **shadow_times.figure("embree").fields("shadow_embree_seconds"),
+            **shadow_times.figure("ours").map(shadow_per_second).fields("shadow_ours_rays_per_s"),
+            **shadow_times.figure("embree")
+            .map(shadow_per_second)
+            .fields("shadow_embree_rays_per_s"),
+            **shadow_times.ratio("embree", "ours").fields("shadow_ratio"),
+            "shadow_mismatches": int((blocked_ours != blocked_embree).sum()),
+            "shadow_blocked": int(blocked_ours.sum()),
         }
         print_row(row, run["chosen"])
+        print_shadow_row(row, run["chosen"])
         rows.append(row)
     return rows
+
+
+def shadow_rays(o, d, t_ours, hits, lights, tris) -> dict:
+    """The shadow rays from the primary hits where both sides hit (ours' hit points),
+    light by light: to each light on the side of the surface the eye sees, from the point
+    moved off the surface towards the light, ending at the light. {"ours": (origins,
+    directions, t_max) float64, "embree": the same as float32, "offset": the move}."""
+    both = np.isfinite(t_ours) & (hits["geomID"] >= 0)
+    p = o[both] + t_ours[both, None] * d[both]
+    ng = hits["Ng"][both].astype(float)
+    eye_side = np.sign(np.einsum("ij,ij->i", ng, -d[both]))
+    scale = max(float(np.ptp(tris.reshape(-1, 3), axis=0).max()), float(np.abs(tris).max()))
+    offset = 1e-4 * scale
+    origins, directions, ends = [], [], []
+    for light in np.asarray(lights, float).reshape(-1, 3):
+        to = light - p
+        dist = np.linalg.norm(to, axis=1)
+        to /= dist[:, None]
+        seen = np.sign(np.einsum("ij,ij->i", ng, to)) == eye_side
+        seen &= dist > 2 * offset
+        origins.append(p[seen] + offset * to[seen])
+        directions.append(to[seen])
+        ends.append(dist[seen] - offset)
+    so, sd, st = (np.ascontiguousarray(np.concatenate(a)) for a in (origins, directions, ends))
+    f32 = tuple(np.ascontiguousarray(a, dtype=np.float32) for a in (so, sd, st))
+    return {"ours": (so, sd, st), "embree": (f32[0], f32[1], f32[2]), "offset": offset}
 
 
 def agreement(t_ours: np.ndarray, hits) -> dict:
@@ -187,6 +266,25 @@ def print_row(row: dict, chosen: str) -> None:
         f"{spread('ours_rays_per_s', 1e6):>19} {spread('embree_rays_per_s', 1e6):>19} "
         f"{spread('ratio'):>17} {row['mismatches']:>8} "
         f"{pct[0]:>9.1e} {pct[1]:>9.1e} {pct[2]:>9.1e}",
+        flush=True,
+    )
+
+
+def print_shadow_row(row: dict, chosen: str) -> None:
+    """The row's shadow rays: rates, ours / Embree, occluded disagreements, rays, blocked."""
+
+    def spread(key: str, scale: float = 1.0) -> str:
+        lo, mid, hi = (row[f"{key}_low"], row[key], row[f"{key}_high"])
+        return f"{mid / scale:.2f} ({lo / scale:.2f}-{hi / scale:.2f})"
+
+    label = f"auto={chosen}" if row["structure"] == "auto" else row["structure"]
+    n = row["shadow_rays"]
+    blocked = row["shadow_blocked"] / n if n else 0.0
+    print(
+        f"{row['scene']:>16} {row['form']:>9} {label:>9} {'shadow':>10} {'':>8} {'':>7} "
+        f"{spread('shadow_ours_rays_per_s', 1e6):>19} "
+        f"{spread('shadow_embree_rays_per_s', 1e6):>19} {spread('shadow_ratio'):>17} "
+        f"{row['shadow_mismatches']:>8} {n:>9,} rays, {blocked:.0%} blocked",
         flush=True,
     )
 
@@ -235,12 +333,16 @@ def main(argv=None) -> int:
             args.size,
             args.repeat,
             structures,
+            scene.lights["pos"],
             native=surfaces_of(scene),
         )
     if args.levels > 0:
         view = View((2.1, 1.3, 1.7), (0, 0, 0), (0, 0, 1), 45.0)
         tris = tetra_triangles(args.levels + 1)  # SPD size factor levels + 1: 4 x 4^levels
-        rows += compare(f"tetra L{args.levels}", view, tris, args.size, args.repeat, structures)
+        above = np.array([[0.0, 0.0, 5.0]])  # a fixed light: the generated mesh has none
+        rows += compare(
+            f"tetra L{args.levels}", view, tris, args.size, args.repeat, structures, above
+        )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

@@ -4,6 +4,7 @@ from host.scene.nff import read_nff
 from meshnode.engine import Engine
 engine = Engine(read_nff("scene.nff"))
 t, gid = engine.first_hits(origins, directions)      # nearest hit per ray
+blocked = engine.occluded(origins, directions, t_max)  # anything before t_max
 rgb, counts = engine.trace(rays)                     # Whitted colour per RAY record
 """
 
@@ -13,7 +14,7 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from meshnode.engine import kernelcache
+from meshnode.engine import kernelcache, queries
 from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only
@@ -24,7 +25,7 @@ from meshnode.engine.structure import build_structure, foreseen
 from meshnode.engine.structure import stand_in as stand_in_structure
 from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
-from meshnode.engine.trace import first_hits, routed, trace_batch
+from meshnode.engine.trace import routed, trace_batch
 from meshnode.engine.variants import KERNELS, variant_of
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
@@ -322,27 +323,14 @@ class Engine:
         """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).
 
         Directions are normalised here, so distances are in scene units."""
-        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-        if o.shape != d.shape:
-            raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
-        counters = np.zeros(N_COUNTERS, np.int64)
-        t, gid, bad = first_hits(
-            o,
-            d,
-            float(t_min),
-            self.brute,
-            counters,
-            self.geometry,
-            self.grid_arrays,
-            self.bvh_arrays,
-        )
-        if bad >= 0:
-            raise ValueError(
-                f"ray {bad}: directions must be finite and non-zero; origins "
-                f"finite (origin {o[bad].tolist()}, direction {d[bad].tolist()})"
-            )
-        return t, gid
+        return queries.first_hits(self, origins, directions, t_min)
+
+    def occluded(self, origins, directions, t_max, leaving=None, t_min: float = 0.0):
+        """Whether some object lies on each ray in (t_min, t_max) (scene units: directions
+        are normalised): a shadow ray's question, stopping at the first object found; bool
+        per ray. `leaving`: the scene id of the object each ray leaves (-1, or None: none),
+        skipped as the renderer's shadow rays skip their own surface."""
+        return queries.occluded(self, origins, directions, t_max, leaving, t_min)
 
     def trace(self, rays: np.ndarray, out_rgb: np.ndarray | None = None):
         """Trace RAY records and all their descendants; returns (rgb per ray, counter dict)."""

@@ -120,6 +120,7 @@ def packet_walk(
     pband,
     cone,
     bvh,
+    any_hit=False,
 ):
     """First hits of n <= PACKET rays walked through the tree together: each visit tests
     both children's boxes for every ray in one vector loop (`_packet_slabs`), and the packet
@@ -134,7 +135,10 @@ def packet_walk(
     best_u: int64 (PACKET,) gids of the surfaces left (-1 none) in, local ids hit (-1) out.
     pstack (STACK, PACKET) float64 and refs (STACK,) int64: the pending children. Returns
     how many of the rays tested at inner nodes had entered them (of n per visit): how
-    coherent the packet was (`keep_packets`)."""
+    coherent the packet was (`keep_packets`). With any_hit a ray leaves the packet at its
+    first hit before its bound (its bound set below every box's entry): a shadow ray needs
+    only to know it is blocked, and walked on to its nearest hit it kept the packet visiting
+    nodes for nothing."""
     flat, flat_refs = bvh
     for k in range(n):
         f[P_BEST, k] = f[P_BOUND, k]
@@ -179,7 +183,7 @@ def packet_walk(
                         if t < math.inf and better(t, u, f[P_BEST, k], best_u[k], gid):
                             f[P_BEST, k] = t
                             best_u[k] = u
-                            f[P_BOUND, k] = t * TIE
+                            f[P_BOUND, k] = -math.inf if any_hit else t * TIE
                     continue
                 for k in range(n):
                     if not f[P_CUR, k] < f[P_BOUND, k]:
@@ -209,7 +213,7 @@ def packet_walk(
                     if t < math.inf and better(t, u, f[P_BEST, k], best_u[k], gid):
                         f[P_BEST, k] = t
                         best_u[k] = u
-                        f[P_BOUND, k] = t * TIE
+                        f[P_BOUND, k] = -math.inf if any_hit else t * TIE
         # Next: the nearest pending child still entered before some ray's bound.
         ref = 0
         while top > 0:

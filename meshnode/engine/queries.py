@@ -118,9 +118,8 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
         dy *= k
         dz *= k
         counters[SEGMENTS] += 1
-        # With a hierarchy, PACKET neighbours walk it together for their first hits before
-        # t_hi (no early out: most shadow rays reach their light, and neighbours' rays to
-        # one light take much the same path), as first_hits' eye rays do.
+        # With a hierarchy, PACKET neighbours walk it together (neighbours' rays to one light
+        # take much the same path), each leaving the packet at its first hit before t_hi.
         if bvh is not None and packets:
             _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, t_hi[i], leaving[i])
             idx[m] = i
@@ -144,6 +143,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     pband,
                     cone,
                     bvh,
+                    True,
                 )
                 for j in range(m):
                     blocked[idx[j]] = best_u[j] >= 0

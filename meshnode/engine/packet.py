@@ -9,10 +9,13 @@ Tracing", 2001). A batch stops using packets when they stop paying (`keep_packet
 
 import math
 
-from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS, SLACK
+import numpy as np
+
+from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS, SLACK, reciprocal
+from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.intersect import EDGE_SLACK
-from meshnode.engine.jit import inline, leaf
+from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.traverse import TIE, better, test_object
 
 PACKET = 8  # rays `packet_walk` takes through the tree together (one or two vector registers)
@@ -99,6 +102,31 @@ def _nearest(f, row, n):
     for k in range(n):
         m = min(m, f[row, k])
     return m
+
+
+@inline
+def load_ray(f, origin, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi, org):
+    """Ray k of a packet's scratch (`packet_walk`): origin, direction, reciprocals, span, and
+    the gid of the surface it leaves."""
+    f[P_O, k], f[P_O + 1, k], f[P_O + 2, k] = ox, oy, oz
+    f[P_D, k], f[P_D + 1, k], f[P_D + 2, k] = dx, dy, dz
+    f[P_R, k], f[P_R + 1, k], f[P_R + 2, k] = reciprocal(dx), reciprocal(dy), reciprocal(dz)
+    f[P_LO, k], f[P_BOUND, k] = t_lo, t_hi
+    origin[k] = org
+
+
+@kernel
+def packet_scratch():
+    """A packet's scratch: float rows, origins, hits, pending children and their refs, and
+    which ray of the batch each column holds."""
+    return (
+        np.empty((P_ROWS, PACKET)),
+        np.empty(PACKET, np.int64),
+        np.empty(PACKET, np.int64),
+        np.empty((BVH_STACK, PACKET)),
+        np.empty(BVH_STACK, np.int64),
+        np.empty(PACKET, np.int64),
+    )
 
 
 @leaf

@@ -2,7 +2,9 @@
 lies on each ray before its end (an any-hit query: shadow rays). `Engine.first_hits` and
 `Engine.occluded` check their arrays here and call the kernels.
 
-A query's directions are made unit length by its kernel, so distances are in scene units.
+Both are one kernel (`ray_hits`), any_hit a value: a nearest-hit query is an any-hit query's
+walk that does not stop at the first hit. A query's directions are made unit length by its
+kernel, so distances are in scene units.
 """
 
 import math
@@ -13,9 +15,14 @@ from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.bvh import bvh_walk
 from meshnode.engine.counters import N_COUNTERS, SEGMENTS
 from meshnode.engine.jit import kernel
-from meshnode.engine.packet import PACKET, keep_packets, packet_walk
-from meshnode.engine.trace import _load, _packets
-from meshnode.engine.trace import first_hits as first_hits_kernel
+from meshnode.engine.packet import (
+    P_BEST,
+    PACKET,
+    keep_packets,
+    load_ray,
+    packet_scratch,
+    packet_walk,
+)
 from meshnode.engine.traverse import brute_force, walk
 
 
@@ -40,18 +47,8 @@ def _refuse(bad: int, o, d) -> None:
 def first_hits(engine, origins, directions, t_min: float = 0.0):
     """`Engine.first_hits`: (distance, scene object id) of each ray's nearest hit."""
     o, d = _rays(origins, directions)
-    counters = np.zeros(N_COUNTERS, np.int64)
-    t, gid, bad = first_hits_kernel(
-        o,
-        d,
-        float(t_min),
-        engine.brute,
-        counters,
-        engine.geometry,
-        engine.grid_arrays,
-        engine.bvh_arrays,
-    )
-    _refuse(bad, o, d)
+    n = len(o)
+    t, gid = _query(engine, o, d, t_min, np.full(n, math.inf), np.full(n, -1, np.int64), False)
     return t, gid
 
 
@@ -65,13 +62,20 @@ def occluded(engine, origins, directions, t_max, leaving=None, t_min: float = 0.
     leaving = np.ascontiguousarray(np.broadcast_to(np.asarray(leaving, np.int64), (n,)))
     if np.isnan(t_hi).any():
         raise ValueError(f"ray {int(np.argmax(np.isnan(t_hi)))}: t_max is NaN")
+    _, gid = _query(engine, o, d, t_min, t_hi, leaving, True)
+    return gid >= 0
+
+
+def _query(engine, o, d, t_min: float, t_hi, leaving, any_hit: bool):
+    """(t, gid) of `ray_hits` over the engine's objects; a ray it refuses raises."""
     counters = np.zeros(N_COUNTERS, np.int64)
-    blocked, bad = any_hits(
+    t, gid, bad = ray_hits(
         o,
         d,
         float(t_min),
         t_hi,
         leaving,
+        any_hit,
         engine.brute,
         counters,
         engine.geometry,
@@ -79,30 +83,32 @@ def occluded(engine, origins, directions, t_max, leaving=None, t_min: float = 0.
         engine.bvh_arrays,
     )
     _refuse(bad, o, d)
-    return blocked
+    return t, gid
 
 
 @kernel
-def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
-    """Whether any object of the `Geometry` geo lies on each ray in (t_lo, t_hi[i]), walking
-    the `BvhArrays` bvh (PACKET neighbouring rays at a time for their first hits before
-    t_hi, `packet_walk`, while they stay coherent enough, `keep_packets`; then each alone),
-    or with bvh None the `GridArrays` grid (or all, with brute), a lone ray's walk stopping
-    at the first hit found (any_hit). Ray i skips the object whose scene id is
-    leaving[i] (-1: none) as the renderer's shadow rays skip the surface they leave
-    (`traverse.test_object`). As the renderer's shadow rays towards one light, each ray
-    first tests the last object that blocked one (the walks' hint): neighbouring rays are
-    often blocked by the same object. Directions are made unit length here.
-    Returns (blocked per ray, index of the first ray with a zero or non-finite direction or
-    a non-finite origin, or -1); the caller refuses those."""
+def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, grid, bvh):
+    """For each ray the hit in (t_lo, t_hi[i]) among the objects of the `Geometry` geo: the
+    nearest, or with any_hit the first found (the walk stops there: shadow rays), as
+    (distance, scene id or -1). Walks the `BvhArrays` bvh (PACKET neighbouring rays at a
+    time, `packet_walk`, while they stay coherent enough, `keep_packets`; then each alone),
+    or with bvh None the `GridArrays` grid (or all, with brute): the structure is a type,
+    the one passed None compiled out (`variants.Variant.structure`). Ray i skips the
+    object whose scene id is leaving[i] (-1: none), as the renderer's rays skip the surface
+    they leave (`traverse.test_object`); an any-hit ray first tests the last object that
+    blocked one (the walks' hint), as the renderer's shadow rays towards one light do.
+    Directions are made unit length here: distances are in scene units.
+    Returns (t, gid, index of the first ray with a zero or non-finite direction or a
+    non-finite origin, or -1); the caller refuses those."""
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     n = orig.shape[0]
-    blocked = np.zeros(n, np.bool_)
+    t_out = np.full(n, math.inf)
+    g_out = np.full(n, -1, np.int64)
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
     hint = -1
     packets = True  # with a hierarchy, until they stop paying (`keep_packets`)
-    f, origin, best_u, pstack, refs, idx = _packets()
+    f, origin, best_u, pstack, refs, idx = packet_scratch()
     m = walked = entered = tested = 0
     for i in range(n):
         ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
@@ -111,17 +117,15 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
         if not (0.0 < big < math.inf) or not (
             abs(ox) < math.inf and abs(oy) < math.inf and abs(oz) < math.inf
         ):
-            return blocked, i
+            return t_out, g_out, i
         s = 1.0 / big
         k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
         dx *= k
         dy *= k
         dz *= k
         counters[SEGMENTS] += 1
-        # With a hierarchy, PACKET neighbours walk it together (neighbours' rays to one light
-        # take much the same path), each leaving the packet at its first hit before t_hi.
         if bvh is not None and packets:
-            _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, t_hi[i], leaving[i])
+            load_ray(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, t_hi[i], leaving[i])
             idx[m] = i
             m += 1
             if m == PACKET or i == n - 1:
@@ -143,19 +147,22 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     pband,
                     cone,
                     bvh,
-                    True,
+                    any_hit,
                 )
                 for j in range(m):
-                    blocked[idx[j]] = best_u[j] >= 0
+                    t_out[idx[j]] = f[P_BEST, j]
+                    if best_u[j] >= 0:
+                        g_out[idx[j]] = gid[best_u[j]]
                 m = 0
                 walked += 1
                 entered += e
                 tested += v
                 packets = keep_packets(walked, entered, tested)
             continue
-        # Walk the structure present (the one passed None is compiled out, as in first_hits).
+        # Each walk under `is not None` of its own structure: numba prunes a branch on an
+        # argument passed None, and types every other (the grid's walk of None fails)
         if bvh is not None:
-            _, u = bvh_walk(
+            t, u = bvh_walk(
                 ox,
                 oy,
                 oz,
@@ -165,7 +172,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                 t_lo,
                 t_hi[i],
                 leaving[i],
-                True,
+                any_hit,
                 hint,
                 stack,
                 counters,
@@ -182,7 +189,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
             )
         elif grid is not None:
             if brute:
-                _, u = brute_force(
+                t, u = brute_force(
                     ox,
                     oy,
                     oz,
@@ -192,7 +199,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     t_lo,
                     t_hi[i],
                     leaving[i],
-                    True,
+                    any_hit,
                     counters,
                     gid,
                     off,
@@ -205,7 +212,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     cone,
                 )
             else:
-                _, u = walk(
+                t, u = walk(
                     ox,
                     oy,
                     oz,
@@ -215,7 +222,7 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     t_lo,
                     t_hi[i],
                     leaving[i],
-                    True,
+                    any_hit,
                     hint,
                     i,
                     mail,
@@ -232,8 +239,10 @@ def any_hits(orig, dirs, t_lo, t_hi, leaving, brute, counters, geo, grid, bvh):
                     grid,
                 )
         else:  # no structure: never, but numba types each branch
-            _, u = math.inf, -1
+            t, u = math.inf, -1
+        t_out[i] = t
         if u >= 0:
-            blocked[i] = True
-            hint = u
-    return blocked, -1
+            g_out[i] = gid[u]
+            if any_hit:
+                hint = u
+    return t_out, g_out, -1

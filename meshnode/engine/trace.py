@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from meshnode.engine.bvh import NEAR_ZERO, bvh_walk, reciprocal
+from meshnode.engine.bvh import NEAR_ZERO, bvh_walk
 from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.counters import (
     ESCAPED,
@@ -35,14 +35,11 @@ from meshnode.engine.jit import inline, kernel
 from meshnode.engine.occupancy import first_occupied, work_start
 from meshnode.engine.packet import (
     P_BEST,
-    P_BOUND,
-    P_D,
-    P_LO,
-    P_O,
     P_R,
-    P_ROWS,
     PACKET,
     keep_packets,
+    load_ray,
+    packet_scratch,
     packet_walk,
 )
 from meshnode.engine.shade import normals, phong, refract
@@ -65,184 +62,6 @@ def _push(
     return sp + 1
 
 
-@inline
-def _load(f, origin, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi, org):
-    """Ray k of a packet's scratch (`bvh.packet_walk`)."""
-    f[P_O, k], f[P_O + 1, k], f[P_O + 2, k] = ox, oy, oz
-    f[P_D, k], f[P_D + 1, k], f[P_D + 2, k] = dx, dy, dz
-    f[P_R, k], f[P_R + 1, k], f[P_R + 2, k] = reciprocal(dx), reciprocal(dy), reciprocal(dz)
-    f[P_LO, k], f[P_BOUND, k] = t_lo, t_hi
-    origin[k] = org
-
-
-@kernel
-def _packets():
-    """A packet's scratch: float rows, origins, hits, pending children and their refs, and
-    which ray of the batch each column holds."""
-    return (
-        np.empty((P_ROWS, PACKET)),
-        np.empty(PACKET, np.int64),
-        np.empty(PACKET, np.int64),
-        np.empty((BVH_STACK, PACKET)),
-        np.empty(BVH_STACK, np.int64),
-        np.empty(PACKET, np.int64),
-    )
-
-
-@kernel
-def first_hits(orig, dirs, t_lo, brute, counters, geo, grid, bvh):
-    """Nearest hit distance and scene object id (-1: none) of each (origin, direction) pair,
-    among the objects of the `Geometry` geo through the `BvhArrays` bvh (PACKET neighbouring
-    rays at a time, `packet_walk`, while they stay coherent enough, `keep_packets`), or with
-    bvh None the `GridArrays` grid (or all, with brute). The structure is a type: the one
-    passed None is compiled out, walk and all (`variants.Variant.structure`). Directions
-    are made unit length here: distances are in scene units.
-    Returns (t, gid, index of the first ray with a zero or non-finite direction or a
-    non-finite origin, or -1); the caller refuses those."""
-    gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
-    n = orig.shape[0]
-    t_out = np.full(n, math.inf)
-    g_out = np.full(n, -1, np.int64)
-    mail = np.full(gid.shape[0], -1, np.int64)
-    packets = True  # with a hierarchy, until they stop paying (`keep_packets`)
-    f, origin, best_u, pstack, refs, idx = _packets()
-    stack = np.empty(2 * BVH_STACK)
-    m = walked = entered = tested = 0
-    for i in range(n):
-        ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        big = max(abs(dx), max(abs(dy), abs(dz)))  # scaled first: no overflow in the norm
-        if not (0.0 < big < math.inf) or not (
-            abs(ox) < math.inf and abs(oy) < math.inf and abs(oz) < math.inf
-        ):
-            return t_out, g_out, i
-        s = 1.0 / big
-        k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
-        dx *= k
-        dy *= k
-        dz *= k
-        counters[SEGMENTS] += 1
-        if bvh is not None and packets:
-            _load(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, math.inf, -1)
-            idx[m] = i
-            m += 1
-            if m == PACKET or i == n - 1:
-                e, v = packet_walk(
-                    f,
-                    origin,
-                    best_u,
-                    m,
-                    pstack,
-                    refs,
-                    counters,
-                    gid,
-                    off,
-                    sph,
-                    tri,
-                    poly,
-                    pinfo,
-                    puv,
-                    pband,
-                    cone,
-                    bvh,
-                )
-                for j in range(m):
-                    t_out[idx[j]] = f[P_BEST, j]
-                    if best_u[j] >= 0:
-                        g_out[idx[j]] = gid[best_u[j]]
-                m = 0
-                walked += 1
-                entered += e
-                tested += v
-                packets = keep_packets(walked, entered, tested)
-            continue
-        # Each walk under `is not None` of its own structure: numba prunes a branch on an
-        # argument passed None, and types every other (the grid's walk of None fails)
-        if bvh is not None:
-            t, u = bvh_walk(
-                ox,
-                oy,
-                oz,
-                dx,
-                dy,
-                dz,
-                t_lo,
-                math.inf,
-                -1,
-                False,
-                -1,
-                stack,
-                counters,
-                gid,
-                off,
-                sph,
-                tri,
-                poly,
-                pinfo,
-                puv,
-                pband,
-                cone,
-                bvh,
-            )
-        elif grid is not None:
-            if brute:
-                t, u = brute_force(
-                    ox,
-                    oy,
-                    oz,
-                    dx,
-                    dy,
-                    dz,
-                    t_lo,
-                    math.inf,
-                    -1,
-                    False,
-                    counters,
-                    gid,
-                    off,
-                    sph,
-                    tri,
-                    poly,
-                    pinfo,
-                    puv,
-                    pband,
-                    cone,
-                )
-            else:
-                t, u = walk(
-                    ox,
-                    oy,
-                    oz,
-                    dx,
-                    dy,
-                    dz,
-                    t_lo,
-                    math.inf,
-                    -1,
-                    False,
-                    -1,
-                    i,
-                    mail,
-                    counters,
-                    gid,
-                    off,
-                    sph,
-                    tri,
-                    poly,
-                    pinfo,
-                    puv,
-                    pband,
-                    cone,
-                    grid,
-                )
-        else:  # no structure: never, but numba types each branch
-            t, u = math.inf, -1
-        t_out[i] = t
-        if u >= 0:
-            g_out[i] = gid[u]
-    return t_out, g_out, -1
-
-
 @kernel
 def _packet_hits(rays, on, counters, geo, bvh, out):
     """With `on`, the first hit (t, local id) of each of the batch's rays but shadow rays,
@@ -256,12 +75,12 @@ def _packet_hits(rays, on, counters, geo, bvh, out):
     first_t = np.empty(n)
     first_u = np.full(n, -2, np.int64)
     first_r = np.empty((n if out is not None else 0, 3))
-    f, origin, best_u, pstack, refs, idx = _packets()
+    f, origin, best_u, pstack, refs, idx = packet_scratch()
     m = walked = entered = tested = 0
     for i in range(n):
         r = rays[i]
         if r.kind != SHADOW:
-            _load(
+            load_ray(
                 f,
                 origin,
                 m,

@@ -264,9 +264,13 @@ class MeshPlan(Spec):
         held = set(self.held(node))
         if not self.holds or self.forward == "owner":
             return [node if c in held else c for c in range(self.nodes)]
+        holders = [[c] for c in range(self.nodes)]  # `holders` of every cell in one pass
+        for n, cells in enumerate(self.holds):
+            for c in cells:
+                holders[c].append(n)
         torus = Torus(self.rows, self.cols)
         return [
-            node if c in held else min(self.holders(c), key=lambda h: torus.distance(node, h))
+            node if c in held else min(holders[c], key=lambda h: torus.distance(node, h))
             for c in range(self.nodes)
         ]
 

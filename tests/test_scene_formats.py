@@ -518,6 +518,8 @@ PLY_HEAD = (
             "vertex lacks z",
         ),
         (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", 13, "at least 3 corners"),
+        # a negative list count (plyfile's OverflowError): the data's first line
+        (PLY_HEAD + "0 0 0\n1 0 0\n0 1 0\n-9 0 1 2\n", 9, "PLY data: Python integer -9"),
     ],
 )
 def test_ply_errors_name_file_and_line(tmp_path, text, line, words):

@@ -38,7 +38,9 @@ def read_ply(path) -> MeshFaces:
             prop = f" property {e.prop.name!r}:" if e.prop is not None else ""
             row = "" if header.ascii or e.row is None else f" row {e.row}:"
             raise SceneError(source, line, f"{name}{row}{prop} {e.message}") from None
-        except (ValueError, EOFError) as e:
+        except (ValueError, EOFError, OverflowError) as e:
+            # OverflowError: plyfile casts an ASCII list's count into its type as is (-9 as
+            # a uchar count)
             raise SceneError(source, header.end, f"PLY data: {e}") from None
     names = [el.name for el in ply.elements]
     for need in ("vertex", "face"):

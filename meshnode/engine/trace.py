@@ -707,10 +707,11 @@ def owners(rays, los, his):
 def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
     t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; a ray
-    with only empty voxels ahead goes to the box it enters but resumes past the scene's
-    box), as (a new array, the runs' starts): box b's run is out[starts[b]:starts[b + 1]],
-    in the order the rays came. A ray no box takes joins box `fallback`'s run, or with fallback -1
-    is counted (the third value) for the caller to refuse. `rays` is left as it was.
+    with only empty voxels ahead resumes past the scene's box), as (a new array, the runs'
+    starts): box b's run is out[starts[b]:starts[b + 1]], in the order the rays came. A ray
+    no box takes, or with only empty voxels ahead, joins box `fallback`'s run; with fallback
+    -1 the first is counted (the third value) for the caller to refuse and the second goes
+    to the box it enters. `rays` is left as it was.
 
     One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort
     and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
@@ -752,10 +753,13 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
             )
         b, t = _owner(ox, oy, oz, irx, iry, irz, t, r.t_max, los, his)
         if past > -math.inf:
-            # Only empty voxels ahead: the cell it enters takes it as before, but from past
-            # the scene, so that node ends it at once (tetra: 30% of its eye rays, each a
-            # hierarchy walk and an occupancy walk there to find nothing).
+            # Only empty voxels ahead: it resumes past the scene, where any node's kernel
+            # ends it at once (tetra: 30% of its eye rays, each a hierarchy walk and an
+            # occupancy walk to find nothing), so the fallback's (the node routing it) does:
+            # handed to the cell it enters, every such ray was a pass to end a ray.
             t = past
+            if fallback >= 0:
+                b = fallback
         if b < 0:
             lost += 1
             b = max(fallback, 0)

@@ -10,6 +10,7 @@ from host.planning.budget import holdings, within
 from host.planning.partition import partition
 from host.planning.plan import plan_render
 from host.planning.prepass import coarse_pass, costs
+from host.planning.rectangles import spread
 from host.planning.replicas import _holds, _passes, choose_copies, with_replicas
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
@@ -174,6 +175,44 @@ def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():
     # tiles of a copied cell are dealt over its holders
     takers, owners = np.array(dealt.takers), np.array(dealt.owner)
     assert any(o != t and t in at.plan.held(o) for o, t in zip(owners, takers, strict=True))
+    assert all(t in at.plan.held(o) for o, t in zip(owners, takers, strict=True))
+    # ... by their simulated work only where the simulated mesh said it lightens
+    dealing = report["dealing"]
+    lighter = dealing["simulated_busiest_by_work_vs_count"] < 1.0
+    assert (dealing["chosen"] == "work") == lighter and dealing["why"]
+
+
+def test_tiles_dealt_by_work_share_a_hot_cells_work_among_its_holders():
+    # 2x2, node 1 holds a copy of cell 0: cell 1's two tiles can go to node 1 only, cell 0's
+    # six to node 0 or 1, one of them ten times as dear as the others. Dealt by count, node 0
+    # takes the dear one and two more; dealt by work each holder ends as even as the tiles
+    # allow (the dear tile alone on node 0).
+    plan = MeshPlan(2, 2, copies=True, holds=((), (0,), (), ()))
+    takers = [1, 1, 0, 0, 0, 0, 0, 0]
+    weights = np.array([2, 2, 10, 1, 1, 1, 1, 1], float)
+
+    def loads(owner):
+        return np.bincount(owner, weights, minlength=4)
+
+    by_count, by_work = spread(takers, plan), spread(takers, plan, weights)
+    for owner in (by_count, by_work):
+        assert all(t in plan.held(o) for o, t in zip(owner, takers, strict=True))
+    assert loads(by_count).max() == 13 and loads(by_work).max() == 10
+    assert by_work[2] == 0 and set(by_work[3:]) == {1}
+
+
+def test_a_tiles_work_is_the_same_whichever_node_traces_it():
+    # `Outcome.tile_work`, what tiles are dealt by: in image space no ray is passed, so all
+    # the work is primary batches' and each tile's is what tracing it costs, the same on a
+    # 1x2 as on a 2x2 where other nodes trace it.
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    got = []
+    for shape in ((1, 2), (2, 2)):
+        render_mesh(scene, *shape, 1.0, 32, 32, mode="image", tiles="static", tile=8, outcome=got)
+    for outcome in got:
+        assert outcome.tile_work.sum() == pytest.approx(costs(outcome).sum())
+        assert (outcome.tile_work > 0).all()
+    np.testing.assert_allclose(got[0].tile_work, got[1].tile_work, rtol=1e-12)
 
 
 @pytest.mark.parametrize("shape,share", [((1, 2), 0.9), ((2, 2), 0.6), ((2, 3), 0.5)])

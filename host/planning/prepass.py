@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from host.planning.partition import partition
-from host.planning.rectangles import bands, splits
+from host.planning.rectangles import bands, splits, spread
 from host.scene.subset import subset
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
@@ -64,14 +64,24 @@ def coarse_pass(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
     return simulate(scenes, coarse, part)
 
 
-def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray):
+def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray, weights=None):
     """The simulated mesh's Outcome on the coarse image with a partition's own cells, map,
-    boxes (grown as they may be, node by node) and holders (`keep`)."""
+    boxes (grown as they may be, node by node) and holders (`keep`); under copies with
+    `weights` (each coarse rectangle's work, `Outcome.tile_work`), tiles dealt by it
+    (`spread`) rather than by count."""
+    coarse, cpart = coarse_partition(scene, spec, part)
+    if weights is not None and cpart.takers:
+        cpart = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))
+    return simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, cpart)
+
+
+def coarse_partition(scene, spec: RenderSpec, part):
+    """(coarse spec, partition) `partition_pass` simulates: the coarse image's rectangles
+    with `part`'s cells, map and boxes."""
     cells = np.array(part.cell_los), np.array(part.cell_his)
     occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
     coarse, cpart, _ = coarse_mesh(scene, spec, None, None, cells, occupancy)
-    cpart = replace(cpart, los=part.los, his=part.his)
-    return simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, cpart)
+    return coarse, replace(cpart, los=part.los, his=part.his)
 
 
 def rays_passed(outcome) -> int:

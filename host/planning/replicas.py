@@ -24,8 +24,9 @@ import numpy as np
 
 from host.planning.budget import budgeted, cell_bytes, holdings, within
 from host.planning.holding import ratio
-from host.planning.prepass import costs, partition_pass, rays_passed
+from host.planning.prepass import coarse_partition, costs, partition_pass, rays_passed
 from host.planning.rectangles import spread
+from meshnode.mesh.adaptive import RectIndex
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -64,9 +65,10 @@ def with_replicas(
             if not within(at.plan, holdings(scene, at, part, keep)):  # choose_copies keeps it
                 raise AssertionError("copies chosen past the memory budget")
             at, forward = _forwarded(scene, at, part, keep, now)
+            weights, dealing = _weighed(scene, at, part, keep)
             return (
                 at,
-                _dealt(part, at),
+                _dealt(part, at, weights),
                 {
                     **report,
                     "chosen": [list(h) for h in holds],
@@ -74,6 +76,7 @@ def with_replicas(
                     f"busiest node carries {now / busiest:.2f} of what it does without",
                     "tried": _tried(tried),
                     "forward": forward,
+                    "dealing": dealing,
                     "prepass_cpu_seconds": time.process_time() - began,
                 },
             )
@@ -158,13 +161,49 @@ def _tried(tried: dict) -> list[dict]:
     ]
 
 
-def _dealt(part: Partition, spec: RenderSpec) -> Partition:
+def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep) -> tuple:
+    """(weights, report): each coarse tile's work as the simulated mesh measured it where
+    the tiles were dealt by count (`Outcome.tile_work`), kept where dealing by it leaves the
+    simulated busiest node lighter (else None: by count)."""
+    if spec.adaptive:
+        return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
+    counted = partition_pass(scene, spec, part, keep)
+    weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
+    weighed = partition_pass(scene, spec, part, keep, weights)
+    now, before = float(costs(weighed).max()), float(costs(counted).max())
+    better = now < before
+    return (_tile_weights(scene, part, spec, weights) if better else None), {
+        "chosen": "work" if better else "count",
+        "simulated_busiest_by_work_vs_count": ratio(now, before),
+        "why": "a cell's tiles dealt over its holders by their simulated work, the busiest "
+        f"node carries {ratio(now, before):.2f} of what it does dealt by count",
+    }
+
+
+def _dealt(part: Partition, spec: RenderSpec, weights=None) -> Partition:
     """The partition with its tiles dealt over every holder of the cell taking their eye
-    rays on (adaptive sampling's rectangles, one a node, stay with their nodes)."""
+    rays on (adaptive sampling's rectangles, one a node, stay with their nodes); by count,
+    or by `weights` (each tile's estimated work, `_weighed`)."""
     if spec.adaptive:
         return part
     takers = list(part.takers or part.owner)
-    return replace(part, takers=tuple(takers), owner=tuple(spread(takers, spec.plan)))
+    return replace(part, takers=tuple(takers), owner=tuple(spread(takers, spec.plan, weights)))
+
+
+def _tile_weights(scene: SceneData, part: Partition, spec: RenderSpec, coarse_weights):
+    """Each of `part`'s tiles' share of the work of the coarse tile under its centre
+    (`prepass.coarse_partition`'s rectangles), shared evenly by the tiles under one."""
+    coarse, cpart = coarse_partition(scene, spec, part)
+    (gw, gh), (cw, ch) = spec.sample_grid, coarse.sample_grid
+    r = np.asarray(part.rects, np.int64).reshape(-1, 4)
+    x = np.minimum(((r[:, 0] + r[:, 1]) / 2 * cw / gw).astype(np.int64), cw - 1)
+    y = np.minimum(((r[:, 2] + r[:, 3]) / 2 * ch / gh).astype(np.int64), ch - 1)
+    under = RectIndex(cpart.rects, cw)(y * cw + x)
+    w = np.asarray(coarse_weights, float)
+    known = under >= 0
+    out = np.full(len(r), w.mean())
+    out[known] = w[under[known]] / np.bincount(under[known], minlength=len(w))[under[known]]
+    return out
 
 
 def _passes(outcome) -> np.ndarray:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from meshnode.mesh.adaptive import RectIndex
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.mesh.driver import Driver
 from meshnode.mesh.engines import EngineCache
@@ -70,6 +71,10 @@ class Outcome:
     nodes: list[NodeRecord]
     rounds: int  # rounds; under clock="work" the turns taken
     makespan: float = 0.0  # clock="work": the last node's clock at the end (work units)
+    # per rectangle of the partition: work units of the primary batches made from it, on
+    # the node that made them (shared by ray count where a batch spans rectangles): what
+    # dealing a rectangle to another holder of its cell moves (`host.planning.replicas`)
+    tile_work: np.ndarray | None = None
 
     def totals(self) -> dict[str, int]:
         out: dict[str, int] = defaultdict(int)
@@ -132,6 +137,10 @@ class _Mesh:
             for c in cores
         ]
         self.nodes = [_Node(self, n) for n in range(torus.size)]
+        part = cores[0].part
+        self.tiles = RectIndex(part.rects, spec.sample_grid[0])
+        self.tile_work = np.zeros(len(part.rects))
+        self.ids_per_cell = spec.ids_per_cell
         self.rng = np.random.default_rng(seed)
         self.delay = delay
         self.transit: list = []  # (arrival round, destination, kind, payload)
@@ -174,7 +183,14 @@ class _Mesh:
             for n in self.rng.permutation(len(self.cores)):
                 self._act(int(n))
         self._finish()
-        return Outcome(self.deposits, self.records, self.round)
+        return Outcome(self.deposits, self.records, self.round, tile_work=self.tile_work)
+
+    def _primary_work(self, rays: np.ndarray, units: int) -> None:
+        """A primary batch's work, shared over the rectangles its rays came from."""
+        tile = self.tiles(rays["pixel"] // self.ids_per_cell)
+        made = np.bincount(tile[tile >= 0], minlength=len(self.tile_work))
+        if made.sum():
+            self.tile_work += units * made / made.sum()
 
     def _send(self, src: int, dst: int, kind: str, payload) -> None:
         late = self.delay[2] if self.delay and (src, dst) == tuple(self.delay[:2]) else 0
@@ -240,6 +256,8 @@ class _Node(Driver):
         before = rec.cost
         rec.cpu += batch.counts.get("cpu_seconds", 0.0)
         add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
+        if step.primary:
+            self.mesh._primary_work(step.rays, rec.cost - before)
         self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done
         self.deliver(batch, step)
         self.sched.batch_done()
@@ -326,7 +344,7 @@ class _TimedMesh(_Mesh):
                 f"simulated mesh: every node waits and nothing is in flight (node states {states})"
             )
         self._finish()
-        return Outcome(self.deposits, self.records, turns, float(self.clock.max()))
+        return Outcome(self.deposits, self.records, turns, float(self.clock.max()), self.tile_work)
 
     def _deliver_one(self) -> None:
         """Hand over the earliest message in flight, waking the node it reaches."""

@@ -103,20 +103,31 @@ def test_plan_ends_with_the_default_whatever_is_restricted():
 def test_goal_sorts_scenes_by_the_default_ratio():
     pov = {
         "scenes": {
-            "balls": {"ratio_default": 2.5},
+            "balls": {"ratio_default": 3.5},
             "gears": {"ratio_default": 1.9},
-            "tetra": {"ratio_default": 2.0},
+            "tetra": {"ratio_default": 3.0},
             "shells": {"ratio_default": 9.0},
+            "mount_s1": {"ratio_default": 1.0},
         }
     }
     g = goal(pov)
-    assert g["met"] == {"balls": 2.5, "tetra": 2.0} and g["missed"] == {"gears": 1.9}
-    assert g["absent"] == ["rings", "teapot", "tree"]
+    assert g["met"] == {"balls": 3.5, "tetra": 3.0, "shells": 9.0}
+    assert g["missed"] == {"gears": 1.9}
+    assert g["absent"] == ["rings", "teapot", "tree", "jacks"]
     assert goal_line(g) == (
-        "goal POV-Ray/default >= 2.0: met on balls 2.50, tetra 2.00; "
-        "not met on gears 1.90; not measured: rings, teapot, tree"
+        "goal POV-Ray/default >= 3.0: met on balls 3.50, tetra 3.00, shells 9.00; "
+        "not met on gears 1.90; not measured: rings, teapot, tree, jacks"
     )
-    assert goal({})["absent"] == ["balls", "tetra", "gears", "rings", "teapot", "tree"]
+    assert goal({})["absent"] == [
+        "balls",
+        "tetra",
+        "gears",
+        "rings",
+        "teapot",
+        "tree",
+        "shells",
+        "jacks",
+    ]
 
 
 POVRAY_OUTPUT = """Parser Time

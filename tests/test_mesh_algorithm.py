@@ -175,6 +175,79 @@ def test_routing_a_batch_in_one_call_is_skipping_then_owners_then_a_stable_sort(
     assert core.engine.routed(rays, core.cells, False)[2] == unrouted  # refused by `route`
 
 
+def slab_owners(rays, los, his):
+    """`owners` by its rule, slab test by slab test in NumPy (each box's span from t_min as
+    `traverse.box_span` computes it): the box holding the point at t_min that the ray
+    crosses farthest, else the next box it enters (t_min moved there), else -1."""
+    o, d = rays["o"], rays["d"]
+    t, t_max = rays["t_min"].copy(), rays["t_max"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(d != 0.0, 1.0 / np.where(d != 0.0, d, 1.0), np.inf)
+    spans = []
+    for lo, hi in zip(los, his, strict=True):
+        t0, t1 = t.copy(), t_max.copy()
+        for a in range(3):
+            flat = np.isinf(r[:, a])
+            out = flat & ((o[:, a] < lo[a]) | (o[:, a] > hi[a]))
+            ta, tb = (lo[a] - o[:, a]) * r[:, a], (hi[a] - o[:, a]) * r[:, a]
+            ta, tb = np.minimum(ta, tb), np.maximum(ta, tb)
+            t0 = np.where(flat, t0, np.maximum(t0, ta))
+            t1 = np.where(flat, t1, np.minimum(t1, tb))
+            t0, t1 = np.where(out, 1.0, t0), np.where(out, 0.0, t1)
+        spans.append((t0, t1))
+    box = np.full(len(t), -1)
+    for i in range(len(t)):
+        best, best_exit, nxt, nxt_box = -1, t[i], np.inf, -1
+        for b, (t0, t1) in enumerate(spans):
+            if t0[i] <= t[i] and t1[i] > best_exit:
+                best, best_exit = b, t1[i]
+            elif t[i] < t0[i] < t1[i] and t0[i] < nxt:
+                nxt, nxt_box = t0[i], b
+        box[i] = best
+        if best < 0 and nxt_box >= 0:
+            box[i], t[i] = nxt_box, nxt
+    return box, t
+
+
+@pytest.mark.parametrize("name", ["tetra.nff", "teapot_s1.nff"])
+def test_a_rays_box_is_the_slab_tests_answer_on_faces_and_off_them(name):
+    # Which cell takes a ray on decides where it is traced: on and near the cells' faces,
+    # outside every cell and at the end of a ray, `owners` answers as its rule says, box
+    # and t_min alike (a NumPy reference, slab by slab).
+    scene = read_nff(spd_scene(name))
+    spec = RenderSpec(
+        ImageSpec(width=32, height=32).sized(scene.view), plan=MeshPlan(3, 3, balance="objects")
+    )
+    part, _ = partition(scene, spec)
+    los, his = (np.asarray(c, float) for c in part.cells)
+    rng = np.random.default_rng(3)
+    n = 6000
+    lo, hi = los.min(axis=0), his.max(axis=0)
+    rays = np.zeros(n, RAY)
+    rays["o"] = rng.uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), (n, 3))
+    d = rng.normal(size=(n, 3))
+    rays["d"] = d / np.linalg.norm(d, axis=1)[:, None]
+    rays["d"][::9, rng.integers(0, 3)] = 0.0  # parallel to a face
+    rays["t_max"] = np.inf
+    rays["t_min"] = rng.uniform(0.0, 0.5 * (hi - lo).max(), n)
+    # a third of them start exactly on a cell's face, some a hair off it
+    face = rng.integers(0, len(los), n)
+    axis = rng.integers(0, 3, n)
+    wall = np.where(rng.random(n) < 0.5, los[face, axis], his[face, axis])
+    dn = rays["d"][np.arange(n), axis]
+    on = (np.arange(n) % 3 == 0) & (dn != 0.0)
+    t_face = (wall - rays["o"][np.arange(n), axis]) / np.where(dn != 0.0, dn, 1.0)
+    on &= t_face > 0
+    rays["t_min"][on] = t_face[on] * (1.0 + rng.choice([0.0, 1e-15, -1e-15, 1e-12], on.sum()))
+    rays["t_max"][::11] = rays["t_min"][::11]  # ends where it starts: taken by none
+    expected_box, expected_t = slab_owners(rays, los, his)
+    got_rays = rays.copy()
+    got = owners(got_rays, los, his)
+    assert np.array_equal(got, expected_box)
+    assert np.array_equal(got_rays["t_min"], expected_t)
+    assert (got >= 0).sum() > n // 4 and on.sum() > n // 8
+
+
 @pytest.mark.parametrize("name", ["teapot_s1.nff", "balls_s2.nff"])
 def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
     # Object space deals the image in tiles, each to the node whose cell most of its eye

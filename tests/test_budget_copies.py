@@ -8,10 +8,11 @@ import pytest
 
 from host.planning.budget import holdings, within
 from host.planning.partition import partition
+from host.planning.placement import sends
 from host.planning.plan import plan_render
 from host.planning.prepass import coarse_pass, costs
 from host.planning.rectangles import spread
-from host.planning.replicas import _holds, _passes, choose_copies, with_replicas
+from host.planning.replicas import _holds, choose_copies, with_replicas
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
 from host.scene.subset import subset
@@ -121,7 +122,7 @@ def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share):
         scene, spec, None, None, (np.array(part.cell_los), np.array(part.cell_his))
     )
     load = costs(outcome)
-    added = choose_copies(scene, spec, part, keep, load, _passes(outcome))
+    added = choose_copies(scene, spec, part, keep, load, sends(outcome))
     assert added, "the budget leaves room for some copy"
     total = keep.shape[1]
 

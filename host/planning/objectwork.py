@@ -13,10 +13,12 @@ import numpy as np
 
 from host.planning.cells import scene_box
 from host.planning.objectcells import WorkGrid, object_cells
-from host.planning.prepass import coarse_pass, coarse_spec, costs, node_costs
+from host.planning.placement import placed, sends
+from host.planning.prepass import coarse_pass, coarse_spec, costs
 from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
+from protocols.topology import Torus
 
 ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
 PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
@@ -25,7 +27,7 @@ GRID = 16  # voxels along each axis of the grid the measured work is spread on
 
 def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=None):
     """(cells, costs, report): cells cut by the objects (`object_cells`), then re-cut
-    `rounds` times on the work the cost pre-pass measured (`node_costs`: the mesh simulated
+    `rounds` times on the work the cost pre-pass measured (`coarse_pass`: the mesh simulated
     on a coarse image), each node's measured work spread over its cell on a grid of where
     the work was thought to lie (`WorkGrid`); the cuts whose simulated busiest node is least
     are kept. `limit`: the objects a node may hold (the budget's), else a little over the
@@ -39,14 +41,16 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     why = f"asked for {rounds}"
     if rounds is None:
         rounds, why = _affordable(spec, one, sum(r.cpu for r in first.nodes))
-    tried = [(float(cost.max()), cells, cost)]
+    tried = [(float(cost.max()), cells, cost, sends(first))]
     grid = WorkGrid(*box, _object_density(scene, box))
     for _ in range(rounds):
         grid = WorkGrid(*box, _measured(grid, cells, cost))
         cells = object_cells(scene, box, plan.rows, plan.cols, grid, limit)
-        cost = node_costs(scene, spec, None, None, cells)
-        tried.append((float(cost.max()), cells, cost))
-    busiest, cells, cost = min(tried, key=lambda t: t[0])
+        outcome = coarse_pass(scene, spec, None, None, cells)
+        cost = costs(outcome)
+        tried.append((float(cost.max()), cells, cost, sends(outcome)))
+    busiest, cells, cost, traffic = min(tried, key=lambda t: t[0])
+    cells, cost, placement = _placed(cells, cost, traffic, plan)
     return (
         cells,
         cost,
@@ -56,6 +60,32 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
             "rounds_reason": why,
             "prepass_cpu_seconds": time.process_time() - began,
             "simulated_busiest_vs_objects_only": busiest / tried[0][0] if tried[0][0] else 1.0,
+            "placement": placement,
+        },
+    )
+
+
+def _placed(cells, cost, traffic, plan):
+    """(cells, costs, report): the cells moved to the nodes `placement.placed` finds, where
+    fewer of the rays they pass each other are relayed."""
+    node, before, after = placed(traffic, Torus(plan.rows, plan.cols))
+    report = {
+        "relayed_share_before": before / max(traffic.sum(), 1.0),
+        "relayed_share_after": after / max(traffic.sum(), 1.0),
+    }
+    if after >= before:
+        return cells, cost, {**report, "why": "no trade of cells between nodes relays fewer"}
+    order = np.argsort(node)  # the cell each node now holds
+    los, his = (np.asarray(c)[order] for c in cells)
+    return (
+        (los, his),
+        np.asarray(cost)[order],
+        {
+            **report,
+            "node_of_cell": node,
+            "why": "the cells that pass each other most rays moved onto linked nodes: of the "
+            f"rays passed in the pre-pass, {after / max(traffic.sum(), 1.0):.0%} relayed "
+            f"instead of {before / max(traffic.sum(), 1.0):.0%}",
         },
     )
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from host.planning.budget import budgeted, cell_bytes, holdings, within
 from host.planning.holding import ratio
+from host.planning.placement import sends
 from host.planning.prepass import coarse_partition, costs, partition_pass, rays_passed
 from host.planning.rectangles import spread
 from meshnode.mesh.adaptive import RectIndex
@@ -48,7 +49,7 @@ def with_replicas(
     began = time.process_time()
     before = partition_pass(scene, spec, part, keep)
     busiest, passed = float(costs(before).max()), rays_passed(before)
-    added = choose_copies(scene, spec, part, keep, costs(before), _passes(before))
+    added = choose_copies(scene, spec, part, keep, costs(before), sends(before))
     report = {"simulated_load": costs(before).tolist(), "simulated_rays_passed": passed}
     if not added:
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
@@ -203,14 +204,4 @@ def _tile_weights(scene: SceneData, part: Partition, spec: RenderSpec, coarse_we
     known = under >= 0
     out = np.full(len(r), w.mean())
     out[known] = w[under[known]] / np.bincount(under[known], minlength=len(w))[under[known]]
-    return out
-
-
-def _passes(outcome) -> np.ndarray:
-    """Rays each simulated node sent each other (next hops), nodes x nodes."""
-    nodes = len(outcome.nodes)
-    out = np.zeros((nodes, nodes))
-    for n, record in enumerate(outcome.nodes):
-        for m, rays in record.sent_to.items():
-            out[n, m] += rays
     return out

@@ -13,6 +13,7 @@ from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
 from meshnode.mesh.termination import Echo, Probe
 from meshnode.mesh.traced import TracedTiles
+from protocols.records import joined
 from protocols.state import State
 
 PASS_RAYS = 16384  # rays leaving for one node are sent once this many wait ...
@@ -110,7 +111,7 @@ class Driver:
         message each."""
         for dest, cell in list(self.leaving) if key is None else [key]:
             parts, _, _ = self.leaving.pop((dest, cell))
-            self.post_rays(dest, parts[0] if len(parts) == 1 else np.concatenate(parts), cell)
+            self.post_rays(dest, joined(parts), cell)
 
     def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
         """Adaptive deposits the node's books send on, each toward its pixel's node."""

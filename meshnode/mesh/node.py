@@ -27,6 +27,7 @@ from meshnode.mesh.spiral import spiral_chunks
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.errors import BadFrame
 from protocols.partition import Partition
+from protocols.records import joined
 from protocols.render import RenderSpec
 from protocols.scene import SceneData, View
 from protocols.state import State
@@ -278,13 +279,7 @@ class NodeCore:
                 into = held if dest == self.node or dest in self.copies else outgoing
                 into.setdefault(dest, []).append(sent)
         counts["cpu_seconds"] = cpu
-        deposits = (
-            deposits[0]
-            if len(deposits) == 1
-            else np.concatenate(deposits)
-            if deposits
-            else np.zeros(0, DEPOSIT)
-        )
+        deposits = joined(deposits) if deposits else np.zeros(0, DEPOSIT)
         routes = self.pixel_routes(deposits)
         counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
         return Batch(routes, _joined(outgoing), dict(counts), _joined(held))
@@ -326,7 +321,7 @@ class NodeCore:
 
 def _joined(parts: dict[int, list]) -> dict[int, np.ndarray]:
     """Each node's list of record arrays as one array."""
-    return {n: g[0] if len(g) == 1 else np.concatenate(g) for n, g in parts.items()}
+    return {n: joined(g) for n, g in parts.items()}
 
 
 def _runs(rays: np.ndarray, starts: np.ndarray, last: int | None = None) -> dict:

@@ -20,6 +20,7 @@ from meshnode.mesh.feeds import ChunkFeed, Primaries
 from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
 from meshnode.mesh.termination import Echo, Probe, Termination
 from protocols.errors import BadFrame
+from protocols.records import joined
 from protocols.state import EVERY_STATE, State
 
 INCOMING_HIGH = 1_000_000  # queued incoming rays at which reading stops (~100 MB)
@@ -158,7 +159,7 @@ class Scheduler:
             self.takers.append(taker)  # the rest after the others' turns
         self.incoming_rays -= n
         self.in_flight += 1
-        return Trace(parts[0] if len(parts) == 1 else np.concatenate(parts), False, taker)
+        return Trace(joined(parts), False, taker)
 
     def batch_done(self) -> None:
         self.in_flight -= 1

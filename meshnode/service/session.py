@@ -36,6 +36,7 @@ from meshnode.service.reports import progress_message, stats_message
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
+from protocols.records import copied, joined
 from protocols.state import State, states_of
 from protocols.topology import Router
 
@@ -235,7 +236,7 @@ class Session(Driver):
     def on_pixels(self, f: dict) -> None:
         check_pixels(f, self.config.torus.size)
         self.sched.message_in()
-        deposits = np.array(f["deposits"])
+        deposits = copied(f["deposits"])
         if f["dest"] != self.node:
             self.post_data(f["dest"], Kind.PIXELS, deposits)
         elif self.core.keeps_pixels:
@@ -276,7 +277,7 @@ class Session(Driver):
         traced whole (dynamic image space), after every deposit of theirs on the same link,
         so the host may keep them if another node is lost."""
         if self.deposits:
-            allp = np.concatenate(self.deposits)
+            allp = joined(self.deposits)
             self.deposits, self.deposits_held = [], 0
             for i in range(0, len(allp), DEPOSIT_BATCH):
                 self.to_host(allp[i : i + DEPOSIT_BATCH])

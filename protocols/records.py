@@ -18,3 +18,9 @@ def joined(parts) -> np.ndarray:
 def copied(records: np.ndarray) -> np.ndarray:
     """A record array's own copy (one a frame's buffer does not keep alive)."""
     return np.ascontiguousarray(records).view(np.uint8).copy().view(records.dtype)
+
+
+def taken(records: np.ndarray, index) -> np.ndarray:
+    """`records[index]` (an index array) copied as bytes."""
+    raw = np.ascontiguousarray(records).view(np.dtype((np.void, records.dtype.itemsize)))
+    return raw[index].view(records.dtype)

@@ -10,7 +10,7 @@ from protocols.errors import BadFrame, FrameTooLarge, ProtocolError, UnknownKind
 from protocols.framing import ALIGN, FrameDecoder, encode
 from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make, parse
-from protocols.records import copied, joined
+from protocols.records import copied, joined, taken
 from protocols.topology import Router, Torus
 
 
@@ -315,3 +315,6 @@ def test_records_joined_and_copied_as_bytes_are_numpys_records(dtype):
     assert not np.shares_memory(got, parts[3]) and joined(parts[1:2]) is parts[1]
     own = copied(parts[4])
     assert own.tobytes() == parts[4].tobytes() and not np.shares_memory(own, parts[3])
+    index = rng.integers(0, 17, 40)
+    assert taken(parts[3], index).tobytes() == parts[3][index].tobytes()
+    assert taken(parts[4], index % 9).tobytes() == parts[4][index % 9].tobytes()

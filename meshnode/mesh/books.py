@@ -21,6 +21,7 @@ from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
 from protocols.dtypes import DEPOSIT
 from protocols.partition import Partition
+from protocols.records import taken
 from protocols.render import RenderSpec
 from protocols.scene import View
 from protocols.state import State
@@ -265,7 +266,7 @@ def _once_per_node(deposits: np.ndarray, idx: np.ndarray, node: np.ndarray) -> d
     """Deposits `idx` by node `node` (pairs), each deposit once per node however many of
     that node's tiles it touches."""
     keep = np.unique(node * len(deposits) + idx)
-    return _group(deposits[keep % len(deposits)], keep // len(deposits))
+    return _group(taken(deposits, keep % len(deposits)), keep // len(deposits))
 
 
 def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:
@@ -274,6 +275,6 @@ def _group(records: np.ndarray, dest: np.ndarray) -> dict[int, np.ndarray]:
         return {}
     order = np.argsort(dest, kind="stable")
     nodes, starts = np.unique(dest[order], return_index=True)
-    groups = np.split(records[order], starts[1:])
+    groups = np.split(taken(records, order), starts[1:])
     pairs = zip(nodes.tolist(), groups, strict=True)
     return {n: np.ascontiguousarray(g) for n, g in pairs}

@@ -6,7 +6,7 @@ import itertools
 import numpy as np
 import pytest
 
-from host.planning.placement import _relayed, _trade_deltas, placed
+from host.planning.placement import MAX_CELLS, _hops, _relayed, _trade_deltas, placed
 from protocols.topology import Torus
 
 
@@ -73,3 +73,21 @@ def test_traffic_only_between_linked_nodes_stays_put():
             traffic[a, b] = 1.0 + a + b
     node, before, after = placed(traffic, torus)
     assert node == list(range(9)) and before == after == 0.0
+
+
+def test_past_max_cells_the_cells_stay_put():
+    # the search costs N^3 a round: past MAX_CELLS nodes planning would grow with the mesh
+    torus = Torus(9, 9)
+    assert torus.size > MAX_CELLS
+    traffic = np.zeros((81, 81))
+    traffic[0, 40] = 5.0
+    node, before, after = placed(traffic, torus)
+    assert node == list(range(81)) and before == after > 0
+
+
+@pytest.mark.parametrize("shape", [(3, 3), (2, 5), (4, 4)])
+def test_hops_are_the_toruss_distances(shape):
+    torus = Torus(*shape)
+    n = torus.size
+    expected = [[torus.distance(a, b) for b in range(n)] for a in range(n)]
+    assert _hops(torus).tolist() == expected

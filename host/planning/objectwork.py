@@ -13,7 +13,7 @@ import numpy as np
 
 from host.planning.cells import scene_box
 from host.planning.objectcells import WorkGrid, object_cells
-from host.planning.placement import placed, sends
+from host.planning.placement import MAX_CELLS, placed, sends
 from host.planning.prepass import coarse_pass, coarse_spec, costs
 from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
@@ -74,7 +74,12 @@ def _placed(cells, cost, traffic, plan):
         "relayed_share_after": after / max(traffic.sum(), 1.0),
     }
     if after >= before:
-        return cells, cost, {**report, "why": "no trade of cells between nodes relays fewer"}
+        why = (
+            f"more than {MAX_CELLS} cells: left where the cuts put them"
+            if plan.nodes > MAX_CELLS
+            else "no trade of cells between nodes relays fewer"
+        )
+        return cells, cost, {**report, "why": why}
     order = np.argsort(node)  # the cell each node now holds
     los, his = (np.asarray(c)[order] for c in cells)
     return (

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from host.planning.partition import partition
-from host.planning.rectangles import bands, splits, spread
+from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
@@ -64,14 +64,10 @@ def coarse_pass(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
     return simulate(scenes, coarse, part)
 
 
-def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray, weights=None):
+def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray):
     """The simulated mesh's Outcome on the coarse image with a partition's own cells, map,
-    boxes (grown as they may be, node by node) and holders (`keep`); under copies with
-    `weights` (each coarse rectangle's work, `Outcome.tile_work`), tiles dealt by it
-    (`spread`) rather than by count."""
+    boxes (grown as they may be, node by node) and holders (`keep`)."""
     coarse, cpart = coarse_partition(scene, spec, part)
-    if weights is not None and cpart.takers:
-        cpart = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))
     return simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, cpart)
 
 

@@ -103,10 +103,7 @@ def spread(takers: list[int], plan, weights=None) -> list[int]:
     w = np.ones(len(takers)) if weights is None else np.asarray(weights, float)
     load = [0.0] * plan.nodes
     owner = [0] * len(takers)
-    order = sorted(
-        range(len(takers)),
-        key=lambda i: (len(near[takers[i]]), 0.0 if weights is None else -w[i]),
-    )
+    order = sorted(range(len(takers)), key=lambda i: (len(near[takers[i]]), -w[i]))
     for i in order:  # once per tile
         t = takers[i]
         owner[i] = min(near[t], key=lambda m: (load[m], m != t))

@@ -27,7 +27,9 @@ from host.planning.holding import ratio
 from host.planning.placement import sends
 from host.planning.prepass import coarse_partition, costs, partition_pass, rays_passed
 from host.planning.rectangles import spread
+from host.scene.subset import subset
 from meshnode.mesh.adaptive import RectIndex
+from meshnode.mesh.simulator import simulate
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -65,8 +67,8 @@ def with_replicas(
         if now < busiest or (now == busiest and rays_passed(after) < passed):
             if not within(at.plan, holdings(scene, at, part, keep)):  # choose_copies keeps it
                 raise AssertionError("copies chosen past the memory budget")
-            at, forward = _forwarded(scene, at, part, keep, now)
-            weights, dealing = _weighed(scene, at, part, keep)
+            at, forward, counted = _forwarded(scene, at, part, keep, after)
+            weights, dealing = _weighed(scene, at, part, keep, counted)
             return (
                 at,
                 _dealt(part, at, weights),
@@ -94,21 +96,27 @@ def with_replicas(
     )
 
 
-def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, busiest: float):
-    """(spec, report): the plan with its copies' rays handed to each cell's nearest holder
-    where the simulated busiest node then carries less than `busiest` (as handed to the
-    owners), else as it was."""
+def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners):
+    """(spec, report, its simulated Outcome): the plan with its copies' rays handed to each
+    cell's nearest holder where the simulated busiest node then carries less than in
+    `owners` (the plan's Outcome, handed to the owners), else as it was."""
     nearest = replace(spec, plan=replace(spec.plan, forward="nearest"))
     if all(nearest.plan.takers(n) == spec.plan.takers(n) for n in range(spec.plan.nodes)):
-        return spec, {"chosen": spec.plan.forward, "why": "every nearest holder is the owner"}
-    now = float(costs(partition_pass(scene, nearest, part, keep)).max())
+        why = "every nearest holder is the owner"
+        return spec, {"chosen": spec.plan.forward, "why": why}, owners
+    handed = partition_pass(scene, nearest, part, keep)
+    now, busiest = float(costs(handed).max()), float(costs(owners).max())
     better = now < busiest
-    return (nearest if better else spec), {
-        "chosen": "nearest" if better else spec.plan.forward,
-        "simulated_busiest_nearest_vs_owner": ratio(now, busiest),
-        "why": "handed to the nearest holder, the simulated busiest node carries "
-        f"{ratio(now, busiest):.2f} of what it does handed to the owner",
-    }
+    return (
+        (nearest if better else spec),
+        {
+            "chosen": "nearest" if better else spec.plan.forward,
+            "simulated_busiest_nearest_vs_owner": ratio(now, busiest),
+            "why": "handed to the nearest holder, the simulated busiest node carries "
+            f"{ratio(now, busiest):.2f} of what it does handed to the owner",
+        },
+        (handed if better else owners),
+    )
 
 
 def choose_copies(
@@ -162,18 +170,20 @@ def _tried(tried: dict) -> list[dict]:
     ]
 
 
-def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep) -> tuple:
-    """(weights, report): each coarse tile's work as the simulated mesh measured it where
-    the tiles were dealt by count (`Outcome.tile_work`), kept where dealing by it leaves the
-    simulated busiest node lighter (else None: by count)."""
+def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted) -> tuple:
+    """(weights, report): each tile's work as the simulated mesh measured it where the
+    tiles were dealt by count (`counted`, its Outcome: `Outcome.tile_work`), kept where
+    dealing by it leaves the simulated busiest node lighter (else None: by count)."""
     if spec.adaptive:
         return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
-    counted = partition_pass(scene, spec, part, keep)
+    coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
-    weighed = partition_pass(scene, spec, part, keep, weights)
+    dealt = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))
+    weighed = simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, dealt)
     now, before = float(costs(weighed).max()), float(costs(counted).max())
     better = now < before
-    return (_tile_weights(scene, part, spec, weights) if better else None), {
+    full = _tile_weights(part, spec, coarse, cpart, weights) if better else None
+    return full, {
         "chosen": "work" if better else "count",
         "simulated_busiest_by_work_vs_count": ratio(now, before),
         "why": "a cell's tiles dealt over its holders by their simulated work, the busiest "
@@ -191,10 +201,9 @@ def _dealt(part: Partition, spec: RenderSpec, weights=None) -> Partition:
     return replace(part, takers=tuple(takers), owner=tuple(spread(takers, spec.plan, weights)))
 
 
-def _tile_weights(scene: SceneData, part: Partition, spec: RenderSpec, coarse_weights):
-    """Each of `part`'s tiles' share of the work of the coarse tile under its centre
-    (`prepass.coarse_partition`'s rectangles), shared evenly by the tiles under one."""
-    coarse, cpart = coarse_partition(scene, spec, part)
+def _tile_weights(part: Partition, spec: RenderSpec, coarse, cpart, coarse_weights):
+    """Each of `part`'s tiles' share of the work of the coarse tile under its centre (of
+    `cpart`, the coarse render `coarse`'s partition), shared evenly by the tiles under one."""
     (gw, gh), (cw, ch) = spec.sample_grid, coarse.sample_grid
     r = np.asarray(part.rects, np.int64).reshape(-1, 4)
     x = np.minimum(((r[:, 0] + r[:, 1]) / 2 * cw / gw).astype(np.int64), cw - 1)

@@ -12,7 +12,7 @@ from host.planning.placement import sends
 from host.planning.plan import plan_render
 from host.planning.prepass import coarse_pass, costs
 from host.planning.rectangles import spread
-from host.planning.replicas import _holds, choose_copies, with_replicas
+from host.planning.replicas import RULES, _holds, choose_copies, with_replicas
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
 from host.scene.subset import subset
@@ -110,10 +110,11 @@ def test_holds_are_checked_as_a_peer_sends_them():
     assert MeshPlan.decode({"holds": [[1], [], [0, 3], []]})["holds"] == ((1,), (), (0, 3), ())
 
 
+@pytest.mark.parametrize("rule", RULES)
 @pytest.mark.parametrize(
     "name,shape,share", [("teapot.nff", (3, 3), 0.25), ("tetra.nff", (2, 2), 0.5)]
 )
-def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share):
+def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share, rule):
     scene = read_nff(spd_scene(name))
     plan = MeshPlan(*shape, balance="objects", max_share=share, overlap=0.0)
     spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
@@ -122,7 +123,8 @@ def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share):
         scene, spec, None, None, (np.array(part.cell_los), np.array(part.cell_his))
     )
     load = costs(outcome)
-    added = choose_copies(scene, spec, part, keep, load, sends(outcome))
+    passes = sends(outcome) if rule == "traffic" else None
+    added = choose_copies(scene, spec, part, keep, load, passes)
     assert added, "the budget leaves room for some copy"
     total = keep.shape[1]
 
@@ -165,7 +167,14 @@ def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():
     assert within(plan, holdings(scene, spec, part, keep))  # as the budget leaves it
     at, dealt, report = with_replicas(scene, spec, part, keep)
     assert report["chosen"] and at.plan.holds, report["why"]
-    assert report["tried"][-1]["simulated_busiest_vs_none"] < 1.0
+    # of every rule's copies and share tried, the lightest simulated mesh is kept
+    tried = report["tried"]
+    assert {t["rule"] for t in tried} == set(RULES)
+    lightest = min(
+        tried, key=lambda t: (t["simulated_busiest_vs_none"], t["simulated_rays_passed"])
+    )
+    assert lightest["simulated_busiest_vs_none"] < 1.0
+    assert report["rule"] == lightest["rule"] and report["chosen"] == lightest["holds"]
     assert within(at.plan, holdings(scene, at, dealt, keep))
     # rays handed to the nearest holders only where the simulated mesh said it lightens
     forward = report["forward"]

@@ -14,7 +14,7 @@ from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.counters import N_COUNTERS, OCC_STEPS, STEPS
-from meshnode.engine.occupancy import distances, first_occupied, occupancy_arrays
+from meshnode.engine.occupancy import OCTANTS, first_occupied, occupancy_arrays, reaches
 from meshnode.engine.traverse import box_span
 from protocols.partition import Partition
 from protocols.render import EVERYWHERE, ImageSpec, MeshPlan, RenderSpec
@@ -25,19 +25,31 @@ from tests.test_mesh_algorithm import SPD_COUNTS
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_distances_are_chebyshev_to_the_nearest_occupied_voxel(seed):
+def test_each_octants_side_is_its_largest_empty_cube(seed):
+    """Brute force: for every voxel and octant, the largest k whose cube of k voxels a side,
+    with the voxel at its corner and reaching the octant's way, holds no occupied voxel
+    (space past the map empty), against `reaches`."""
     rng = np.random.default_rng(seed)
     full = rng.random((5, 7, 9)) < 0.03 * (seed + 1)
     full[0, 0, 0] |= seed == 0  # at least one occupied voxel
-    got = distances(full)
-    at = np.argwhere(full)
-    grid = np.indices(full.shape).reshape(3, -1).T
-    want = np.abs(grid[:, None, :] - at[None, :, :]).max(axis=2).min(axis=1)
-    assert np.array_equal(got.ravel(), np.minimum(want, 255))
+    got = reaches(full)
+    assert got.shape == (OCTANTS, full.size) and got.dtype == np.uint8
+    occupied = np.argwhere(full)  # (z, y, x)
+    nz, ny, nx = full.shape
+    for octant in range(OCTANTS):
+        way = np.array([-1 if octant & 4 else 1, -1 if octant & 2 else 1, -1 if octant & 1 else 1])
+        for z, y, x in np.ndindex(full.shape):
+            # an occupied voxel o lies in the cube of side k iff 0 <= (o - v) * way < k
+            ahead = (occupied - (z, y, x)) * way
+            inside = (ahead >= 0).all(axis=1)
+            want = min(int(ahead[inside].max(axis=1).min()) if inside.any() else 255, 255)
+            assert got[octant, x + nx * (y + ny * z)] == want, (octant, z, y, x)
 
 
 def test_an_empty_map_is_clear_everywhere():
-    assert (distances(np.zeros((4, 4, 4), bool)) == 255).all()
+    assert (reaches(np.zeros((4, 4, 4), bool)) == 255).all()
+    # ... and a full one (one node's) needs no kernel: nothing is skipped
+    assert (occupancy_arrays((0, 0, 0), (1, 1, 1), (1, 1, 1), b"\x80").clear == 0).all()
 
 
 @pytest.mark.parametrize(

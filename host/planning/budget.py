@@ -17,6 +17,7 @@ import numpy as np
 
 from host.planning.holding import engine_bytes
 from host.scene.subset import subset
+from meshnode.engine.occupancy import OCTANTS
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
 
@@ -51,8 +52,8 @@ def holdings(scene: SceneData, spec: RenderSpec, part: "Partition", keep: np.nda
 
 def cell_bytes(scene: SceneData, part: "Partition", keep: np.ndarray, cells=None) -> list[int]:
     """Each cell's engine bytes (of `cells`, default all) as a node holding it counts them:
-    `engine_bytes` of its box's objects and the occupancy map, a byte a voxel."""
-    occ = int(np.prod(part.occ_res))
+    `engine_bytes` of its box's objects and the occupancy map, a byte a voxel and octant."""
+    occ = OCTANTS * int(np.prod(part.occ_res))
     cells = range(len(keep)) if cells is None else cells
     return [engine_bytes(subset(scene, keep[m])) + occ for m in cells]
 

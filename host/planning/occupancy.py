@@ -5,11 +5,22 @@ instead of passing it through every cell ahead (`meshnode.engine.occupancy`).
 
 import numpy as np
 
+from meshnode.engine.occupancy import OCTANTS
 from meshnode.engine.tables import build_tables
 from protocols.partition import MAX_OCC_SIDE
 from protocols.scene import SceneData
 
 OCC_VOXELS = 64**3  # voxels in the occupancy map (32^3 skipped less: teapot 3x3 5.78 vs 5.91)
+MAP_SHARE = 0.25  # of a node's byte budget (`MeshPlan.node_bytes`) its map may take at most
+
+
+def map_voxels(plan) -> int:
+    """Voxels in the plan's occupancy map: OCC_VOXELS, fewer where a byte budget is tight (a
+    node keeps OCTANTS bytes a voxel, `meshnode.engine.occupancy`), so the map takes at most
+    MAP_SHARE of it (64^3 voxels were 2 MB: twice a 1 MB budget)."""
+    if not plan.node_bytes:
+        return OCC_VOXELS
+    return int(max(1, min(OCC_VOXELS, MAP_SHARE * plan.node_bytes // OCTANTS)))
 
 
 def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:

@@ -14,7 +14,7 @@ import numpy as np
 from host.planning.cells import grown, node_cells, scene_box, traced
 from host.planning.clip import holders
 from host.planning.objectcells import object_cells
-from host.planning.occupancy import occupancy_map
+from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.tables import build_tables
@@ -47,7 +47,9 @@ def partition(
     elif cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
-    occ = occupancy_map(scene, box) if plan.nodes > 1 and occupancy else EVERYWHERE
+    occ = (
+        occupancy_map(scene, box, map_voxels(plan)) if plan.nodes > 1 and occupancy else EVERYWHERE
+    )
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
         rects, owner = taker_tiles(scene, spec, cells, rects, box, occupancy_arrays(*box, *occ))

@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from meshnode.engine.counters import OCC_STEPS
+from meshnode.engine.counters import OCC_STEPS, OCC_WALKS
 from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.traverse import _region_exit, box_span
 from protocols.render import EVERYWHERE
@@ -169,6 +169,7 @@ def first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, cl
             found = INF
             break
     counters[OCC_STEPS] += steps
+    counters[OCC_WALKS] += 1
     return found
 
 

@@ -18,14 +18,18 @@ RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 # What each counted event costs, in units of half a hierarchy step: fitted (non-negative
 # least squares, one scale per scene) on each node's kernel CPU in simulated 2x2 and 3x3
 # meshes of six SPD scenes, one process, one thread. Within a scene the CPU per unit spread
-# 13% with tests + steps + segments + 8 per segment sent on; 5.5% with these. A step of the
-# occupancy map costs four of a hierarchy's (a latency-bound chain of arithmetic and a
-# table look-up per step; fitted before its divisions became multiplies, 10-15% less a walk
-# since), a segment five (box spans, the ray's record, the stack), a test about half a step.
+# 13% with tests + steps + segments + 8 per segment sent on; 5.5% with these. A segment costs
+# five hierarchy steps (box spans, the ray's record, the stack), a test about half a step.
+# The occupancy map's walks, since a walk takes the ray's octant (fewer, dearer steps): a
+# walk's start (its first voxel, the octant) about 60 ns, each step 9 ns, where a hierarchy
+# step is about 12 ns (random rays through balls' and rings' maps, one core; an NNLS refit
+# on 156 simulated nodes under a budget gave 14 and 2.8, its spread within a scene 7-22%
+# whatever these two weights: the CPU of nodes that small cannot tell them apart).
 UNIT_WEIGHTS = {
     "intersection_tests": 1,
     "voxel_steps": 2,
-    "occupancy_steps": 8,
+    "occupancy_steps": 2,
+    "occupancy_walks": 10,
     "ray_segments": 10,
     "rays_forwarded": 8,
 }

@@ -7,7 +7,7 @@ import pytest
 
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
-from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS
+from meshnode.engine.bvh import LANES, LEAF_BITS, LEAF_CAP, NODE_COLS, REF_COL
 from meshnode.engine.camera import eye_rays
 from protocols.dtypes import EYE, RAY, SHADOW
 from protocols.render import ImageSpec
@@ -16,8 +16,8 @@ from tests.test_grid import assert_same_hits, random_scene
 
 
 def leaves(engine: Engine) -> list[tuple[int, int]]:
-    """(first local id, count) of every leaf the hierarchy's inner nodes refer to."""
-    refs = engine.bvh_arrays.ref.reshape(-1, ROW_COLS)[:, 12:14].ravel()
+    """(first local id, count) of every leaf the hierarchy's nodes refer to."""
+    refs = engine.bvh_arrays.ref.reshape(-1, NODE_COLS)[:, REF_COL : REF_COL + LANES].ravel()
     packed = ~refs[refs < 0]
     return [(int(p >> LEAF_BITS), int(p & LEAF_CAP)) for p in packed]
 

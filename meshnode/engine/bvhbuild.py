@@ -1,6 +1,6 @@
 """Building the bounding volume hierarchy the engine walks (`bvh`, DESIGN.md 4): binned surface
 area heuristic, top-down and depth-first as pbrt-v4 builds its LinearBVHNode array, then stored
-as `bvh.BvhArrays` rows.
+as `bvh.BvhArrays` 4-wide nodes.
 
 The objects' boxes are copied once into one row each (`_records`) and the rows are partitioned
 in place with their ids, so every pass reads a node's objects in one sequential run. One pass
@@ -12,10 +12,10 @@ the tree stands. On the 1,048,576-triangle tetrahedron this builds in about half
 binning each axis in its own pass over ids, with the same expected tests and visits (the
 surface area heuristic's forecast) there and within 1% on the SPD scenes.
 
-Measured and left out: float32 rows (no faster), binning a sample of 1024 of a large range
-(25% faster on the tetrahedron, but a large object the sample misses, a ground plane, swells
-its side: balls' expected visits 2.6x; kept to ranges of small objects, it saved 18% and
-cost teapot 1.4% more visits).
+Measured and left out: float32 binary rows (no faster, before the 4-wide nodes), binning a
+sample of 1024 of a large range (25% faster on the tetrahedron, but a large object the sample
+misses, a ground plane, swells its side: balls' expected visits 2.6x; kept to ranges of small
+objects, it saved 18% and cost teapot 1.4% more visits).
 """
 
 import math
@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from meshnode.engine.bvh import LEAF_CAP, STACK, BvhArrays, rows_of
+from meshnode.engine.bvh import HI, LEAF_CAP, REF_COL, STACK, BvhArrays, aligned, nodes_of
 from meshnode.engine.jit import inline, kernel
 
 N_BINS = 16
@@ -343,7 +343,9 @@ class Bvh:
         self.order = prims[np.argsort(kind, kind="stable")].astype(np.int64)
         new_id = np.empty(len(prims), np.int64)
         new_id[self.order] = np.arange(len(prims))
-        self.rows = rows_of(box, meta, new_id[prims] if len(prims) else np.zeros(1, np.int64))
+        self.nodes = aligned(
+            nodes_of(box, meta, new_id[prims] if len(prims) else np.zeros(1, np.int64))
+        )
         leaves = meta[:, 2] < 0
         counts = meta[leaves, 1]
         ext = np.maximum(box[:, 3:] - box[:, :3], 0.0)
@@ -351,18 +353,28 @@ class Bvh:
         root = area[0] if len(area) and area[0] > 0.0 else 1.0
         self.stats = {
             # The surface area heuristic's forecast for a ray crossing the whole box: objects
-            # tested and inner nodes visited (nested or long thin objects drive tests up).
+            # tested and 4-wide nodes visited (nested or long thin objects drive tests up).
             "expected_tests": float((area[leaves] * counts).sum() / root),
-            "expected_visits": float(area[~leaves].sum() / root),
-            "inner_nodes": int(len(self.rows)),
+            "expected_visits": float(_node_areas(self.nodes).sum() / root),
+            "inner_nodes": int((~leaves).sum()),  # of the binary tree
+            "nodes": int(len(self.nodes)),  # of the 4-wide tree walked
             "leaves": int(leaves.sum()),
             "objects_per_leaf": float(counts.mean()) if len(counts) else 0.0,
             "max_leaf": int(counts.max()) if len(counts) else 0,
-            "structure_bytes": int(self.rows.nbytes),
+            "structure_bytes": int(self.nodes.nbytes),
             "build_seconds": time.perf_counter() - start,
         }
 
     def arrays(self) -> BvhArrays:
         """The hierarchy as the traversal kernels take it."""
-        flat = self.rows.reshape(-1)  # one index per load, not a row and a column
-        return BvhArrays(flat, flat.view(np.int64))
+        flat = self.nodes.reshape(-1)  # one index per load, not a row and a column
+        return BvhArrays(flat, flat.view(np.int32))
+
+
+def _node_areas(nodes: np.ndarray) -> np.ndarray:
+    """Half the surface area of each 4-wide node's box (its lanes' union; empty lanes are
+    lo inf, hi -inf, so min and max skip them)."""
+    lo = nodes[:, :HI].reshape(-1, 3, 4).min(axis=2).astype(float)
+    hi = nodes[:, HI:REF_COL].reshape(-1, 3, 4).max(axis=2).astype(float)
+    ext = np.maximum(hi - lo, 0.0)
+    return ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]

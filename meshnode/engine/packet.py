@@ -1,5 +1,5 @@
 """Rays walked through the hierarchy (`bvh`) in packets of PACKET neighbours: each visit
-tests both children's boxes for every ray of the packet in one vector loop, and a leaf's
+tests a node's four children's boxes for every ray of the packet, a vector loop a box, and a leaf's
 triangles likewise; the packet goes where any of its rays enters. Each ray gets exactly the
 hit a walk of its own finds (`bvh.bvh_walk`: the same box and object arithmetic, ties to the
 lower gid whatever the order of tests), in less time while neighbouring rays take the same
@@ -11,7 +11,16 @@ import math
 
 import numpy as np
 
-from meshnode.engine.bvh import LEAF_BITS, LEAF_CAP, ROW_COLS, SLACK, reciprocal
+from meshnode.engine.bvh import (
+    HI,
+    LEAF_BITS,
+    LEAF_CAP,
+    NODE_COLS,
+    REF_COL,
+    SLACK,
+    reciprocal,
+    sort4,
+)
 from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.intersect import EDGE_SLACK
@@ -26,17 +35,20 @@ PACKET = 8  # rays `packet_walk` takes through the tree together (one or two vec
 PROBE = 32
 COHERENT = 0.65
 # Rows of a packet's float64 scratch (`packet_walk`): the rays, then what the walk keeps.
-P_O, P_D, P_R, P_LO, P_BOUND, P_BEST, P_A, P_B, P_CUR, P_ROWS = 0, 3, 6, 9, 10, 11, 12, 13, 14, 15
+# P_E .. P_E + 3: each ray's entry into each of a node's four boxes.
+P_O, P_D, P_R, P_LO, P_BOUND, P_BEST, P_A, P_CUR, P_E, P_ROWS = 0, 3, 6, 9, 10, 11, 12, 13, 14, 18
 
 
 @inline
 def _packet_slabs(flat, at, f, row, n):
-    """`bvh._slabs` for each of the packet's n rays (scratch `f`, see `packet_walk`) against the
-    box at flat[at .. at + 5]: entry t or inf into f[row]; returns how many rays enter.
-    The same arithmetic as `bvh._slabs`, ray by ray (the near plane chosen by the direction's
-    sign), written as a loop the compiler turns into vector instructions."""
-    lo0, lo1, lo2 = flat[at], flat[at + 1], flat[at + 2]
-    hi0, hi1, hi2 = flat[at + 3], flat[at + 4], flat[at + 5]
+    """`lanes.slab4` for each of the packet's n rays (scratch `f`, see `packet_walk`) against
+    the box of lane at % 4 of a node (planes flat[at], flat[at + 4], ...): entry t or inf
+    into f[row]; returns how many rays enter. The same arithmetic, ray by ray (the near
+    plane chosen by the direction's sign), written as a loop the compiler turns into vector
+    instructions."""
+    lo0, lo1, lo2 = np.float64(flat[at]), np.float64(flat[at + 4]), np.float64(flat[at + 8])
+    hi0 = np.float64(flat[at + HI])
+    hi1, hi2 = np.float64(flat[at + HI + 4]), np.float64(flat[at + HI + 8])
     hits = 0
     for k in range(n):
         rx, ry, rz = f[P_R, k], f[P_R + 1, k], f[P_R + 2, k]
@@ -105,6 +117,16 @@ def _nearest(f, row, n):
 
 
 @inline
+def _entry(flat, at, f, lane, n):
+    """Lane `lane`'s box (planes from flat[at]) against the packet: each ray's entry into
+    f[P_E + lane], and the nearest of them (inf when no ray enters): the key the packet
+    orders a node's children by."""
+    if _packet_slabs(flat, at, f, P_E + lane, n) == 0:
+        return math.inf
+    return _nearest(f, P_E + lane, n)
+
+
+@inline
 def load_ray(f, origin, k, ox, oy, oz, dx, dy, dz, t_lo, t_hi, org):
     """Ray k of a packet's scratch (`packet_walk`): origin, direction, reciprocals, span, and
     the gid of the surface it leaves."""
@@ -151,12 +173,13 @@ def packet_walk(
     any_hit=False,
 ):
     """First hits of n <= PACKET rays walked through the tree together: each visit tests
-    both children's boxes for every ray in one vector loop (`_packet_slabs`), and the packet
-    goes where any ray enters, nearer child first; a leaf's objects are tested for each ray
-    that enters its box before its own bound. Each ray gets the hit `bvh_walk` finds for it
-    (same box and object arithmetic, ties to the lower gid whatever the order of tests);
-    neighbouring eye rays take much the same path, so a packet makes one walk's decisions
-    for all of them (Wald et al., "Interactive Rendering with Coherent Ray Tracing", 2001).
+    the four children's boxes for every ray, a vector loop a box (`_packet_slabs`), and the
+    packet goes where any ray enters, nearest child first (by its nearest ray's entry); a leaf's
+    objects are tested for each ray that enters its box before its own bound. Each ray gets the
+    hit `bvh_walk` finds for it (same box and object arithmetic, ties to the lower gid whatever
+    the order of tests); neighbouring eye rays take much the same path, so a packet makes one
+    walk's decisions for all of them (Wald et al., "Interactive Rendering with Coherent Ray
+    Tracing", 2001).
 
     f: float64 scratch (P_ROWS, PACKET): rows P_O.. origin, P_D.. direction, P_R..
     `reciprocal`s, P_LO t_lo, P_BOUND t_hi in; P_BEST best t out (t_hi if none); origin,
@@ -182,23 +205,22 @@ def packet_walk(
             visits += n
             for k in range(n):
                 entered += 1 if f[P_CUR, k] < f[P_BOUND, k] else 0
-            at = ref * ROW_COLS
-            hit_a = _packet_slabs(flat, at, f, P_A, n)
-            hit_b = _packet_slabs(flat, at + 6, f, P_B, n)
-            ca = flat_refs[at + 12]
-            cb = flat_refs[at + 13]
-            if hit_a > 0 or hit_b > 0:
-                near, far, row_near, row_far = ca, cb, P_A, P_B
-                if hit_a == 0 or (hit_b > 0 and _nearest(f, P_B, n) < _nearest(f, P_A, n)):
-                    near, far, row_near, row_far = cb, ca, P_B, P_A
-                if hit_a > 0 and hit_b > 0:
-                    for k in range(n):
-                        pstack[top, k] = f[row_far, k]
-                    refs[top] = far
-                    top += 1
+            at = ref * NODE_COLS
+            a0 = _entry(flat, at, f, 0, n)
+            a1 = _entry(flat, at + 1, f, 1, n)
+            a2 = _entry(flat, at + 2, f, 2, n)
+            a3 = _entry(flat, at + 3, f, 3, n)
+            if a0 < math.inf or a1 < math.inf or a2 < math.inf or a3 < math.inf:
+                a0, i0, a1, i1, a2, i2, a3, i3 = sort4(a0, a1, a2, a3)
+                for a, i in ((a3, i3), (a2, i2), (a1, i1)):
+                    if a < math.inf:
+                        for k in range(n):
+                            pstack[top, k] = f[P_E + i, k]
+                        refs[top] = flat_refs[at + REF_COL + i]
+                        top += 1
                 for k in range(n):
-                    f[P_CUR, k] = f[row_near, k]
-                ref = near
+                    f[P_CUR, k] = f[P_E + i0, k]
+                ref = flat_refs[at + REF_COL + i0]
                 continue
         else:
             packed = ~ref

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshnode.engine import kernelcache
-from meshnode.engine.bvh import ROW_COLS
+from meshnode.engine.bvh import empty_nodes
 from meshnode.engine.bvhbuild import Bvh
 from meshnode.engine.grid import Grid, box_only, build_grid
 from meshnode.engine.structure_cost import (
@@ -50,12 +50,10 @@ def stand_in(tables: Tables, box: tuple, structure: str) -> Structure:
     tracing kernels (`meshnode warmup --variant`, beside a first render) and finds no hit."""
     if structure == "grid":
         return Structure(None, box_only(*box), "a stand-in of no objects", None)
-    bvh = Bvh.__new__(Bvh)  # one inner node whose two child boxes are empty (lo > hi)
-    bvh.rows = np.zeros((1, ROW_COLS))
-    bvh.rows[0, [0, 1, 2, 6, 7, 8]] = np.inf
-    bvh.rows[0, [3, 4, 5, 9, 10, 11]] = -np.inf
+    bvh = Bvh.__new__(Bvh)  # one node whose four boxes are empty (lo > hi)
+    bvh.nodes = empty_nodes()
     bvh.order = np.arange(tables.n, dtype=np.int64)
-    bvh.stats = {"structure_bytes": int(bvh.rows.nbytes), "stand_in": True}
+    bvh.stats = {"structure_bytes": int(bvh.nodes.nbytes), "stand_in": True}
     return Structure(bvh, None, "a stand-in of no objects", None)
 
 

@@ -60,8 +60,8 @@ def print_scene(r: dict) -> None:
         ]
     print(table(headers, rows))
     print(
-        f"(steps/ray: voxel steps, or ray-box tests in the hierarchy; default {r['default']}: "
-        f"{r['default_reason']})"
+        "(steps/ray: voxel steps, or node visits in the hierarchy, four boxes each; "
+        f"default {r['default']}: {r['default_reason']})"
     )
     if r["count_error"] is not None:
         print("COUNT MISMATCH: the ray counts differ between configurations (engine bug)")

@@ -162,8 +162,8 @@ def test_degenerate_trees():
 
 
 def test_nodes_hold_every_leaf_once_and_are_aligned():
-    """Collapsing keeps every binary leaf once, each lane's box its binary node's box
-    rounded outward, and the nodes start on a 128-byte boundary."""
+    """Collapsing keeps every binary leaf once in a non-empty lane, makes fewer nodes than
+    2/3 of the leaves, and the nodes start on a 128-byte boundary."""
     rng = np.random.default_rng(6)
     lo = rng.uniform(-1, 1, (700, 3))
     hi = lo + rng.uniform(0, 0.1, (700, 3))
@@ -175,5 +175,6 @@ def test_nodes_hold_every_leaf_once_and_are_aligned():
     assert sorted(inner.tolist()) == list(range(1, len(nodes)))  # each node once
     packed = ~refs[(refs < 0) & (refs != ~0)].astype(np.int64)
     assert (packed & 15).sum() == 700 and len(packed) == (meta[:, 2] < 0).sum()
+    assert 3 * len(nodes) < 2 * len(packed)  # the bound `holding.engine_bytes` counts on
     lanes_lo = nodes[:, :HI].reshape(-1, 3, LANES)
     assert np.isfinite(lanes_lo).any(axis=1).sum() == len(inner) + len(packed)

@@ -16,13 +16,15 @@ FITS = 0.25  # the share of a node's memory its engine may take (image space whe
 # scene's does; `--overlap auto` picks among the overlaps whose largest node's does)
 OVERLAPS = (2.0, 30.0, 60.0, 100.0)  # `--overlap auto`'s candidates, percent
 
-HIERARCHY_BYTES_PER_OBJECT = 128  # a hierarchy has fewer inner nodes than objects, one row each
+# A hierarchy's 128-byte 4-wide nodes: fewer than 2/3 of its leaves (a node has at least two
+# children and only a node of four has inner ones), so fewer than 2/3 of its objects.
+HIERARCHY_BYTES_PER_OBJECT = 86
 ENGINE_FIXED_BYTES = 4096  # an engine's small arrays (boxes, offsets, the map's corners)
 
 
 def engine_bytes(scene: SceneData) -> int:
     """An engine's memory (`Engine.nbytes`) over these objects, before anything is built:
-    the records, the kernels' tables built from them, and a hierarchy's rows at most (a
+    the records, the kernels' tables built from them, and a hierarchy's nodes at most (a
     node under a byte budget builds the hierarchy: `MeshPlan.node_bytes`)."""
     tables = build_tables(scene)
     own = sum(a.nbytes for a in vars(tables).values() if isinstance(a, np.ndarray))

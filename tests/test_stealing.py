@@ -208,10 +208,8 @@ def test_adaptive_sampling_steals_both_passes_and_gives_the_single_node_image(mo
     rays first as they come, so nodes fall behind and steal at this size: see above; chunks
     start CHUNK_RAYS rays' worth at a time, and a small budget leaves some to steal). On the
     work clock, where a node's dear batches hold it back: with one batch a node a turn and
-    every node starting TRACE within a wave's few hops, nobody ran out early in pass 1 (and
-    with chunks of 64 rays nobody did either once the work units weighed the map's walks and
-    the 4-wide hierarchy's visits: 32 leave pass 1 chunks to steal)."""
-    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 32)
+    every node starting TRACE within a wave's few hops, nobody ran out early in pass 1."""
+    monkeypatch.setattr("meshnode.mesh.books.CHUNK_RAYS", 64)
     scene, image, setup, spec = adaptive_setup(30, 24)
     ref, st = render(Request(scene, image, EngineSpec(threads=1), setup))
     given = {"TRACE": 0, "REFINE": 0}

@@ -15,25 +15,24 @@ import numpy as np
 from protocols.dtypes import LINK_TRAFFIC
 
 RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
-# What each counted event costs, in units of about 6 ns of one core (half a binary hierarchy
-# step): fitted (non-negative least squares, one scale per scene) on each node's kernel CPU
-# in simulated 2x2 and 3x3 meshes of six SPD scenes, one process, one thread. Within a scene
-# the CPU per unit spread 13% with tests + steps + segments + 8 per segment sent on; 5.5%
-# with these. A segment costs five binary hierarchy steps (box spans, the ray's record, the
-# stack), a test about half a step. The hierarchy is 4-wide since: a visit tests four boxes
-# and costs about 1.9 binary ones (tetra 74 ns a ray in 2.9 visits against 76 in 5.7, the
-# million-triangle tetrahedron 264 in 7.6 against 334 in 17.3), so "voxel_steps" weighs 4
-# (the grid's steps share the counter; every SPD scene takes the hierarchy). The occupancy
-# map's walks, since a walk takes the ray's octant (fewer, dearer steps): a walk's start
-# (its first voxel, the octant) about 60 ns, each step 9 ns (random rays through balls' and
-# rings' maps, one core; an NNLS refit on 156 simulated nodes under a budget gave 14 and 2.8
-# units, its spread within a scene 7-22% whatever these two weights: the CPU of nodes that
-# small cannot tell them apart).
+# What each counted event costs, in units of half a (binary) hierarchy step: fitted
+# (non-negative least squares, one scale per scene) on each node's kernel CPU in simulated 2x2
+# and 3x3 meshes of six SPD scenes, one process, one thread. Within a scene the CPU per unit
+# spread 13% with tests + steps + segments + 8 per segment sent on; 5.5% with these. A step
+# of the occupancy map costs four of a hierarchy's (a latency-bound chain of arithmetic and a
+# table look-up per step; fitted before its divisions became multiplies, 10-15% less a walk
+# since), a segment five (box spans, the ray's record, the stack), a test about half a step.
+# Kept although the kernels changed since (a 4-wide hierarchy visit costs about 1.9 binary
+# ones; a map walk about 60 ns to start and 9 ns a step since it takes the ray's octant):
+# refitted to those (visit 4, walk 10, step 2), the pre-pass planned worse meshes, measured
+# 3x3 under a quarter share in turns: teapot 2.13 against 3.42 and 3.29, balls 1.84 against
+# 1.98 and 1.92, rings 2.83 against 2.69 and 2.66 (frame CPU speedup). Work units count only
+# the kernels; a heavy map step also charges the passes whose routing and sending the
+# kernels' units leave out. `occupancy_walks` is counted, not weighed.
 UNIT_WEIGHTS = {
     "intersection_tests": 1,
-    "voxel_steps": 4,
-    "occupancy_steps": 2,
-    "occupancy_walks": 10,
+    "voxel_steps": 2,
+    "occupancy_steps": 8,
     "ray_segments": 10,
     "rays_forwarded": 8,
 }

@@ -78,13 +78,14 @@ def warmup(
 
 def _common_warmup() -> None:
     """The kernels every variant shares: pinhole eye rays, ray routing between boxes, the
+    occupancy map's per-octant table (a mesh node's; one node's full map needs none), the
     check of a neighbour's rays, deposits, and the camera rays (elements, sampling, records)
     on a one-pixel batch."""
     from meshnode.engine.camera import eye_rays
     from meshnode.engine.counters import N_COUNTERS
     from meshnode.engine.deposits import cell_sums, lit
     from meshnode.engine.lenscamera import camera_rays
-    from meshnode.engine.occupancy import everywhere, skip_empty
+    from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
     from meshnode.engine.trace import owners, routed
     from protocols.camera import CameraSpec
@@ -94,6 +95,7 @@ def _common_warmup() -> None:
     rays = eye_rays(view, ImageSpec(width=1, height=1))
     box = (np.zeros(3), np.ones(3))
     owners(rays, box[0][None], box[1][None])
+    occupancy_arrays(*box, (2, 1, 1), bytes([0x80]))  # a node's map: one voxel of two empty
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
     routed(rays, True, 0, *box, occ, box[0][None], box[1][None])  # a node's batches

@@ -207,6 +207,17 @@ def _lane_of(mask):
     return 0 if mask == 1 else (1 if mask == 2 else (2 if mask == 4 else 3))
 
 
+@inline
+def _pend(stack, top, ref, bit):
+    """Child ref pending on an any-hit walk's stack when bit is 1 (written either way: no
+    branch); the new top. Its entry is stored as -inf: an any-hit walk ends at its first
+    hit, so its bound never falls below an entered child's entry, and the entry, a read of
+    the vector slab4 stored, is never needed."""
+    stack[2 * top] = ref
+    stack[2 * top + 1] = -math.inf
+    return top + bit
+
+
 @leaf
 def bvh_walk(
     ox,
@@ -238,7 +249,10 @@ def bvh_walk(
     scratch of 2 * STACK, one per thread: the four boxes' entries in its first LANES, then
     the pending (reference, entry t) pairs. All four boxes of a node are tested at once;
     the nearest entered is visited next, the others kept on the stack nearer on top, each
-    dropped when popped if a hit nearer than its entry was found meanwhile."""
+    dropped when popped if a hit nearer than its entry was found meanwhile. An any-hit walk
+    (a shadow ray, nine in ten of which find nothing and visit every box they enter in any
+    order) goes to the lowest entered lane, unsorted (`bench.spd`: rings 0.541 -> 0.488 s,
+    gears 0.622 -> 0.592, balls 0.207 -> 0.201; teapot, tetra, tree within the noise)."""
     t = hinted(
         hint,
         ox,
@@ -286,6 +300,14 @@ def bvh_walk(
             refs_at = at + uint64(REF_COL)
             if mask != 0 and mask & (mask - 1) == 0:  # one box entered: no ordering
                 ref = flat_refs[refs_at + uint64(_lane_of(mask))]
+                continue
+            if mask != 0 and any_hit:  # any blocker ends the walk: no order, lowest lane first
+                low = mask & -mask
+                rest = mask ^ low
+                top = _pend(stack, top, flat_refs[refs_at + uint64(3)], rest >> 3)
+                top = _pend(stack, top, flat_refs[refs_at + uint64(2)], (rest >> 2) & 1)
+                top = _pend(stack, top, flat_refs[refs_at + uint64(1)], (rest >> 1) & 1)
+                ref = flat_refs[refs_at + uint64(_lane_of(low))]
                 continue
             if mask != 0:
                 a0, i0, a1, i1, a2, i2, a3, i3 = sort4(stack[0], stack[1], stack[2], stack[3])

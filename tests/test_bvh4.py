@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from meshnode.engine import Engine
-from meshnode.engine.bvh import HI, LANES, NODE_COLS, REF_COL, SLACK, aligned, nodes_of
+from meshnode.engine.bvh import HI, LANES, NODE_COLS, REF_COL, aligned, nodes_of
 from meshnode.engine.bvhbuild import build_tree
-from meshnode.engine.lanes import slab4
+from meshnode.engine.lanes import SLACK, slab4
 from tests.conftest import make_scene
 from tests.test_grid import random_scene
 

@@ -26,7 +26,7 @@ from numba import uint64
 
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.jit import inline, kernel, leaf
-from meshnode.engine.lanes import LANES, SLACK, slab4
+from meshnode.engine.lanes import LANES, slab4
 from meshnode.engine.traverse import TIE, better, hinted, test_object
 
 LEAF_BITS = 4  # a leaf reference packs its first id and its count (< 16) in one int32
@@ -40,7 +40,6 @@ NODE_COLS = 32  # float32 columns of a node: 24 box planes, 4 references, 4 unus
 HI = 12  # column of a node's first upper plane (lo x, lo y, lo z, hi x, ... four lanes each)
 REF_COL = 24  # first reference column, read through the int32 view
 ALIGN = 128  # bytes: a node is two whole cache lines
-__all__ = ["SLACK"]
 
 
 class BvhArrays(NamedTuple):
@@ -110,7 +109,7 @@ def nodes_of(box, meta, first_id):
                 count += 1
             else:
                 refs[q, REF_COL + j] = ~((first_id[meta[c, 0]] << LEAF_BITS) | meta[c, 1])
-    return nodes[:count].copy()
+    return nodes[:count]  # a view: the caller copies it into aligned memory (`aligned`)
 
 
 @kernel

@@ -17,7 +17,6 @@ from meshnode.engine.bvh import (
     LEAF_CAP,
     NODE_COLS,
     REF_COL,
-    SLACK,
     reciprocal,
     sort4,
 )
@@ -25,6 +24,7 @@ from meshnode.engine.bvh import STACK as BVH_STACK
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.intersect import EDGE_SLACK
 from meshnode.engine.jit import inline, kernel, leaf
+from meshnode.engine.lanes import SLACK
 from meshnode.engine.traverse import TIE, better, test_object
 
 PACKET = 8  # rays `packet_walk` takes through the tree together (one or two vector registers)

@@ -196,9 +196,10 @@ def work_start(
 ):
     """(t_min moved on to the first occupied voxel the ray meets inside the scene's box, or
     t_min itself where it misses the box or meets none; where it crosses the box through
-    empty voxels only, a t just past its exit from the box, else -inf). rx, ry, rz: 1 /
-    direction (inf for 0). A segment resumed past the box is one a node's kernel ends at
-    once (escaped, or its light reached), where it would walk the box to end it."""
+    empty voxels only, a t just past its exit from the box, inf where it misses the box,
+    else -inf). rx, ry, rz: 1 / direction (inf for 0). A segment resumed past the box, or
+    missing it, is one a node's kernel ends at once (escaped, or its light reached), where
+    it would walk the box to end it."""
     s0, s1 = box_span(
         ox,
         oy,
@@ -216,7 +217,7 @@ def work_start(
         scene_hi[2],
     )
     if s0 > s1:
-        return t_min, -INF
+        return t_min, INF
     t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear, counters)
     if t == INF:
         return t_min, s1 + abs(s1) * 1e-9 + 1e-300

@@ -28,7 +28,13 @@ RAY_KINDS = ("eye_rays", "reflected_rays", "refracted_rays", "shadow_rays")
 # 3x3 under a quarter share in turns: teapot 2.13 against 3.42 and 3.29, balls 1.84 against
 # 1.98 and 1.92, rings 2.83 against 2.69 and 2.66 (frame CPU speedup). Work units count only
 # the kernels; a heavy map step also charges the passes whose routing and sending the
-# kernels' units leave out. `occupancy_walks` is counted, not weighed.
+# kernels' units leave out. `occupancy_walks` is counted, not weighed. Charging the passes
+# and the eye rays' routing at what they cost a node's process (fitted on 36 nodes' frame CPU
+# less kernel CPU: 23 units a ray sent, 16 received, 23 an eye ray routed) planned worse
+# too, measured 3x3 under a quarter share in turns (frame CPU speedup, one run each): teapot
+# 2.87 against 4.12, balls 1.99 against 2.28 (fewer passes, 0.32 against 0.45, but kernels
+# 2.79 against 3.98), tetra 2.75 against 2.94: the coarse pre-pass's passes do not scale
+# as the render's do.
 UNIT_WEIGHTS = {
     "intersection_tests": 1,
     "voxel_steps": 2,

@@ -19,7 +19,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS, RAY_COUNTS
 from meshnode.engine.occupancy import occupancy_arrays, skip_empty
-from meshnode.engine.trace import owners
+from meshnode.engine.routing import cell_locator, owners
 from meshnode.mesh.node import NodeCore, lit_deposits, per_cell
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
@@ -508,10 +508,12 @@ def test_deposits_summed_per_cell_give_the_same_frame_to_the_bit(spp, raw, batch
     assert np.array_equal(every.sums, summed.sums)
 
 
-@pytest.mark.parametrize("shape", [(2, 2), (3, 3), (2, 3)])
+@pytest.mark.parametrize("shape", [(2, 2), (3, 3), (2, 3), (4, 4)])
 def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
-    """`routed` without the map (a batch's passed rays) gives each ray the cell and t_min
-    `owners` gives, for rays from inside, outside and on the cells' faces, some with zero
+    """`routed` without the map (a batch's passed rays), which looks first only at the
+    cells its arrangement lists near each ray's point, gives each ray the cell and t_min
+    `owners` gives from every cell, for rays from inside, outside and on the cells' faces,
+    edges and corners (some reaching them at t_min, with its round-off), some with zero
     direction components; rays no cell takes are counted."""
     scene = read_nff(spd_scene("balls_s2.nff"))
     spec = RenderSpec(ImageSpec(width=40, height=30), plan=MeshPlan(*shape, 24))
@@ -527,10 +529,19 @@ def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
     on = rng.random(n) < 0.3
     axis = rng.integers(3, size=n)
     rays["o"][on, axis[on]] = faces[rng.integers(len(faces), size=on.sum()), axis[on]]
+    corner = rng.random(n) < 0.1  # on an edge or a corner of a cell: two or three axes
+    for a in range(3):
+        at = corner & (rng.random(n) < 0.7)
+        rays["o"][at, a] = faces[rng.integers(len(faces), size=at.sum()), a]
     d = rng.normal(size=(n, 3))
     d[rng.random((n, 3)) < 0.15] = 0.0
     d[(d == 0).all(axis=1), 2] = 1.0
     rays["d"] = d / np.linalg.norm(d, axis=1, keepdims=True)
+    # half start back along their way: the point at t_min lands on those faces with the
+    # round-off of o + t d, as a passed segment's does
+    back = rng.random(n) < 0.5
+    rays["t_min"][back] = rng.random(back.sum()) * (hi - lo).max()
+    rays["o"][back] -= rays["t_min"][back, None] * rays["d"][back]
     rays["t_max"] = np.inf
     rays["pixel"] = np.arange(n)
     expected = rays.copy()
@@ -541,6 +552,8 @@ def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
     assert lost == (dest < 0).sum() and 0 < lost < 0.7 * n
     assert np.array_equal(taker[dest >= 0], dest[dest >= 0])
     assert out[order].tobytes() == expected.tobytes()
+    loc = cell_locator(los, his)  # most points look at one or two cells, not every one
+    assert np.diff(loc.first).mean() < 1.5 and loc.n.all()
 
 
 def test_a_batch_deposits_the_colour_of_every_ray_that_brought_any():

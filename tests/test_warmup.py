@@ -78,7 +78,7 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import kernels_compiled
 from meshnode.engine.raycheck import first_untraceable
-from meshnode.engine.trace import owners
+from meshnode.engine.routing import owners
 from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec
 

@@ -21,11 +21,12 @@ from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
+from meshnode.engine.routing import cell_locator, routed
 from meshnode.engine.structure import build_structure, foreseen
 from meshnode.engine.structure import stand_in as stand_in_structure
 from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays
 from meshnode.engine.tables import MAT_TRANSMIT, Shading, build_tables
-from meshnode.engine.trace import routed, trace_batch
+from meshnode.engine.trace import trace_batch
 from meshnode.engine.variants import KERNELS, variant_of
 from protocols.dtypes import RAY
 from protocols.render import SPD_DEPTH, EngineSpec
@@ -316,8 +317,9 @@ class Engine:
     def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1):
         """(rays regrouped by the cell that takes each on, runs' starts, rays no cell takes)
         for `cells` = (los, his), with `skip` from where each ray's work starts on the
-        scene's occupancy map (`meshnode.engine.trace.routed`); `rays` stay as they were."""
-        return routed(rays, skip, fallback, self.scene_lo, self.scene_hi, self.occupancy, *cells)
+        scene's occupancy map (`meshnode.engine.routing.routed`); `rays` stay as they were."""
+        los, his, box = *cells, (self.scene_lo, self.scene_hi)
+        return routed(rays, skip, fallback, *box, self.occupancy, los, his, cell_locator(los, his))
 
     def first_hits(self, origins, directions, t_min: float = 0.0):
         """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).

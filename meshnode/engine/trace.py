@@ -7,8 +7,9 @@ reached) and reflected / refracted rays carrying `weight * Ks` and `weight * T`.
 
 Over the 400 lines a module may have, on purpose: numba inlines only what one compilation unit
 sees, and each kernel here is compiled once per variant (minutes on a cold cache), so the
-driver, the segment walk and the routing stay together where their shared helpers inline
-instead of being called across modules on every ray segment.
+driver and the segment walk stay together where their shared helpers inline instead of being
+called across modules on every ray segment. Routing rays to the node that takes them on is a
+kernel of its own (`meshnode.engine.routing`).
 """
 
 import math
@@ -23,7 +24,6 @@ from meshnode.engine.counters import (
     FORWARDED,
     HITS,
     INTERNAL,
-    N_COUNTERS,
     REFLECTED_RAYS,
     REFRACTED_RAYS,
     SEGMENTS,
@@ -32,7 +32,7 @@ from meshnode.engine.counters import (
     SHADOW_RAYS,
 )
 from meshnode.engine.jit import inline, kernel
-from meshnode.engine.occupancy import first_occupied, work_start
+from meshnode.engine.occupancy import first_occupied
 from meshnode.engine.packet import (
     P_BEST,
     P_R,
@@ -44,7 +44,7 @@ from meshnode.engine.packet import (
 )
 from meshnode.engine.shade import normals, phong, refract
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
-from meshnode.engine.traverse import box_span, brute_force, two_spans, walk
+from meshnode.engine.traverse import brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 
@@ -649,134 +649,3 @@ def trace_batch(
         out_rgb[i, 1] += cg
         out_rgb[i, 2] += cb
     return buf, n_out
-
-
-@inline
-def _owner(ox, oy, oz, irx, iry, irz, t, t_max, los, his):
-    """(box, t) of one ray for `owners`: the box that takes it on from t, and t, moved to
-    that box's entry where the ray is in none at t."""
-    best, best_exit = -1, t
-    next_entry, next_box = math.inf, -1
-    for b in range(los.shape[0]):
-        b0, b1 = box_span(
-            ox,
-            oy,
-            oz,
-            irx,
-            iry,
-            irz,
-            t,
-            t_max,
-            los[b, 0],
-            los[b, 1],
-            los[b, 2],
-            his[b, 0],
-            his[b, 1],
-            his[b, 2],
-        )
-        if b0 <= t and b1 > best_exit:
-            best_exit = b1
-            best = b
-        elif t < b0 < b1 and b0 < next_entry:
-            next_entry = b0
-            next_box = b
-    if best < 0 and next_box >= 0:
-        return next_box, next_entry
-    return best, t
-
-
-@kernel
-def owners(rays, los, his):
-    """Index of the box that takes each ray on from its t_min: it must hold the point at t_min
-    and let the ray advance (exit beyond t_min); among those the one the ray crosses farthest,
-    so overlapping boxes mean fewer hops. Where round-off leaves the point just outside every
-    box, the ray goes to the box it enters next and its t_min moves to that entry (the sliver
-    between holds no object). -1 where no box lies ahead at all."""
-    n = rays.shape[0]
-    out = np.full(n, -1, np.int64)
-    for i in range(n):
-        r = rays[i]
-        irx = 1.0 / r.d[0] if r.d[0] != 0.0 else math.inf
-        iry = 1.0 / r.d[1] if r.d[1] != 0.0 else math.inf
-        irz = 1.0 / r.d[2] if r.d[2] != 0.0 else math.inf
-        out[i], r.t_min = _owner(r.o[0], r.o[1], r.o[2], irx, iry, irz, r.t_min, r.t_max, los, his)
-    return out
-
-
-@kernel
-def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his):
-    """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
-    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; a ray
-    with only empty voxels ahead resumes past the scene's box), as (a new array, the runs'
-    starts): box b's run is out[starts[b]:starts[b + 1]], in the order the rays came. A ray
-    no box takes, with only empty voxels ahead or missing the scene's box (with `skip`),
-    joins box `fallback`'s run; with fallback
-    -1 the first is counted (the third value) for the caller to refuse and the second goes
-    to the box it enters. `rays` is left as it was.
-
-    One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort
-    and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
-    occ_lo, occ_cell, occ_res, occ_clear = occ
-    n, boxes = rays.shape[0], los.shape[0]
-    dest = np.empty(n, np.int64)
-    t_min = np.empty(n)
-    starts = np.zeros(boxes + 1, np.int64)
-    counters = np.zeros(N_COUNTERS, np.int64)  # occupancy steps here are not a trace's
-    lost = 0
-    for i in range(n):
-        r = rays[i]
-        ox, oy, oz = r.o[0], r.o[1], r.o[2]
-        dx, dy, dz = r.d[0], r.d[1], r.d[2]
-        irx = 1.0 / dx if dx != 0.0 else math.inf
-        iry = 1.0 / dy if dy != 0.0 else math.inf
-        irz = 1.0 / dz if dz != 0.0 else math.inf
-        t, past = r.t_min, -math.inf
-        if skip:
-            t, past = work_start(
-                ox,
-                oy,
-                oz,
-                dx,
-                dy,
-                dz,
-                irx,
-                iry,
-                irz,
-                t,
-                r.t_max,
-                scene_lo,
-                scene_hi,
-                occ_lo,
-                occ_cell,
-                occ_res,
-                occ_clear,
-                counters,
-            )
-        if past > -math.inf and fallback >= 0:
-            # Only empty voxels ahead, or it misses the scene's box: any node's kernel ends
-            # it at once (tetra: 30% and 40% of its eye rays), so the fallback's (the node
-            # routing it) does, with no box looked up (9 spans on 3x3: 40% of the routing):
-            # handed to the cell it enters, every such ray was a pass to end a ray.
-            b = fallback
-            if past < math.inf:
-                t = past  # resumes past the scene's box
-        else:
-            b, t = _owner(ox, oy, oz, irx, iry, irz, t, r.t_max, los, his)
-            if -math.inf < past < math.inf:
-                t = past
-        if b < 0:
-            lost += 1
-            b = max(fallback, 0)
-        dest[i] = b
-        t_min[i] = t
-        starts[b + 1] += 1
-    for b in range(boxes):
-        starts[b + 1] += starts[b]
-    at = starts[:-1].copy()
-    out = np.empty(n, rays.dtype)
-    for i in range(n):
-        k = at[dest[i]]
-        at[dest[i]] += 1
-        out[k] = rays[i]
-        out[k].t_min = t_min[i]
-    return out, starts, lost

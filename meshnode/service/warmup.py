@@ -87,7 +87,7 @@ def _common_warmup() -> None:
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
-    from meshnode.engine.trace import owners, routed
+    from meshnode.engine.routing import cell_locator, owners, routed
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
 
@@ -98,7 +98,8 @@ def _common_warmup() -> None:
     occupancy_arrays(*box, (2, 1, 1), bytes([0x80]))  # a node's map: one voxel of two empty
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
-    routed(rays, True, 0, *box, occ, box[0][None], box[1][None])  # a node's batches
+    cells = box[0][None], box[1][None]
+    routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells))  # a node's batches
     first_untraceable(rays)  # a neighbour's RAYS
     deposits = np.zeros(2, dtypes.DEPOSIT)
     cell_sums(deposits, 1, deposits.copy())

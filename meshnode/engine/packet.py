@@ -34,8 +34,8 @@ from meshnode.engine.traverse import TIE, better, test_object
 
 # Packets pay while neighbouring rays take the same path: a batch walks its first PROBE
 # packets, then goes on in packets only if at least COHERENT of the rays tested at each node
-# had entered it (tetra: 0.81; a million-triangle tetrahedron, 0.52, is 1.2x slower in
-# packets, so its rays walk alone).
+# had entered it (tetra: 0.81; a million-triangle tetrahedron, 0.52, was 1.2x slower in
+# packets of scalar loops and is no faster in vector ones (`rows`), so its rays walk alone).
 PROBE = 32
 COHERENT = 0.65
 # Rows of a packet's float64 scratch (`packet_walk`): the rays, then what the walk keeps.

@@ -17,12 +17,14 @@ from meshnode.engine.counters import N_COUNTERS, SEGMENTS
 from meshnode.engine.jit import kernel
 from meshnode.engine.packet import (
     P_BEST,
+    P_D,
     PACKET,
     keep_packets,
     load_ray,
     packet_scratch,
     packet_walk,
 )
+from meshnode.engine.rows import unit_directions
 from meshnode.engine.traverse import brute_force, walk
 
 
@@ -118,17 +120,13 @@ def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, gri
             abs(ox) < math.inf and abs(oy) < math.inf and abs(oz) < math.inf
         ):
             return t_out, g_out, i
-        s = 1.0 / big
-        k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
-        dx *= k
-        dy *= k
-        dz *= k
         counters[SEGMENTS] += 1
         if bvh is not None and packets:
             load_ray(f, origin, m, ox, oy, oz, dx, dy, dz, t_lo, t_hi[i], leaving[i])
             idx[m] = i
             m += 1
             if m == PACKET or i == n - 1:
+                unit_directions(f, P_D)  # as below, for the whole packet at once
                 e, v = packet_walk(
                     f,
                     origin,
@@ -159,6 +157,11 @@ def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, gri
                 tested += v
                 packets = keep_packets(walked, entered, tested)
             continue
+        s = 1.0 / big
+        k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)
+        dx *= k
+        dy *= k
+        dz *= k
         # Each walk under `is not None` of its own structure: numba prunes a branch on an
         # argument passed None, and types every other (the grid's walk of None fails)
         if bvh is not None:

@@ -7,7 +7,7 @@ import pytest
 
 from meshnode.engine import Engine
 from meshnode.engine.intersect import hit_polygon
-from meshnode.engine.tables import build_tables
+from meshnode.engine.tables import POLY_IN2, POLY_OUT2, build_tables
 from tests.conftest import make_scene
 
 GLASS = ((1.0, 1.0, 1.0), 0.0, 0.1, 10.0, 0.9, 1.5)
@@ -117,6 +117,60 @@ def test_banded_crossing_test_agrees_with_every_edge_on_random_polygons():
             banded = hit_polygon(tb.polygons, info, tb.poly_uv, tb.poly_bands, *args)
             every = hit_polygon(tb.polygons, plain, tb.poly_uv, tb.poly_bands, *args)
             assert banded == every or (np.isinf(banded) and np.isinf(every)), (i, qx, qy)
+
+
+def test_polygon_discs_answer_as_the_crossing_test():
+    """A polygon's inner disc (a hit) and outer disc (a miss beyond it) decide exactly what the
+    crossing test decides, on random points and on points just inside and outside either
+    circle: gear faces, stars, C shapes (centre outside: no inner disc), quads, a tiny and a
+    far-off polygon, and self-crossing random walks."""
+    rng = np.random.default_rng(11)
+    ang = np.linspace(0, 2 * np.pi, 145)[:-1]
+    gear = np.where((np.arange(144) // 2) % 2 == 0, 1.0, 0.9)
+    shapes = [np.column_stack([gear * np.cos(ang), gear * np.sin(ang)])]
+    c_ang = np.linspace(0.3, 2 * np.pi - 0.3, 40)
+    shapes.append(
+        np.vstack(
+            [
+                np.column_stack([np.cos(c_ang), np.sin(c_ang)]),
+                0.5 * np.column_stack([np.cos(c_ang[::-1]), np.sin(c_ang[::-1])]),
+            ]
+        )
+    )
+    shapes.append(np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 0.1], [0.0, 0.1]]))  # a strip
+    shapes.append(np.array([[0.0, 0.0], [1.0, 0.0], [0.2, 0.2], [0.0, 1.0]]))  # a dart
+    shapes.append(np.array([[0.0, 0.0], [3.0, 1.0], [3.0, 0.0], [0.0, 2.0]]))  # a bowtie
+    shapes.append(1e-6 * np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+    shapes.append(1e6 + np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+    for k in range(12):
+        n = int(rng.integers(5, 200))
+        a = np.sort(rng.uniform(0, 2 * np.pi, n))
+        if k % 2:
+            r = rng.uniform(0.3, 1.0, n)
+            shapes.append(np.column_stack([r * np.cos(a), r * np.sin(a)]))
+        else:
+            shapes.append(np.cumsum(rng.normal(0.0, 1.0, (n, 2)), axis=0))
+    polys = [(np.column_stack([xy, np.zeros(len(xy))]), 0) for xy in shapes]
+    tb = build_tables(make_scene(polygons=polys))
+    assert (tb.polygons[:, POLY_IN2] > 0).sum() >= 8  # most have an inner disc
+    assert tb.polygons[1, POLY_IN2] < 0  # the C's centre lies in its gap
+    plain = tb.polygons.copy()
+    plain[:, POLY_IN2], plain[:, POLY_OUT2] = -1.0, np.inf
+    for i, xy in enumerate(shapes):
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        size = np.max(hi - lo)
+        pts = [rng.uniform(lo - 0.1 * size, hi + 0.1 * size, (400, 2))]
+        centre = xy.mean(axis=0)
+        for r2 in tb.polygons[i, POLY_IN2 : POLY_OUT2 + 1]:
+            if r2 > 0:  # on either side of each circle
+                a = rng.uniform(0, 2 * np.pi, 100)
+                r = np.sqrt(r2) * (1.0 + rng.choice([-1e-6, -1e-12, 1e-12, 1e-6], 100))
+                pts.append(centre + np.column_stack([r * np.cos(a), r * np.sin(a)]))
+        for qx, qy in np.vstack(pts):
+            args = (i, qx, qy, 1.0, 0.0, 0.0, -1.0, 0.0, np.inf)
+            fast = hit_polygon(tb.polygons, tb.poly_info, tb.poly_uv, tb.poly_bands, *args)
+            slow = hit_polygon(plain, tb.poly_info, tb.poly_uv, tb.poly_bands, *args)
+            assert fast == slow or (np.isinf(fast) and np.isinf(slow)), (i, qx, qy)
 
 
 def test_a_zigzag_of_tall_edges_keeps_the_every_edge_test_and_a_small_table():

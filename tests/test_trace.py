@@ -13,6 +13,7 @@ from host.run.oneprocess import render
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.counters import RAY_COUNTS
+from meshnode.engine.trace import HINT_SLOTS, hint_slots
 from protocols import dtypes
 from protocols.scene import View
 from tests.conftest import make_scene, records, spd_scene
@@ -51,6 +52,13 @@ def test_grid_and_bvh_image_and_counts_equal_brute_force(name):
         img, counts = small(scene, **config)
         assert counts == ref_counts
         np.testing.assert_allclose(img, ref_img, rtol=0, atol=1e-12)
+
+
+def test_the_shadow_cache_has_a_slot_per_object_and_light_up_to_its_bound():
+    """A power of two of slots, so a pair's slot is a mask (pairs share slots past the bound:
+    a hint is only tried first, the walk still decides)."""
+    assert [hint_slots(n) for n in (0, 1, 5, 8, 9)] == [1, 1, 8, 8, 16]
+    assert hint_slots(9345 * 5) == HINT_SLOTS == 1 << 14
 
 
 def test_random_scene_with_glass_and_lights_equals_brute_force():

@@ -8,16 +8,23 @@ skipped by the caller).
 Table layouts (built by `tables.py`):
 - sphere row: cx cy cz r vis (vis +1 outside visible, -1 inside, 0 both sides)
 - triangle row: v0(3) e1(3) e2(3) n(3)  (n unit geometric normal)
-- polygon row: p0(3) n(3) vmin band_scale ; info row: start count axis_u axis_v first_band bands ;
-  2-D vertices relative to p0 ; band table: offsets of each band's edge list, then the lists
-  (an edge named by the row of its end vertex)
+- polygon row: p0(3) n(3) vmin band_scale cu cv in2 out2 ; info row: start count axis_u
+  axis_v first_band bands ; 2-D vertices relative to p0 ; band table: offsets of each band's
+  edge list, then the lists (an edge named by the row of its end vertex)
 - cone row: b(3) a(3) L r0 k vis   (a unit axis, radius r0 + k s for s in [0, L])
 """
 
 import math
 
 from meshnode.engine.jit import inline, leaf
-from meshnode.engine.tables import POLY_BAND_SCALE, POLY_VMIN
+from meshnode.engine.tables import (
+    POLY_BAND_SCALE,
+    POLY_CU,
+    POLY_CV,
+    POLY_IN2,
+    POLY_OUT2,
+    POLY_VMIN,
+)
 
 INF = math.inf
 # Barycentric slack of every triangle test. A ray through an edge that two triangles share has
@@ -101,7 +108,10 @@ def hit_polygon(pl, info, v2, band, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
 
     A polygon with bands (info column 5 > 0) tests only the edges listed for the band of v the
     hit lies in, not all of them (a gear face has 144): the same per-edge arithmetic on the
-    edges that can cross, so the same answer (Haines, "Point in Polygon Strategies")."""
+    edges that can cross, so the same answer (Haines, "Point in Polygon Strategies"). Before
+    any edge, a point in the polygon's inner disc is a hit and one beyond its outer disc a
+    miss (`tables.polygon_discs`): the answer the edges would give, most gear-face hits
+    without them."""
     nx, ny, nz = pl[i, 3], pl[i, 4], pl[i, 5]
     dn = nx * dx + ny * dy + nz * dz
     if dn == 0.0:
@@ -118,6 +128,13 @@ def hit_polygon(pl, info, v2, band, i, ox, oy, oz, dx, dy, dz, t_lo, t_hi):
     av = info[i, 3]
     pu = rel[0] if au == 0 else (rel[1] if au == 1 else rel[2])
     pv = rel[0] if av == 0 else (rel[1] if av == 1 else rel[2])
+    cu = pu - pl[i, POLY_CU]
+    cv = pv - pl[i, POLY_CV]
+    d2 = cu * cu + cv * cv
+    if d2 < pl[i, POLY_IN2]:
+        return t
+    if d2 > pl[i, POLY_OUT2]:
+        return INF
     start = info[i, 0]
     count = info[i, 1]
     bands = info[i, 5]

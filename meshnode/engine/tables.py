@@ -13,9 +13,15 @@ import numpy as np
 
 from protocols.scene import OBJECT_KINDS, SceneData
 
-SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 8, 10
-# Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v.
-POLY_VMIN, POLY_BAND_SCALE = 6, 7
+SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 12, 10
+# Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v;
+# then a centre (u, v) and the squared radii of a disc inside the polygon (-1: none) and of
+# one around it (`polygon_discs`).
+POLY_VMIN, POLY_BAND_SCALE, POLY_CU, POLY_CV, POLY_IN2, POLY_OUT2 = 6, 7, 8, 9, 10, 11
+# The discs are shrunk (the inner) and grown (the outer) by this share of the outer radius:
+# a point they decide lies that far from every edge, where the crossing test's round-off
+# (ulps of the polygon's coordinates) cannot reach, so both answer alike.
+DISC_MARGIN = 1e-7
 # Polygons with at least this many vertices get bands (a quad's four edges cost less than a
 # band lookup); about two vertices per band, at most MAX_BANDS. Bands are kept only where a
 # band lists at most 1/MIN_SAVING of the edges on average, and all bands together at most
@@ -197,11 +203,36 @@ def _polygon_tables(scene: SceneData):
     rel = v - p0[owner]
     uv = np.column_stack([rel[np.arange(total), au[owner]], rel[np.arange(total), av[owner]]])
     vmin, scale, first, bands, table = polygon_bands(uv, at, counts, owner, succ)
-    rows = np.column_stack([p0, n, vmin, scale])
+    rows = np.column_stack([p0, n, vmin, scale, *polygon_discs(uv, at, counts, owner, succ)])
     info = np.column_stack([at, counts, au, av, first, bands]).astype(np.int64)
     lo = np.minimum.reduceat(v, at, axis=0)
     hi = np.maximum.reduceat(v, at, axis=0)
     return rows, info, uv, table, lo, hi
+
+
+def polygon_discs(uv, at, counts, owner, succ):
+    """Per polygon: centre (u, v), the squared radius of a disc about it inside the polygon
+    (-1 when the centre is outside, as in a C) and of one holding every vertex. A point in the
+    inner disc is inside and one beyond the outer outside, whatever the crossing test would
+    add up (a gear face's test costs its band's edges; most of its hits land in the disc).
+    The centre is the vertices' mean; both radii keep DISC_MARGIN clear of every edge."""
+    c = np.add.reduceat(uv, at, axis=0) / counts[:, None]
+    rel, nxt = uv - c[owner], uv[succ] - c[owner]
+    out = np.sqrt(np.maximum.reduceat((rel * rel).sum(axis=1), at))
+    # The centre's crossings of each edge to its right (the kernel's half-open rule).
+    du, dv = nxt[:, 0] - rel[:, 0], nxt[:, 1] - rel[:, 1]
+    spans = (rel[:, 1] > 0.0) != (nxt[:, 1] > 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = spans & (0.0 < du * (0.0 - rel[:, 1]) / dv + rel[:, 0])
+        # Distance from the centre to each edge: its nearest point, clamped to the edge.
+        s = np.clip(-(rel * np.column_stack([du, dv])).sum(axis=1) / (du * du + dv * dv), 0, 1)
+    s = np.nan_to_num(s)
+    near = np.hypot(rel[:, 0] + s * du, rel[:, 1] + s * dv)
+    inside = np.add.reduceat(cross.astype(np.int64), at) % 2 == 1
+    r_in = np.minimum.reduceat(near, at) - DISC_MARGIN * out
+    in2 = np.where(inside & (r_in > 0.0), r_in * r_in, -1.0)
+    out2 = (out * (1.0 + DISC_MARGIN)) ** 2
+    return c[:, 0], c[:, 1], in2, out2
 
 
 def band_of(v, vmin, scale, bands):

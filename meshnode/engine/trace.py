@@ -47,6 +47,18 @@ from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS
 from meshnode.engine.traverse import brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
+HINT_SLOTS = 1 << 14  # the shadow cache's largest size (`hint_slots`)
+
+
+@kernel
+def hint_slots(pairs):
+    """Slots of the shadow cache: a power of two covering every (object, light) pair, at
+    most HINT_SLOTS (a table that stays in cache)."""
+    n = 1
+    while n < pairs and n < HINT_SLOTS:
+        n *= 2
+    return n
+
 
 @inline
 def _push(
@@ -210,7 +222,7 @@ def trace_batch(
     sd = np.empty((cap, 3))
     sw = np.empty((cap, 3))
     st = np.empty((cap, 2))
-    sk = np.empty((cap, 4), np.int64)  # kind, depth, origin gid, light
+    sk = np.empty((cap, 5), np.int64)  # kind, depth, origin gid, light, hint slot
     mail = np.full(gid.shape[0], -1, np.int64)
     stack = np.empty(2 * BVH_STACK)
     # With a hierarchy the batch's own rays (all but shadow rays) find their first hits in
@@ -224,8 +236,13 @@ def trace_batch(
     else:
         packets = False
         first_t, first_u, first_r = np.empty(0), np.empty(0, np.int64), np.empty((0, 3))
-    # Shadow cache: the object that last blocked each light is tried first (walk's hint).
-    blocker = np.full(max(n_lights, 1), -1, np.int64)
+    # Shadow cache: the object that last blocked a shadow ray from the same object towards
+    # the same light is tried first (walk's hint), one slot per (object, light) pair, or per
+    # pair modulo HINT_SLOTS: one slot per light was overwritten between the shadow rays of
+    # one surface by those of the surfaces its reflected and refracted rays met (gears: 37%
+    # of blocked rays found by the hint).
+    hint_mask = hint_slots(gid.shape[0] * max(n_lights, 1)) - 1
+    blocker = np.full(hint_mask + 1, -1, np.int64)
     fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
     ibits = fbits.view(np.int64)
     ray_id = 0
@@ -244,6 +261,7 @@ def trace_batch(
         sw[0, 0], sw[0, 1], sw[0, 2] = r.w[0], r.w[1], r.w[2]
         st[0, 0], st[0, 1] = r.t_min, r.t_max
         sk[0, 0], sk[0, 1], sk[0, 2], sk[0, 3] = r.kind, r.depth, r.origin, r.light
+        sk[0, 4] = r.light & hint_mask  # its object's local id unknown: the light's own slot
         sp = 1
         cr = 0.0
         cg = 0.0
@@ -256,6 +274,7 @@ def trace_batch(
             wr, wg, wb = sw[sp, 0], sw[sp, 1], sw[sp, 2]
             t_lo, t_hi = st[sp, 0], st[sp, 1]
             kind, depth, origin, light = sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3]
+            slot = sk[sp, 4]
             shadow = kind == SHADOW
             # the batch's ray itself, walked in a packet: its hit and reciprocals are known
             in_packet = packets and root and not shadow and first_u[i] > -2
@@ -354,7 +373,7 @@ def trace_batch(
             # Each walk under `is not None` of its own structure: numba prunes a branch on
             # an argument passed None, and types every other (the grid's walk of None fails)
             elif bvh is not None:
-                hint = blocker[light] if shadow else -1
+                hint = blocker[slot] if shadow else -1
                 t, u = bvh_walk(
                     ox,
                     oy,
@@ -405,7 +424,7 @@ def trace_batch(
                         cone,
                     )
                 else:
-                    hint = blocker[light] if shadow else -1
+                    hint = blocker[slot] if shadow else -1
                     t, u = walk(
                         ox,
                         oy,
@@ -487,7 +506,7 @@ def trace_batch(
                 # The light is reached unless something lies in between.
                 if u >= 0:
                     counters[SHADOW_BLOCKED] += 1
-                    blocker[light] = u
+                    blocker[slot] = u
                 else:
                     counters[SHADOW_LIT] += 1
                     cr += wr
@@ -583,6 +602,7 @@ def trace_batch(
                         hit_gid,
                         li,
                     )
+                    sk[sp - 1, 4] = (u * n_lights + li) & hint_mask
             if depth >= max_depth:
                 continue
             kt = 0.0

@@ -79,8 +79,8 @@ def hinted(
     pband,
     cone,
 ):
-    """Distance to the any-hit query's hint object (the last blocker towards the same light),
-    tested before any walk; inf without a hint or when it misses."""
+    """Distance to the any-hit query's hint object (the last blocker from the same surface
+    towards the same light), tested before any walk; inf without a hint or when it misses."""
     if hint < 0:
         return INF
     counters[TESTS] += 1
@@ -241,8 +241,9 @@ def walk(
 
     gid ... cone are the fields of a `Geometry`, as arguments: only so does numba compile out
     the absent kinds. An any-hit query may pass in `hint` (else -1) the object most likely to
-    block it, the one that blocked the last shadow ray towards the same light: it is tested
-    first, and a hit on it is returned without walking.
+    block it, the one that last blocked a shadow ray from the same object towards the same
+    light (`trace.trace_batch`'s shadow cache): it is tested first, and a hit on it is
+    returned without walking.
 
     In an empty voxel whose macro cell lies k macro cells from any object, the ray jumps out of
     the empty cube of radius k - 1 around it in one step and the walk restarts there."""

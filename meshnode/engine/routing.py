@@ -77,28 +77,20 @@ def _locator(los: bytes, his: bytes) -> Locator:
 
 
 @inline
+def _cell_span(ox, oy, oz, irx, iry, irz, t, t_max, los, his, b):
+    """`box_span` of the ray from t on cell b of los..his (indexed, no row views made)."""
+    x0, y0, z0, x1, y1, z1 = los[b, 0], los[b, 1], los[b, 2], his[b, 0], his[b, 1], his[b, 2]
+    return box_span(ox, oy, oz, irx, iry, irz, t, t_max, x0, y0, z0, x1, y1, z1)
+
+
+@inline
 def _owner(ox, oy, oz, irx, iry, irz, t, t_max, los, his):
     """(box, t) of one ray for `owners`: the box that takes it on from t, and t, moved to
     that box's entry where the ray is in none at t."""
     best, best_exit = -1, t
     next_entry, next_box = math.inf, -1
     for b in range(los.shape[0]):
-        b0, b1 = box_span(
-            ox,
-            oy,
-            oz,
-            irx,
-            iry,
-            irz,
-            t,
-            t_max,
-            los[b, 0],
-            los[b, 1],
-            los[b, 2],
-            his[b, 0],
-            his[b, 1],
-            his[b, 2],
-        )
+        b0, b1 = _cell_span(ox, oy, oz, irx, iry, irz, t, t_max, los, his, b)
         if b0 <= t and b1 > best_exit:
             best_exit = b1
             best = b
@@ -153,22 +145,7 @@ def _located_owner(
                     v = x + (n[0] - 1) * (y + (n[1] - 1) * z)
                     for k in range(first[v], first[v + 1]):
                         b = members[k]
-                        b0, b1 = box_span(
-                            ox,
-                            oy,
-                            oz,
-                            irx,
-                            iry,
-                            irz,
-                            t,
-                            t_max,
-                            los[b, 0],
-                            los[b, 1],
-                            los[b, 2],
-                            his[b, 0],
-                            his[b, 1],
-                            his[b, 2],
-                        )
+                        b0, b1 = _cell_span(ox, oy, oz, irx, iry, irz, t, t_max, los, his, b)
                         if b0 <= t and (b1 > best_exit or (b1 == best_exit and 0 <= b < best)):
                             best_exit = b1
                             best = b

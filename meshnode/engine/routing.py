@@ -30,7 +30,7 @@ ARRANGEMENT_MAX = 1 << 22  # cells x boxes of the arrangement kept at most (else
 class Locator(NamedTuple):
     """The cells' arrangement: per axis its sorted face coordinates, coords[at[a]:at[a] + n[a]];
     per box between them (x fastest) the cells covering it, members[first[v]:first[v + 1]];
-    `scale` per axis: the scene's largest coordinate, for the margin."""
+    `scale` per axis: the cells' largest coordinate, for the margin."""
 
     coords: np.ndarray
     at: np.ndarray
@@ -50,30 +50,35 @@ def cell_locator(los, his) -> Locator:
 @lru_cache(maxsize=8)
 def _locator(los: bytes, his: bytes) -> Locator:
     """`cell_locator` of the cells' bytes: each cell marks the boxes of the arrangement it
-    covers (a mesh has at most a few hundred cells); an arrangement too large for that is
-    left empty, and every ray looks at every cell."""
+    covers (a mesh has at most a few hundred cells). An arrangement too large for that, or
+    flat along an axis, lists nothing, and every ray looks at every cell."""
     los, his = (np.frombuffer(b, float).reshape(-1, 3) for b in (los, his))
     axes = [np.unique(np.concatenate([los[:, a], his[:, a]])) for a in range(3)]
     n = np.array([len(c) for c in axes], np.int64)
     dims = np.maximum(n - 1, 0)
-    if len(los) * int(np.prod(dims)) > ARRANGEMENT_MAX:
-        dims[:] = 0
+    if not dims.all() or len(los) * int(np.prod(dims)) > ARRANGEMENT_MAX:
+        return Locator(
+            np.zeros(0),
+            np.zeros(3, np.int64),
+            np.zeros(3, np.int64),
+            np.zeros(1, np.int64),
+            np.zeros(0, np.int64),
+            np.zeros(3),
+        )
+    # a cell flat along an axis marks the interval above its plane (below, at the top): a
+    # point on the plane is looked up in both
+    lo_i = [np.minimum(np.searchsorted(axes[a], los[:, a]), dims[a] - 1) for a in range(3)]
+    hi_i = [np.maximum(np.searchsorted(axes[a], his[:, a]), lo_i[a] + 1) for a in range(3)]
     cover = np.zeros((len(los), dims[2], dims[1], dims[0]), bool)
-    if dims.all():
-        # a cell flat along an axis marks the interval above its plane (below, at the top):
-        # a point on the plane is looked up in both
-        lo_i = [np.minimum(np.searchsorted(axes[a], los[:, a]), dims[a] - 1) for a in range(3)]
-        hi_i = [np.maximum(np.searchsorted(axes[a], his[:, a]), lo_i[a] + 1) for a in range(3)]
-        for b in range(len(los)):  # once per cell
-            cover[b, lo_i[2][b] : hi_i[2][b], lo_i[1][b] : hi_i[1][b], lo_i[0][b] : hi_i[0][b]] = 1
+    for b in range(len(los)):  # once per cell
+        cover[b, lo_i[2][b] : hi_i[2][b], lo_i[1][b] : hi_i[1][b], lo_i[0][b] : hi_i[0][b]] = 1
     flat = cover.reshape(len(los), -1)
     box, cell = np.nonzero(flat.T)  # by arrangement box, then cell
     first = np.zeros(flat.shape[1] + 1, np.int64)
     np.cumsum(np.bincount(box, minlength=flat.shape[1]), out=first[1:])
-    coords = np.concatenate(axes) if dims.all() else np.zeros(0)
     at = np.array([0, n[0], n[0] + n[1]], np.int64)
-    scale = np.maximum(np.abs(los).max(axis=0), np.abs(his).max(axis=0)) if len(los) else n * 0.0
-    return Locator(coords, at, n if dims.all() else n * 0, first, cell.astype(np.int64), scale)
+    scale = np.maximum(np.abs(los).max(axis=0), np.abs(his).max(axis=0))
+    return Locator(np.concatenate(axes), at, n, first, cell.astype(np.int64), scale)
 
 
 @inline
@@ -120,9 +125,9 @@ def _below(coords, at, n, v, right):
 def _span_of(coords, at, n, p, m):
     """(first, last) arrangement intervals along one axis that [p - m, p + m] meets (last <
     first: none)."""
-    return max(_below(coords, at, n, p - m, False) - 1, 0), min(
-        _below(coords, at, n, p + m, True), n - 1
-    ) - 1
+    first = max(_below(coords, at, n, p - m, False) - 1, 0)
+    last = min(_below(coords, at, n, p + m, True), n - 1) - 1
+    return first, last
 
 
 @inline
@@ -131,8 +136,8 @@ def _located_owner(
 ):
     """`_owner`'s answer, looking first only at the cells the arrangement `loc` lists near
     the ray's point at t (ties, as there, to the lower cell); every cell where none of those
-    holds it (the cell it enters next, or none). The `Locator`'s arrays come one by one: a
-    tuple unpacked per ray touched their reference counts, 20 ns a ray."""
+    holds it (the cell it enters next, or none). The `Locator`'s arrays come one by one,
+    unpacked once a batch."""
     best, best_exit = -1, t
     if n[0] > 1:
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz

@@ -17,6 +17,7 @@ import numpy as np
 from meshnode.engine import kernelcache, queries
 from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
+from meshnode.engine.eyemap import NO_EYE_MAP
 from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
@@ -314,12 +315,14 @@ class Engine:
         for k in kernels:
             kernelcache.mark_warm(self._mark(k))
 
-    def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1):
+    def routed(self, rays: np.ndarray, cells, skip: bool, fallback: int = -1, eye=NO_EYE_MAP):
         """(rays regrouped by the cell that takes each on, runs' starts, rays no cell takes)
         for `cells` = (los, his), with `skip` from where each ray's work starts on the
-        scene's occupancy map (`meshnode.engine.routing.routed`); `rays` stay as they were."""
+        scene's occupancy map (`meshnode.engine.routing.routed`), seen from the eye for
+        pinhole eye rays (`eye`, an `EyeMap`); `rays` stay as they were."""
         los, his, box = *cells, (self.scene_lo, self.scene_hi)
-        return routed(rays, skip, fallback, *box, self.occupancy, los, his, cell_locator(los, his))
+        locator = cell_locator(los, his)
+        return routed(rays, skip, fallback, *box, self.occupancy, los, his, locator, eye)
 
     def first_hits(self, origins, directions, t_min: float = 0.0):
         """Nearest hit per ray: distance (inf on a miss) and scene object id (-1 on a miss).

@@ -193,13 +193,15 @@ def work_start(
     res,
     clear,
     counters,
+    t_from,
 ):
     """(t_min moved on to the first occupied voxel the ray meets inside the scene's box, or
     t_min itself where it misses the box or meets none; where it crosses the box through
     empty voxels only, a t just past its exit from the box, inf where it misses the box,
     else -inf). rx, ry, rz: 1 / direction (inf for 0). A segment resumed past the box, or
     missing it, is one a node's kernel ends at once (escaped, or its light reached), where
-    it would walk the box to end it."""
+    it would walk the box to end it. `t_from`: a t before which the ray meets no occupied
+    voxel (`eyemap`; -inf if none is known), where the walk may start."""
     s0, s1 = box_span(
         ox,
         oy,
@@ -218,7 +220,13 @@ def work_start(
     )
     if s0 > s1:
         return t_min, INF
-    t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, s0, s1, lo, cell, res, clear, counters)
+    if t_from >= s1:
+        t = INF
+    else:
+        t0 = max(s0, t_from)
+        t = first_occupied(
+            ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, s1, lo, cell, res, clear, counters
+        )
     if t == INF:
         return t_min, s1 + abs(s1) * 1e-9 + 1e-300
     return (t if t > t_min else t_min), -INF
@@ -256,4 +264,5 @@ def skip_empty(rays, scene_lo, scene_hi, lo, cell, res, clear, counters):
             res,
             clear,
             counters,
+            -INF,
         )[0]

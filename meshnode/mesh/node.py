@@ -16,6 +16,7 @@ import numpy as np
 
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
+from meshnode.engine.eyemap import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.structure_cost import eye_ray_count
@@ -117,6 +118,17 @@ class NodeCore:
                 f"of {spec.plan.node_bytes} (MeshPlan.node_bytes)"
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
+        self.eye, self.eye_reason = self._eye_map()
+
+    def _eye_map(self) -> tuple[EyeMap, str]:
+        """The occupancy map seen from the eye, for routing the eye rays this node makes in
+        object space (`meshnode.engine.eyemap`): pinhole rays made by pixel, not a lens's
+        (they leave the eye from all over it) nor adaptive sampling's."""
+        if self.spec.plan.mode != "object" or len(self.los) < 2:
+            return NO_EYE_MAP, "not used: one cell"
+        if self.spec.camera is not None or self.books is not None:
+            return NO_EYE_MAP, "not used: a lens or adaptive sampling makes the eye rays"
+        return eye_map(self.engine.occupancy, self.view, self.spec.image)
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary
@@ -260,7 +272,7 @@ class NodeCore:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
             # enters no cell ends here. Grouped in this one call: owners() moves t_min in a
             # sliver between boxes, so a second call could give another box.
-            out, starts, _ = self.engine.routed(rays, self.cells, True, self.node)
+            out, starts, _ = self.engine.routed(rays, self.cells, True, self.node, self.eye)
             todo = _runs(out, starts, last=self.node)
         outgoing = {d: [g] for d, g in todo.items() if d != self.node and d not in self.copies}
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))

@@ -44,6 +44,7 @@ log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
 DEPOSIT_BATCH = 32768  # deposits per pixel packet
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
+PROGRESS_EVERY = 0.05  # seconds at least between PROGRESS messages of traced rays
 
 
 class Session(Driver):
@@ -84,6 +85,7 @@ class Session(Driver):
         self.compile_seconds = 0.0  # of the setup, numba compiling (a first run)
         self.frame_cpu_start = time.process_time()  # moved to the frame's start once built
         self.frame_sys_start = os.times().system
+        self.progress_rays, self.progress_due = 0, 0.0  # rays not yet told; when to tell
         self.tasks: set[asyncio.Task] = set()
         self.spawn(self.heartbeat())
 
@@ -104,8 +106,16 @@ class Session(Driver):
 
     def progress(self, rays: int) -> None:
         """Primary rays just traced, to the host with what its live view shows of this node
-        (`reports.progress_message`)."""
-        self.host_out.post(progress_message(self, rays))
+        (`reports.progress_message`), at most once in PROGRESS_EVERY seconds: one a batch
+        took 3.6% of a tetra 3x3 node's CPU. Rays not yet told go with the next; a call of
+        no rays (the heartbeat, the end of the frame) tells at once."""
+        self.progress_rays += rays
+        now = time.monotonic()
+        if rays and now < self.progress_due:
+            return
+        self.progress_due = now + PROGRESS_EVERY
+        told, self.progress_rays = self.progress_rays, 0
+        self.host_out.post(progress_message(self, told))
 
     # ------------------------------------------------------------------ setup
     async def build(self) -> None:
@@ -361,7 +371,8 @@ class Session(Driver):
         self.stats.counts["refined_pixels"] = self.core.refined_pixels
 
     def report(self) -> None:
-        """The node's STATS to the host (`reports.stats_message`)."""
+        """The rays not yet told, then the node's STATS to the host (`reports.stats_message`)."""
+        self.progress(0)
         self.host_out.post(stats_message(self))
 
     async def close(self) -> None:

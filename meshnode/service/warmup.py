@@ -84,6 +84,7 @@ def _common_warmup() -> None:
     from meshnode.engine.camera import eye_rays
     from meshnode.engine.counters import N_COUNTERS
     from meshnode.engine.deposits import cell_sums, lit
+    from meshnode.engine.eyemap import eye_map
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
@@ -95,11 +96,12 @@ def _common_warmup() -> None:
     rays = eye_rays(view, ImageSpec(width=1, height=1))
     box = (np.zeros(3), np.ones(3))
     owners(rays, box[0][None], box[1][None])
-    occupancy_arrays(*box, (2, 1, 1), bytes([0x80]))  # a node's map: one voxel of two empty
+    half = occupancy_arrays(*box, (2, 1, 1), bytes([0x80]))  # a node's map: one voxel of two empty
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
     cells = box[0][None], box[1][None]
-    routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells))  # a node's batches
+    eye, _ = eye_map(half, view, ImageSpec(width=1, height=1))  # ... seen from the eye
+    routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells), eye)  # a node's batches
     first_untraceable(rays)  # a neighbour's RAYS
     deposits = np.zeros(2, dtypes.DEPOSIT)
     cell_sums(deposits, 1, deposits.copy())

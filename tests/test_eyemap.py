@@ -1,0 +1,132 @@
+"""The occupancy map seen from the eye (`meshnode.engine.eyemap`): no eye ray meets an occupied
+voxel nearer than its block's bound (brute force over every voxel), routing eye rays from it
+changes no ray and no run, and a mesh that routes with it renders the same image, counts and
+passes as without it."""
+
+import math
+
+import numpy as np
+import pytest
+
+import meshnode.mesh.node
+from host.planning.cells import scene_box
+from host.planning.occupancy import occupancy_map
+from host.scene.nff import read_nff
+from meshnode.engine.camera import eye_rays
+from meshnode.engine.eyemap import NO_EYE_MAP, eye_map
+from meshnode.engine.occupancy import occupancy_arrays
+from meshnode.engine.routing import cell_locator, routed
+from protocols.render import ImageSpec
+from protocols.scene import View
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_mesh_algorithm import SPD_COUNTS
+
+
+def _views(scene, lo, hi):
+    """The scene's own view, one straight down an axis through the box's centre (rays along
+    voxel walls), and one from inside the box (voxels behind the eye)."""
+    centre = (lo + hi) / 2
+    size = float(np.max(hi - lo))
+    return [
+        scene.view,
+        View(tuple(centre - (0, 0, 2 * size)), tuple(centre), (0, 1, 0), 40.0),
+        View(tuple(centre + 0.1 * (hi - lo)), tuple(hi), (0, 0, 1), 70.0),
+    ]
+
+
+def _cells(lo, hi):
+    """A 3 x 2 x 1 cut of the box (cells as a mesh's tile the scene)."""
+    xs, ys = np.linspace(lo[0], hi[0], 4), np.linspace(lo[1], hi[1], 3)
+    los = np.array([(xs[i], ys[j], lo[2]) for j in range(2) for i in range(3)])
+    his = np.array([(xs[i + 1], ys[j + 1], hi[2]) for j in range(2) for i in range(3)])
+    return los, his
+
+
+def _first_occupied_brute(rays, occ):
+    """Per ray the least t at which it enters any occupied voxel (slab test against every
+    one), inf where it meets none."""
+    res = occ.res
+    full = occ.clear[0] == 0
+    v = np.flatnonzero(full)
+    index = np.stack([v % res[0], (v // res[0]) % res[1], v // (res[0] * res[1])], axis=1)
+    vlo, vhi = occ.lo + index * occ.cell, occ.lo + (index + 1) * occ.cell
+    out = np.full(len(rays), math.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i, r in enumerate(rays):
+            inv = 1.0 / r["d"]
+            a, b = (vlo - r["o"]) * inv, (vhi - r["o"]) * inv
+            near = np.nanmax(np.minimum(a, b), axis=1)
+            far = np.nanmin(np.maximum(a, b), axis=1)
+            hit = (near <= far) & (far >= r["t_min"])
+            if hit.any():
+                out[i] = max(float(near[hit].min()), r["t_min"])
+    return out
+
+
+@pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff", "mount_s1.nff", "rings_s1.nff"])
+def test_no_eye_ray_meets_an_occupied_voxel_nearer_than_its_bound(name):
+    scene = read_nff(spd_scene(name))
+    lo, hi = scene_box(scene)
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi), voxels=12**3))
+    rng = np.random.default_rng(3)
+    met = open_rays = 0
+    for view in _views(scene, lo, hi):
+        image = ImageSpec(width=40, height=30, spp=4)
+        eye, reason = eye_map(occ, view, image)
+        assert eye.near.size and "blocks" in reason
+        rays = eye_rays(view, image)
+        rays = rays[rng.choice(len(rays), 600, replace=False)]
+        g = rays["pixel"] // eye.per_cell
+        bound = eye.near[
+            (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
+        ]
+        first = _first_occupied_brute(rays, occ)
+        assert (first >= bound).all(), (view, first[first < bound], bound[first < bound])
+        met += np.isfinite(first).sum()
+        open_rays += np.isinf(bound).sum()
+    assert met > 100 and open_rays > 100, "nothing tested"
+
+
+@pytest.mark.parametrize(
+    "name", ["tetra_s3.nff", "balls_s1.nff", "mount_s1.nff", "teapot_s1.nff", "gears_s1.nff"]
+)
+@pytest.mark.parametrize("spd", [False, True])
+def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
+    """Every ray's cell and t_min the same bits as the walk from the scene's box gives, and
+    the map spares walks (blocks that see no occupied voxel)."""
+    scene = read_nff(spd_scene(name))
+    lo, hi = scene_box(scene)
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
+    los, his = _cells(lo, hi)
+    loc = cell_locator(los, his)
+    opens = []
+    for view in _views(scene, lo, hi):
+        image = ImageSpec(width=48, height=40, spp=1 if spd else 9, spd=spd)
+        eye, _ = eye_map(occ, view, image)
+        opens.append(np.mean(np.isinf(eye.near)))
+        rays = eye_rays(view, image)
+        box = (np.asarray(lo, float), np.asarray(hi, float))
+        got = routed(rays, True, 2, *box, occ, los, his, loc, eye)
+        want = routed(rays, True, 2, *box, occ, los, his, loc, NO_EYE_MAP)
+        assert got[0].tobytes() == want[0].tobytes(), (name, view)
+        assert np.array_equal(got[1], want[1]) and got[2] == want[2]
+    assert max(opens[:2]) > 0 and opens[2] == 0, opens  # inside the box every block is bounded
+
+
+@pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff"])
+def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, monkeypatch):
+    scene = read_nff(spd_scene(name))
+    core, made = meshnode.mesh.node.NodeCore, []
+    own = core._eye_map
+    runs = {}
+    for use in (True, False):
+        made_here = (lambda self: made.append(own(self)) or made[-1]) if use else None
+        monkeypatch.setattr(core, "_eye_map", made_here or (lambda self: (NO_EYE_MAP, "off")))
+        runs[use] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
+    (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
+    assert img.tobytes() == ref.tobytes()
+    for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit"):
+        assert totals[k] == ref_totals[k], k
+    assert [n.rays_sent for n in nodes] == [n.rays_sent for n in ref_nodes]
+    assert made and all(eye.near.size for eye, _ in made), "the mesh did not use the map"

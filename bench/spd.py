@@ -1,7 +1,8 @@
 """SPD benchmark: every NFF scene at 512x512 on one thread, per acceleration structure (the
 grid per storage and density, the hierarchy, and the default: structure auto), with POV-Ray 3.7
-side by side on every scene that has a pov/NAME.pov, the default's ray counts against the SPD
-author's published table, and whole-process wall times (warm and cold numba cache).
+side by side on every scene (its pov/NAME.pov, else one converted from the NFF by
+`bench.pov_scene`), the default's ray counts against the SPD author's published table, and
+whole-process wall times (warm and cold numba cache).
 
     python -m bench.spd [--scenes DIR] [--only balls,tetra] [--structures grid,bvh]
                         [--densities 1,2,4] [--repeat 3] [--json FILE] [--no-pov] [--no-wall]
@@ -29,7 +30,7 @@ if __package__ in (None, ""):  # run as `python bench/spd.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
-from bench.spd_povray import compare_pov, goal, pov_file  # noqa: E402
+from bench.spd_povray import GENERATED, compare_pov, goal, pov_file  # noqa: E402
 from bench.spd_published import compare_published, read_published  # noqa: E402
 from bench.spd_report import (  # noqa: E402
     print_pov,
@@ -63,8 +64,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--repeat",
         type=int,
         default=3,
-        help="best of N for scenes with a pov/NAME.pov, POV-Ray's and ours, "
-        "and for --scaling (default 3)",
+        help="best of N for every scene (POV-Ray's and ours: each scene has a POV-Ray "
+        "version, shipped or converted from its NFF) and for --scaling (default 3)",
     )
     p.add_argument("--json", type=Path, help="write all figures to this JSON file")
     p.add_argument("--no-pov", action="store_true", help="skip the POV-Ray comparison")
@@ -141,14 +142,15 @@ def main(argv=None) -> int:
     if args.scaling is not None:
         return main_scaling(args)
     files = scene_files(args.scenes, args.only)
-    with_pov = [p.stem for p in files if pov_file(args.scenes, p.stem)]
+    generated = [p.stem for p in files if not pov_file(args.scenes, p.stem)]
     print(
         f"SPD benchmark: {len(files)} scenes from {args.scenes}, 512x512 corner rays, depth 5, "
         f"1 thread {pinned_text(core)}; {', '.join(sorted(set(args.structures) | {'auto'}))}; "
-        f"densities {args.densities}; best of {args.repeat} for the scenes with a POV-Ray version: "
-        f"{', '.join(with_pov) or 'none'}"
+        f"densities {args.densities}; best of {args.repeat}; POV-Ray versions shipped in "
+        f"{args.scenes / 'pov'}, {GENERATED} (bench.pov_scene) for: "
+        f"{', '.join(generated) or 'none'}"
     )
-    results = bench_scenes(args, files, with_pov)
+    results = bench_scenes(args, files)
     print_published(results)
     pov = {} if args.no_pov else compare_pov(results, args.scenes, args.repeat)
     print_pov(results, pov)
@@ -167,16 +169,15 @@ def main(argv=None) -> int:
     return 0
 
 
-def bench_scenes(args: argparse.Namespace, files: list[Path], with_pov: list[str]) -> list[dict]:
-    """Every scene under every configuration, each printed as it finishes (a long run shows
-    its progress) and checked against the published counts."""
+def bench_scenes(args: argparse.Namespace, files: list[Path]) -> list[dict]:
+    """Every scene under every configuration (best of `--repeat`), each printed as it
+    finishes (a long run shows its progress) and checked against the published counts."""
     plan = config_plan(args.structures, args.densities)
     published = read_published(args.scenes)
     results = []
     for path in files:
         print(f"  {path.stem} ...", file=sys.stderr, flush=True)
-        repeats = args.repeat if path.stem in with_pov else 1
-        results.append(bench_scene(path, plan, repeats))
+        results.append(bench_scene(path, plan, args.repeat))
         r = results[-1]
         r["published"] = compare_published(r["scene"], r["spd_counts"], published.get(r["scene"]))
         print_scene(r)

@@ -1,6 +1,7 @@
-"""POV-Ray 3.7 beside our default engine on the scenes that have a pov/NAME.pov, the two
-taking turns on CPU seconds (`bench.timing`), and the project's goal (POV-Ray's trace time over
-ours) judged from the ratios."""
+"""POV-Ray 3.7 beside our default engine on every scene, the two taking turns on CPU seconds
+(`bench.timing`), and the project's goal (POV-Ray's trace time over ours) judged from the
+ratios. A scene's POV-Ray version is its shipped pov/NAME.pov, else one converted from its NFF
+(`bench.pov_scene`, in the SPD's own POV-Ray style) into a temporary folder."""
 
 import os
 import re
@@ -111,30 +112,46 @@ def default_runner(path: Path):
 
 
 def pov_file(scenes: Path, name: str) -> Path | None:
-    """The POV-Ray version of scene `name` (<scenes>/pov/NAME.pov), if there is one."""
+    """The shipped POV-Ray version of scene `name` (<scenes>/pov/NAME.pov), if there is one."""
     pov = scenes / "pov" / f"{name}.pov"
     return pov if pov.exists() else None
 
 
+GENERATED = "generated from the NFF"  # how a converted POV-Ray version is named in the output
+
+
+def pov_version(scenes: Path, nff: Path, folder: Path) -> tuple[Path, str]:
+    """The POV-Ray version of scene `nff` and where it came from: the shipped file, else one
+    converted from the NFF into `folder` (never into the scene folder, which is data)."""
+    shipped = pov_file(scenes, nff.stem)
+    if shipped is not None:
+        return shipped, "shipped"
+    from bench.pov_scene import write_pov
+
+    return write_pov(nff, folder), GENERATED
+
+
 def compare_pov(results: list[dict], scenes: Path, repeat: int) -> dict:
     """POV-Ray figures (`repeat` turns with our default) and pov/ours CPU ratios for every
-    scene of `results` that has a POV-Ray version: pov/default the median of the turns'
-    paired ratios, pov/best POV-Ray's median over the best configuration's best (its own
-    pass, not in turns)."""
-    wanted = [r for r in results if pov_file(scenes, r["scene"])]
-    if not wanted:
+    scene of `results` (its POV-Ray version: `pov_version`; "pov_source" says which):
+    pov/default the median of the turns' paired ratios, pov/best POV-Ray's median over the
+    best configuration's best (its own pass, not in turns)."""
+    if not results:
         return {}
     exe = find_povray()
     if exe is None:
         print("\nPOV-Ray: unavailable (not on PATH and cannot install); no ratios.")
         return {"available": False}
     out = {"available": True, "executable": exe, "repeat": repeat, "scenes": {}}
-    for r in wanted:
-        print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
-        ours = default_runner(Path(r["file"]))
-        pov = run_povray(exe, pov_file(scenes, r["scene"]), repeat, between=ours)
-        pov["ratio_best"] = pov["cpu_seconds"] / r["best_trace_cpu_seconds"]
-        out["scenes"][r["scene"]] = pov
+    with tempfile.TemporaryDirectory(prefix="bench-pov-scenes-") as folder:
+        for r in results:
+            print(f"  povray {r['scene']} ...", file=sys.stderr, flush=True)
+            path, source = pov_version(scenes, Path(r["file"]), Path(folder))
+            ours = default_runner(Path(r["file"]))
+            pov = run_povray(exe, path, repeat, between=ours)
+            pov["ratio_best"] = pov["cpu_seconds"] / r["best_trace_cpu_seconds"]
+            pov["pov_source"] = source
+            out["scenes"][r["scene"]] = pov
     return out
 
 

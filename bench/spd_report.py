@@ -1,7 +1,7 @@
 """The SPD benchmark's printed report: each scene's configurations, the published counts,
 POV-Ray side by side, whole-process times and the summary, apart from the measuring code."""
 
-from bench.spd_povray import goal, goal_line
+from bench.spd_povray import GENERATED, goal, goal_line
 from bench.spd_published import PUBLISHED_COLUMNS
 from bench.spd_runs import COUNT_KEYS, COUNT_LABELS, default_density
 
@@ -172,6 +172,12 @@ def print_pov(results: list[dict], pov: dict) -> None:
             ]
         )
     print(table(headers, rows))
+    generated = [k for k, p in pov["scenes"].items() if p.get("pov_source") == GENERATED]
+    if generated:
+        print(
+            f"POV-Ray version {GENERATED} (bench.pov_scene, the SPD's POV-Ray 3 style; "
+            f"no pov/NAME.pov shipped) for: {', '.join(generated)}"
+        )
     print(
         f"(CPU seconds of the tracing thread, pinned to one core; POV-Ray and ours' default "
         f"taking turns {pov['repeat']} times: median (least-most), pov/default the median of "
@@ -215,8 +221,13 @@ def print_summary(results: list[dict], pov: dict, wall: dict) -> None:
             f"default {r['default_trace_seconds']:.3f} s wall ({r['default']})"
         ]
         if p:
+            source = (
+                " (its POV-Ray version " + GENERATED + ")"
+                if p.get("pov_source") == GENERATED
+                else ""
+            )
             parts.append(
-                f"POV-Ray {p['cpu_seconds']:.3f} CPU s -> pov/ours {p['ratio_best']:.2f}"
+                f"POV-Ray{source} {p['cpu_seconds']:.3f} CPU s -> pov/ours {p['ratio_best']:.2f}"
                 f" best, {p['ratio_default']:.2f} default (CPU)"
             )
         if w:

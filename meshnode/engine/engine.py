@@ -17,12 +17,12 @@ import numpy as np
 from meshnode.engine import kernelcache, queries
 from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
-from meshnode.engine.eyemap import NO_EYE_MAP
 from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.routing import cell_locator, routed
+from meshnode.engine.sightlines import NO_EYE_MAP, light_maps
 from meshnode.engine.structure import build_structure, foreseen
 from meshnode.engine.structure import stand_in as stand_in_structure
 from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays
@@ -137,6 +137,12 @@ class Engine:
             everywhere(self.scene_lo, self.scene_hi)
             if occupancy is None
             else occupancy_arrays(self.scene_lo, self.scene_hi, *occupancy)
+        )
+        # the map seen from each light: shadow rays leaving the box walk it less
+        self.light_near = (
+            np.zeros((0, 0))
+            if occupancy is None or self.holds_scene
+            else light_maps(self.occupancy, self.tables.lights)
         )
         # A batch's own rays walk a hierarchy in packets, on object-space nodes too: eye rays
         # are made where they enter the node's cell, and rays passed on arrive in the order
@@ -384,6 +390,7 @@ class Engine:
             self.packets,
             self.occupancy,
             self.box,
+            self.light_near,
         )
         # a view, not a copy: copying records costs ~10 us a call, and the buffer was made
         # for this call alone (callers route the passed rays into new arrays at once)

@@ -201,7 +201,7 @@ def work_start(
     else -inf). rx, ry, rz: 1 / direction (inf for 0). A segment resumed past the box, or
     missing it, is one a node's kernel ends at once (escaped, or its light reached), where
     it would walk the box to end it. `t_from`: a t before which the ray meets no occupied
-    voxel (`eyemap`; -inf if none is known), where the walk may start."""
+    voxel (`sightlines`; -inf if none is known), where the walk may start."""
     s0, s1 = box_span(
         ox,
         oy,

@@ -186,7 +186,7 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     no box takes, with only empty voxels ahead or missing the scene's box (with `skip`),
     joins box `fallback`'s run; with fallback
     -1 the first is counted (the third value) for the caller to refuse and the second goes
-    to the box it enters. `rays` is left as it was. `eye`: an `eyemap.EyeMap` of these
+    to the box it enters. `rays` is left as it was. `eye`: an `sightlines.EyeMap` of these
     rays (pinhole eye rays by RAY.pixel) or `NO_EYE_MAP`.
 
     One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort

@@ -43,6 +43,7 @@ from meshnode.engine.packet import (
     packet_walk,
 )
 from meshnode.engine.shade import normals, phong, refract
+from meshnode.engine.sightlines import light_clear
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
 from meshnode.engine.traverse import brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
@@ -189,6 +190,7 @@ def trace_batch(
     in_packets,
     occ,
     box,
+    light_near,
 ):
     """Trace every ray of `rays` (RAY records) and its whole tree; add colour to out_rgb[i].
 
@@ -459,25 +461,45 @@ def trace_batch(
                     u = -1  # a hit beyond this box: another node may hold a nearer object
                 if u < 0 and n1 < s1:
                     # Leaves this box inside the scene: continue on the node owning the first
-                    # occupied voxel ahead; with none ahead it ends here, below.
-                    t_on = first_occupied(
-                        ox,
-                        oy,
-                        oz,
-                        dx,
-                        dy,
-                        dz,
-                        irx,
-                        iry,
-                        irz,
-                        n1,
-                        s1,
-                        occ_lo,
-                        occ_cell,
-                        occ_res,
-                        occ_clear,
-                        counters,
-                    )
+                    # occupied voxel ahead; with none ahead it ends here, below. A shadow
+                    # ray whose way to its light is clear by the map seen from the light
+                    # (`light_near`, `sightlines.light_maps`) needs no walk to know it.
+                    t_on = -1.0
+                    if lights is not None:
+                        if (
+                            shadow
+                            and light < light_near.shape[0]
+                            and light_clear(
+                                light_near,
+                                light,
+                                lights[light, LIGHT_POS],
+                                lights[light, LIGHT_POS + 1],
+                                lights[light, LIGHT_POS + 2],
+                                ox + n1 * dx,
+                                oy + n1 * dy,
+                                oz + n1 * dz,
+                            )
+                        ):
+                            t_on = math.inf
+                    if t_on < 0.0:
+                        t_on = first_occupied(
+                            ox,
+                            oy,
+                            oz,
+                            dx,
+                            dy,
+                            dz,
+                            irx,
+                            iry,
+                            irz,
+                            n1,
+                            s1,
+                            occ_lo,
+                            occ_cell,
+                            occ_res,
+                            occ_clear,
+                            counters,
+                        )
                     if t_on < math.inf:
                         buf = _push_out(
                             buf,

@@ -16,9 +16,9 @@ import numpy as np
 
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
-from meshnode.engine.eyemap import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
+from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
@@ -122,7 +122,7 @@ class NodeCore:
 
     def _eye_map(self) -> tuple[EyeMap, str]:
         """The occupancy map seen from the eye, for routing the eye rays this node makes in
-        object space (`meshnode.engine.eyemap`): pinhole rays made by pixel, not a lens's
+        object space (`meshnode.engine.sightlines`): pinhole rays made by pixel, not a lens's
         (they leave the eye from all over it) nor adaptive sampling's."""
         if self.spec.plan.mode != "object" or len(self.los) < 2:
             return NO_EYE_MAP, "not used: one cell"

@@ -84,11 +84,11 @@ def _common_warmup() -> None:
     from meshnode.engine.camera import eye_rays
     from meshnode.engine.counters import N_COUNTERS
     from meshnode.engine.deposits import cell_sums, lit
-    from meshnode.engine.eyemap import eye_map
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
     from meshnode.engine.routing import cell_locator, owners, routed
+    from meshnode.engine.sightlines import eye_map
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
 

@@ -1,21 +1,22 @@
-"""The occupancy map seen from the eye (`meshnode.engine.eyemap`): no eye ray meets an occupied
-voxel nearer than its block's bound (brute force over every voxel), routing eye rays from it
-changes no ray and no run, and a mesh that routes with it renders the same image, counts and
-passes as without it."""
+"""The occupancy map seen from the eye and the lights (`meshnode.engine.sightlines`): no eye ray
+meets an occupied voxel nearer than its block's bound and no segment told clear from its light
+meets one (brute force over every voxel); routing eye rays from the eye's map changes no ray
+and no run; a mesh with either renders the same image and counts as without it."""
 
 import math
 
 import numpy as np
 import pytest
 
+import meshnode.engine.engine as engine_module
 import meshnode.mesh.node
 from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.eyemap import NO_EYE_MAP, eye_map
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.routing import cell_locator, routed
+from meshnode.engine.sightlines import FACE_BLOCKS, NO_EYE_MAP, eye_map, light_clear, light_maps
 from protocols.render import ImageSpec
 from protocols.scene import View
 from tests.conftest import spd_scene
@@ -130,3 +131,54 @@ def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, mon
         assert totals[k] == ref_totals[k], k
     assert [n.rays_sent for n in nodes] == [n.rays_sent for n in ref_nodes]
     assert made and all(eye.near.size for eye, _ in made), "the mesh did not use the map"
+
+
+def _meets_brute(a, b, occ):
+    """Whether the segment a..b meets any occupied voxel (slab test against every one)."""
+    res, full = occ.res, occ.clear[0] == 0
+    v = np.flatnonzero(full)
+    index = np.stack([v % res[0], (v // res[0]) % res[1], v // (res[0] * res[1])], axis=1)
+    vlo, vhi = occ.lo + index * occ.cell, occ.lo + (index + 1) * occ.cell
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (vlo - a) / d, (vhi - a) / d
+        near = np.nanmax(np.where(d == 0, -np.inf, np.minimum(t0, t1)), axis=1)
+        far = np.nanmin(np.where(d == 0, np.inf, np.maximum(t0, t1)), axis=1)
+        inside = ((d != 0) | ((a >= vlo) & (a <= vhi))).all(axis=1)
+    return bool(((near <= far) & (far >= 0) & (near <= 1) & inside).any())
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "rings_s1.nff", "gears_s1.nff", "tetra_s3.nff"])
+def test_a_segment_told_clear_from_its_light_meets_no_occupied_voxel(name):
+    """Brute force: lights (the scene's, and points inside its box) to random points of the
+    box; a segment `light_clear` calls clear meets no occupied voxel, and many are clear."""
+    scene = read_nff(spd_scene(name))
+    lo, hi = (np.asarray(b, float) for b in scene_box(scene))
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi), voxels=12**3))
+    rng = np.random.default_rng(5)
+    points = np.vstack([scene.lights["pos"], lo + rng.random((2, 3)) * (hi - lo)])
+    maps = light_maps(occ, points)
+    assert maps.shape == (len(points), 6 * FACE_BLOCKS**2)
+    told = 0
+    for li, light in enumerate(points):
+        for x in lo + rng.random((150, 3)) * (hi - lo):
+            if light_clear(maps, li, *light, *x):
+                told += 1
+                assert not _meets_brute(light, x, occ), (light, x)
+    assert told > 10, told  # not vacuous
+
+
+@pytest.mark.parametrize("name", ["balls_s1.nff", "rings_s1.nff"])
+def test_shadow_rays_clear_from_their_light_end_without_a_walk(name, monkeypatch):
+    """A mesh with the lights' maps: the same image and counts as without, fewer walks."""
+    scene = read_nff(spd_scene(name))
+    runs = {}
+    for use in (True, False):
+        if not use:
+            monkeypatch.setattr(engine_module, "light_maps", lambda occ, lights: np.zeros((0, 0)))
+        runs[use] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
+    (img, totals, _, _), (ref, ref_totals, _, _) = runs[True], runs[False]
+    assert img.tobytes() == ref.tobytes()
+    for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit", "ray_segments"):
+        assert totals[k] == ref_totals[k], k
+    assert totals["occupancy_walks"] < 0.9 * ref_totals["occupancy_walks"]

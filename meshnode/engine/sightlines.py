@@ -1,4 +1,5 @@
-"""How near the eye's rays can meet the occupancy map, block by block of the sample grid.
+"""What the eye and each light see of the occupancy map: per direction block, how near a ray
+from there can meet an occupied voxel.
 
 A node routes each eye ray it makes from where its work starts: the first occupied voxel of
 the scene's occupancy map it meets (`occupancy.work_start`), a walk of the map that cost more
@@ -10,24 +11,31 @@ front of the eye), and every block of the sample grid that rectangle touches tak
 distance from the eye to the box as a bound. No ray of a block meets an occupied voxel
 nearer than its bound (inf: none at all), so its walk starts there, or is not made.
 
+Shadow rays all end at their light: seen from each light through the six faces of a cube
+around it (`light_maps`), a shadow ray leaving a node's box nearer its light than the bound
+of its direction's block has only empty voxels left to cross, and ends lit without the walk
+of the map from its exit that would find so (`light_clear`).
+
 Exact: the walk from the bound crosses the same empty voxels' far walls into the same first
 occupied voxel, whose entry it computes from the same wall, so the same t; the padding (far
 above the round-off of the points, the projection and the walk's voxel indices) keeps the
-bound's point out of every occupied voxel.
+bound's point out of every occupied voxel, and a clear segment out of all of them.
 """
 
 import math
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
 from meshnode.engine.camera import view_basis
-from meshnode.engine.jit import kernel
+from meshnode.engine.jit import kernel, leaf
 from meshnode.engine.occupancy import Occupancy
 from protocols.render import ImageSpec
 from protocols.scene import View
 
 BLOCKS = 256  # blocks along the sample grid's longer side, at most
+FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
 PAD = 1e-6  # of a voxel, each way, around every occupied voxel
 MARGIN = 0.01  # sample-grid columns (rows) around each projected rectangle
 WORK_MAX = 1 << 24  # voxel-by-block writes at most; past it the map is not used
@@ -83,6 +91,111 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec) -> tuple[EyeMap, str]:
     return EyeMap(near, side, columns, per_cell, bx), (
         f"{bx}x{by} blocks of {side} samples a side; {open_blocks:.0%} see no occupied voxel"
     )
+
+
+def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
+    """Per light (rows of `lights`, position first) and face of a cube around it (`_face`),
+    per block of FACE_BLOCKS x FACE_BLOCKS, the least distance from the light to an occupied
+    voxel seen through that block: (lights, 6 * FACE_BLOCKS**2); (0, 0) without lights. A
+    shadow ray leaving a node's box nearer its light than its block's bound crosses only
+    empty voxels to it (`light_clear`), so the walk of the map from its exit is not made."""
+    if lights is None or not len(lights):
+        return np.zeros((0, 0))
+    return _light_maps(
+        occ.clear[0].tobytes(),
+        occ.lo.tobytes(),
+        occ.cell.tobytes(),
+        tuple(occ.res.tolist()),
+        np.ascontiguousarray(lights[:, :3]).tobytes(),
+    )
+
+
+@lru_cache(maxsize=8)
+def _light_maps(
+    occupied: bytes, lo: bytes, cell: bytes, res: tuple, positions: bytes
+) -> np.ndarray:
+    """`light_maps` of a map and the lights' positions, as bytes: one array for every engine
+    built on the same map (the cost pre-pass builds hundreds)."""
+    occupied_ = np.frombuffer(occupied, np.uint8)
+    lo_, cell_ = np.frombuffer(lo, float), np.frombuffer(cell, float)
+    res_ = np.asarray(res, np.int64)
+    points = np.frombuffer(positions, float).reshape(-1, 3)
+    return np.stack([_faces(occupied_, lo_, cell_, res_, p, FACE_BLOCKS) for p in points])
+
+
+@kernel
+def _faces(occupied, lo, cell, res, point, s):
+    """The six faces' blocks (`light_maps`) of one point. A voxel at distance r from the
+    point is seen through a face (axis a, facing +a or -a) only where it lies at least
+    r / sqrt(3) out along that axis (inside the face's pyramid a point's distance is at
+    most sqrt(3) times its depth), so each face projects the voxel clipped there: a voxel
+    across the face's plane bounds only the blocks it reaches, not the whole face."""
+    near = np.full(6 * s * s, INF)
+    nx, ny = res[0], res[1]
+    b_lo, b_hi = np.empty(3), np.empty(3)
+    for v in range(occupied.shape[0]):
+        if occupied[v] != 0:
+            continue
+        index = (v % nx, (v // nx) % ny, v // (nx * ny))
+        gap = 0.0
+        for a in range(3):
+            pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(point[a]) + res[a] * cell[a])
+            b_lo[a] = lo[a] + index[a] * cell[a] - pad - point[a]  # relative to the point
+            b_hi[a] = lo[a] + (index[a] + 1) * cell[a] + pad - point[a]
+            g = max(b_lo[a], 0.0, -b_hi[a])
+            gap += g * g
+        r = math.sqrt(gap)
+        bound = r * (1.0 - 1e-12)
+        for face in range(6):
+            a = face // 2
+            b, c = (a + 1) % 3, (a + 2) % 3
+            d0, d1 = (b_lo[a], b_hi[a]) if face % 2 == 0 else (-b_hi[a], -b_lo[a])
+            d0 = max(d0, r * (1.0 - 1e-9) / math.sqrt(3.0))
+            if not d0 > 0.0 or d1 < d0:
+                if not d0 > 0.0 and d1 > 0.0:  # the point inside the padded voxel
+                    for k in range(face * s * s, (face + 1) * s * s):
+                        near[k] = min(near[k], bound)
+                continue
+            x0 = min(b_lo[b] / d0, b_lo[b] / d1)
+            x1 = max(b_hi[b] / d0, b_hi[b] / d1)
+            y0 = min(b_lo[c] / d0, b_lo[c] / d1)
+            y1 = max(b_hi[c] / d0, b_hi[c] / d1)
+            # as `light_clear` maps a direction: fx = u * s / 2 + s / 2, fy = s / 2 - w * s / 2
+            fx0, fx1 = x0 * (0.5 * s) + 0.5 * s, x1 * (0.5 * s) + 0.5 * s
+            fy0, fy1 = 0.5 * s - y1 * (0.5 * s), 0.5 * s - y0 * (0.5 * s)
+            if fx1 + MARGIN < 0.0 or fy1 + MARGIN < 0.0 or fx0 - MARGIN >= s or fy0 - MARGIN >= s:
+                continue
+            i0 = max(int(math.floor(fx0 - MARGIN)), 0)
+            i1 = min(int(math.floor(fx1 + MARGIN)), s - 1)
+            j0 = max(int(math.floor(fy0 - MARGIN)), 0)
+            j1 = min(int(math.floor(fy1 + MARGIN)), s - 1)
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    k = face * s * s + j * s + i
+                    near[k] = min(near[k], bound)
+    return near
+
+
+@leaf
+def light_clear(maps, light, lx, ly, lz, x, y, z):
+    """Whether the segment from the light `light` at (lx, ly, lz) to (x, y, z) crosses only
+    empty voxels by `light_maps` (False: it may not; walk the map)."""
+    vx, vy, vz = x - lx, y - ly, z - lz
+    ax, ay, az = abs(vx), abs(vy), abs(vz)
+    if ax >= ay and ax >= az:
+        face, depth, a, b = (0 if vx >= 0.0 else 1), ax, vy, vz
+    elif ay >= az:
+        face, depth, a, b = (2 if vy >= 0.0 else 3), ay, vz, vx
+    else:
+        face, depth, a, b = (4 if vz >= 0.0 else 5), az, vx, vy
+    if not depth > 0.0:
+        return False
+    s = FACE_BLOCKS
+    fx = a / depth * (0.5 * s) + 0.5 * s  # as `_seen` projects with step 2 / s
+    fy = 0.5 * s - b / depth * (0.5 * s)
+    i = min(max(int(math.floor(fx)), 0), s - 1)
+    j = min(max(int(math.floor(fy)), 0), s - 1)
+    return maps[light, face * s * s + j * s + i] > math.sqrt(vx * vx + vy * vy + vz * vz)
 
 
 @kernel

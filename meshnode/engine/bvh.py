@@ -252,7 +252,9 @@ def bvh_walk(
     dropped when popped if a hit nearer than its entry was found meanwhile. An any-hit walk
     (a shadow ray, nine in ten of which find nothing and visit every box they enter in any
     order) goes to the lowest entered lane, unsorted (`bench.spd`: rings 0.541 -> 0.488 s,
-    gears 0.622 -> 0.592, balls 0.207 -> 0.201; teapot, tetra, tree within the noise)."""
+    gears 0.622 -> 0.592, balls 0.207 -> 0.201; teapot, tetra, tree within the noise).
+    A visit asks for its entered children's lines in a large tree, and a leaf of
+    triangles is tested four at a time (`leaves`)."""
     t = hinted(
         hint,
         ox,

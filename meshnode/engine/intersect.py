@@ -107,7 +107,7 @@ def triangle_normal(tr, i):
     """Unit geometric normal e1 x e2 of triangle row i; zero for a zero-area triangle (a
     patch pole), never hit. Made where needed (a hit, a voxel overlap) rather than stored:
     the hit test then reads a 72-byte row, not 96 (the million-triangle tetrahedron's
-    eye rays 1.04x faster, `bench.embree`)."""
+    eye rays walked alone 203 -> 196 ns a ray in a copy of the walk)."""
     e1x, e1y, e1z = tr[i, 3], tr[i, 4], tr[i, 5]
     e2x, e2y, e2z = tr[i, 6], tr[i, 7], tr[i, 8]
     nx = e1y * e2z - e1z * e2y

@@ -155,7 +155,7 @@ def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, gri
                 walked += 1
                 entered += e
                 tested += v
-                packets = keep_packets(walked, entered, tested)
+                packets = keep_packets(walked, entered, tested, bvh[0])
             continue
         s = 1.0 / big
         k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)

@@ -139,7 +139,7 @@ def _packet_hits(rays, on, counters, geo, bvh, out):
             walked += 1
             entered += e
             tested += v
-            if not keep_packets(walked, entered, tested):
+            if not keep_packets(walked, entered, tested, bvh[0]):
                 break
     return first_t, first_u, first_r
 

@@ -6,7 +6,7 @@ so correctness never depends on how tight the test is, only the memory and the w
 
 import numpy as np
 
-from meshnode.engine.tables import build_tables, segments
+from meshnode.engine.tables import build_tables, segments, triangle_normals
 from protocols.scene import SceneData
 
 EDGE_TESTS_UP_TO = 16  # vertices: a polygon with more keeps its bounds and plane tests only
@@ -85,10 +85,14 @@ def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
         gap = np.maximum(np.abs(s[None, :, :3] - centre[:, None]) - half[:, None], 0.0)
         reach = (gap**2).sum(axis=2) <= (s[None, :, 3] * (1 + 1e-9)) ** 2
         touch[:, : len(s)] &= reach
-    for table, first, n_col in ((tb.triangles, tb.offsets[1], 9), (tb.polygons, tb.offsets[2], 3)):
+    planes = (
+        (tb.triangles, tb.offsets[1], triangle_normals),
+        (tb.polygons, tb.offsets[2], lambda p: p[:, 3:6]),
+    )
+    for table, first, normals in planes:
         if table is None:
             continue
-        p0, n = table[:, :3], table[:, n_col : n_col + 3]
+        p0, n = table[:, :3], normals(table)
         dist = np.abs(((centre[:, None] - p0[None]) * n[None]).sum(axis=2))
         reach = (np.abs(n)[None] * half[:, None]).sum(axis=2)
         touch[:, first : first + len(table)] &= dist <= reach * (1 + 1e-9) + 1e-12

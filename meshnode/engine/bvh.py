@@ -27,6 +27,7 @@ from numba import uint64
 from meshnode.engine.counters import STEPS, TESTS
 from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.lanes import LANES, slab4
+from meshnode.engine.leaves import prefetch_entered, triangle_leaf
 from meshnode.engine.traverse import TIE, better, hinted, test_object
 
 LEAF_BITS = 4  # a leaf reference packs its first id and its count (< 16) in one int32
@@ -251,7 +252,9 @@ def bvh_walk(
     dropped when popped if a hit nearer than its entry was found meanwhile. An any-hit walk
     (a shadow ray, nine in ten of which find nothing and visit every box they enter in any
     order) goes to the lowest entered lane, unsorted (`bench.spd`: rings 0.541 -> 0.488 s,
-    gears 0.622 -> 0.592, balls 0.207 -> 0.201; teapot, tetra, tree within the noise)."""
+    gears 0.622 -> 0.592, balls 0.207 -> 0.201; teapot, tetra, tree within the noise).
+    A visit asks for its entered children's lines in a large tree, and a leaf of
+    triangles is tested four at a time (`leaves`)."""
     t = hinted(
         hint,
         ox,
@@ -297,6 +300,10 @@ def bvh_walk(
             at = uint64(ref) * uint64(NODE_COLS)
             mask = slab4(flat, at, nx, ny, nz, ox, oy, oz, rx, ry, rz, t_lo, bound, stack)
             refs_at = at + uint64(REF_COL)
+            if mask != 0:  # their lines come while the nearest is walked
+                prefetch_entered(
+                    flat, flat_refs, at, mask, NODE_COLS, REF_COL, LEAF_BITS, tri, off[1]
+                )
             if mask != 0 and mask & (mask - 1) == 0:  # one box entered: no ordering
                 ref = flat_refs[refs_at + uint64(_lane_of(mask))]
                 continue
@@ -320,7 +327,26 @@ def bvh_walk(
         else:
             packed = ~ref
             first = packed >> LEAF_BITS
-            for u in range(first, first + (packed & LEAF_CAP)):
+            end = first + (packed & LEAF_CAP)
+            if tri is not None and off[1] <= first < off[2]:  # a leaf holds one kind
+                best_t, best_u, bound, n = triangle_leaf(
+                    tri,
+                    off[1],
+                    first,
+                    end,
+                    (ox, oy, oz),
+                    (dx, dy, dz),
+                    t_lo,
+                    bound,
+                    (best_t, best_u),
+                    origin,
+                    any_hit,
+                    gid,
+                    stack,
+                )
+                tests += n
+                end = first
+            for u in range(first, end):
                 tests += 1
                 t = test_object(
                     u,

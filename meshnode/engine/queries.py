@@ -106,7 +106,7 @@ def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, gri
     n = orig.shape[0]
     t_out = np.full(n, math.inf)
     g_out = np.full(n, -1, np.int64)
-    mail = np.full(gid.shape[0], -1, np.int64)
+    mail = np.full(gid.shape[0] if bvh is None else 0, -1, np.int64)  # the grid's alone
     stack = np.empty(2 * BVH_STACK)
     hint = -1
     packets = True  # with a hierarchy, until they stop paying (`keep_packets`)
@@ -155,7 +155,7 @@ def ray_hits(orig, dirs, t_lo, t_hi, leaving, any_hit, brute, counters, geo, gri
                 walked += 1
                 entered += e
                 tested += v
-                packets = keep_packets(walked, entered, tested)
+                packets = keep_packets(walked, entered, tested, bvh[0])
             continue
         s = 1.0 / big
         k = s / math.sqrt((dx * s) ** 2 + (dy * s) ** 2 + (dz * s) ** 2)

@@ -2,7 +2,7 @@
 
 import math
 
-from meshnode.engine.intersect import hit_triangle
+from meshnode.engine.intersect import hit_triangle, triangle_normal
 from meshnode.engine.jit import leaf
 
 
@@ -22,7 +22,7 @@ def normals(u, px, py, pz, ox, oy, oz, dx, dy, dz, off, sph, tri, tri_n, poly, c
         return nx, ny, nz, nx, ny, nz
     if tri is not None and u < off[2]:
         i = u - off[1]
-        gx, gy, gz = tri[i, 9], tri[i, 10], tri[i, 11]
+        gx, gy, gz = triangle_normal(tri, i)
         if tri_n is not None:
             # Interpolate vertex normals with the barycentrics of this very hit.
             _, bu, bv = hit_triangle(tri, i, ox, oy, oz, dx, dy, dz, -math.inf, math.inf)

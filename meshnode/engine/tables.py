@@ -13,7 +13,7 @@ import numpy as np
 
 from protocols.scene import OBJECT_KINDS, SceneData
 
-SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 12, 12, 10
+SPHERE_COLS, TRIANGLE_COLS, POLYGON_COLS, CONE_COLS = 5, 9, 12, 10
 # Polygon row columns after p0 and the normal: where band 0 starts in v, bands per unit of v;
 # then a centre (u, v) and the squared radii of a disc inside the polygon (-1: none) and of
 # one around it (`polygon_discs`).
@@ -309,6 +309,14 @@ def _cone_tables(scene: SceneData, transmits):
     return rows, lo, hi
 
 
+def triangle_normals(tri: np.ndarray) -> np.ndarray:
+    """(nt, 3) unit geometric normals e1 x e2 of triangle rows, zero for zero-area ones (patch
+    poles, never hit): the rows keep none (`intersect.triangle_normal`, the same bits)."""
+    n = np.cross(tri[:, 3:6], tri[:, 6:9])
+    length = np.linalg.norm(n, axis=1)[:, None]
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
 def build_tables(scene: SceneData) -> Tables:
     """Convert scene records into kernel tables (vectorised: no loop per object)."""
     mats = scene.materials
@@ -334,11 +342,9 @@ def build_tables(scene: SceneData) -> Tables:
     t = scene.triangles
     v = t["v"]
     e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    n = np.cross(e1, e2)
-    length = np.linalg.norm(n, axis=1)[:, None]
-    # Zero-area triangles (patch poles) can never be hit; keep them with a zero normal.
-    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-    tri = np.column_stack([v[:, 0], e1, e2, n]).reshape(-1, TRIANGLE_COLS)
+    # No normal column: a row is what a hit test reads (72 bytes, not 96 with the normal,
+    # read only at the closest hit: `intersect.triangle_normal`).
+    tri = np.column_stack([v[:, 0], e1, e2]).reshape(-1, TRIANGLE_COLS)
     smooth = bool(len(t)) and bool(t["smooth"].any())
     tri_n = t["n"].reshape(-1, 9) if smooth else np.zeros((0, 9))
     # vertex by vertex: numpy's v.min(axis=1) across the middle axis is 4x slower

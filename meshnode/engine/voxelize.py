@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from meshnode.engine.intersect import triangle_normal
 from meshnode.engine.jit import kernel
 
 
@@ -74,13 +75,14 @@ def _touches(u, ix, iy, iz, glo, cell, off, sph, tri, poly):
         return far >= r_in * r_in
     if tri is not None and u < off[2]:
         i = u - off[1]
+        nx, ny, nz = triangle_normal(tri, i)
         return _plane_straddles(
             tri[i, 0],
             tri[i, 1],
             tri[i, 2],
-            tri[i, 9],
-            tri[i, 10],
-            tri[i, 11],
+            nx,
+            ny,
+            nz,
             c0,
             c1,
             c2,

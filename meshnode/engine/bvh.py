@@ -30,6 +30,9 @@ from meshnode.engine.lanes import LANES, slab4
 from meshnode.engine.leaves import prefetch_entered, triangle_leaf
 from meshnode.engine.traverse import TIE, better, hinted, test_object
 
+LEAF_GROUP = (
+    3  # triangles in a leaf from which they are tested four at a time (a leaf holds one kind)
+)
 LEAF_BITS = 4  # a leaf reference packs its first id and its count (< 16) in one int32
 LEAF_CAP = (1 << LEAF_BITS) - 1
 # Pending children of a walk: at most three per level of the 4-wide tree, which has at most
@@ -328,7 +331,7 @@ def bvh_walk(
             packed = ~ref
             first = packed >> LEAF_BITS
             end = first + (packed & LEAF_CAP)
-            if tri is not None and off[1] <= first < off[2]:  # a leaf holds one kind
+            if tri is not None and off[1] <= first < off[2] and end - first >= LEAF_GROUP:
                 best_t, best_u, bound, n = triangle_leaf(
                     tri,
                     off[1],

@@ -78,7 +78,9 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import kernels_compiled
 from meshnode.engine.raycheck import first_untraceable
+from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.routing import owners
+from meshnode.engine.sightlines import eye_map, light_maps
 from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec
 
@@ -90,6 +92,10 @@ rays = eye_rays(scene.view, ImageSpec(width=4, height=4))
 engine.trace_node(rays)
 owners(rays, np.zeros((1, 3)), np.ones((1, 3)))
 engine.routed(rays, (np.zeros((1, 3)), np.ones((1, 3))), True, 0)
+occ = occupancy_arrays(np.zeros(3), np.ones(3), (2, 2, 2), bytes([0x81]))  # an object-space map
+light_maps(occ, np.array([[2.0, 2.0, 2.0]]))
+eye, _ = eye_map(occ, scene.view, ImageSpec(width=4, height=4))
+engine.routed(rays, (np.zeros((1, 3)), np.ones((1, 3))), True, 0, eye)
 first_untraceable(rays)
 print(kernels_compiled())
 """

@@ -123,6 +123,22 @@ def _light_maps(
     return np.stack([_faces(occupied_, lo_, cell_, res_, p, FACE_BLOCKS) for p in points])
 
 
+@leaf
+def _padded_voxel(v, lo, cell, res, point, b_lo, b_hi):
+    """Voxel v of the map (x fastest), padded by PAD of a voxel and far above round-off, as
+    b_lo..b_hi relative to `point`; returns the distance from the point to it."""
+    nx, ny = res[0], res[1]
+    index = (v % nx, (v // nx) % ny, v // (nx * ny))
+    gap = 0.0
+    for a in range(3):
+        pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(point[a]) + res[a] * cell[a])
+        b_lo[a] = lo[a] + index[a] * cell[a] - pad - point[a]
+        b_hi[a] = lo[a] + (index[a] + 1) * cell[a] + pad - point[a]
+        g = max(b_lo[a], 0.0, -b_hi[a])
+        gap += g * g
+    return math.sqrt(gap)
+
+
 @kernel
 def _faces(occupied, lo, cell, res, point, s):
     """The six faces' blocks (`light_maps`) of one point. A voxel at distance r from the
@@ -131,20 +147,11 @@ def _faces(occupied, lo, cell, res, point, s):
     most sqrt(3) times its depth), so each face projects the voxel clipped there: a voxel
     across the face's plane bounds only the blocks it reaches, not the whole face."""
     near = np.full(6 * s * s, INF)
-    nx, ny = res[0], res[1]
     b_lo, b_hi = np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
             continue
-        index = (v % nx, (v // nx) % ny, v // (nx * ny))
-        gap = 0.0
-        for a in range(3):
-            pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(point[a]) + res[a] * cell[a])
-            b_lo[a] = lo[a] + index[a] * cell[a] - pad - point[a]  # relative to the point
-            b_hi[a] = lo[a] + (index[a] + 1) * cell[a] + pad - point[a]
-            g = max(b_lo[a], 0.0, -b_hi[a])
-            gap += g * g
-        r = math.sqrt(gap)
+        r = _padded_voxel(v, lo, cell, res, point, b_lo, b_hi)
         bound = r * (1.0 - 1e-12)
         for face in range(6):
             a = face // 2
@@ -207,25 +214,16 @@ def _seen(
     voxel is occupied. A voxel reaching behind the eye's plane bounds every block."""
     near = np.full(bx * by, INF)
     everywhere, work = INF, 0
-    nx, ny = res[0], res[1]
     corner, b_lo, b_hi = np.empty(3), np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
             continue
-        index = (v % nx, (v // nx) % ny, v // (nx * ny))
-        gap = 0.0
-        for a in range(3):
-            pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(eye[a]) + res[a] * cell[a])
-            b_lo[a] = lo[a] + index[a] * cell[a] - pad
-            b_hi[a] = lo[a] + (index[a] + 1) * cell[a] + pad
-            g = max(b_lo[a] - eye[a], 0.0, eye[a] - b_hi[a])
-            gap += g * g
-        bound = math.sqrt(gap) * (1.0 - 1e-12)
+        bound = _padded_voxel(v, lo, cell, res, eye, b_lo, b_hi) * (1.0 - 1e-12)
         x0, x1, y0, y1 = INF, -INF, INF, -INF
         behind = False
         for c in range(8):
             for a in range(3):
-                corner[a] = (b_hi[a] if (c >> a) & 1 else b_lo[a]) - eye[a]
+                corner[a] = b_hi[a] if (c >> a) & 1 else b_lo[a]
             s = corner[0] * fwd[0] + corner[1] * fwd[1] + corner[2] * fwd[2]
             length = math.sqrt(corner[0] ** 2 + corner[1] ** 2 + corner[2] ** 2)
             if not s > 1e-9 * length:

@@ -88,7 +88,7 @@ def _common_warmup() -> None:
     from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
     from meshnode.engine.routing import cell_locator, owners, routed
-    from meshnode.engine.sightlines import eye_map
+    from meshnode.engine.sightlines import eye_map, light_maps
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
 
@@ -101,6 +101,7 @@ def _common_warmup() -> None:
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
     cells = box[0][None], box[1][None]
     eye, _ = eye_map(half, view, ImageSpec(width=1, height=1))  # ... seen from the eye
+    light_maps(half, np.ones((1, 3)))  # ... and from a light: an object-space node's engines
     routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells), eye)  # a node's batches
     first_untraceable(rays)  # a neighbour's RAYS
     deposits = np.zeros(2, dtypes.DEPOSIT)

@@ -21,6 +21,7 @@ import numpy as np
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.jit import inline, kernel
 from meshnode.engine.occupancy import work_start
+from meshnode.engine.sightlines import eye_cell
 from meshnode.engine.traverse import box_span
 
 _MARGIN = 1e-13  # of |o| + |t d| + |the scene's coordinates|: round-off is below 1e-15 of it
@@ -193,7 +194,6 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
     occ_lo, occ_cell, occ_res, occ_clear = occ
     coords, at, nc, first, members, scale = loc
-    near, side, columns, per_cell, blocks_x = eye
     ids_from, ids_to, t_from = 0, 0, -math.inf  # the last sample-grid cell's ids and bound
     n, boxes = rays.shape[0], los.shape[0]
     dest = np.empty(n, np.int64)
@@ -201,8 +201,6 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     starts = np.zeros(boxes + 1, np.int64)
     counters = np.zeros(N_COUNTERS, np.int64)  # occupancy steps here are not a trace's
     lost = 0
-    # the fields' own views: a record's array fields read through it (r.o[0]) cost 16 ns a
-    # ray for o, d and t_min, these 3.5
     o, d, pixel = rays["o"], rays["d"], rays["pixel"]
     ray_t_min, ray_t_max = rays["t_min"], rays["t_max"]
     for i in range(n):
@@ -213,11 +211,8 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
         irz = 1.0 / dz if dz != 0.0 else math.inf
         t, past = ray_t_min[i], -math.inf
         if skip:
-            if near.shape[0] and not ids_from <= pixel[i] < ids_to:
-                g = pixel[i] // per_cell
-                ids_from, ids_to = g * per_cell, (g + 1) * per_cell
-                b = (g // columns) // side * blocks_x + (g % columns) // side
-                t_from = near[b] if 0 <= g and b < near.shape[0] else -math.inf
+            if eye.near.shape[0] and not ids_from <= pixel[i] < ids_to:
+                ids_from, ids_to, t_from = eye_cell(eye, pixel[i])
             t, past = work_start(
                 ox,
                 oy,

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine.camera import view_basis
-from meshnode.engine.jit import kernel, leaf
+from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.occupancy import Occupancy
 from protocols.render import ImageSpec
 from protocols.scene import View
@@ -91,6 +91,18 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec) -> tuple[EyeMap, str]:
     return EyeMap(near, side, columns, per_cell, bx), (
         f"{bx}x{by} blocks of {side} samples a side; {open_blocks:.0%} see no occupied voxel"
     )
+
+
+@inline
+def eye_cell(eye, pixel):
+    """(first id, end id, bound) of the sample-grid cell holding RAY.pixel id `pixel` under
+    the `EyeMap` eye: the ids of that cell's samples, all in one block, and the block's
+    bound (-inf where the id lies outside the map: nothing known)."""
+    near, side, columns, per_cell, blocks_x = eye
+    g = pixel // per_cell
+    b = (g // columns) // side * blocks_x + (g % columns) // side
+    bound = near[b] if 0 <= g and b < near.shape[0] else -INF
+    return g * per_cell, (g + 1) * per_cell, bound
 
 
 def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:

@@ -167,9 +167,11 @@ def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():
     assert within(plan, holdings(scene, spec, part, keep))  # as the budget leaves it
     at, dealt, report = with_replicas(scene, spec, part, keep)
     assert report["chosen"] and at.plan.holds, report["why"]
-    # of every rule's copies and share tried, the lightest simulated mesh is kept
+    # of every rule's copies and share tried (a set two rules both choose, once), the lightest
+    # simulated mesh is kept
     tried = report["tried"]
-    assert {t["rule"] for t in tried} == set(RULES)
+    assert RULES[0] in {t["rule"] for t in tried} and {t["rule"] for t in tried} <= set(RULES)
+    assert len({str(t["holds"]) for t in tried}) == len(tried)
     lightest = min(
         tried, key=lambda t: (t["simulated_busiest_vs_none"], t["simulated_rays_passed"])
     )

@@ -121,6 +121,8 @@ def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, mon
     core, made = meshnode.mesh.node.NodeCore, []
     own = core._eye_map
     runs = {}
+    # the eye map alone: which node makes an eye ray is `test_claims`'s
+    monkeypatch.setattr(core, "_claims", lambda self: (None, "off"))
     for use in (True, False):
         made_here = (lambda self: made.append(own(self)) or made[-1]) if use else None
         monkeypatch.setattr(core, "_eye_map", made_here or (lambda self: (NO_EYE_MAP, "off")))

@@ -66,6 +66,9 @@ def uniforms(seed, ids, dim, out):
         out[i] = uniform(seed, ids[i], dim)
 
 
+NO_KEEP = np.zeros((0, 0), np.uint8)  # `fill_eye_rays`: every cell of the rectangle
+
+
 @inline
 def set_primary(r, ox, oy, oz, dx, dy, dz, t_min, w, pixel):
     """Fill one primary (eye or camera) RAY record: unit weight scale `w`, no origin object."""
@@ -83,9 +86,10 @@ def set_primary(r, ox, oy, oz, dx, dy, dz, t_min, w, pixel):
 
 @kernel
 def fill_eye_rays(
-    out, eye, fwd, right, up, step, width, height, corners, spp, seed, x0, x1, y0, y1, hither
+    out, eye, fwd, right, up, step, width, height, corners, spp, seed, x0, x1, y0, y1, hither, keep
 ):
-    """Write the eye rays of sample-grid columns [x0, x1) and rows [y0, y1) into `out`.
+    """Write the eye rays of sample-grid columns [x0, x1) and rows [y0, y1) into `out`: every
+    cell's, or where `keep` (rows by columns of the rectangle) has some only those cells'.
 
     corners=True: sample (i, j) sits on a pixel corner, id j*(W+1)+i. Otherwise sample k of
     pixel (i, j) has id (j*W+i)*spp+k, at the pixel centre (spp 1) or jittered (stratified
@@ -94,8 +98,11 @@ def fill_eye_rays(
     grid_w = width + 1 if corners else width
     strata = int(math.sqrt(spp) + 0.5)
     stratified = strata * strata == spp
+    every = keep.shape[0] == 0
     for j in range(y0, y1):
         for i in range(x0, x1):
+            if not every and keep[j - y0, i - x0] == 0:
+                continue
             for k in range(spp):
                 sid = j * grid_w + i if corners else (j * width + i) * spp + k
                 if corners:
@@ -129,9 +136,11 @@ def eye_rays(
     image: ImageSpec,
     rows: tuple[int, int] | None = None,
     cols: tuple[int, int] | None = None,
+    keep: np.ndarray | None = None,
 ):
     """Eye rays (RAY records) of a rectangle of the image's sample grid (all of it by
-    default): pixel corners under the SPD rules, else `spp` samples per pixel."""
+    default): pixel corners under the SPD rules, else `spp` samples per pixel; with `keep`
+    (a flag per sample-grid cell of the rectangle, rows by columns) only the flagged cells'."""
     width, height = image.size
     eye, fwd, right, up, step = view_basis(view, width, height)
     gw, gh = image.sample_grid()
@@ -139,8 +148,16 @@ def eye_rays(
     spp = 1 if corners else image.spp
     x0, x1 = cols or (0, gw)
     y0, y1 = rows or (0, gh)
+    cells = (x1 - x0) * (y1 - y0)
+    if keep is None:
+        keep = NO_KEEP
+    else:
+        keep = np.ascontiguousarray(keep, np.uint8)
+        if keep.shape != (y1 - y0, x1 - x0):
+            raise ValueError(f"eye_rays: keep is {keep.shape}, the rectangle {(y1 - y0, x1 - x0)}")
+        cells = int(np.count_nonzero(keep))
     # Not zeroed: the kernel writes every field of every record (RAY has no padding bytes).
-    out = np.empty((x1 - x0) * (y1 - y0) * spp, RAY)
+    out = np.empty(cells * spp, RAY)
     fill_eye_rays(
         out,
         eye,
@@ -158,5 +175,6 @@ def eye_rays(
         y0,
         y1,
         float(view.hither),
+        keep,
     )
     return out

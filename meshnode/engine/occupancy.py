@@ -228,8 +228,14 @@ def work_start(
             ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, s1, lo, cell, res, clear, counters
         )
     if t == INF:
-        return t_min, s1 + abs(s1) * 1e-9 + 1e-300
+        return t_min, past_box(s1)
     return (t if t > t_min else t_min), -INF
+
+
+@inline
+def past_box(s1):
+    """A t just past s1, a ray's exit from the scene's box (`work_start`)."""
+    return s1 + abs(s1) * 1e-9 + 1e-300
 
 
 @kernel

@@ -20,7 +20,7 @@ import numpy as np
 
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.jit import inline, kernel
-from meshnode.engine.occupancy import work_start
+from meshnode.engine.occupancy import past_box, work_start
 from meshnode.engine.sightlines import eye_cell
 from meshnode.engine.traverse import box_span
 
@@ -178,6 +178,50 @@ def owners(rays, los, his):
     return out
 
 
+@inline
+def _seen_cell_start(ox, oy, oz, rx, ry, rz, t_min, t_max, c, los, his, scene_lo, scene_hi):
+    """(cell, t, past) as `routed` has them for an eye ray whose block sees occupied voxels
+    of cell c only (`sightlines.EyeMap.only`): each of them lies inside c, so the ray's work
+    starts where it enters c, with no walk of the map (c's kernel finds the same first hit
+    from there as from the first voxel: no object is nearer); a ray missing c meets none,
+    and goes past the scene's box as `occupancy.work_start` would send it."""
+    c0, c1 = box_span(
+        ox,
+        oy,
+        oz,
+        rx,
+        ry,
+        rz,
+        t_min,
+        t_max,
+        los[c, 0],
+        los[c, 1],
+        los[c, 2],
+        his[c, 0],
+        his[c, 1],
+        his[c, 2],
+    )
+    if c0 <= c1:
+        return c, c0, -math.inf
+    s0, s1 = box_span(
+        ox,
+        oy,
+        oz,
+        rx,
+        ry,
+        rz,
+        t_min,
+        t_max,
+        scene_lo[0],
+        scene_lo[1],
+        scene_lo[2],
+        scene_hi[0],
+        scene_hi[1],
+        scene_hi[2],
+    )
+    return c, t_min, (math.inf if s0 > s1 else past_box(s1))
+
+
 @kernel
 def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
@@ -194,7 +238,8 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
     occ_lo, occ_cell, occ_res, occ_clear = occ
     coords, at, nc, first, members, scale = loc
-    ids_from, ids_to, t_from = 0, 0, -math.inf  # the last sample-grid cell's ids and bound
+    # the last sample-grid cell's ids, bound and the one cell its block sees (-2: not one)
+    ids_from, ids_to, t_from, seen = 0, 0, -math.inf, -2
     n, boxes = rays.shape[0], los.shape[0]
     dest = np.empty(n, np.int64)
     t_min = np.empty(n)
@@ -210,9 +255,14 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
         iry = 1.0 / dy if dy != 0.0 else math.inf
         irz = 1.0 / dz if dz != 0.0 else math.inf
         t, past = ray_t_min[i], -math.inf
-        if skip:
-            if eye.near.shape[0] and not ids_from <= pixel[i] < ids_to:
-                ids_from, ids_to, t_from = eye_cell(eye, pixel[i])
+        if skip and eye.near.shape[0] and not ids_from <= pixel[i] < ids_to:
+            ids_from, ids_to, t_from, seen = eye_cell(eye, pixel[i])
+        if skip and seen >= 0:
+            # its block sees one cell's occupied voxels: its work starts there or nowhere
+            b, t, past = _seen_cell_start(
+                ox, oy, oz, irx, iry, irz, t, ray_t_max[i], seen, los, his, scene_lo, scene_hi
+            )
+        elif skip:
             t, past = work_start(
                 ox,
                 oy,
@@ -234,7 +284,9 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
                 counters,
                 t_from,
             )
-        if past > -math.inf and fallback >= 0:
+        if skip and seen >= 0 and past == -math.inf:
+            pass  # b and t from the cell seen
+        elif past > -math.inf and fallback >= 0:
             # Only empty voxels ahead, or it misses the scene's box: any node's kernel ends
             # it at once (tetra: 30% and 40% of its eye rays), so the fallback's (the node
             # routing it) does, with no box looked up (9 spans on 3x3: 40% of the routing):

@@ -9,7 +9,10 @@ map can be seen from the eye once a render: each occupied voxel, padded, project
 image plane inside the rectangle of its corners' projections (the hull of a convex box in
 front of the eye), and every block of the sample grid that rectangle touches takes the
 distance from the eye to the box as a bound. No ray of a block meets an occupied voxel
-nearer than its bound (inf: none at all), so its walk starts there, or is not made.
+nearer than its bound (inf: none at all), so its walk starts there, or is not made. Each
+block also learns which cells' parts of those voxels it sees: where that is one cell, each of
+its rays starts its work in that cell or nowhere, so it is made by the node tracing that cell
+(`meshnode.mesh.claims`) and sent there with no walk at all (`routing.routed`).
 
 Shadow rays all end at their light: seen from each light through the six faces of a cube
 around it (`light_maps`), a shadow ray leaving a node's box nearer its light than the bound
@@ -53,20 +56,25 @@ class EyeMap(NamedTuple):
     columns: int
     per_cell: int
     blocks_x: int
+    only: np.ndarray  # per block, the one cell whose occupied voxels it sees (`SEEN_*` else)
 
 
-NO_EYE_MAP = EyeMap(np.zeros(0), 1, 1, 1, 1)
+SEEN_NONE, SEEN_SEVERAL = -1, -2  # `EyeMap.only` of a block that sees no cell, or several
+NO_EYE_MAP = EyeMap(np.zeros(0), 1, 1, 1, 1, np.zeros(0, np.int64))
 
 
-def eye_map(occ: Occupancy, view: View, image: ImageSpec) -> tuple[EyeMap, str]:
+def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[EyeMap, str]:
     """The `EyeMap` of pinhole eye rays of `image` from `view` over the map `occ`, and why
-    it is or is not used (for the stats)."""
+    it is or is not used (for the stats); with `cells` (los, his), which of them each block
+    sees (`EyeMap.only`): an eye ray of a block seeing one cell starts its work there or
+    nowhere, so the node tracing that cell can make it (`eye_claims`)."""
+    cell_los, cell_his = (np.zeros((0, 3)), np.zeros((0, 3))) if cells is None else cells
     width, height = image.size
     eye, fwd, right, up, step = view_basis(view, width, height)
     columns, rows = image.sample_grid()
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
-    near, work = _seen(
+    near, only, work = _seen(
         occ.clear[0],
         occ.lo,
         occ.cell,
@@ -83,26 +91,31 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec) -> tuple[EyeMap, str]:
         side,
         bx,
         by,
+        np.ascontiguousarray(cell_los, float),
+        np.ascontiguousarray(cell_his, float),
     )
     if work > WORK_MAX:
         return NO_EYE_MAP, f"not used: {work} voxel-block writes past {WORK_MAX}"
     per_cell = 1 if image.corners() else image.spp
     open_blocks = float(np.mean(near == INF))
-    return EyeMap(near, side, columns, per_cell, bx), (
+    return EyeMap(near, side, columns, per_cell, bx, only), (
         f"{bx}x{by} blocks of {side} samples a side; {open_blocks:.0%} see no occupied voxel"
     )
 
 
 @inline
 def eye_cell(eye, pixel):
-    """(first id, end id, bound) of the sample-grid cell holding RAY.pixel id `pixel` under
-    the `EyeMap` eye: the ids of that cell's samples, all in one block, and the block's
-    bound (-inf where the id lies outside the map: nothing known)."""
-    near, side, columns, per_cell, blocks_x = eye
+    """(first id, end id, bound, cell) of the sample-grid cell holding RAY.pixel id `pixel`
+    under the `EyeMap` eye: the ids of that cell's samples, all in one block, the block's
+    bound (-inf where the id lies outside the map: nothing known) and the one cell it sees
+    (`EyeMap.only`; SEEN_SEVERAL where unknown)."""
+    side, columns, per_cell = eye.side, eye.columns, eye.per_cell
     g = pixel // per_cell
-    b = (g // columns) // side * blocks_x + (g % columns) // side
-    bound = near[b] if 0 <= g and b < near.shape[0] else -INF
-    return g * per_cell, (g + 1) * per_cell, bound
+    b = (g // columns) // side * eye.blocks_x + (g % columns) // side
+    known = 0 <= g and b < eye.near.shape[0]
+    bound = eye.near[b] if known else -INF
+    seen = eye.only[b] if known and b < eye.only.shape[0] else SEEN_SEVERAL
+    return g * per_cell, (g + 1) * per_cell, bound, seen
 
 
 def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
@@ -219,51 +232,122 @@ def light_clear(maps, light, lx, ly, lz, x, y, z):
 
 @kernel
 def _seen(
-    occupied, lo, cell, res, eye, fwd, right, up, step, width, height, cols, rows, side, bx, by
+    occupied,
+    lo,
+    cell,
+    res,
+    eye,
+    fwd,
+    right,
+    up,
+    step,
+    width,
+    height,
+    cols,
+    rows,
+    side,
+    bx,
+    by,
+    cell_los,
+    cell_his,
 ):
     """(per block the least distance from the eye to a padded occupied voxel projecting onto
-    it, the voxel-block writes made). `occupied`: a row of `Occupancy.clear`, 0 where a
-    voxel is occupied. A voxel reaching behind the eye's plane bounds every block."""
+    it, per block the cell of cell_los..cell_his whose parts of those voxels it sees
+    (`EyeMap.only`; all SEEN_NONE without cells), the voxel-block writes made). `occupied`:
+    a row of `Occupancy.clear`, 0 where a voxel is occupied. A voxel reaching behind the
+    eye's plane bounds every block and is seen by every block. A voxel across cells is seen
+    part by part, each part (widened by round-off) under its own cell."""
     near = np.full(bx * by, INF)
-    everywhere, work = INF, 0
-    corner, b_lo, b_hi = np.empty(3), np.empty(3), np.empty(3)
+    only = np.full(bx * by, SEEN_NONE, np.int64)
+    everywhere, everywhere_cell, work = INF, SEEN_NONE, 0
+    view = (eye, fwd, right, up, step, width, height, cols, rows, side)
+    b_lo, b_hi, p_lo, p_hi = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
             continue
         bound = _padded_voxel(v, lo, cell, res, eye, b_lo, b_hi) * (1.0 - 1e-12)
-        x0, x1, y0, y1 = INF, -INF, INF, -INF
-        behind = False
-        for c in range(8):
-            for a in range(3):
-                corner[a] = b_hi[a] if (c >> a) & 1 else b_lo[a]
-            s = corner[0] * fwd[0] + corner[1] * fwd[1] + corner[2] * fwd[2]
-            length = math.sqrt(corner[0] ** 2 + corner[1] ** 2 + corner[2] ** 2)
-            if not s > 1e-9 * length:
-                behind = True
-                break
-            px = (corner[0] * right[0] + corner[1] * right[1] + corner[2] * right[2]) / s
-            py = (corner[0] * up[0] + corner[1] * up[1] + corner[2] * up[2]) / s
-            fx = px / step + 0.5 * width  # as `fill_eye_rays` makes px from fx
-            fy = 0.5 * height - py / step
-            x0, x1 = min(x0, fx), max(x1, fx)
-            y0, y1 = min(y0, fy), max(y1, fy)
-        if behind:
+        state, i0, i1, j0, j1 = _rectangle(b_lo, b_hi, view)
+        if state == BEHIND:
             everywhere = min(everywhere, bound)
-            continue
-        # sample-grid cell i holds samples at i <= fx < i + 1
-        if x1 + MARGIN < 0.0 or y1 + MARGIN < 0.0 or x0 - MARGIN >= cols or y0 - MARGIN >= rows:
-            continue
-        i0 = max(int(math.floor(x0 - MARGIN)), 0) // side
-        i1 = min(int(math.floor(x1 + MARGIN)), cols - 1) // side
-        j0 = max(int(math.floor(y0 - MARGIN)), 0) // side
-        j1 = min(int(math.floor(y1 + MARGIN)), rows - 1) // side
-        work += (i1 - i0 + 1) * (j1 - j0 + 1)
-        if work > WORK_MAX:
-            return near, work
-        for j in range(j0, j1 + 1):
-            for i in range(i0, i1 + 1):
-                near[j * bx + i] = min(near[j * bx + i], bound)
+        elif state == ON_IMAGE:
+            work += (i1 - i0 + 1) * (j1 - j0 + 1)
+            if work > WORK_MAX:
+                return near, only, work
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    near[j * bx + i] = min(near[j * bx + i], bound)
+        for c in range(cell_los.shape[0]):
+            if not _part_in_cell(b_lo, b_hi, eye, cell_los[c], cell_his[c], p_lo, p_hi):
+                continue
+            state, i0, i1, j0, j1 = _rectangle(p_lo, p_hi, view)
+            if state == BEHIND:
+                everywhere_cell = _joined_cell(everywhere_cell, c)
+            elif state == ON_IMAGE:
+                for j in range(j0, j1 + 1):
+                    for i in range(i0, i1 + 1):
+                        only[j * bx + i] = _joined_cell(only[j * bx + i], c)
     if everywhere < INF:
         for b in range(near.shape[0]):
             near[b] = min(near[b], everywhere)
-    return near, work
+    if everywhere_cell != SEEN_NONE:
+        for b in range(near.shape[0]):
+            only[b] = _joined_cell(only[b], everywhere_cell)
+    return near, only, work
+
+
+OFF_IMAGE, ON_IMAGE, BEHIND = 0, 1, 2  # `_rectangle`'s states
+
+
+@leaf
+def _rectangle(b_lo, b_hi, view):
+    """(state, i0, i1, j0, j1): the blocks (columns i0..i1, rows j0..j1) the box b_lo..b_hi
+    (relative to the eye) projects onto, inside the hull of its corners' projections and a
+    MARGIN; BEHIND where it reaches behind the eye's plane, OFF_IMAGE where it misses."""
+    eye, fwd, right, up, step, width, height, cols, rows, side = view
+    x0, x1, y0, y1 = INF, -INF, INF, -INF
+    for c in range(8):
+        cx = b_hi[0] if c & 1 else b_lo[0]
+        cy = b_hi[1] if c & 2 else b_lo[1]
+        cz = b_hi[2] if c & 4 else b_lo[2]
+        s = cx * fwd[0] + cy * fwd[1] + cz * fwd[2]
+        if not s > 1e-9 * math.sqrt(cx * cx + cy * cy + cz * cz):
+            return BEHIND, 0, 0, 0, 0
+        px = (cx * right[0] + cy * right[1] + cz * right[2]) / s
+        py = (cx * up[0] + cy * up[1] + cz * up[2]) / s
+        fx = px / step + 0.5 * width  # as `fill_eye_rays` makes px from fx
+        fy = 0.5 * height - py / step
+        x0, x1 = min(x0, fx), max(x1, fx)
+        y0, y1 = min(y0, fy), max(y1, fy)
+    # sample-grid cell i holds samples at i <= fx < i + 1
+    if x1 + MARGIN < 0.0 or y1 + MARGIN < 0.0 or x0 - MARGIN >= cols or y0 - MARGIN >= rows:
+        return OFF_IMAGE, 0, 0, 0, 0
+    i0 = max(int(math.floor(x0 - MARGIN)), 0) // side
+    i1 = min(int(math.floor(x1 + MARGIN)), cols - 1) // side
+    j0 = max(int(math.floor(y0 - MARGIN)), 0) // side
+    j1 = min(int(math.floor(y1 + MARGIN)), rows - 1) // side
+    return ON_IMAGE, i0, i1, j0, j1
+
+
+@leaf
+def _part_in_cell(b_lo, b_hi, eye, c_lo, c_hi, p_lo, p_hi):
+    """Whether the padded voxel b_lo..b_hi (relative to `eye`) has a part in the cell
+    c_lo..c_hi widened by round-off, written to p_lo..p_hi: a ray's work starts on a
+    voxel's wall and goes to the cell holding that point (`routing`), so the part a ray
+    meets first names the cell it goes to."""
+    for a in range(3):
+        slack = 1e-9 * (abs(c_lo[a]) + abs(c_hi[a]) + abs(eye[a]))
+        p_lo[a] = max(b_lo[a], c_lo[a] - slack - eye[a])
+        p_hi[a] = min(b_hi[a], c_hi[a] + slack - eye[a])
+        if p_lo[a] > p_hi[a]:
+            return False
+    return True
+
+
+@inline
+def _joined_cell(a, b):
+    """What a block sees once it sees `a` and `b` (cells, SEEN_NONE or SEEN_SEVERAL)."""
+    if a == SEEN_NONE or a == b:
+        return b
+    if b == SEEN_NONE:
+        return a
+    return SEEN_SEVERAL

@@ -22,6 +22,7 @@ from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
+from meshnode.mesh.claims import claimed_bands, eye_claims, routing_map
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
@@ -119,6 +120,8 @@ class NodeCore:
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
         self.eye, self.eye_reason = self._eye_map()
+        self.claims, self.claims_reason = self._claims()
+        self.eye = routing_map(self.eye, list(spec.plan.held(node)))
 
     def _eye_map(self) -> tuple[EyeMap, str]:
         """The occupancy map seen from the eye, for routing the eye rays this node makes in
@@ -128,7 +131,16 @@ class NodeCore:
             return NO_EYE_MAP, "not used: one cell"
         if self.spec.camera is not None or self.books is not None:
             return NO_EYE_MAP, "not used: a lens or adaptive sampling makes the eye rays"
-        return eye_map(self.engine.occupancy, self.view, self.spec.image)
+        return eye_map(self.engine.occupancy, self.view, self.spec.image, self.cells)
+
+    def _claims(self) -> tuple[np.ndarray | None, str]:
+        """Which node makes each sample's eye rays (`claims.eye_claims`), under the eye map
+        and static rectangles: a stolen chunk or a dealt tile is made by whoever takes it."""
+        if not self.eye.near.shape[0]:
+            return None, "not used: no eye map"
+        if self.spec.plan.steal or self.feed is not None:
+            return None, "not used: chunks are stolen or tiles dealt"
+        return eye_claims(self.eye, self.part, self.spec.plan, self.spec.image.sample_grid())
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary
@@ -184,6 +196,8 @@ class NodeCore:
                 lambda chunks: self.rect_batches(chunks[0]),
                 usable=usable,
             )
+        if self.claims is not None:
+            return Primaries(self._claimed_batches())
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
 
     def _stealable_last(self, chunks: list, usable) -> list:
@@ -246,6 +260,13 @@ class NodeCore:
         if last:
             self.feed.close()
         return books.release() if books is not None else {}
+
+    def _claimed_batches(self):
+        """The eye rays of every sample-grid cell this node claims, in bands of rows."""
+        mine = self.claims == self.node
+        for y0, y1, x0, x1 in claimed_bands(mine, self.eye.per_cell, self.eye_batch):
+            keep = mine[y0:y1, x0:x1]
+            yield eye_rays(self.view, self.spec.image, rows=(y0, y1), cols=(x0, x1), keep=keep)
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect

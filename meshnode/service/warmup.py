@@ -100,7 +100,7 @@ def _common_warmup() -> None:
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes
     cells = box[0][None], box[1][None]
-    eye, _ = eye_map(half, view, ImageSpec(width=1, height=1))  # ... seen from the eye
+    eye, _ = eye_map(half, view, ImageSpec(width=1, height=1), cells)  # ... seen from the eye
     light_maps(half, np.ones((1, 3)))  # ... and from a light: an object-space node's engines
     routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells), eye)  # a node's batches
     first_untraceable(rays)  # a neighbour's RAYS

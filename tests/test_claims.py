@@ -1,8 +1,8 @@
-"""Eye rays made where they are traced (`meshnode.mesh.claims`): a block of the sample grid
-that the eye's map says sees one cell sends every eye ray to that cell or to none (against the
-map's full walk from the scene's box), and a mesh whose nodes make the rays they claim renders
-the same image (to round-off: deposits come in another order) and counts as one whose nodes
-make their rectangles', with fewer passes."""
+"""Eye rays made where they are traced (`meshnode.mesh.claims`): a ray entering the cell its
+block sees first before any other cell's voxels meets no occupied voxel before that entry
+(against the map's full walk from the scene's box), and a mesh whose nodes make the rays
+they claim renders the same image (to round-off: deposits come in another order) and
+counts as one whose nodes make their rectangles', with fewer passes."""
 
 import numpy as np
 import pytest
@@ -13,8 +13,8 @@ from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.occupancy import occupancy_arrays
-from meshnode.engine.routing import cell_locator, routed
-from meshnode.engine.sightlines import NO_EYE_MAP, SEEN_NONE, SEEN_SEVERAL, eye_map
+from meshnode.engine.routing import cell_locator, routed, start_cells
+from meshnode.engine.sightlines import NO_EYE_MAP, SEEN_NONE, eye_map
 from meshnode.mesh.claims import claimed_bands
 from protocols.render import ImageSpec
 from tests.conftest import spd_scene
@@ -23,48 +23,73 @@ from tests.test_mesh_algorithm import SPD_COUNTS
 from tests.test_sightlines import _cells, _views
 
 
-def _cell_of_each(rays, box, occ, cells, loc):
-    """Per ray the cell its work starts in by the map's full walk, -1 where it meets no
-    occupied voxel (routed once to fallback 0 and once to 1: only those rays move)."""
+def _start_of_each(rays, box, occ, cells, loc):
+    """Per ray the cell its work starts in by the map's full walk (-1 where it meets no
+    occupied voxel: routed once to fallback 0 and once to 1, only those rays move) and the t
+    it starts from there."""
     index = np.arange(len(rays))
     rays = rays.copy()
     rays["w"][:, 0] = index
-    dest = []
+    dest, t = [], np.empty(len(rays))
     for fallback in (0, 1):
         out, starts, _ = routed(rays, True, fallback, *box, occ, *cells, loc, NO_EYE_MAP)
         d = np.empty(len(rays), np.int64)
         for b in range(len(starts) - 1):
             d[out["w"][starts[b] : starts[b + 1], 0].astype(np.int64)] = b
+        t[out["w"][:, 0].astype(np.int64)] = out["t_min"]
         dest.append(d)
-    return np.where(dest[0] == dest[1], dest[0], -1)
+    return np.where(dest[0] == dest[1], dest[0], -1), t
 
 
 @pytest.mark.parametrize(
     "name", ["tetra_s3.nff", "balls_s1.nff", "mount_s1.nff", "teapot_s1.nff", "gears_s1.nff"]
 )
-def test_a_block_seeing_one_cell_sends_its_eye_rays_there_or_nowhere(name):
+def test_an_eye_ray_entering_its_first_cell_before_the_others_starts_there(name):
     scene = read_nff(spd_scene(name))
     lo, hi = scene_box(scene)
     occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
     cells = _cells(lo, hi)
     box = (np.asarray(lo, float), np.asarray(hi, float))
     loc = cell_locator(*cells)
-    tested = {"one": 0, "none": 0, "several": 0}
+    tested = {"first": 0, "none": 0, "others": 0}
     for view in _views(scene, lo, hi):
         for image in (ImageSpec(width=48, height=40, spp=4), ImageSpec(width=47, height=31)):
             eye, _ = eye_map(occ, view, image, cells)
             rays = eye_rays(view, image)
             g = rays["pixel"] // eye.per_cell
             block = (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
-            only = eye.only[block]
-            cell = _cell_of_each(rays, box, occ, cells, loc)
-            one = only >= 0
-            assert ((cell == only) | (cell == -1))[one].all(), (name, view)
-            assert (cell[only == SEEN_NONE] == -1).all(), (name, view)
-            tested["one"] += int((one & (cell >= 0)).sum())
-            tested["none"] += int((only == SEEN_NONE).sum())
-            tested["several"] += int((only == SEEN_SEVERAL).sum())
-    assert tested["one"] > 100 and tested["several"] > 0, tested  # not vacuous
+            first, others = eye.first[block], eye.others[block]
+            cell, start = _start_of_each(rays, box, occ, cells, loc)
+            # where `block_cells` samples a block: the same cell, -1 for meeting no voxel
+            assert np.array_equal(start_cells(rays, *box, occ, *cells, loc), cell)
+            assert (cell[first == SEEN_NONE] == -1).all(), (name, view)
+            seen = first >= 0
+            entry = np.full(len(rays), np.inf)
+            entry[seen] = _entry(rays[seen], *(c[first[seen]] for c in cells))
+            early = seen & (entry < others)  # routed into `first` from its entry, no walk
+            # no occupied voxel lies before that entry (its own cell's work may start later,
+            # in another cell, where the ray goes on from `first` by the walk from its exit;
+            # the entry here by numpy's slabs, to round-off: a voxel wall on the cell's face)
+            before = start < entry - 1e-12 * np.abs(entry)
+            assert not before[early & (cell >= 0)].any(), (name, view)
+            # a block seeing no other cell: every ray there or nowhere, entering or not
+            alone = seen & np.isinf(others)
+            assert ((cell == first) | (cell == -1))[alone].all(), (name, view)
+            tested["first"] += int((early & (cell >= 0)).sum())
+            tested["none"] += int((first == SEEN_NONE).sum())
+            tested["others"] += int((seen & ~early).sum())
+    assert tested["first"] > 100 and tested["others"] > 0, tested  # not vacuous
+
+
+def _entry(rays, los, his):
+    """Each ray's t entering its box (numpy slabs; inf where it misses)."""
+    o, d = rays["o"], rays["d"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (los - o) / d, (his - o) / d
+    near = np.nanmax(np.minimum(a, b), axis=1)
+    far = np.nanmin(np.maximum(a, b), axis=1)
+    near = np.maximum(near, rays["t_min"])
+    return np.where(near <= far, near, np.inf)
 
 
 def test_bands_cover_every_claimed_cell_once_in_batches():

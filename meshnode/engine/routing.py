@@ -179,12 +179,15 @@ def owners(rays, los, his):
 
 
 @inline
-def _seen_cell_start(ox, oy, oz, rx, ry, rz, t_min, t_max, c, los, his, scene_lo, scene_hi):
-    """(cell, t, past) as `routed` has them for an eye ray whose block sees occupied voxels
-    of cell c only (`sightlines.EyeMap.only`): each of them lies inside c, so the ray's work
-    starts where it enters c, with no walk of the map (c's kernel finds the same first hit
-    from there as from the first voxel: no object is nearer); a ray missing c meets none,
-    and goes past the scene's box as `occupancy.work_start` would send it."""
+def _first_cell_start(
+    ox, oy, oz, rx, ry, rz, t_min, t_max, c, others, los, his, scene_lo, scene_hi
+):
+    """(cell, t, past) as `routed` has them for an eye ray whose block sees cell c's parts of
+    occupied voxels nearest and no other cell's nearer than `others` (`EyeMap.first`), or
+    None where the walk must tell: entering c before `others`, it meets no voxel before c's
+    (c's parts lie in c), so its work starts where it enters c with no walk of the map (c's
+    kernel finds the same first hit from there as from the first voxel); missing c with no
+    other cell seen, it meets none and goes past the scene's box as `work_start` sends it."""
     c0, c1 = box_span(
         ox,
         oy,
@@ -201,8 +204,10 @@ def _seen_cell_start(ox, oy, oz, rx, ry, rz, t_min, t_max, c, los, his, scene_lo
         his[c, 1],
         his[c, 2],
     )
-    if c0 <= c1:
+    if c0 <= c1 and c0 < others:
         return c, c0, -math.inf
+    if others < math.inf:
+        return -1, t_min, math.nan
     s0, s1 = box_span(
         ox,
         oy,
@@ -223,6 +228,67 @@ def _seen_cell_start(ox, oy, oz, rx, ry, rz, t_min, t_max, c, los, his, scene_lo
 
 
 @kernel
+def start_cells(rays, scene_lo, scene_hi, occ, los, his, loc):
+    """Per ray the cell its work starts in as `routed` finds it with no eye map (the walk of
+    the map `occ` from the scene's box), -1 where it meets no occupied voxel: sampled once a
+    block, where each block's eye rays are best made (`meshnode.mesh.claims`)."""
+    occ_lo, occ_cell, occ_res, occ_clear = occ
+    coords, at, nc, first, members, scale = loc
+    counters = np.zeros(N_COUNTERS, np.int64)
+    out = np.full(rays.shape[0], -1, np.int64)
+    for i in range(rays.shape[0]):
+        r = rays[i]
+        ox, oy, oz, dx, dy, dz = r.o[0], r.o[1], r.o[2], r.d[0], r.d[1], r.d[2]
+        irx = 1.0 / dx if dx != 0.0 else math.inf
+        iry = 1.0 / dy if dy != 0.0 else math.inf
+        irz = 1.0 / dz if dz != 0.0 else math.inf
+        t, past = work_start(
+            ox,
+            oy,
+            oz,
+            dx,
+            dy,
+            dz,
+            irx,
+            iry,
+            irz,
+            r.t_min,
+            r.t_max,
+            scene_lo,
+            scene_hi,
+            occ_lo,
+            occ_cell,
+            occ_res,
+            occ_clear,
+            counters,
+            -math.inf,
+        )
+        if past == -math.inf:
+            out[i], _ = _located_owner(
+                ox,
+                oy,
+                oz,
+                dx,
+                dy,
+                dz,
+                irx,
+                iry,
+                irz,
+                t,
+                r.t_max,
+                los,
+                his,
+                coords,
+                at,
+                nc,
+                first,
+                members,
+                scale,
+            )
+    return out
+
+
+@kernel
 def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
     t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; a ray
@@ -238,8 +304,8 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
     occ_lo, occ_cell, occ_res, occ_clear = occ
     coords, at, nc, first, members, scale = loc
-    # the last sample-grid cell's ids, bound and the one cell its block sees (-2: not one)
-    ids_from, ids_to, t_from, seen = 0, 0, -math.inf, -2
+    # the last sample-grid cell's ids, bound, the cell seen nearest and the others' bound
+    ids_from, ids_to, t_from, nearest, others = 0, 0, -math.inf, -1, -math.inf
     n, boxes = rays.shape[0], los.shape[0]
     dest = np.empty(n, np.int64)
     t_min = np.empty(n)
@@ -256,13 +322,27 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
         irz = 1.0 / dz if dz != 0.0 else math.inf
         t, past = ray_t_min[i], -math.inf
         if skip and eye.near.shape[0] and not ids_from <= pixel[i] < ids_to:
-            ids_from, ids_to, t_from, seen = eye_cell(eye, pixel[i])
-        if skip and seen >= 0:
-            # its block sees one cell's occupied voxels: its work starts there or nowhere
-            b, t, past = _seen_cell_start(
-                ox, oy, oz, irx, iry, irz, t, ray_t_max[i], seen, los, his, scene_lo, scene_hi
+            ids_from, ids_to, t_from, nearest, others = eye_cell(eye, pixel[i])
+        b, seen = -1, False
+        if skip and nearest >= 0:
+            b, t, past = _first_cell_start(
+                ox,
+                oy,
+                oz,
+                irx,
+                iry,
+                irz,
+                t,
+                ray_t_max[i],
+                nearest,
+                others,
+                los,
+                his,
+                scene_lo,
+                scene_hi,
             )
-        elif skip:
+            seen = b >= 0
+        if skip and not seen:
             t, past = work_start(
                 ox,
                 oy,
@@ -284,8 +364,8 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
                 counters,
                 t_from,
             )
-        if skip and seen >= 0 and past == -math.inf:
-            pass  # b and t from the cell seen
+        if seen and past == -math.inf:
+            pass  # b and t from the cell seen first
         elif past > -math.inf and fallback >= 0:
             # Only empty voxels ahead, or it misses the scene's box: any node's kernel ends
             # it at once (tetra: 30% and 40% of its eye rays), so the fallback's (the node

@@ -10,8 +10,9 @@ image plane inside the rectangle of its corners' projections (the hull of a conv
 front of the eye), and every block of the sample grid that rectangle touches takes the
 distance from the eye to the box as a bound. No ray of a block meets an occupied voxel
 nearer than its bound (inf: none at all), so its walk starts there, or is not made. Each
-block also learns which cells' parts of those voxels it sees: where that is one cell, each of
-its rays starts its work in that cell or nowhere, so it is made by the node tracing that cell
+block also learns the cell of the nearest part of those voxels it sees and how near any
+other cell's parts come: a ray entering that cell before then starts its work there (any
+voxel it meets first lies in it), so it is made by the node tracing that cell
 (`meshnode.mesh.claims`) and sent there with no walk at all (`routing.routed`).
 
 Shadow rays all end at their light: seen from each light through the six faces of a cube
@@ -56,25 +57,27 @@ class EyeMap(NamedTuple):
     columns: int
     per_cell: int
     blocks_x: int
-    only: np.ndarray  # per block, the one cell whose occupied voxels it sees (`SEEN_*` else)
+    first: np.ndarray  # per block, the cell of the nearest part it sees (SEEN_NONE: none)
+    others: np.ndarray  # ... the least distance to a part of any other cell it sees
 
 
-SEEN_NONE, SEEN_SEVERAL = -1, -2  # `EyeMap.only` of a block that sees no cell, or several
-NO_EYE_MAP = EyeMap(np.zeros(0), 1, 1, 1, 1, np.zeros(0, np.int64))
+SEEN_NONE = -1  # `EyeMap.first` of a block that sees no cell's voxels (or is not known)
+NO_EYE_MAP = EyeMap(np.zeros(0), 1, 1, 1, 1, np.zeros(0, np.int64), np.zeros(0))
 
 
 def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[EyeMap, str]:
     """The `EyeMap` of pinhole eye rays of `image` from `view` over the map `occ`, and why
     it is or is not used (for the stats); with `cells` (los, his), which of them each block
-    sees (`EyeMap.only`): an eye ray of a block seeing one cell starts its work there or
-    nowhere, so the node tracing that cell can make it (`eye_claims`)."""
+    sees nearest and how near it sees any other (`EyeMap.first`, `EyeMap.others`): an eye
+    ray entering the first before any other's voxels starts its work there, so the node
+    tracing that cell can make it (`meshnode.mesh.claims`) and route it with no walk."""
     cell_los, cell_his = (np.zeros((0, 3)), np.zeros((0, 3))) if cells is None else cells
     width, height = image.size
     eye, fwd, right, up, step = view_basis(view, width, height)
     columns, rows = image.sample_grid()
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
-    near, only, work = _seen(
+    near, first, others, work = _seen(
         occ.clear[0],
         occ.lo,
         occ.cell,
@@ -98,24 +101,26 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[E
         return NO_EYE_MAP, f"not used: {work} voxel-block writes past {WORK_MAX}"
     per_cell = 1 if image.corners() else image.spp
     open_blocks = float(np.mean(near == INF))
-    return EyeMap(near, side, columns, per_cell, bx, only), (
+    return EyeMap(near, side, columns, per_cell, bx, first, others), (
         f"{bx}x{by} blocks of {side} samples a side; {open_blocks:.0%} see no occupied voxel"
     )
 
 
 @inline
 def eye_cell(eye, pixel):
-    """(first id, end id, bound, cell) of the sample-grid cell holding RAY.pixel id `pixel`
-    under the `EyeMap` eye: the ids of that cell's samples, all in one block, the block's
-    bound (-inf where the id lies outside the map: nothing known) and the one cell it sees
-    (`EyeMap.only`; SEEN_SEVERAL where unknown)."""
+    """(first id, end id, bound, cell, others) of the sample-grid cell holding RAY.pixel id
+    `pixel` under the `EyeMap` eye: the ids of that cell's samples, all in one block, the
+    block's bound (-inf where the id lies outside the map: nothing known), the cell it sees
+    nearest and the least distance to any other's voxels (`EyeMap.first`, `EyeMap.others`;
+    SEEN_NONE where not known)."""
     side, columns, per_cell = eye.side, eye.columns, eye.per_cell
     g = pixel // per_cell
     b = (g // columns) // side * eye.blocks_x + (g % columns) // side
     known = 0 <= g and b < eye.near.shape[0]
     bound = eye.near[b] if known else -INF
-    seen = eye.only[b] if known and b < eye.only.shape[0] else SEEN_SEVERAL
-    return g * per_cell, (g + 1) * per_cell, bound, seen
+    if known and b < eye.first.shape[0]:
+        return g * per_cell, (g + 1) * per_cell, bound, eye.first[b], eye.others[b]
+    return g * per_cell, (g + 1) * per_cell, bound, SEEN_NONE, -INF
 
 
 def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
@@ -252,14 +257,17 @@ def _seen(
     cell_his,
 ):
     """(per block the least distance from the eye to a padded occupied voxel projecting onto
-    it, per block the cell of cell_los..cell_his whose parts of those voxels it sees
-    (`EyeMap.only`; all SEEN_NONE without cells), the voxel-block writes made). `occupied`:
-    a row of `Occupancy.clear`, 0 where a voxel is occupied. A voxel reaching behind the
-    eye's plane bounds every block and is seen by every block. A voxel across cells is seen
-    part by part, each part (widened by round-off) under its own cell."""
+    it, per block the cell of cell_los..cell_his of the nearest part of those voxels and the
+    least distance to a part of any other cell (`EyeMap.first`, `EyeMap.others`; SEEN_NONE
+    and inf without cells), the voxel-block writes made). `occupied`: a row of
+    `Occupancy.clear`, 0 where a voxel is occupied. A voxel reaching behind the eye's plane
+    bounds every block and is seen by every block. A voxel across cells is seen part by
+    part, each part (widened by round-off) under its own cell."""
     near = np.full(bx * by, INF)
-    only = np.full(bx * by, SEEN_NONE, np.int64)
-    everywhere, everywhere_cell, work = INF, SEEN_NONE, 0
+    first = np.full(bx * by, SEEN_NONE, np.int64)
+    first_d, others = np.full(bx * by, INF), np.full(bx * by, INF)
+    behind = np.full(cell_los.shape[0], INF)  # per cell, its nearest part behind the eye
+    everywhere, work = INF, 0
     view = (eye, fwd, right, up, step, width, height, cols, rows, side)
     b_lo, b_hi, p_lo, p_hi = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
@@ -272,27 +280,29 @@ def _seen(
         elif state == ON_IMAGE:
             work += (i1 - i0 + 1) * (j1 - j0 + 1)
             if work > WORK_MAX:
-                return near, only, work
+                return near, first, others, work
             for j in range(j0, j1 + 1):
                 for i in range(i0, i1 + 1):
                     near[j * bx + i] = min(near[j * bx + i], bound)
         for c in range(cell_los.shape[0]):
             if not _part_in_cell(b_lo, b_hi, eye, cell_los[c], cell_his[c], p_lo, p_hi):
                 continue
+            d = _distance(p_lo, p_hi) * (1.0 - 1e-12)
             state, i0, i1, j0, j1 = _rectangle(p_lo, p_hi, view)
             if state == BEHIND:
-                everywhere_cell = _joined_cell(everywhere_cell, c)
+                behind[c] = min(behind[c], d)
             elif state == ON_IMAGE:
                 for j in range(j0, j1 + 1):
                     for i in range(i0, i1 + 1):
-                        only[j * bx + i] = _joined_cell(only[j * bx + i], c)
+                        _seen_part(first, first_d, others, j * bx + i, c, d)
     if everywhere < INF:
         for b in range(near.shape[0]):
             near[b] = min(near[b], everywhere)
-    if everywhere_cell != SEEN_NONE:
-        for b in range(near.shape[0]):
-            only[b] = _joined_cell(only[b], everywhere_cell)
-    return near, only, work
+    for c in range(behind.shape[0]):
+        if behind[c] < INF:
+            for b in range(near.shape[0]):
+                _seen_part(first, first_d, others, b, c, behind[c])
+    return near, first, others, work
 
 
 OFF_IMAGE, ON_IMAGE, BEHIND = 0, 1, 2  # `_rectangle`'s states
@@ -344,10 +354,26 @@ def _part_in_cell(b_lo, b_hi, eye, c_lo, c_hi, p_lo, p_hi):
 
 
 @inline
-def _joined_cell(a, b):
-    """What a block sees once it sees `a` and `b` (cells, SEEN_NONE or SEEN_SEVERAL)."""
-    if a == SEEN_NONE or a == b:
-        return b
-    if b == SEEN_NONE:
-        return a
-    return SEEN_SEVERAL
+def _seen_part(first, first_d, others, b, c, d):
+    """Block b sees a part of cell c at distance d: the nearest part's cell stays first,
+    every other cell's parts bound `others` (a cell once first and then passed keeps its
+    earlier parts in `others`, so the bound stays one: it may only be nearer)."""
+    if first[b] == SEEN_NONE:
+        first[b], first_d[b] = c, d
+    elif first[b] == c:
+        first_d[b] = min(first_d[b], d)
+    elif d < first_d[b]:
+        others[b] = min(others[b], first_d[b])
+        first[b], first_d[b] = c, d
+    else:
+        others[b] = min(others[b], d)
+
+
+@inline
+def _distance(b_lo, b_hi):
+    """The distance from the origin to the box b_lo..b_hi."""
+    gap = 0.0
+    for a in range(3):
+        g = max(b_lo[a], 0.0, -b_hi[a])
+        gap += g * g
+    return math.sqrt(gap)

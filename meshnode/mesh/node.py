@@ -22,7 +22,7 @@ from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
-from meshnode.mesh.claims import claimed_bands, eye_claims, routing_map
+from meshnode.mesh.claims import block_cells, claimed_bands, eye_claims, routing_map
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
@@ -140,7 +140,9 @@ class NodeCore:
             return None, "not used: no eye map"
         if self.spec.plan.steal or self.feed is not None:
             return None, "not used: chunks are stolen or tiles dealt"
-        return eye_claims(self.eye, self.part, self.spec.plan, self.spec.image.sample_grid())
+        image = self.spec.image
+        blocks = block_cells(self.engine, self.cells, self.eye, self.view, image)
+        return eye_claims(blocks, self.eye, self.part, self.spec.plan, image.sample_grid())
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary

@@ -87,7 +87,7 @@ def _common_warmup() -> None:
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
     from meshnode.engine.raycheck import first_untraceable
-    from meshnode.engine.routing import cell_locator, owners, routed
+    from meshnode.engine.routing import cell_locator, owners, routed, start_cells
     from meshnode.engine.sightlines import eye_map, light_maps
     from protocols.camera import CameraSpec
     from protocols.render import ImageSpec
@@ -103,6 +103,7 @@ def _common_warmup() -> None:
     eye, _ = eye_map(half, view, ImageSpec(width=1, height=1), cells)  # ... seen from the eye
     light_maps(half, np.ones((1, 3)))  # ... and from a light: an object-space node's engines
     routed(rays, True, 0, *box, occ, *cells, cell_locator(*cells), eye)  # a node's batches
+    start_cells(rays, *box, occ, *cells, cell_locator(*cells))  # ... and where it makes them
     first_untraceable(rays)  # a neighbour's RAYS
     deposits = np.zeros(2, dtypes.DEPOSIT)
     cell_sums(deposits, 1, deposits.copy())

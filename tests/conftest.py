@@ -197,8 +197,42 @@ def pytest_configure(config):
         config.addinivalue_line("markers", f"{name}: {what}")
 
 
+# The test files that take longest (seconds on 2 cores, warm kernel cache, a full run with
+# --durations), run first: pytest-xdist deals whole files to its workers in collection order
+# (addopts: --no-loadscope-reorder; its default order, most tests first, dealt these few-test
+# files last, so the run ended on one worker busy with one of them while the other idled).
+# Longest first, the short files fill in at the end. Only the order depends on this table:
+# a file not in it runs after these, in the usual order.
+HEAVY_FILES = {
+    "test_compose_up.py": 300,  # CI: builds a base image and starts the compose file's nodes
+    "test_mesh_service.py": 120,
+    "test_budget.py": 100,
+    "test_mesh_algorithm.py": 80,
+    "test_start.py": 70,
+    "test_fuzz.py": 65,
+    "test_replan.py": 65,
+    "test_live_browser.py": 40,
+    "test_overlap_choice.py": 35,
+    "test_budget_copies.py": 33,
+    "test_cli.py": 28,
+    "test_image_space.py": 27,
+    "test_sampling.py": 22,
+    "test_rows.py": 16,
+    "test_plan_mode.py": 16,
+    "test_scene_formats.py": 15,
+    "test_tls.py": 14,
+    "test_netns.py": 13,
+    "test_pov_scene.py": 12,
+    "test_grid.py": 11,
+    "test_auth.py": 11,
+    "test_stealing.py": 11,
+    "test_readme_commands.py": 10,
+}
+
+
 def pytest_collection_modifyitems(config, items):
     tiers.classify(items)
+    items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))  # stable: files stay whole
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -100,15 +100,12 @@ def test_dead_node_stops_the_render_naming_it_when_told_to_fail():
 
     async def run(mesh, addresses, tracing: bool):
         started = asyncio.Event()
+        # The nodes are listening already (LocalMesh waited for them): the host need not
+        # retry a dead one for the default 5 s before naming it.
+        nodes = Nodes(addresses, wait=2.0)
+        request = Request(scene, *rs, MeshPlan(2, 2, 1))
         task = asyncio.create_task(
-            on_mesh(
-                scene,
-                rs,
-                addresses,
-                MeshPlan(2, 2, 1),
-                progress=lambda n: started.set(),
-                on_node_loss="fail",
-            )
+            render_on_mesh(request, nodes, progress=lambda n: started.set(), on_node_loss="fail")
         )
         if tracing:  # the first primary rays traced somewhere
             await asyncio.wait_for(started.wait(), 60)

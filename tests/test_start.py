@@ -83,8 +83,14 @@ def _render(tmp_path, name: str, env: dict | None = None) -> tuple[set[str], dic
     return set(r.stdout.split()), json.loads(stats.read_text())
 
 
-def test_a_one_process_render_imports_only_what_it_runs(tmp_path):
-    _render(tmp_path, "first")  # its kernels into the cache, if a worker has not yet
+@pytest.fixture(scope="module")
+def cached(tmp_path_factory):
+    """One render first, once for the module: its kernels into the cache, if a worker has
+    not yet (the renders the tests look at then load every kernel)."""
+    _render(tmp_path_factory.mktemp("first"), "first")
+
+
+def test_a_one_process_render_imports_only_what_it_runs(tmp_path, cached):
     modules, stats = _render(tmp_path, "warm")
     assert stats["compile_seconds"] == 0.0  # every kernel loaded from the cache
     for what, names in NOT_IMPORTED.items():
@@ -93,8 +99,7 @@ def test_a_one_process_render_imports_only_what_it_runs(tmp_path):
     assert {"host.run.oneprocess", "meshnode.engine.trace", "numba"} <= modules
 
 
-def test_numba_left_as_it_is_renders_the_same_image(tmp_path):
-    _render(tmp_path, "first")
+def test_numba_left_as_it_is_renders_the_same_image(tmp_path, cached):
     _, ours = _render(tmp_path, "ours")
     plain_modules, plain = _render(tmp_path, "plain", {**os.environ, "MESHTRACE_PLAIN_NUMBA": "1"})
     assert (tmp_path / "ours.png").read_bytes() == (tmp_path / "plain.png").read_bytes()

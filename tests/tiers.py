@@ -72,6 +72,8 @@ def classify(items) -> None:
         function = getattr(item, "function", None)
         if module is None or function is None:
             continue
-        names = per_module.setdefault(module.__name__, spawning_names(module))
+        if module.__name__ not in per_module:  # once a module (not setdefault: it would
+            per_module[module.__name__] = spawning_names(module)  # read every source again)
+        names = per_module[module.__name__]
         if _mentions(_source(function), names):
             item.add_marker(pytest.mark.spawn)

@@ -260,6 +260,22 @@ def trace_batch(
     shi0, shi1, shi2 = scene_hi[0], scene_hi[1], scene_hi[2]
     for i in range(rays.shape[0]):
         r = rays[i]
+        if out is None and packets and first_u[i] == -1:
+            # Its packet found nothing: it escapes, with the deposit and counts the loop
+            # below makes, without the trip through the stack (jacks: 94% of its eye rays).
+            ray_id += 1
+            counters[SEGMENTS] += 1
+            counters[ESCAPED] += 1
+            cr = 0.0
+            cg = 0.0
+            cb = 0.0
+            cr += r.w[0] * background[0]
+            cg += r.w[1] * background[1]
+            cb += r.w[2] * background[2]
+            out_rgb[i, 0] += cr
+            out_rgb[i, 1] += cg
+            out_rgb[i, 2] += cb
+            continue
         so[0, 0], so[0, 1], so[0, 2] = r.o[0], r.o[1], r.o[2]
         sd[0, 0], sd[0, 1], sd[0, 2] = r.d[0], r.d[1], r.d[2]
         sw[0, 0], sw[0, 1], sw[0, 2] = r.w[0], r.w[1], r.w[2]

@@ -351,6 +351,7 @@ def trace_batch(
         st[0, 0], st[0, 1] = r.t_min, r.t_max
         sk[0, 0], sk[0, 1], sk[0, 2], sk[0, 3] = r.kind, r.depth, r.origin, r.light
         sk[0, 4] = r.light & hint_mask  # its object's local id unknown: the light's own slot
+        sx[0, _KS] = 0.0  # a shadow ray from another node carries its final weights
         sp = 1
         cr = 0.0
         cg = 0.0

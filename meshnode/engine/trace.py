@@ -42,13 +42,17 @@ from meshnode.engine.packet import (
     packet_scratch,
     packet_walk,
 )
-from meshnode.engine.shade import normals, phong, refract
+from meshnode.engine.shade import normals, phong, phongs, refract
 from meshnode.engine.sightlines import light_clear
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
 from meshnode.engine.traverse import brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
 
 HINT_SLOTS = 1 << 14  # the shadow cache's largest size (`hint_slots`)
+# A shadow ray's highlight inputs (its stack row `sx`, a highlight log row): diffuse share
+# per channel, then Ks (0: no highlight pending, the weights are final), cos, exponent.
+_KS, _C, _SHINE, _HILITE = 3, 4, 5, 6
+LOG_ROWS = 1024  # deposits logged before they are summed (`_settle`): a log that stays in cache
 
 
 @kernel
@@ -172,6 +176,60 @@ def _push_out(
     return out
 
 
+@inline
+def _lit(wr, wg, wb, x, q):
+    """A shadow ray's weights once its highlight is known: w * (diffuse + specular), the
+    shading loop's arithmetic, from row q of x (`_HILITE` columns)."""
+    spec = x[q, _KS] * phong(x[q, _C], x[q, _SHINE])
+    return wr * (x[q, 0] + spec), wg * (x[q, 1] + spec), wb * (x[q, 2] + spec)
+
+
+@inline
+def _log(lg, n, v0, v1, v2, k):
+    """Deposit row n of the log: its colour, or a highlight's weights and the highlight's
+    index k (-1: none); returns the next row."""
+    lg[n, 0], lg[n, 1], lg[n, 2], lg[n, 3] = v0, v1, v2, k
+    return n + 1
+
+
+@inline
+def _summed(lg, hk, ph, lo, hi, cr, cg, cb):
+    """cr, cg, cb plus the logged deposits lo..hi in their order, each highlight's
+    (`ph`: the powers, `hk`: diffuse shares and Ks) as the shading loop would have made it."""
+    for j in range(lo, hi):
+        k = int(lg[j, 3])
+        if k < 0:
+            cr += lg[j, 0]
+            cg += lg[j, 1]
+            cb += lg[j, 2]
+        else:
+            spec = hk[k, 3] * ph[k]
+            cr += lg[j, 0] * (hk[k, 0] + spec)
+            cg += lg[j, 1] * (hk[k, 1] + spec)
+            cb += lg[j, 2] * (hk[k, 2] + spec)
+    return cr, cg, cb
+
+
+@kernel
+def _settle(out_rgb, trees, n_trees, lg, hk, hc, hs, ph, n_hl, lo, n_log, cr, cg, cb):
+    """Every logged deposit summed: the log's highlights in one vector loop (`phongs`), then
+    each finished tree's deposits onto its prefix (trees: prefix, ray, log rows) into
+    out_rgb, and the unfinished tree's (rows lo..n_log; lo -1: none) onto cr, cg, cb,
+    returned: the same sums the loop makes with each highlight at hand."""
+    phongs(hc, hs, ph, n_hl)
+    for t in range(n_trees):
+        r, g, b = _summed(
+            lg, hk, ph, int(trees[t, 4]), int(trees[t, 5]), trees[t, 0], trees[t, 1], trees[t, 2]
+        )
+        i = int(trees[t, 3])
+        out_rgb[i, 0] += r
+        out_rgb[i, 1] += g
+        out_rgb[i, 2] += b
+    if lo >= 0:
+        cr, cg, cb = _summed(lg, hk, ph, lo, n_log, cr, cg, cb)
+    return cr, cg, cb
+
+
 @kernel
 def trace_batch(
     rays,
@@ -247,8 +305,19 @@ def trace_batch(
     # of blocked rays found by the hint).
     hint_mask = hint_slots(gid.shape[0] * max(n_lights, 1)) - 1
     blocker = np.full(hint_mask + 1, -1, np.int64)
-    fbits = np.zeros(1)  # scratch for phong's exponent arithmetic
-    ibits = fbits.view(np.int64)
+    # Highlights wait until their shadow ray is found lit, and are then computed
+    # LOG_ROWS at a time in vector code (`_settle`): a ray tree's deposits from its first
+    # such shadow ray on are logged (lg: colour, or weights and highlight index; hk, hc,
+    # hs: the highlights' inputs) to be summed in their order once the powers are known;
+    # trees: the finished ones' prefix, ray and log rows. Each row count is at most n_log.
+    sx = np.empty((cap, _HILITE))
+    lg = np.empty((LOG_ROWS, 4))
+    hk = np.empty((LOG_ROWS, 4))
+    hc = np.empty(LOG_ROWS)
+    hs = np.empty(LOG_ROWS)
+    ph = np.empty(LOG_ROWS)
+    trees = np.empty((LOG_ROWS, 6))
+    n_log = n_hl = n_trees = 0
     ray_id = 0
     buf = out  # `out` itself must stay unassigned for numba to prune on `out is None`
     n_out = 0
@@ -260,16 +329,34 @@ def trace_batch(
     shi0, shi1, shi2 = scene_hi[0], scene_hi[1], scene_hi[2]
     for i in range(rays.shape[0]):
         r = rays[i]
+        if out is None and packets and first_u[i] == -1:
+            # Its packet found nothing: it escapes, with the deposit and counts the loop
+            # below makes, without the trip through the stack (jacks: 94% of its eye rays).
+            ray_id += 1
+            counters[SEGMENTS] += 1
+            counters[ESCAPED] += 1
+            cr = 0.0
+            cg = 0.0
+            cb = 0.0
+            cr += r.w[0] * background[0]
+            cg += r.w[1] * background[1]
+            cb += r.w[2] * background[2]
+            out_rgb[i, 0] += cr
+            out_rgb[i, 1] += cg
+            out_rgb[i, 2] += cb
+            continue
         so[0, 0], so[0, 1], so[0, 2] = r.o[0], r.o[1], r.o[2]
         sd[0, 0], sd[0, 1], sd[0, 2] = r.d[0], r.d[1], r.d[2]
         sw[0, 0], sw[0, 1], sw[0, 2] = r.w[0], r.w[1], r.w[2]
         st[0, 0], st[0, 1] = r.t_min, r.t_max
         sk[0, 0], sk[0, 1], sk[0, 2], sk[0, 3] = r.kind, r.depth, r.origin, r.light
         sk[0, 4] = r.light & hint_mask  # its object's local id unknown: the light's own slot
+        sx[0, _KS] = 0.0  # a shadow ray from another node carries its final weights
         sp = 1
         cr = 0.0
         cg = 0.0
         cb = 0.0
+        logged = -1  # the log row of this tree's first highlight, -1 while none
         root = True  # the first segment popped is the batch's ray itself
         while sp > 0:
             sp -= 1
@@ -279,6 +366,12 @@ def trace_batch(
             t_lo, t_hi = st[sp, 0], st[sp, 1]
             kind, depth, origin, light = sk[sp, 0], sk[sp, 1], sk[sp, 2], sk[sp, 3]
             slot = sk[sp, 4]
+            if n_log == LOG_ROWS:  # room for this segment's one deposit
+                cr, cg, cb = _settle(
+                    out_rgb, trees, n_trees, lg, hk, hc, hs, ph, n_hl, logged, n_log, cr, cg, cb
+                )
+                n_log = n_hl = n_trees = 0
+                logged = -1
             shadow = kind == SHADOW
             # the batch's ray itself, walked in a packet: its hit and reciprocals are known
             in_packet = packets and root and not shadow and first_u[i] > -2
@@ -347,6 +440,8 @@ def trace_batch(
                         n1 = math.inf
                         clear = True
                 if resume >= 0.0:
+                    if shadow and sx[sp, _KS] > 0.0:
+                        wr, wg, wb = _lit(wr, wg, wb, sx, sp)
                     buf = _push_out(
                         buf,
                         n_out,
@@ -503,6 +598,8 @@ def trace_batch(
                             counters,
                         )
                     if t_on < math.inf:
+                        if shadow and sx[sp, _KS] > 0.0:
+                            wr, wg, wb = _lit(wr, wg, wb, sx, sp)
                         buf = _push_out(
                             buf,
                             n_out,
@@ -533,15 +630,30 @@ def trace_batch(
                     blocker[slot] = u
                 else:
                     counters[SHADOW_LIT] += 1
-                    cr += wr
-                    cg += wg
-                    cb += wb
+                    if sx[sp, _KS] > 0.0:  # its highlight waits (`_settle`)
+                        hk[n_hl, 0], hk[n_hl, 1], hk[n_hl, 2] = sx[sp, 0], sx[sp, 1], sx[sp, 2]
+                        hk[n_hl, 3], hc[n_hl], hs[n_hl] = sx[sp, _KS], sx[sp, _C], sx[sp, _SHINE]
+                        if logged < 0:
+                            logged = n_log
+                        n_log = _log(lg, n_log, wr, wg, wb, n_hl)
+                        n_hl += 1
+                    elif logged >= 0:
+                        n_log = _log(lg, n_log, wr, wg, wb, -1)
+                    else:
+                        cr += wr
+                        cg += wg
+                        cb += wb
                 continue
             if u < 0:
                 counters[ESCAPED] += 1
-                cr += wr * background[0]
-                cg += wg * background[1]
-                cb += wb * background[2]
+                if logged >= 0:
+                    n_log = _log(
+                        lg, n_log, wr * background[0], wg * background[1], wb * background[2], -1
+                    )
+                else:
+                    cr += wr * background[0]
+                    cg += wg * background[1]
+                    cb += wb * background[2]
                 continue
             counters[HITS] += 1
             if kind == EYE:
@@ -559,9 +671,15 @@ def trace_batch(
             m = mat[u]
             kd = materials[m, MAT_KD]
             ks = materials[m, MAT_KS]
-            cr += wr * amb * kd * materials[m, MAT_RGB]
-            cg += wg * amb * kd * materials[m, MAT_RGB + 1]
-            cb += wb * amb * kd * materials[m, MAT_RGB + 2]
+            ar = wr * amb * kd * materials[m, MAT_RGB]
+            ag = wg * amb * kd * materials[m, MAT_RGB + 1]
+            ab = wb * amb * kd * materials[m, MAT_RGB + 2]
+            if logged >= 0:
+                n_log = _log(lg, n_log, ar, ag, ab, -1)
+            else:
+                cr += ar
+                cg += ag
+                cb += ab
             dn = dx * nx + dy * ny + dz * nz
             rx = dx - 2.0 * dn * nx
             ry = dy - 2.0 * dn * ny
@@ -595,14 +713,16 @@ def trace_batch(
                     cos = lx * nx + ly * ny + lz * nz
                     if cos <= 0.0:
                         continue  # the surface faces away from this light
-                    spec = 0.0
                     rl = rx * lx + ry * ly + rz * lz
-                    if ks > 0.0 and rl > 0.0:
-                        spec = ks * phong(rl, shine, fbits, ibits)
+                    hilite = ks > 0.0 and rl > 0.0  # computed once the light is reached
                     counters[SHADOW_RAYS] += 1
-                    dr = kd * cos * materials[m, MAT_RGB] + spec
-                    dg = kd * cos * materials[m, MAT_RGB + 1] + spec
-                    db = kd * cos * materials[m, MAT_RGB + 2] + spec
+                    kr = kd * cos * materials[m, MAT_RGB]
+                    kg = kd * cos * materials[m, MAT_RGB + 1]
+                    kb = kd * cos * materials[m, MAT_RGB + 2]
+                    # with a highlight, the light's share: (diffuse + specular) comes later
+                    dr = 1.0 if hilite else kr + 0.0
+                    dg = 1.0 if hilite else kg + 0.0
+                    db = 1.0 if hilite else kb + 0.0
                     sp = _push(
                         so,
                         sd,
@@ -627,6 +747,9 @@ def trace_batch(
                         li,
                     )
                     sk[sp - 1, 4] = (u * n_lights + li) & hint_mask
+                    sx[sp - 1, 0], sx[sp - 1, 1], sx[sp - 1, 2] = kr, kg, kb
+                    sx[sp - 1, _KS] = ks if hilite else 0.0
+                    sx[sp - 1, _C], sx[sp - 1, _SHINE] = rl, shine
             if depth >= max_depth:
                 continue
             kt = 0.0
@@ -689,7 +812,14 @@ def trace_batch(
                     hit_gid,
                     0,
                 )
-        out_rgb[i, 0] += cr
-        out_rgb[i, 1] += cg
-        out_rgb[i, 2] += cb
+        if logged >= 0:
+            trees[n_trees, 0], trees[n_trees, 1], trees[n_trees, 2] = cr, cg, cb
+            trees[n_trees, 3], trees[n_trees, 4], trees[n_trees, 5] = i, logged, n_log
+            n_trees += 1
+        else:
+            out_rgb[i, 0] += cr
+            out_rgb[i, 1] += cg
+            out_rgb[i, 2] += cb
+    if n_trees > 0:
+        _settle(out_rgb, trees, n_trees, lg, hk, hc, hs, ph, n_hl, -1, n_log, 0.0, 0.0, 0.0)
     return buf, n_out

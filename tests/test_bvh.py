@@ -166,7 +166,7 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
     whose reciprocals their spans reuse: inf there, as a division-free span must give)."""
     from host.planning.clip import holders
     from host.scene.subset import subset
-    from meshnode.engine.routing import owners
+    from meshnode.engine.locator import owners
 
     scene = read_nff(spd_scene(name))
     whole = Engine(scene, structure="bvh")

@@ -12,8 +12,9 @@ from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import occupancy_arrays
-from meshnode.engine.routing import cell_locator, routed, start_cells
+from meshnode.engine.routing import routed, start_cells
 from meshnode.engine.sightlines import NO_EYE_MAP, SEEN_NONE, eye_map
 from meshnode.mesh.claims import claimed_bands
 from protocols.render import ImageSpec

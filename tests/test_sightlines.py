@@ -14,8 +14,9 @@ from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import occupancy_arrays
-from meshnode.engine.routing import cell_locator, routed
+from meshnode.engine.routing import routed
 from meshnode.engine.sightlines import FACE_BLOCKS, NO_EYE_MAP, eye_map, light_clear, light_maps
 from protocols.render import ImageSpec
 from protocols.scene import View

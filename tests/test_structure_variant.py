@@ -120,7 +120,7 @@ def test_each_structure_and_brute_force_trace_the_same_colours_counts_and_passed
     and there the hierarchy passes on the rays brute force passes on."""
     from host.planning.clip import holders
     from host.scene.subset import subset
-    from meshnode.engine.routing import owners
+    from meshnode.engine.locator import owners
 
     scene = read_nff(spd_scene(name))
     kinds = (

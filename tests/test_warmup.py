@@ -79,7 +79,7 @@ from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import kernels_compiled
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.occupancy import occupancy_arrays
-from meshnode.engine.routing import owners
+from meshnode.engine.locator import owners
 from meshnode.engine.sightlines import eye_map, light_maps
 from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec

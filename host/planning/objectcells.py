@@ -7,7 +7,7 @@ spread furthest on, at the position that leaves each side the share of the objec
 will hold; the mesh of nodes is halved alongside (its columns, or its rows when it has more
 of them), so the two halves of every cut land on two halves of the torus and most rays leaving
 a cell enter a neighbour's. Cells may be any boxes: a ray is handed to whichever node's cell
-holds it and routed there over as many links as it takes (`meshnode.engine.routing.owners`).
+holds it and routed there over as many links as it takes (`meshnode.engine.locator.owners`).
 
 An object straddling a cut is held by both sides, so the fullest node holds about 1/N of the
 objects plus those its cuts cross (and the overlap's). With an estimate of where in space the

@@ -6,7 +6,7 @@ occupancy map (`host.planning.occupancy`) and the objects it holds (`host.planni
 The cost pre-pass may cut the cells in object space instead, where its work map puts the work
 (`host.planning.workmap`); the rectangles then only say who makes which eye rays. Correctness
 never depends on the cut: a ray is always handed to a box that holds it (see
-`meshnode.engine.routing.owners`); the cut only decides how often.
+`meshnode.engine.locator.owners`); the cut only decides how often.
 """
 
 import numpy as np

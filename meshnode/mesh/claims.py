@@ -25,7 +25,8 @@ import dataclasses
 import numpy as np
 
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.routing import cell_locator, start_cells
+from meshnode.engine.locator import cell_locator
+from meshnode.engine.routing import start_cells
 from meshnode.engine.sightlines import SEEN_NONE, EyeMap
 from protocols.partition import Partition
 from protocols.render import ImageSpec, MeshPlan

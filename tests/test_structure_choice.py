@@ -19,7 +19,6 @@ from meshnode.engine.structure_cost import (
     eye_ray_count,
     grid_forecast,
 )
-from meshnode.engine.tables import build_tables
 from meshnode.mesh.node import NodeCore
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
@@ -86,7 +85,7 @@ def test_the_grid_forecast_follows_the_build_and_runs_before_it():
     # the resolution and references the build makes, from the objects' boxes alone
     for name in ("tetra_s3.nff", "balls_s2.nff", "rings_s1.nff"):
         engine = Engine(read_nff(spd_scene(name)), structure="grid")
-        tb = build_tables(engine.scene)
+        tb = engine.tables  # the engine's own rows (a convex quad is two triangles there)
         fc = grid_forecast(tb.lo, tb.hi, tb.lo.min(axis=0), tb.hi.max(axis=0), 1.0)
         stats = engine.grid.stats
         assert np.all(np.abs(np.log(np.array(fc.res) / stats["resolution"])) < np.log(1.25))

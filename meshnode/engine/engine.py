@@ -22,6 +22,7 @@ from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
+from meshnode.engine.quads import quads_as_triangles
 from meshnode.engine.routing import routed
 from meshnode.engine.sightlines import NO_EYE_MAP, light_maps
 from meshnode.engine.structure import build_structure, foreseen
@@ -79,7 +80,7 @@ class Engine:
         keep_freed_memory()  # batches reuse freed memory instead of faulting in new pages
         self.scene = scene
         self.brute = bool(brute)
-        self.tables = tb = build_tables(scene)
+        self.tables = tb = build_tables(quads_as_triangles(scene))  # rows: not the scene's
         objects = tb.objects  # before renumbering: scenes list their ids in order
         asked = "grid" if self.brute else structure
         # The tracing kernel's variant depends on the structure, known before it is built but

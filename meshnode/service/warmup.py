@@ -41,8 +41,11 @@ def variant_scene(variant: Variant) -> SceneData:
         scene.triangles = np.array([(gid, mat, v, normals, int(variant.smooth))], dtypes.TRIANGLE)
         gid, mat = gid + 1, 0
     if "polygons" in variant.kinds:
-        scene.polygons = np.array([(gid, mat, 0, 4)], dtypes.POLYGON)
-        scene.vertices = np.array([(-3, -1, 1), (3, -1, 1), (3, 1, 1), (-3, 1, 1)], float)
+        # five vertices: an engine traces a convex quad as two triangles (`quads`)
+        scene.polygons = np.array([(gid, mat, 0, 5)], dtypes.POLYGON)
+        scene.vertices = np.array(
+            [(-3, -1, 1), (3, -1, 1), (3, 1, 1), (0, 2, 1), (-3, 1, 1)], float
+        )
         gid, mat = gid + 1, 0
     if "cones" in variant.kinds:
         scene.cones = np.array([(gid, mat, (-2, 0, 0), 0.5, (-2, 1, 0), 0.2)], dtypes.CONE)

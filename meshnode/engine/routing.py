@@ -19,8 +19,8 @@ def _first_cell_start(
     ox, oy, oz, rx, ry, rz, t_min, t_max, c, others, los, his, scene_lo, scene_hi
 ):
     """(cell, t, past) as `routed` has them for an eye ray whose block sees cell c's parts of
-    occupied voxels nearest and no other cell's nearer than `others` (`EyeMap.first`), or
-    None where the walk must tell: entering c before `others`, it meets no voxel before c's
+    occupied voxels nearest and no other cell's nearer than `others` (`EyeMap.first`); cell
+    -1 where the walk must tell: entering c before `others`, it meets no voxel before c's
     (c's parts lie in c), so its work starts where it enters c with no walk of the map (c's
     kernel finds the same first hit from there as from the first voxel); missing c with no
     other cell seen, it meets none and goes past the scene's box as `work_start` sends it."""

@@ -159,14 +159,11 @@ def _padded_voxel(v, lo, cell, res, point, b_lo, b_hi):
     b_lo..b_hi relative to `point`; returns the distance from the point to it."""
     nx, ny = res[0], res[1]
     index = (v % nx, (v // nx) % ny, v // (nx * ny))
-    gap = 0.0
     for a in range(3):
         pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(point[a]) + res[a] * cell[a])
         b_lo[a] = lo[a] + index[a] * cell[a] - pad - point[a]
         b_hi[a] = lo[a] + (index[a] + 1) * cell[a] + pad - point[a]
-        g = max(b_lo[a], 0.0, -b_hi[a])
-        gap += g * g
-    return math.sqrt(gap)
+    return _distance(b_lo, b_hi)
 
 
 @kernel

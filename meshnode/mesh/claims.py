@@ -28,6 +28,7 @@ from meshnode.engine.camera import eye_rays
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.routing import start_cells
 from meshnode.engine.sightlines import SEEN_NONE, EyeMap
+from meshnode.mesh.adaptive import RectIndex
 from protocols.partition import Partition
 from protocols.render import ImageSpec, MeshPlan
 from protocols.scene import View
@@ -65,11 +66,10 @@ def eye_claims(blocks: np.ndarray, eye: EyeMap, part: Partition, plan: MeshPlan,
     rectangle's node would hand that cell's rays to (`MeshPlan.takers`); any other block to
     its rectangle's node."""
     columns, rows = grid
-    owner = np.full((rows, columns), -1, np.int64)
-    for (x0, x1, y0, y1), node in zip(part.rects, part.owner, strict=True):
-        owner[y0:y1, x0:x1] = node
-    if (owner < 0).any():
+    rect = RectIndex(part.rects, columns)(np.arange(rows * columns)).reshape(rows, columns)
+    if (rect < 0).any():
         raise ValueError("eye_claims: the partition's rectangles leave sample-grid cells out")
+    owner = np.asarray(part.owner, np.int64)[rect]
     seen = np.repeat(np.repeat(blocks, eye.side, axis=0), eye.side, axis=1)[:rows, :columns]
     takers = np.array([plan.takers(n) for n in range(plan.nodes)], np.int64)
     one = seen >= 0

@@ -39,7 +39,10 @@ def test_shrink_uses_every_node_left_nearly_square():
 )
 def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols, fault, mode):
     scene = read_nff(spd_scene("balls_s2.nff"))
-    rs = records(width=48, height=48, threads=1)
+    # Image space has no held link: its frame must outlast the first PROGRESS, which a node
+    # sends 50 ms in at the earliest (or with its STATS, when the frame is done before then)
+    size, spp = (96, 16) if mode == "image" else (48, 1)
+    rs = records(width=size, height=size, spp=spp, threads=1)
     ref, ref_stats = render(Request(scene, *rs))
     n = rows * cols
     victim = n - 1

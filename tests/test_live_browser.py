@@ -191,10 +191,11 @@ FOLD = """const below = (e) => e.getBoundingClientRect().bottom > window.innerHe
 return [...document.querySelectorAll(".node, #canvas")].filter(below).length;"""
 # Each traces for a few seconds: a page shows new pixels within about a quarter of a second
 # (its throttle), and object-space nodes send deposits in packets of 32,768 (on a small image
-# their first packet comes late); image space traces fastest, so with more samples.
+# their first packet comes late); image space and one process trace fastest, so with more
+# samples (one process at 4 spp drew its first pixels at half the rays, 1 run in 9).
 SIZE = ["--width", "640", "--height", "640"]
 MODES = {
-    "one process": ["--mesh", "1x1", "--threads", "2", *SIZE, "--spp", "4"],
+    "one process": ["--mesh", "1x1", "--threads", "2", *SIZE, "--spp", "8"],
     "image space": ["--mesh", "2x2", "--mode", "image", "--tiles", "dynamic", *SIZE, "--spp", "8"],
     "object space": ["--mesh", "2x2", "--mode", "object", *SIZE, "--spp", "4"],
 }

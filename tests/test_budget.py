@@ -72,6 +72,35 @@ def test_object_cells_tile_the_scene_and_divide_the_objects():
             assert share.max() <= limit < by_view.max(), (name, rows, cols)
 
 
+def test_work_evened_cuts_count_a_block_by_its_nodes_not_its_columns():
+    # Under a limit of objects a node, a cut between a column of three nodes and two columns
+    # of six compared the objects per column with the limit (three times the per-node
+    # figure), so every such cut fell back to the fewest objects and ignored the work: rings
+    # 3x3 under a quarter share, the pre-pass's busiest node 318k units -> 214k counted per
+    # node. Uniform small spheres, most of the work in the corner 64th of the box, a limit
+    # of a quarter: the busiest node's work 1.15 of the mean (2.21 counted per column).
+    from host.planning.objectcells import WorkGrid
+    from host.scene.nff import parse_nff
+
+    rng = np.random.default_rng(7)
+    centres = rng.uniform(0, 10, (3000, 3))
+    text = "v\nfrom 5 5 -30\nat 5 5 5\nup 0 1 0\nangle 40\nhither 1\nresolution 8 8\n"
+    text += "l 5 5 -30\nf 1 1 1 1 0 0 0 0\n"
+    text += "".join(f"s {x:.4f} {y:.4f} {z:.4f} 0.01\n" for x, y, z in centres)
+    scene = parse_nff(text)
+    box = scene_box(scene)
+    density = np.ones((16, 16, 16))
+    density[:4, :4, :4] = 100.0
+    work = WorkGrid(*box, density)
+    limit = 0.25 * 3000
+    los, his = object_cells(scene, box, 3, 3, work, limit)
+    parts = zip(los, his, strict=True)
+    mass = np.array([(work.density * work.fractions(lo, hi)).sum() for lo, hi in parts])
+    assert mass.max() <= 1.25 * mass.mean()
+    held = holders(scene, los, his).sum(axis=1)
+    assert held.max() <= limit
+
+
 @pytest.mark.parametrize(
     "name,shape,max_share,extra",
     [

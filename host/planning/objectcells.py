@@ -89,10 +89,12 @@ class _Cutter:
             return
         if c1 - c0 >= r1 - r0:
             k = c0 + (c1 - c0) // 2
-            first, second, nodes = (r0, r1, c0, k), (r0, r1, k, c1), (k - c0, c1 - k)
+            first, second = (r0, r1, c0, k), (r0, r1, k, c1)
+            nodes = ((k - c0) * (r1 - r0), (c1 - k) * (r1 - r0))
         else:
             k = r0 + (r1 - r0) // 2
-            first, second, nodes = (r0, k, c0, c1), (k, r1, c0, c1), (k - r0, r1 - k)
+            first, second = (r0, k, c0, c1), (k, r1, c0, c1)
+            nodes = ((k - r0) * (c1 - c0), (r1 - k) * (c1 - c0))
         olo, ohi = self.lo[idx], self.hi[idx]
         axis, cut = _cut(olo, ohi, self.work, lo, hi, nodes, self.limit)
         mid_hi, mid_lo = hi.copy(), lo.copy()

@@ -23,7 +23,9 @@ from meshnode.engine.tables import build_tables
 from protocols.scene import SceneData
 
 CANDIDATES = 64  # cut positions tried on each axis
-SLACK = 1.25  # without a limit, a work-evening cut may leave this much over the fewest objects
+# A work-evening cut may leave this much over the fewest objects a node (never over the limit):
+# the room left under a budget takes the hottest cells' copies (`host.planning.replicas`)
+SLACK = 1.25
 
 
 def object_cells(scene: SceneData, box, rows: int, cols: int, work=None, limit=None):
@@ -31,7 +33,7 @@ def object_cells(scene: SceneData, box, rows: int, cols: int, work=None, limit=N
     `work`, cut so that the node holding most objects (its cell's, and those crossing its
     cuts) holds as few as the cuts can make it; with `work` (a `WorkGrid`: where in space
     the work lies), so that the nodes' work is even, each side of a cut holding at most
-    `limit` objects per node (None: SLACK times the fewest that cut could leave)."""
+    SLACK times the fewest objects per node that cut could leave, and at most `limit`."""
     tb = build_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
@@ -140,6 +142,6 @@ def _cut(olo, ohi, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, fl
     if work is None:
         best = min(tries, key=lambda t: (t[0], t[1]))
     else:
-        cap = max(fewest, limit if limit is not None else SLACK * fewest)
+        cap = max(fewest, SLACK * fewest if limit is None else min(limit, SLACK * fewest))
         best = min((t for t in tries if t[0] <= cap), key=lambda t: (t[1], t[0]))
     return best[2], float(best[3])

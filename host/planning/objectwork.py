@@ -16,6 +16,7 @@ from host.planning.clip import holders
 from host.planning.objectcells import WorkGrid, object_cells
 from host.planning.placement import MAX_CELLS, placed, sends
 from host.planning.prepass import coarse_pass, coarse_spec, costs
+from host.planning.seenwork import first_guess
 from meshnode.engine.tables import build_tables
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -24,6 +25,7 @@ from protocols.topology import Torus
 ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
 PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
 GRID = 16  # voxels along each axis of the grid the measured work is spread on
+FITS = 3  # passes over every round's measurements fitting the grid to them all
 # A re-cut whose fullest node breaks the limit (the cuts count objects per node as if every
 # later cut divided them evenly, and the boxes grow by the overlap) is cut again under a cap
 # lowered by the excess (to TIGHTEN of it, at least a tenth), up to TRIES times: teapot 3x3
@@ -35,11 +37,13 @@ TIGHTEN, LOWER, TRIES = 0.97, 0.9, 6
 def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=None):
     """(cells, costs, report): cells cut by the objects (`object_cells`), then re-cut
     `rounds` times on the work the cost pre-pass measured (`coarse_pass`: the mesh simulated
-    on a coarse image), each node's measured work spread over its cell on a grid of where
-    the work was thought to lie (`WorkGrid`); the cuts whose simulated busiest node is least
-    are kept. `limit`: the objects a node may hold (the budget's), else a little over the
-    fewest. `rounds` None: up to ROUNDS, as many as keep the pre-pass within PREPASS_SHARE
-    of the render's own tracing (`_affordable`: the report says how many and why)."""
+    on a coarse image), a grid of where the work lies (`WorkGrid`) fitted to every round's
+    measured cells from a first guess of where the eye rays' work starts
+    (`host.planning.seenwork`); the cuts whose simulated busiest node is least are kept.
+    `limit`: the objects a node may hold (the budget's), else a little over the fewest
+    (`objectcells.SLACK`); cuts that break it are made again further inside. `rounds`
+    None: up to ROUNDS, as many as keep the pre-pass within PREPASS_SHARE of the render's
+    own tracing (`_affordable`: the report says how many and why)."""
     plan, box = spec.plan, scene_box(scene)
     cells = object_cells(scene, box, plan.rows, plan.cols, limit=limit)
     began = time.process_time()
@@ -49,17 +53,16 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     if rounds is None:
         rounds, why = _affordable(spec, one, sum(r.cpu for r in first.nodes))
     tried = [(float(cost.max()), cells, cost, sends(first))]
-    grid, cap, over = WorkGrid(*box, _object_density(scene, box)), limit, []
+    guess, cap, over = first_guess(scene, spec, box, GRID), limit, []
     for _ in range(rounds):
-        grid = WorkGrid(*box, _measured(grid, cells, cost))
+        grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2]) for t in tried])
         cut, cap, excess = _within(scene, spec, grid, cap, limit)
         over.append(excess)
         if excess > 1:  # the plan would refuse these cells: no round to learn from
             continue
-        cells = cut
-        outcome = coarse_pass(scene, spec, None, None, cells)
+        outcome = coarse_pass(scene, spec, None, None, cut)
         cost = costs(outcome)
-        tried.append((float(cost.max()), cells, cost, sends(outcome)))
+        tried.append((float(cost.max()), cut, cost, sends(outcome)))
     busiest, cells, cost, traffic = min(tried, key=lambda t: t[0])
     cells, cost, placement = _placed(cells, cost, traffic, plan)
     return (
@@ -143,14 +146,14 @@ def _affordable(spec: RenderSpec, one: float, kernels: float) -> tuple[int, str]
     )
 
 
-def _object_density(scene: SceneData, box) -> np.ndarray:
-    """The first guess of where work lies: the objects' centres per voxel, and a little
-    everywhere (rays cross empty space too)."""
-    tb = build_tables(scene)
-    lo, hi = box
-    centres = 0.5 * (tb.lo + tb.hi) if tb.n else np.zeros((0, 3))
-    count, _ = np.histogramdd(centres, bins=GRID, range=list(zip(lo, hi, strict=True)))
-    return count + 0.05 * max(count.mean(), 1e-9)
+def _fitted(grid: WorkGrid, measured: list) -> WorkGrid:
+    """`grid` made to agree with every round's measured (cells, costs), FITS times over each
+    in turn (iterative proportional fitting): one round's cells alone say only how much work
+    each holds, the rounds together also where inside them it lies."""
+    for _ in range(FITS if len(measured) > 1 else 1):
+        for cells, cost in measured:
+            grid = WorkGrid(grid.lo, grid.hi, _measured(grid, cells, cost))
+    return grid
 
 
 def _measured(grid: WorkGrid, cells, cost) -> np.ndarray:

@@ -204,12 +204,12 @@ def test_a_scene_no_node_can_hold_renders_on_real_nodes_within_their_memory():
 
 @pytest.mark.parametrize("name", ["tetra.nff", "gears.nff"])
 def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name):
-    # Cells dividing the objects evenly left one node of a 3x3 with most of the work; re-cut
-    # on the cost pre-pass's measured work (within a share budget), the simulated busiest
-    # node carries at most three quarters of what it did (at 128 x 128: tetra 0.53, gears
-    # 0.51), and the plan's cells keep every node within the budget. (Teapot's objects-only
-    # cells lost most of their imbalance when the occupancy map's walk took the ray's octant:
-    # its busiest node 393k -> 241k units, re-cut 0.85 of that.)
+    # Cells dividing the objects evenly left one node of a 3x3 with most of the work; cut on
+    # where the eye rays' work starts, then re-cut on the cost pre-pass's measured work
+    # (within a share budget), the simulated busiest node carries at most three quarters of
+    # what it did, the first cut alone too, and the plan's cells keep every node within the
+    # budget. (Teapot's objects-only cells lost most of their imbalance when the occupancy
+    # map's walk took the ray's octant: its busiest node 393k -> 241k units.)
     from host.planning.objectwork import balanced_object_cells, object_limit
     from host.planning.prepass import node_costs
     from protocols.render import RenderSpec
@@ -220,14 +220,15 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan), rounds=3)
     counted = node_costs(scene, spec, None, None, object_cells(scene, scene_box(scene), 3, 3))
     assert cost.max() <= 0.75 * counted.max()
-    assert report["simulated_busiest_by_round"][0] == pytest.approx(counted.max())
+    assert report["simulated_busiest_by_round"][0] <= 0.75 * counted.max()
     planned = plan_render(Request(scene, ImageSpec(width=128, height=128), ONE, plan=plan))
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
     # the plan's own pre-pass is bounded by the render it plans: 128 x 128 at one sample
-    # is 4 coarse passes' samples, so a tenth of it affords no re-cut, and says so
+    # is 4 coarse passes' samples, so a tenth of it affords no re-cut, and says so; a
+    # render of 1024 x 1024 at 256 spp (minutes on one node) affords all three
     assert planned.balance["rounds"] == 0 and "of 3" in planned.balance["rounds_reason"]
-    big = plan_render(Request(scene, ImageSpec(width=256, height=256, spp=64), ONE, plan=plan))
+    big = plan_render(Request(scene, ImageSpec(width=1024, height=1024, spp=256), ONE, plan=plan))
     assert big.balance["rounds"] == 3
 
 
@@ -238,15 +239,16 @@ def test_re_cut_cells_that_break_the_budget_are_cut_again_within_it():
     # Such a cut is made again under a lower cap, so the plan keeps the re-cut cells.
     scene = read_nff(spd_scene("teapot.nff"))
     plan = MeshPlan(3, 3, balance="objects", max_share=0.25)
-    image = ImageSpec(width=256, height=256, spp=64)
+    image = ImageSpec(width=1024, height=1024, spp=256)
     planned = plan_render(Request(scene, image, ONE, plan=plan))
     balance = planned.balance
     assert balance["rounds"] == 3
     assert balance["budget"]["gave_up"] == []
     assert max(balance["budget"]["share_held"]) <= 0.25
-    kept = [x for x in balance["fullest_vs_limit_by_round"] if x <= 1]
-    assert len(balance["simulated_busiest_by_round"]) == 1 + len(kept)
-    assert min(balance["simulated_busiest_by_round"]) < balance["simulated_busiest_by_round"][0]
+    # the first cut (on the first guess) and each round's: those within the budget simulated
+    first, *rounds = balance["fullest_vs_limit_by_round"]
+    kept = [x for x in rounds if x <= 1]
+    assert first <= 1 and len(balance["simulated_busiest_by_round"]) == 1 + len(kept)
 
 
 def test_shared_cells_are_chosen_only_within_the_budget():

@@ -26,6 +26,11 @@ ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
 PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
 GRID = 16  # voxels along each axis of the grid the measured work is spread on
 FITS = 3  # passes over every round's measurements fitting the grid to them all
+# One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's
+# estimate of a render's tracing: 4.2, 5.1 and 6.9 ns on teapot, balls and rings (one node's
+# tracing CPU at 66-135 spp over its units at 4 spp, per sample); the lowest, so the
+# pre-pass rather affords too few rounds than too many
+NS_PER_UNIT = 4.0
 # A re-cut whose fullest node breaks the limit (the cuts count objects per node as if every
 # later cut divided them evenly, and the boxes grow by the overlap) is cut again under a cap
 # lowered by the excess (to TIGHTEN of it, at least a tenth), up to TRIES times: teapot 3x3
@@ -45,15 +50,18 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     None: up to ROUNDS, as many as keep the pre-pass within PREPASS_SHARE of the render's
     own tracing (`_affordable`: the report says how many and why)."""
     plan, box = spec.plan, scene_box(scene)
-    cells = object_cells(scene, box, plan.rows, plan.cols, limit=limit)
     began = time.process_time()
+    guess = first_guess(scene, spec, box, GRID)
+    cells, cap, excess = _within(scene, spec, WorkGrid(*box, guess), limit, limit)
+    over = [excess]
+    if excess > 1:  # the guess's cuts break the budget: the fewest objects
+        cells, cap = object_cells(scene, box, plan.rows, plan.cols, limit=limit), limit
     first = coarse_pass(scene, spec, None, None, cells)
     cost, one = costs(first), time.process_time() - began
     why = f"asked for {rounds}"
     if rounds is None:
-        rounds, why = _affordable(spec, one, sum(r.cpu for r in first.nodes))
+        rounds, why = _affordable(spec, one, float(cost.sum()))
     tried = [(float(cost.max()), cells, cost, sends(first))]
-    guess, cap, over = first_guess(scene, spec, box, GRID), limit, []
     for _ in range(rounds):
         grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2]) for t in tried])
         cut, cap, excess = _within(scene, spec, grid, cap, limit)
@@ -74,7 +82,7 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
             "rounds": rounds,
             "rounds_reason": why,
             "prepass_cpu_seconds": time.process_time() - began,
-            "simulated_busiest_vs_objects_only": busiest / tried[0][0] if tried[0][0] else 1.0,
+            "simulated_busiest_vs_first_cut": busiest / tried[0][0] if tried[0][0] else 1.0,
             "placement": placement,
         },
     )
@@ -131,18 +139,23 @@ def _placed(cells, cost, traffic, plan):
     )
 
 
-def _affordable(spec: RenderSpec, one: float, kernels: float) -> tuple[int, str]:
-    """(re-cuts, why): as many of ROUNDS as keep the pre-pass (each round a coarse pass of
-    `one` CPU seconds) within PREPASS_SHARE of the render's own tracing, estimated as the
-    coarse pass's kernels' CPU (`kernels`, all nodes: more than one node's, as passed rays
-    are traced again) scaled by the render's samples over the coarse pass's."""
+def _affordable(spec: RenderSpec, one: float, units: float) -> tuple[int, str]:
+    """(re-cuts, why): as many of ROUNDS as keep the pre-pass (its first coarse pass, the
+    first guess and cut, took `one` CPU seconds; each round costs about as much) within
+    PREPASS_SHARE of one node's tracing of the render, estimated from the coarse pass's work
+    (`units`, all nodes: more than one node's, as passed rays are traced again) scaled by
+    the render's samples over the coarse pass's, at NS_PER_UNIT. The coarse pass's own
+    kernel CPU said 25-30 times too much (teapot 256x256 at 135 spp: 80 s against 2.9 s):
+    its batches are small, and each kernel call costs about 30 us whatever its size."""
     samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
     coarse = coarse_spec(spec)
-    trace = kernels * samples / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
+    per = units / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
+    trace = per * samples * NS_PER_UNIT * 1e-9
     rounds = int(min(ROUNDS, max(0.0, (PREPASS_SHARE * trace - one) // max(one, 1e-9))))
     return rounds, (
-        f"{rounds} of {ROUNDS}: a coarse pass takes {one:.2f} s of CPU and the render's "
-        f"tracing about {trace:.2f} s; the pre-pass may take {PREPASS_SHARE:.0%} of it"
+        f"{rounds} of {ROUNDS}: the first guess and a coarse pass took {one:.2f} s of CPU and "
+        f"one node's tracing is about {trace:.2f} s; the pre-pass may take "
+        f"{PREPASS_SHARE:.0%} of it"
     )
 
 

@@ -12,9 +12,9 @@ holds it and routed there over as many links as it takes (`meshnode.engine.locat
 An object straddling a cut is held by both sides, so the fullest node holds about 1/N of the
 objects plus those its cuts cross (and the overlap's). With an estimate of where in space the
 work lies (the cost pre-pass's, `host.planning.objectwork`), each cut instead evens the work of
-the two sides
-per node, among the cuts that keep each side's objects per node within a limit (the memory
-budget's, or a little over the fewest the cut could leave): memory first, then work.
+the two sides per node, among the cuts that leave each side at most SLACK times the fewest
+objects per node the cut could leave, and never more than a limit (the memory budget's):
+memory first, then work.
 """
 
 import numpy as np

@@ -2,9 +2,10 @@
 (`MeshPlan.balance` "objects"): memory first, then work.
 
 Cells that divide the objects evenly can still leave one node most of the work (gears on a
-3x3: the busiest node's work 0.95 above the least's). So the mesh is simulated on a coarse
-image (`host.planning.prepass`) and the cells re-cut where the measured work says, each cut
-kept within the objects a node may hold (`host.planning.objectcells`).
+3x3: the busiest node's work 0.95 above the least's). So the cells are first cut where the
+work is guessed to lie (`host.planning.seenwork`), the mesh is simulated on a coarse image
+(`host.planning.prepass`) and the cells re-cut where the measured work says, each cut kept
+within the objects a node may hold (`host.planning.objectcells`).
 """
 
 import time
@@ -43,15 +44,15 @@ TIGHTEN, LOWER, TRIES = 0.97, 0.9, 6
 
 
 def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=None):
-    """(cells, costs, report): cells cut by the objects (`object_cells`), then re-cut
-    `rounds` times on the work the cost pre-pass measured (`coarse_pass`: the mesh simulated
-    on a coarse image), a grid of where the work lies (`WorkGrid`) fitted to every round's
-    measured cells from a first guess of where the eye rays' work starts
-    (`host.planning.seenwork`); the cuts whose simulated busiest node is least are kept.
-    `limit`: the objects a node may hold (the budget's), else a little over the fewest
-    (`objectcells.SLACK`); cuts that break it are made again further inside. `rounds`
-    None: up to ROUNDS, as many as keep the pre-pass within PREPASS_SHARE of the render's
-    own tracing (`_affordable`: the report says how many and why)."""
+    """(cells, costs, report): cells cut by the objects (`object_cells`) where a first guess
+    puts the work (`host.planning.seenwork`; where those break the budget, for the fewest
+    objects), then re-cut `rounds` times on the work the cost pre-pass measured
+    (`coarse_pass`: the mesh simulated on a coarse image), the guess's grid (`WorkGrid`)
+    fitted to every round's measured cells; the cuts whose simulated busiest node is least
+    are kept. `limit`: the objects a node may hold (the budget's), else a little over the
+    fewest (`objectcells.SLACK`); cuts that break it are made again further inside.
+    `rounds` None: MIN_ROUNDS, or up to ROUNDS, as many as keep the pre-pass within
+    PREPASS_SHARE of one node's tracing (`_affordable`: the report says how many and why)."""
     plan, box = spec.plan, scene_box(scene)
     began = time.process_time()
     guess = first_guess(scene, spec, box, GRID)

@@ -6,9 +6,11 @@ starting at a multiple of ALIGN bytes into the payload. In the map an array fiel
 msgpack extension ARRAY_EXT holding only `name \0 count (8 bytes LE)`, `name` one of
 `protocols.dtypes.WIRE_DTYPES`; its records follow the map in the order the map names them.
 
-So a batch of rays is copied once on each side: into the frame on the sender (one join of the
-map and the arrays' own buffers), and into the payload's buffer on the receiver, where the
-arrays are then views (aligned, writable). bench.link measures it against a raw socket.
+So a batch of rays is copied once on each side: on the sender by the kernel's write from the
+arrays' own buffers (`frame_buffers`: the frame as the buffers it is made of, for a vectored
+write; an array field may be `protocols.records.Parts`, several arrays sent as one), and on the
+receiver into the payload's buffer, where the arrays are then views (aligned, writable).
+bench.link measures it against a raw socket.
 """
 
 import struct
@@ -18,6 +20,7 @@ import numpy as np
 
 from protocols.dtypes import WIRE_DTYPES
 from protocols.errors import BadFrame, FrameTooLarge
+from protocols.records import Parts
 
 HEADER = struct.Struct(">I")
 MAP = struct.Struct(">I")  # the msgpack map's length, first in the payload
@@ -33,32 +36,48 @@ def _aligned(at: int) -> int:
 
 
 def encode(message: dict, max_frame: int = MAX_FRAME) -> bytes:
-    """One frame holding `message` (a dict of msgpack-able values and wire arrays)."""
-    arrays: list[np.ndarray] = []
+    """One frame holding `message` (a dict of msgpack-able values and wire arrays), as bytes."""
+    return b"".join(frame_buffers(message, max_frame))
+
+
+def frame_buffers(message: dict, max_frame: int = MAX_FRAME) -> list:
+    """One frame holding `message`, as the buffers it is made of in order: its header and map,
+    then each array's records where they lie (padding between), for a vectored write that
+    copies them once, into the socket. The caller must not change the arrays until written."""
+    fields: list[tuple] = []  # each array field's parts, in the map's order
 
     def default(obj):
-        """msgpack hook: a NumPy array of a wire dtype becomes an ARRAY_EXT placeholder; its
-        records go after the map."""
-        if isinstance(obj, np.ndarray):
+        """msgpack hook: a NumPy array of a wire dtype (or `Parts` of one) becomes an
+        ARRAY_EXT placeholder; its records go after the map."""
+        if isinstance(obj, (np.ndarray, Parts)):
+            parts = obj.arrays if isinstance(obj, Parts) else (obj,)
             name = _NAMES.get(obj.dtype)
-            if name is None or obj.ndim != 1:
-                raise TypeError(f"cannot frame an array of dtype {obj.dtype} and shape {obj.shape}")
-            arrays.append(np.ascontiguousarray(obj))
-            return msgpack.ExtType(ARRAY_EXT, name.encode() + b"\0" + struct.pack("<Q", len(obj)))
+            if name is None or any(a.ndim != 1 for a in parts):
+                shape = getattr(obj, "shape", "parts")
+                raise TypeError(f"cannot frame an array of dtype {obj.dtype} and shape {shape}")
+            fields.append(tuple(np.ascontiguousarray(a) for a in parts))
+            count = struct.pack("<Q", sum(len(a) for a in parts))
+            return msgpack.ExtType(ARRAY_EXT, name.encode() + b"\0" + count)
         if isinstance(obj, np.generic):
             return obj.item()
         raise TypeError(f"cannot frame {type(obj).__name__}")
 
     meta = msgpack.packb(message, default=default, use_bin_type=True)
-    parts, at = [b"", MAP.pack(len(meta)), meta], MAP.size + len(meta)
-    for a in arrays:
+    head, at = [b"", MAP.pack(len(meta)), meta], MAP.size + len(meta)
+    parts = []
+    for field in fields:  # aligned at its first record; its parts end to end
         pad = _aligned(at) - at
-        parts += [_ZEROS[:pad], memoryview(a).cast("B")]
-        at += pad + a.nbytes
+        if pad:
+            parts.append(_ZEROS[:pad])
+        at += pad
+        for a in field:
+            if a.nbytes:
+                parts.append(memoryview(a).cast("B"))
+                at += a.nbytes
     if at > max_frame:
         raise FrameTooLarge(f"message of {at} bytes exceeds the {max_frame} limit")
-    parts[0] = HEADER.pack(at)
-    return b"".join(parts)  # the one copy of the arrays on this side
+    head[0] = HEADER.pack(at)
+    return [b"".join(head), *parts]
 
 
 def decode_payload(payload) -> dict:

@@ -11,6 +11,7 @@ import numpy as np
 
 from protocols import dtypes
 from protocols.errors import BadFrame, UnknownKind
+from protocols.records import Parts
 from protocols.scene import TABLE_DTYPES
 
 # 14: RAYS.cell (the engine a ray is for: a copy its node holds), MeshPlan.forward;
@@ -124,8 +125,8 @@ OBJECT_TABLES = TABLE_DTYPES  # OBJECTS.table: each scene table's records
 def _check(kind: Kind, name: str, value, want) -> None:
     if want is None:
         return
-    if isinstance(want, np.dtype):
-        if not isinstance(value, np.ndarray) or value.dtype != want:
+    if isinstance(want, np.dtype):  # an array, or a sender's Parts of arrays sent as one
+        if not isinstance(value, (np.ndarray, Parts)) or value.dtype != want:
             got = getattr(value, "dtype", type(value).__name__)
             raise BadFrame(f"{kind.name}.{name} must be an array of {want}, got {got}")
         return

@@ -26,10 +26,11 @@ class FakeWriter:
         self.frames, self.broken = [], broken
         self.transport = SimpleNamespace(get_write_buffer_size=lambda: 0)
 
-    def write(self, data: bytes) -> None:
+    def writelines(self, data: list) -> None:
+        """One vectored write, kept as the bytes it wrote."""
         if self.broken:
             raise ConnectionResetError("reset by peer")
-        self.frames.append(data)
+        self.frames.append(b"".join(data))
 
     async def drain(self) -> None:
         return None

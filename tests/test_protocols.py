@@ -7,10 +7,10 @@ import pytest
 
 from protocols import dtypes
 from protocols.errors import BadFrame, FrameTooLarge, ProtocolError, UnknownKind, VersionMismatch
-from protocols.framing import ALIGN, FrameDecoder, encode
+from protocols.framing import ALIGN, FrameDecoder, encode, frame_buffers
 from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make, parse
-from protocols.records import copied, joined, taken
+from protocols.records import Parts, copied, joined, taken
 from protocols.topology import Router, Torus
 
 
@@ -318,3 +318,25 @@ def test_records_joined_and_copied_as_bytes_are_numpys_records(dtype):
     index = rng.integers(0, 17, 40)
     assert taken(parts[3], index).tobytes() == parts[3][index].tobytes()
     assert taken(parts[4], index % 9).tobytes() == parts[4][index % 9].tobytes()
+
+
+@pytest.mark.parametrize("dtype", [dtypes.RAY, dtypes.TRIANGLE])
+def test_parts_travel_as_their_join_written_from_where_they_lie(dtype):
+    # Rays gathered from several batches leave in one frame without being joined: the frame
+    # of `Parts` is the frame of their join, byte for byte (an unaligned record size too,
+    # and an array after them still aligned), and its buffers are the parts' own memory, so
+    # the socket's is the one copy on the sender's side.
+    rng = np.random.default_rng(2)
+    parts = [np.frombuffer(rng.bytes(n * dtype.itemsize), dtype).copy() for n in (3, 0, 5, 1)]
+    after = np.arange(3, dtype=dtypes.WIRE_DTYPES["i8"])
+    whole = {"k": int(Kind.ERROR), "reason": "r", "a": joined(parts), "b": after}
+    split = {**whole, "a": Parts.of(parts)}
+    assert encode(split) == encode(whole)
+    (got,) = FrameDecoder().feed(encode(split))
+    assert got["a"].tobytes() == whole["a"].tobytes() and got["b"].ctypes.data % ALIGN == 0
+    buffers = frame_buffers(split)
+    for p in (p for p in parts if len(p)):
+        assert any(np.shares_memory(np.frombuffer(b, np.uint8), p) for b in buffers[1:])
+    assert len(Parts.of(parts)) == 9 and Parts.of(parts).nbytes == 9 * dtype.itemsize
+    with pytest.raises(ValueError, match="one dtype"):
+        Parts.of([parts[0], np.zeros(1, dtypes.DEPOSIT)])

@@ -13,7 +13,7 @@ from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.steps import Enter, Flush, Give, SendEcho, SendProbe, Steal, Trace
 from meshnode.mesh.termination import Echo, Probe
 from meshnode.mesh.traced import TracedTiles
-from protocols.records import joined
+from protocols.records import Parts
 from protocols.state import State
 
 PASS_RAYS = 16384  # rays leaving for one node are sent once this many wait ...
@@ -95,8 +95,8 @@ class Driver:
         takers = self.core.takers
         for cell, passed in batch.outgoing.items():
             waiting = self.leaving.setdefault((takers[cell], cell), [[], 0, 0])
-            waiting[0].append(passed)
-            waiting[1] += len(passed)
+            waiting[0] += passed
+            waiting[1] += sum(len(p) for p in passed)
         for key in [k for k, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]:
             self.send_leaving(key)
         for taker, rays in batch.held.items():
@@ -108,10 +108,10 @@ class Driver:
 
     def send_leaving(self, key: tuple[int, int] | None = None) -> None:
         """Send the rays waiting to leave for (node, cell) `key` (None: every key's) as one
-        message each."""
+        message each, not joined: each part goes into the frame from where it lies."""
         for dest, cell in list(self.leaving) if key is None else [key]:
             parts, _, _ = self.leaving.pop((dest, cell))
-            self.post_rays(dest, joined(parts), cell)
+            self.post_rays(dest, Parts.of(parts), cell)
 
     def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
         """Adaptive deposits the node's books send on, each toward its pixel's node."""
@@ -124,7 +124,7 @@ class Driver:
         (`batch_done`)."""
         raise NotImplementedError
 
-    def post_rays(self, dest: int, rays: np.ndarray, cell: int) -> None:
+    def post_rays(self, dest: int, rays: Parts, cell: int) -> None:
         """RAYS for node `dest` to trace with cell `cell`'s engine (its own or a copy)."""
         raise NotImplementedError
 

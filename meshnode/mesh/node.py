@@ -52,8 +52,9 @@ class Batch:
     """The outcome of tracing one batch on one node."""
 
     deposits: dict[int, np.ndarray]  # node (HOST: the host) -> DEPOSIT records it takes
-    # cell -> RAY records its engine takes on, held elsewhere (`NodeCore.takers` says where)
-    outgoing: dict[int, np.ndarray]
+    # cell -> RAY records its engine takes on, held elsewhere (`NodeCore.takers` says where),
+    # in parts as traced: they leave in frames from where they lie (`protocols.records.Parts`)
+    outgoing: dict[int, list[np.ndarray]]
     counts: dict[str, int] = field(default_factory=dict)
     # node -> RAY records its engine, held here (this node's own or a copy), takes on later
     held: dict[int, np.ndarray] = field(default_factory=dict)
@@ -317,7 +318,7 @@ class NodeCore:
         deposits = joined(deposits) if deposits else np.zeros(0, DEPOSIT)
         routes = self.pixel_routes(deposits)
         counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
-        return Batch(routes, _joined(outgoing), dict(counts), _joined(held))
+        return Batch(routes, outgoing, dict(counts), _joined(held))
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning

@@ -265,7 +265,7 @@ class _Node(Driver):
     def post_rays(self, dest: int, rays, cell: int) -> None:
         self.record.rays_sent += len(rays)
         self.record.sent_to[dest] += len(rays)
-        self.mesh._send(self.node, dest, "rays", (rays, cell))
+        self.mesh._send(self.node, dest, "rays", (rays.joined(), cell))  # as a frame has them
 
     def post_pixels(self, dest: int, deposits) -> None:
         self.mesh._send(self.node, dest, "pixels", deposits)

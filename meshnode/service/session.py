@@ -36,7 +36,7 @@ from meshnode.service.reports import progress_message, stats_message
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
-from protocols.records import copied, joined
+from protocols.records import Parts, copied, joined
 from protocols.state import State, states_of
 from protocols.topology import Router
 
@@ -175,7 +175,7 @@ class Session(Driver):
             self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {describe(error)}"))
             self.wake.set()
 
-    def post_data(self, dest: int, kind: Kind, records: np.ndarray, cell: int = -1) -> None:
+    def post_data(self, dest: int, kind: Kind, records: np.ndarray | Parts, cell: int = -1) -> None:
         """A RAYS (for cell `cell`'s engine) or PIXELS message toward node `dest`, counted
         as sent."""
         hop = self.router.next_hop(dest)
@@ -325,7 +325,7 @@ class Session(Driver):
             self.wake.set()
 
     # ------------------------------------------------------------------ the driver's sends
-    def post_rays(self, dest: int, rays: np.ndarray, cell: int) -> None:
+    def post_rays(self, dest: int, rays: Parts, cell: int) -> None:
         self.post_data(dest, Kind.RAYS, rays, cell)
 
     def post_pixels(self, dest: int, deposits: np.ndarray) -> None:

@@ -8,6 +8,7 @@ names the peer and chains the cause.
 
 import asyncio
 import ssl
+import sys
 import time
 from collections import deque
 
@@ -17,8 +18,9 @@ from protocols.framing import MAX_FRAME, FrameDecoder, frame_buffers
 from protocols.handshake import auth, check_auth, check_hello, hello, nonce
 from protocols.messages import Kind, make, parse
 
-WRITE_CHUNK = 256 * 1024  # a frame is written in pieces of this, send() waiting while the
-# transport holds more: a slow peer slows the sender instead of growing its memory
+WRITE_CHUNK = 256 * 1024  # send() waits while the transport holds more than this: a slow
+# peer slows the sender instead of growing its memory; asyncio's transport takes a frame in
+# pieces of this size (`_piece_size`)
 HANDSHAKE_FRAME = 4096  # largest frame a peer may send before it has proved the secret
 HANDSHAKE_SECONDS = 10.0  # a peer that has not finished the handshake by then is dropped
 CLOSE_SECONDS = 5.0  # a closing link's queued bytes must be taken by then, or are dropped
@@ -124,14 +126,11 @@ class Link:
 
     async def send(self, message: dict) -> None:
         """Write one frame from the buffers it is made of (`frame_buffers`: a ray batch's
-        records from where they lie) in vectored writes of at most WRITE_CHUNK bytes, each
-        waiting while the transport holds more than that: uvloop writes and keeps the
-        buffers themselves, so the kernel's is the one copy on this side; asyncio's
-        transport, before Python 3.12, copies and shifts what the socket did not take on
-        every send, so one 6.8 MB frame written whole cost it 5 ms of memmove."""
+        records from where they lie), vectored, waiting while the transport holds more than
+        WRITE_CHUNK bytes: the kernel's is then the one copy on this side (`_piece_size`)."""
         try:
-            sent = 0
-            for piece in _pieces(frame_buffers(message, self.max_frame), WRITE_CHUNK):
+            sent, size = 0, _piece_size(self.writer.transport)
+            for piece in _pieces(frame_buffers(message, self.max_frame), size):
                 self.writer.writelines(piece)
                 sent += sum(len(b) for b in piece)
                 if self.writer.transport.get_write_buffer_size() > WRITE_CHUNK:
@@ -329,6 +328,15 @@ async def _listener(link: Link, cluster: str, secret: bytes, node: int, memory: 
     await link.send(make(Kind.WELCOME))
     link.allow(MAX_FRAME)
     return dialler
+
+
+def _piece_size(transport) -> int:
+    """The bytes of a frame written at once: all of it on uvloop, whose transports keep the
+    buffers they could not send yet (no copy, no shift: `python -m bench.link`, link / raw
+    0.65-0.82 against 0.52-0.64 in 256 kB pieces); WRITE_CHUNK on asyncio's, which before
+    Python 3.12 copies and shifts its whole buffer on every send (a 6.8 MB frame written
+    whole cost it 5 ms of memmove)."""
+    return sys.maxsize if type(transport).__module__.startswith("uvloop") else WRITE_CHUNK
 
 
 def _pieces(buffers: list, size: int):

@@ -74,6 +74,8 @@ def row(scene, name: str, mesh: str, guess: str, args) -> dict:
     cost = np.array([r.cost for r in out.nodes], float)
     traced = sum(r.counts.get("ray_segments", 0) for r in out.nodes)
     balance = planned.balance
+    budget = balance.get("budget", {})  # none without --max-share under 1
+    held = [planned.holders[spec.plan.held(n)].any(axis=0).mean() for n in range(part.nodes)]
     return {
         "scene": name,
         "mesh": mesh,
@@ -84,9 +86,9 @@ def row(scene, name: str, mesh: str, guess: str, args) -> dict:
         "busiest_over_mean": float(cost.max() / cost.mean()),
         "passes_per_segment": sum(r.rays_sent for r in out.nodes) / max(traced, 1),
         "cells_prepass_cpu": balance.get("prepass_cpu_seconds", 0.0),
-        "copies_prepass_cpu": balance["budget"]["copies"].get("prepass_cpu_seconds", 0.0),
+        "copies_prepass_cpu": budget.get("copies", {}).get("prepass_cpu_seconds", 0.0),
         "plan_cpu": plan_cpu,
-        "fullest_share": max(balance["budget"]["share_held"]),
+        "fullest_share": float(max(held)),
     }
 
 

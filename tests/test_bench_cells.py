@@ -22,3 +22,15 @@ def test_bench_cells_plans_both_guesses_within_the_budget(tmp_path, capsys):
         assert len(r["by_round"]) >= 1 and r["busiest_over_mean"] >= 1.0
     assert seenwork.SEEN == before  # put back as it was
     assert "busiest node against objects" in capsys.readouterr().out
+
+
+def test_bench_cells_plans_without_a_budget(tmp_path):
+    # No budget (--max-share 1): no copies stage, and the fullest node's share is counted
+    # from the plan's holders, as with one (it used to look for the budget's report).
+    folder = spd_scene("teapot_s1.nff").parent
+    out = tmp_path / "cells.json"
+    argv = ["--scenes", str(folder), "--only", "teapot_s1", "--meshes", "1x2", "--guess", "seen"]
+    argv += ["--max-share", "1", "--size", "48", "--spp", "1", "--simulate-spp", "1"]
+    assert main([*argv, "--json", str(out)]) == 0
+    (row,) = json.loads(out.read_text())
+    assert 0.5 <= row["fullest_share"] <= 1.0 and row["copies_prepass_cpu"] == 0.0

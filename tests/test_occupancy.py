@@ -146,6 +146,8 @@ def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
     assert cuts.occupancy == (busiest[True] <= busiest[False])
     assert cuts.report["occupancy_map"] == cuts.occupancy
     ratio = cuts.report["simulated_busiest_without_map_vs_with"]
-    assert ratio == pytest.approx(busiest[False] / busiest[True])
+    # cells cut by the objects carry the busiest node simulated before they are moved onto
+    # linked nodes (`objectwork._placed`: only which rays are relayed changes, 1e-4 of it)
+    assert ratio == pytest.approx(busiest[False] / busiest[True], rel=1e-3)
     if name == "balls_s1.nff":  # a floor and spheres: most of the scene's box is empty
         assert cuts.occupancy and ratio > 1.05, ratio

@@ -28,7 +28,13 @@ ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
 # 0.15: its busiest node 3.8 times the mean at 4 spp simulated, 1.8 after one round)
 MIN_ROUNDS = 1
 PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
-GRID = 16  # voxels along each axis of the grid the measured work is spread on
+# Voxels along each axis of the grid the guessed and measured work is spread on: a cut can
+# only even what the grid tells apart. 32 against 16, real nodes in turns (256x256 at 63 spp,
+# a /tmp script, the busiest node's frame CPU, two pairs): 3x3 under a quarter share balls
+# 0.79 / 0.81, gears 0.77 / 0.84, rings 0.95 / 1.03, teapot 1.02 / 1.03, tetra at 512 spp
+# 1.00 / 1.00; 2x2 under a half rings 0.87 / 0.86, teapot 0.90 / 0.87, balls 1.10 / 1.08;
+# 4x4 under 0.15 (one pair) balls 0.93, teapot 0.89, rings 0.98, gears 0.94
+GRID = 32
 FITS = 3  # passes over every round's measurements fitting the grid to them all
 # One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's
 # estimate of a render's tracing: 4.2, 5.1 and 6.9 ns on teapot, balls and rings (one node's

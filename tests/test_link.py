@@ -196,3 +196,41 @@ async def test_a_bad_frame_read_before_the_link_took_over_is_its_first_error():
     writer.close()
     server.close()
     await server.wait_closed()
+
+
+@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
+def test_rays_in_parts_arrive_as_one_array_over_either_loop(loop):
+    # A RAYS message whose rays are several arrays (`Parts`, as a node sends the runs it
+    # gathered for a neighbour) crosses a real socket as one frame, written whole on uvloop
+    # and in WRITE_CHUNK pieces on asyncio's transport: the receiver gets their join, and
+    # the bytes counted are the frame's.
+    from meshnode.transport.link import WRITE_CHUNK
+    from protocols.framing import encode
+    from protocols.records import Parts, joined
+
+    rng = np.random.default_rng(3)
+    parts = [np.frombuffer(rng.bytes(n * RAY.itemsize), RAY).copy() for n in (7000, 1, 5000)]
+    message = make(Kind.RAYS, rays=Parts.of(parts), dest=1, cell=1)
+    assert sum(p.nbytes for p in parts) > 4 * WRITE_CHUNK
+
+    async def main():
+        got = asyncio.get_running_loop().create_future()
+
+        async def on_connect(reader, writer):
+            got.set_result(await Link(reader, writer, "sender").recv())
+            writer.close()
+
+        server = await asyncio.start_server(on_connect, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        link = await Link.connect(f"127.0.0.1:{port}", "receiver", wait=5)
+        await link.send(message)
+        kind, fields = await asyncio.wait_for(got, 10)
+        await link.close()
+        server.close()
+        await server.wait_closed()
+        return kind, fields, link.stats["bytes_out"]
+
+    run = asyncio.run if loop == "asyncio" else pytest.importorskip("uvloop").run
+    kind, fields, sent = run(main())
+    assert kind is Kind.RAYS and fields["rays"].tobytes() == joined(parts).tobytes()
+    assert sent == len(encode(make(Kind.RAYS, rays=joined(parts), dest=1, cell=1)))

@@ -33,7 +33,8 @@ PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may ta
 # a /tmp script, the busiest node's frame CPU, two pairs): 3x3 under a quarter share balls
 # 0.79 / 0.81, gears 0.77 / 0.84, rings 0.95 / 1.03, teapot 1.02 / 1.03, tetra at 512 spp
 # 1.00 / 1.00; 2x2 under a half rings 0.87 / 0.86, teapot 0.90 / 0.87, balls 1.10 / 1.08;
-# 4x4 under 0.15 (one pair) balls 0.93, teapot 0.89, rings 0.98, gears 0.94
+# 4x4 under 0.15 (one pair) balls 0.93, teapot 0.89, rings 0.98, gears 0.94, tetra at 668 spp
+# 1.01 / 1.08 (its kernels 1.24 / 1.15; its frame is its sky's eye rays, docs/measurements)
 GRID = 32
 FITS = 3  # passes over every round's measurements fitting the grid to them all
 # One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's

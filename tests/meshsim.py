@@ -35,6 +35,7 @@ def render_mesh(
     clock="rounds",
     latency=10,
     outcome=None,
+    loads=None,
     **plan,
 ):
     """Image, summed counters, per-node records and rounds of a rows x cols mesh render.
@@ -43,13 +44,14 @@ def render_mesh(
     (xs, ys) as `host.planning.rectangles.rectangles` takes them (default even); `cells`: (los,
     his) of the nodes' cells (default: cut to match the rectangles); `passed_min`: the nodes'
     Scheduler's; `clock`: the simulator's ("rounds" or "work", a message's `latency` in work
-    units); `outcome`: a list the simulator's Outcome is appended to; `plan`: more MeshPlan
+    units); `outcome`: a list the simulator's Outcome is appended to; `loads`: the nodes'
+    estimated CPU seconds the partition deals the sky's tiles against; `plan`: more MeshPlan
     fields (mode, tiles, tile)."""
     image = ImageSpec(width=width, height=height, spd=corners, spp=spp, depth=depth, seed=seed)
     spec = RenderSpec(
         image.sized(scene.view), plan=MeshPlan(rows, cols, overlap, **plan), camera=camera
     )
-    part, keep = partition(scene, spec, *(cuts or (None, None)), cells)
+    part, keep = partition(scene, spec, *(cuts or (None, None)), cells, loads=loads)
     scenes = [subset(scene, keep[n]) for n in range(part.nodes)]
     out = simulate(scenes, spec, part, seed, delay, batch, passed_min, clock=clock, latency=latency)
     if outcome is not None:

@@ -158,10 +158,7 @@ def _affordable(spec: RenderSpec, one: float, units: float) -> tuple[int, str]:
     the render's samples over the coarse pass's, at NS_PER_UNIT. The coarse pass's own
     kernel CPU said 25-30 times too much (teapot 256x256 at 135 spp: 80 s against 2.9 s):
     its batches are small, and each kernel call costs about 30 us whatever its size."""
-    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
-    coarse = coarse_spec(spec)
-    per = units / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
-    trace = per * samples * NS_PER_UNIT * 1e-9
+    trace = node_seconds(spec, units)
     fits = int(min(ROUNDS, max(0.0, (PREPASS_SHARE * trace - one) // max(one, 1e-9))))
     rounds = max(fits, MIN_ROUNDS)
     return rounds, (
@@ -170,6 +167,16 @@ def _affordable(spec: RenderSpec, one: float, units: float) -> tuple[int, str]:
         f"{PREPASS_SHARE:.0%} of it"
         + ("" if fits >= MIN_ROUNDS else f", but {MIN_ROUNDS} measured round is always made")
     )
+
+
+def node_seconds(spec: RenderSpec, units):
+    """Tracing CPU seconds of the render for work `units` measured on the coarse pass (each
+    node's, or all nodes'): scaled by the render's samples over the coarse pass's, at
+    NS_PER_UNIT a unit."""
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
+    coarse = coarse_spec(spec)
+    per = np.asarray(units, float) / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
+    return per * samples * NS_PER_UNIT * 1e-9
 
 
 def _fitted(grid: WorkGrid, measured: list) -> WorkGrid:

@@ -24,7 +24,13 @@ from protocols.scene import SceneData
 
 
 def partition(
-    scene: SceneData, spec: RenderSpec, xs=None, ys=None, cells=None, occupancy: bool = True
+    scene: SceneData,
+    spec: RenderSpec,
+    xs=None,
+    ys=None,
+    cells=None,
+    occupancy: bool = True,
+    loads=None,
 ) -> tuple[Partition, np.ndarray]:
     """The plan made concrete: every node's rectangles of the sample grid and its box, and
     which objects each node holds (nodes x objects, bool). Object space: one rectangle a
@@ -32,8 +38,9 @@ def partition(
     lies: `host.planning.workmap`), else cut by the objects under balance "objects"
     (`host.planning.objectcells`), else cut to match the rectangles; the scene's occupancy map
     unless `occupancy` is False (where walking it costs more than the passes it saves:
-    `host.planning.holding`). Image space: tiles, every box the scene's, every object on every
-    node."""
+    `host.planning.holding`); `loads` (each node's estimated CPU seconds, from the pre-pass)
+    deals the tiles no eye ray enters to the least loaded (`rectangles.taker_tiles`). Image
+    space: tiles, every box the scene's, every object on every node."""
     plan, (width, height) = spec.plan, spec.image.size
     gw, gh = spec.sample_grid
     box = scene_box(scene)
@@ -52,7 +59,8 @@ def partition(
     )
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
-        rects, owner = taker_tiles(scene, spec, cells, rects, box, occupancy_arrays(*box, *occ))
+        occ_arrays = occupancy_arrays(*box, *occ)
+        rects, owner = taker_tiles(scene, spec, cells, rects, box, occ_arrays, loads)
         if plan.copies:
             takers, owner = owner, spread(owner, plan)
     return (

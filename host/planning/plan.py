@@ -14,7 +14,7 @@ from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
-from host.planning.objectwork import balanced_object_cells, object_limit
+from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.partition import partition
 from host.planning.prepass import node_costs
 from host.planning.replicas import with_replicas
@@ -49,7 +49,7 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
     if camera is not None:  # autofocus probes the scene here, before any node is configured
         camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image, engine))
     spec = RenderSpec(image, engine, plan, camera_spec)
-    xs = ys = cells = None
+    xs = ys = cells = loads = None
     occupancy, overlap, shared = True, plan.overlap, plan.shared
     balance: dict = {"cuts": plan.balance}
     t0 = time.perf_counter()
@@ -59,7 +59,8 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
         )
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and plan.balance == "objects":
-        cells, _, report = balanced_object_cells(scene, spec, object_limit(scene, plan))
+        cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan))
+        loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None).max()
@@ -69,7 +70,7 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
         balance.update(report, seconds=time.perf_counter() - t0)
     if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
         spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
-    part, keep = partition(scene, spec, xs, ys, cells, occupancy)
+    part, keep = partition(scene, spec, xs, ys, cells, occupancy, loads)
     if budgeted(spec.plan):
         spec, part, keep, balance["budget"] = _within_budget(
             scene, spec, part, keep, request.auto.budget_copies

@@ -119,10 +119,11 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool 
 
 def _objects_within(scene: SceneData, spec: RenderSpec):
     """(partition, holders, holdings) of cells cut by the objects: evened on the pre-pass's
-    work within the budget's objects per node (`host.planning.objectwork`), or where those
-    still break the budget, cut for the fewest objects alone."""
-    cells, _, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))
-    part, keep = partition(scene, spec, cells=cells)
+    work within the budget's objects per node (`host.planning.objectwork`, the sky's tiles
+    dealt against its loads), or where those still break the budget, cut for the fewest
+    objects alone."""
+    cells, cost, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))
+    part, keep = partition(scene, spec, cells=cells, loads=node_seconds(spec, cost))
     held = holdings(scene, spec, part, keep)
     if not within(spec.plan, held):
         part, keep = partition(scene, spec)

@@ -91,10 +91,12 @@ def taker_tiles(
     sky = np.flatnonzero(votes.sum(axis=1) == 0)
     if loads is not None:
         owner[sky] = _sky_tiles([rects[i] for i in sky], loads, spec.rays_per_pixel)
-        return rects, owner.tolist()
-    for i in sky.tolist():
-        x0, _, y0, _ = rects[i]
-        owner[i] = next(n for n, (a, b, c, d) in enumerate(fallback) if a <= x0 < b and c <= y0 < d)
+    else:
+        for i in sky.tolist():
+            x0, _, y0, _ = rects[i]
+            owner[i] = next(
+                n for n, (a, b, c, d) in enumerate(fallback) if a <= x0 < b and c <= y0 < d
+            )
     return rects, owner.tolist()
 
 

@@ -127,7 +127,7 @@ class Link:
     async def send(self, message: dict) -> None:
         """Write one frame from the buffers it is made of (`frame_buffers`: a ray batch's
         records from where they lie), vectored, waiting while the transport holds more than
-        WRITE_CHUNK bytes: the kernel's is then the one copy on this side (`_piece_size`)."""
+        WRITE_CHUNK bytes: the copy into the socket is then the one on this side (`_piece_size`)."""
         try:
             sent, size = 0, _piece_size(self.writer.transport)
             for piece in _pieces(frame_buffers(message, self.max_frame), size):

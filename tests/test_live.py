@@ -160,6 +160,7 @@ async def test_the_stream_pushes_progress_nodes_frames_and_the_end():
                 assert np.abs(preview - half).mean() < 4
                 assert status["progress"]["total"] == 24
                 assert status["progress"]["fraction"] == 0.5
+                assert status["frame_done"] == 0  # copied before the node's progress came
                 n1 = status["nodes"][1]
                 assert (n1["row"], n1["col"], n1["state"]) == (0, 1, "trace")
                 assert n1["busy"] == 0.75 and n1["traced"] == 120 and n1["objects"] == 7

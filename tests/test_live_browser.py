@@ -240,9 +240,10 @@ def drain_all(lines):
 
 @pytest.mark.parametrize("mode", list(MODES))
 def test_the_canvas_fills_in_and_ends_on_the_summary_figures(tmp_path, mode):
-    """The page's own progress when its canvas first held rendered pixels (recorded by the
-    page as it drew that frame) is under half the primary rays; at the end its elapsed
-    seconds, rays and rays/s are the statistics' and the summary line's."""
+    """The first frame the page drew with rendered pixels was copied by the server before half
+    the primary rays were traced (its progress then, which a page drawing late under load does
+    not change); at the end the page's elapsed seconds, rays and rays/s are the statistics'
+    and the summary line's."""
     browser = chromium(tmp_path / "profile")
     proc = None
     try:
@@ -251,7 +252,8 @@ def test_the_canvas_fills_in_and_ends_on_the_summary_figures(tmp_path, mode):
         wait_for(browser, DONE, WAIT * 6)  # a cold mesh loads its kernels first
         first = browser.execute_script("return live.firstPixels;")
         assert first is not None and first["phase"] == "tracing"
-        assert first["done"] < first["total"] / 2, first
+        # When the server copied the pixels, not when a page under load drew them.
+        assert first["copied"] is not None and first["copied"] < first["total"] / 2, first
 
         stats = json.loads((tmp_path / "s.json").read_text())
         rays, rate, seconds = expected_figures(stats)

@@ -67,6 +67,7 @@ class Monitor:
         self.dirty = False  # deposits came since the last copy
         self.cost = 0.0  # seconds the last frame took to copy and encode
         self.version = 0  # of the frame
+        self.frame_done = 0  # progress's `done` when that frame's pixels were copied
         self.final: np.ndarray | None = None  # 8-bit sRGB, the PNG the render writes
         self.stats: dict | None = None
         self.encoded: dict[bool, tuple[int, bytes]] = {}  # png? -> (version, bytes)
@@ -121,6 +122,7 @@ class Monitor:
         with self.lock:
             self.snapshot, self.next_copy = copy, now + gap
             self.version += 1
+            self.frame_done = self.done
         self._changed()
 
     def local(self, done: int, totals: dict, cpu: float, threads: int) -> None:
@@ -185,6 +187,7 @@ class Monitor:
             self.width, self.height = image.shape[1], image.shape[0]
             self.phase, self.ended = "done", self.clock()
             self.version += 1
+            self.frame_done = self.done
             self.figures = final_figures(stats)
             self.nodes = final_nodes(stats, self.nodes, self.cols)
         self._changed()
@@ -216,6 +219,7 @@ class Monitor:
                 "rows": self.rows,
                 "cols": self.cols,
                 "frame": self.version,
+                "frame_done": self.frame_done,
                 "final": self.final is not None,
                 "progress": self._progress(now),
                 "nodes": [self._shown(n, node, now) for n, node in enumerate(self.nodes)],

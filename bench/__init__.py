@@ -17,6 +17,24 @@ def add_scenes_option(parser) -> None:
     )
 
 
+def read_scene(folder: Path, name: str):
+    """The scene `name` from `folder/NAME.nff`; where that file is absent and `name` is an SPD
+    program's (`mount`, `tetra_s8`: `bench.generate.spd`), generated in memory as the SPD
+    would print it, so a table's generated rows (the full mountain, a 65,536-triangle tetra)
+    come from the same command as its files'."""
+    from host.scene.nff import read_nff
+
+    path = folder / f"{name}.nff"
+    if path.exists():
+        return read_nff(path)
+    from bench.generate import spd
+
+    try:
+        return spd(name, printed=True)
+    except ValueError as e:
+        raise FileNotFoundError(f"{path}: no such scene file, and {e}") from None
+
+
 def add_simulated_mesh_options(parser, only: str, size: int, spp: int) -> None:
     """The options of a benchmark that simulates one object-space mesh in this process:
     scenes (`--scenes`, `--only`), `--mesh` rows x cols, `--overlap`, image `--size` and

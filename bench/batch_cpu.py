@@ -78,9 +78,9 @@ def main(argv=None) -> int:
         from meshnode.mesh import node
 
         node.COPIES_EYE_BATCH = args.copies_eye_batch
+    from bench import read_scene
     from host.planning.plan import plan_render
     from host.run.oneprocess import render
-    from host.scene.nff import read_nff
     from host.scene.subset import subset
     from meshnode.mesh.simulator import simulate
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     )
     rows, bad = [], []
     for name in args.only.split(","):
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         planned = plan_render(Request(scene, image, EngineSpec(), plan=plan))
         scenes = [subset(scene, k) for k in planned.holders]
 

@@ -93,7 +93,7 @@ def row(scene, name: str, mesh: str, guess: str, args) -> dict:
 
 
 def main(argv=None) -> int:
-    from host.scene.nff import read_nff
+    from bench import read_scene
 
     args = parse_args(argv)
     guesses = args.guess.split(",")
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
         f" {'pass/seg':>8s} {'cells s':>7s} {'copies s':>8s} {'held':>5s}  by round (k units)"
     )
     for name in args.only.split(","):
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         for mesh in args.meshes.split(","):
             for guess in guesses:
                 r = row(scene, name, mesh, guess, args)

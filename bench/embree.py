@@ -311,8 +311,8 @@ def main(argv=None) -> int:
         return 2
     import numba
 
+    from bench import read_scene
     from bench.generate import tetra_triangles
-    from host.scene.nff import read_nff
     from protocols.scene import View
 
     numba.set_num_threads(1)
@@ -325,7 +325,7 @@ def main(argv=None) -> int:
     structures = args.structures.split(",")
     rows = []
     for name in args.only.split(",") if args.only else []:
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         rows += compare(
             name,
             scene.view,

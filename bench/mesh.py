@@ -184,10 +184,10 @@ def main(argv=None) -> int:
 def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, bad: list) -> None:
     """One scene: one node sized and measured here, then every row of `row_plan` on every
     mesh; rows go to `results`, count mismatches to `bad`."""
+    from bench import read_scene
     from host.planning.budget import BudgetError
-    from host.scene.nff import read_nff
 
-    scene = read_nff(args.scenes / f"{name}.nff")
+    scene = read_scene(args.scenes, name)
     image, camera, (wall1, s1) = sized(scene, base, args.min_trace, lens)
     ref = {k: s1["rays"][k] for k in COUNTS}
     print_header(name, image, camera, wall1, s1["trace_cpu_seconds"])

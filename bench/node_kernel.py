@@ -103,8 +103,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     import numpy as np
 
+    from bench import read_scene
     from host.planning.cells import scene_box
-    from host.scene.nff import read_nff
     from meshnode.engine import Engine
     from protocols.render import ImageSpec
 
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     )
     rows, bad = [], []
     for name in args.only.split(","):
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         box = scene_box(scene)
         engine = Engine(scene, box=box, scene_box=box)
         engine.warmup()

@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     add_simulated_mesh_options(p, only="tetra", size=768, spp=4)
     p.add_argument("--rounds", type=int, default=15)
     args = p.parse_args(argv)
-    from host.scene.nff import read_nff
+    from bench import read_scene
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     plan = {"mode": "object", "steal": True, "balance": "cost", "copies": True}
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     )
     rows, bad = [], []
     for name in args.only.split(","):
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         one = captured(scene, 1, 1, args.size, args.spp, args.overlap, {})
         mesh = captured(scene, rows_, cols, args.size, args.spp, args.overlap, plan)
         times, got = Turns(), {}

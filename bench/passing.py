@@ -96,17 +96,15 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
     """Every --passing setting's mesh up at once, rendered in turns."""
     from contextlib import ExitStack
 
+    from bench import read_scene
     from host.planning.request import Request
     from host.run.localmesh import LocalMesh
-    from host.scene.nff import read_nff
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
     r, c = (int(v) for v in args.mesh.split("x"))
     plan = MeshPlan(r, c, 1, balance="objects", max_share=args.share)
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
-    request = Request(
-        read_nff(args.scenes / f"{name}.nff"), image, EngineSpec(threads=1), None, plan
-    )
+    request = Request(read_scene(args.scenes, name), image, EngineSpec(threads=1), None, plan)
     sizes = [v.strip() for v in args.passing.split(",")]
     for v in sizes:
         setting(v)

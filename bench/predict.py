@@ -171,13 +171,13 @@ def main(argv=None) -> int:
     unknown = set(args.modes.split(",")) - set(MODES)
     if unknown:
         p.error(f"unknown modes {', '.join(sorted(unknown))}: choose from {', '.join(MODES)}")
-    from host.scene.nff import read_nff
+    from bench import read_scene
 
     measured = measured_table(args.measured)
     overlaps = [v if v == "auto" else float(v) for v in args.overlaps.split(",")]
     table = []
     for name in args.only.split(","):
-        scene = read_nff(args.scenes / f"{name}.nff")
+        scene = read_scene(args.scenes, name)
         one, *_ = simulated(scene, 1, 1, args.size, {})
         latency = args.latency * one if args.clock == "work" else 0.0
         print(

@@ -11,6 +11,7 @@ import re
 import numpy as np
 import pytest
 
+from bench import read_scene
 from bench.generate import (
     DEFAULT_SIZES,
     GENERATORS,
@@ -229,6 +230,17 @@ def test_spd_names_sizes_and_refuses_unknown_ones():
     for bad in ("cube", "tetra_2", "tetra_sx", ""):
         with pytest.raises(ValueError, match="no SPD generator"):
             spd(bad)
+
+
+def test_benchmarks_read_a_scene_file_first_and_generate_an_spd_name_without_one(tmp_path):
+    """`bench.read_scene`: a file in the folder is read even where a generator has its name;
+    without one an SPD name is generated as the SPD prints it; any other name is refused,
+    naming the file looked for."""
+    write_nff(tetra(1), tmp_path / "tetra_s2.nff")
+    assert read_scene(tmp_path, "tetra_s2").n_objects == 4  # the file's, not size 2's 16
+    assert_same_records(read_scene(tmp_path, "mount_s2"), spd("mount_s2", printed=True))
+    with pytest.raises(FileNotFoundError, match=r"cube\.nff: no such scene file.*no SPD"):
+        read_scene(tmp_path, "cube")
 
 
 def test_printed_rounds_as_printf_g():

@@ -14,10 +14,11 @@ from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.lightmaps import FACE_BLOCKS, light_clear, light_maps
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.routing import routed
-from meshnode.engine.sightlines import FACE_BLOCKS, NO_EYE_MAP, eye_map, light_clear, light_maps
+from meshnode.engine.sightlines import NO_EYE_MAP, eye_map
 from protocols.render import ImageSpec
 from protocols.scene import View
 from tests.conftest import spd_scene
@@ -27,13 +28,16 @@ from tests.test_mesh_algorithm import SPD_COUNTS
 
 def _views(scene, lo, hi):
     """The scene's own view, one straight down an axis through the box's centre (rays along
-    voxel walls), and one from inside the box (voxels behind the eye)."""
+    voxel walls), one from inside the box (voxels behind the eye), and one level, just above
+    the box's top (its upper half sees nothing; the box reaches behind the eye's plane)."""
     centre = (lo + hi) / 2
     size = float(np.max(hi - lo))
+    level = (centre[0], centre[1], hi[2] + 0.02 * size)
     return [
         scene.view,
         View(tuple(centre - (0, 0, 2 * size)), tuple(centre), (0, 1, 0), 40.0),
         View(tuple(centre + 0.1 * (hi - lo)), tuple(hi), (0, 0, 1), 70.0),
+        View(level, (level[0] + 1.0, level[1] + 0.5, level[2]), (0, 0, 1), 60.0),
     ]
 
 
@@ -113,7 +117,9 @@ def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
         want = routed(rays, True, 2, *box, occ, los, his, loc, NO_EYE_MAP)
         assert got[0].tobytes() == want[0].tobytes(), (name, view)
         assert np.array_equal(got[1], want[1]) and got[2] == want[2]
-    assert max(opens[:2]) > 0 and opens[2] == 0, opens  # inside the box every block is bounded
+    # The level view's upper half sees nothing, although the box reaches behind the eye's
+    # plane: the voxels there bound only the blocks whose rays can reach them.
+    assert max(opens[:2]) > 0 and opens[3] >= 0.45, opens
 
 
 @pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff"])

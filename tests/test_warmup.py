@@ -80,7 +80,8 @@ from meshnode.engine.kernelcache import kernels_compiled
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.locator import owners
-from meshnode.engine.sightlines import eye_map, light_maps
+from meshnode.engine.lightmaps import light_maps
+from meshnode.engine.sightlines import eye_map
 from meshnode.service.warmup import ALL_KINDS, variant_scene
 from protocols.render import ImageSpec
 

@@ -19,12 +19,13 @@ from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
+from meshnode.engine.lightmaps import light_maps
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import everywhere, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.quads import quads_as_triangles
 from meshnode.engine.routing import routed
-from meshnode.engine.sightlines import NO_EYE_MAP, light_maps
+from meshnode.engine.sightlines import NO_EYE_MAP
 from meshnode.engine.structure import build_structure, foreseen
 from meshnode.engine.structure import stand_in as stand_in_structure
 from meshnode.engine.structure_cost import UNTOLD_EYE_RAYS, expected_rays

@@ -32,6 +32,7 @@ from meshnode.engine.counters import (
     SHADOW_RAYS,
 )
 from meshnode.engine.jit import inline, kernel
+from meshnode.engine.lightmaps import light_clear
 from meshnode.engine.occupancy import first_occupied
 from meshnode.engine.packet import (
     P_BEST,
@@ -43,7 +44,6 @@ from meshnode.engine.packet import (
     packet_walk,
 )
 from meshnode.engine.shade import normals, phong, phongs, refract
-from meshnode.engine.sightlines import light_clear
 from meshnode.engine.tables import LIGHT_POS, LIGHT_RGB, MAT_IOR, MAT_KD, MAT_KS, MAT_RGB, MAT_SHINE
 from meshnode.engine.traverse import brute_force, two_spans, walk
 from protocols.dtypes import EYE, REFLECTED, REFRACTED, SHADOW
@@ -560,7 +560,7 @@ def trace_batch(
                     # Leaves this box inside the scene: continue on the node owning the first
                     # occupied voxel ahead; with none ahead it ends here, below. A shadow
                     # ray whose way to its light is clear by the map seen from the light
-                    # (`light_near`, `sightlines.light_maps`) needs no walk to know it.
+                    # (`light_near`, `lightmaps.light_maps`) needs no walk to know it.
                     t_on = -1.0
                     if lights is not None:
                         if (

@@ -191,8 +191,7 @@ class Engine:
             # this render's expected rays, when "auto" chose by them
             "structure_estimates": built.estimates,
             "rays_expected": self.rays_expected,
-            # the structure's build kernels loaded from the disk cache (or compiled), and
-            # the build (in "auto", the hierarchy's too)
+            # the build kernels loaded (or compiled), and the build (in "auto", a hierarchy's too)
             "structure_load_seconds": built.load_seconds,
             "structure_build_seconds": built.build_seconds,
             "grid": self.grid.stats,

@@ -8,12 +8,13 @@ pinhole eye ray leaves the same eye through its sample's point of the image plan
 map can be seen from the eye once a render: each occupied voxel, padded, projects onto the
 image plane inside the rectangle of the projections of its part that eye rays can reach (the
 hull of a convex box clipped to the eye rays' frustum), and every block of the sample grid
-that rectangle touches takes the distance from the eye to the box as a bound. No ray of a block meets an occupied voxel
-nearer than its bound (inf: none at all), so its walk starts there, or is not made. Each
-block also learns the cell of the nearest part of those voxels it sees and how near any
-other cell's parts come: a ray entering that cell before then starts its work there (any
-voxel it meets first lies in it), so it is made by the node tracing that cell
-(`meshnode.mesh.claims`) and sent there with no walk at all (`routing.routed`).
+that rectangle touches takes the distance from the eye to the box as a bound. No ray of a
+block meets an occupied voxel nearer than its bound (inf: none at all), so its walk starts
+there, or is not made. Each block also learns the cell of the nearest part of those voxels
+it sees and how near any other cell's parts come: a ray entering that cell before then
+starts its work there (any voxel it meets first lies in it), so it is made by the node
+tracing that cell (`meshnode.mesh.claims`) and sent there with no walk at all
+(`routing.routed`).
 
 The lights' side of the same idea, for shadow rays, is `meshnode.engine.lightmaps`'.
 

@@ -15,10 +15,13 @@ from meshnode.engine.occupancy import Occupancy, skip_empty
 from protocols.render import ImageSpec, RenderSpec
 from protocols.scene import SceneData
 
-# CPU a node spends on one eye ray of the sky (making it, routing it past the scene's box,
-# its deposit), in ns: an estimate, from the routing kernel's 31 ns an eye ray on tetra and
-# tetra 3x3's corner nodes at 512 spp (frame CPU 1.04-1.06 s against kernels of 0.43 s)
-SKY_NS = 50.0
+# CPU in ns a node spends on each eye ray it makes, outside the kernels' work units (making,
+# routing, depositing it: EYE_NS), and on an eye ray of the sky all in (its kernel's miss
+# too: SKY_NS). Fitted on tetra 3x3's nine nodes at 573 spp (1.9-6.8 M eye rays each, 0-3.5 M
+# of the sky): frame CPU 0.45 s + 70 ns an eye ray, own or the sky's alike; outside the
+# kernels 45 ns an own eye ray, 51 a sky ray; the kernels 19 ns a sky ray.
+EYE_NS = 45.0
+SKY_NS = 70.0
 
 
 def splits(n: int, parts: int) -> list[int]:
@@ -73,7 +76,8 @@ def taker_tiles(
     cells (through the scene's top, or cells cut on the work map) and each went there first
     as a passed ray. A tile no probe ray enters goes to the node whose rectangle in
     `fallback` holds its corner, or with `loads` (each node's estimated CPU seconds for the
-    render) to the least loaded (`_sky_tiles`)."""
+    render) to the least loaded (`_sky_tiles`), each node's own tiles' eye rays counted in
+    (`_eye_seconds`)."""
     (gw, gh), t, nodes = spec.sample_grid, spec.plan.tile, spec.plan.nodes
     scale = max(1, max(gw, gh) // PROBE)
     cw, ch = max(1, gw // scale), max(1, gh // scale)
@@ -90,7 +94,9 @@ def taker_tiles(
     owner = votes.argmax(axis=1)
     sky = np.flatnonzero(votes.sum(axis=1) == 0)
     if loads is not None:
-        owner[sky] = _sky_tiles([rects[i] for i in sky], loads, spec.rays_per_pixel)
+        made = _eye_seconds(rects, owner, votes.sum(axis=1) > 0, nodes, spec.rays_per_pixel)
+        load = np.asarray(loads, float) + made
+        owner[sky] = _sky_tiles([rects[i] for i in sky], load, spec.rays_per_pixel)
     else:
         for i in sky.tolist():
             x0, _, y0, _ = rects[i]
@@ -98,6 +104,16 @@ def taker_tiles(
                 n for n, (a, b, c, d) in enumerate(fallback) if a <= x0 < b and c <= y0 < d
             )
     return rects, owner.tolist()
+
+
+def _eye_seconds(rects: list, owner: np.ndarray, seen: np.ndarray, nodes: int, rpp: int):
+    """Each node's CPU seconds, at EYE_NS an eye ray, making the eye rays of the tiles it
+    takes on (`seen`: those some probe ray enters): outside the pre-pass's work units, which
+    count their kernel work only. Left out, the node whose cell the eye faces got the sky
+    as well (tetra 3x3: 6.8 M eye rays against 1.9-5.9 M, the busiest by frame CPU)."""
+    r = np.asarray(rects, np.int64).reshape(-1, 4)
+    area = (r[:, 1] - r[:, 0]) * (r[:, 3] - r[:, 2]) * seen
+    return np.bincount(owner, area.astype(float), nodes) * rpp * EYE_NS * 1e-9
 
 
 def _sky_tiles(rects: list, loads, rays_per_pixel: int) -> np.ndarray:

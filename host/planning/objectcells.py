@@ -28,17 +28,20 @@ CANDIDATES = 64  # cut positions tried on each axis
 SLACK = 1.25
 
 
-def object_cells(scene: SceneData, box, rows: int, cols: int, work=None, limit=None):
+def object_cells(
+    scene: SceneData, box, rows: int, cols: int, work=None, limit=None, rows_first=False
+):
     """(los, his), each (rows*cols, 3): node r*cols+c's cell, the cells tiling `box`. Without
     `work`, cut so that the node holding most objects (its cell's, and those crossing its
     cuts) holds as few as the cuts can make it; with `work` (a `WorkGrid`: where in space
     the work lies), so that the nodes' work is even, each side of a cut holding at most
-    SLACK times the fewest objects per node that cut could leave, and at most `limit`."""
+    SLACK times the fewest objects per node that cut could leave, and at most `limit`.
+    `rows_first`: a square block of nodes is halved between its rows, not its columns."""
     tb = build_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
     los, his = np.empty((rows * cols, 3)), np.empty((rows * cols, 3))
-    cut = _Cutter(bounds, work, limit)
+    cut = _Cutter(bounds, work, limit, rows_first)
     cut.bisect(np.arange(tb.n), lo, hi, (0, rows, 0, cols), cols, los, his)
     return los, his
 
@@ -75,11 +78,12 @@ class WorkGrid:
 
 class _Cutter:
     """The recursive bisection's inputs: every object's bounds, where the work lies (a
-    `WorkGrid`, or None) and the objects a node may hold (or None)."""
+    `WorkGrid`, or None), the objects a node may hold (or None), and which side of a square
+    block of nodes is halved."""
 
-    def __init__(self, bounds, work, limit):
+    def __init__(self, bounds, work, limit, rows_first=False):
         self.lo, self.hi = bounds
-        self.work, self.limit = work, limit
+        self.work, self.limit, self.rows_first = work, limit, rows_first
 
     def bisect(self, idx, lo, hi, block, cols, los, his) -> None:
         """Cut the box (lo, hi), which holds the objects `idx`, among the nodes of `block`
@@ -89,7 +93,7 @@ class _Cutter:
         if (r1 - r0) * (c1 - c0) == 1:
             los[r0 * cols + c0], his[r0 * cols + c0] = lo, hi
             return
-        if c1 - c0 >= r1 - r0:
+        if c1 - c0 > r1 - r0 or (c1 - c0 == r1 - r0 and not self.rows_first):
             k = c0 + (c1 - c0) // 2
             first, second = (r0, r1, c0, k), (r0, r1, k, c1)
             nodes = ((k - c0) * (r1 - r0), (c1 - k) * (r1 - r0))

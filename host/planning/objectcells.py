@@ -5,8 +5,9 @@ fractal mountain under a wide sky) lands on one node, however many there are. He
 box is bisected recursively, as a k-d tree is built, along whichever world axis its objects
 spread furthest on, at the position that leaves each side the share of the objects its nodes
 will hold; the mesh of nodes is halved alongside (its columns, or its rows when it has more
-of them), so the two halves of every cut land on two halves of the torus and most rays leaving
-a cell enter a neighbour's. Cells may be any boxes: a ray is handed to whichever node's cell
+of them; a square block either way, `rows_first`, the pre-pass simulating both), so the two
+halves of every cut land on two halves of the torus and most rays leaving a cell enter a
+neighbour's. Cells may be any boxes: a ray is handed to whichever node's cell
 holds it and routed there over as many links as it takes (`meshnode.engine.locator.owners`).
 
 An object straddling a cut is held by both sides, so the fullest node holds about 1/N of the

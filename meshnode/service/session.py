@@ -42,7 +42,9 @@ from protocols.topology import Router
 
 log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
-DEPOSIT_BATCH = 32768  # deposits per pixel packet
+DEPOSIT_BATCH = 32768  # deposits per pixel packet, sent sooner once the oldest waited:
+DEPOSIT_SECONDS = 0.25  # (a live view's frames come as often; they had waited for a third
+# of a node's pixels: object space 2x2 at 640x640 showed its first at 65% of the eye rays)
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
 PROGRESS_EVERY = 0.05  # seconds at least between PROGRESS messages of traced rays
 
@@ -76,7 +78,7 @@ class Session(Driver):
         self.drained = asyncio.Event()
         self.host_out = Outbox(host, self.fail, self.wake)
         self.deposits: list = []
-        self.deposits_held = 0  # deposits in self.deposits
+        self.deposits_held, self.deposits_since = 0, 0.0  # in self.deposits; the oldest's time
         self.error: Exception | None = None
         self.ready = False  # engine built and every neighbour linked
         self.setup = "objects"  # the setup step PROGRESS reports (SETUP_STEPS)
@@ -358,10 +360,14 @@ class Session(Driver):
         self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=tiles))
 
     def for_host(self, deposits: np.ndarray) -> None:
-        """Buffered, and sent in packets of DEPOSIT_BATCH (`flush`)."""
+        """Buffered, and sent in packets of DEPOSIT_BATCH, or DEPOSIT_SECONDS after the oldest
+        (`flush`)."""
+        now = time.monotonic()
+        if not self.deposits:
+            self.deposits_since = now
         self.deposits.append(deposits)
         self.deposits_held += len(deposits)
-        if self.deposits_held >= DEPOSIT_BATCH:
+        if self.deposits_held >= DEPOSIT_BATCH or now - self.deposits_since >= DEPOSIT_SECONDS:
             self.flush()
 
     def finished(self, batches) -> None:

@@ -68,7 +68,10 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     # busiest node's frame CPU 0.93-0.95 of columns first, three pairs in turns)
     orders = (False, True) if plan.rows == plan.cols > 1 else (False,)
     firsts = [_first_cut(scene, spec, guess, limit, r) for r in orders]
-    tried = [(float(costs(f).max()), c, costs(f), sends(f)) for c, _, _, f in firsts]
+    tried = []
+    for cells, _, _, outcome in firsts:
+        cost = costs(outcome)
+        tried.append((float(cost.max()), cells, cost, sends(outcome)))
     pick = min(range(len(orders)), key=lambda i: (firsts[i][2] > 1, tried[i][0]))
     _, cap, excess, first = firsts[pick]
     rows_first, over = orders[pick], [excess]

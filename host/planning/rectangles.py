@@ -92,9 +92,10 @@ def taker_tiles(
     np.add.at(votes, (tile[taker >= 0], taker[taker >= 0]), 1)
     rects = tile_grid(gw, gh, t)
     owner = votes.argmax(axis=1)
-    sky = np.flatnonzero(votes.sum(axis=1) == 0)
+    seen = votes.sum(axis=1) > 0
+    sky = np.flatnonzero(~seen)
     if loads is not None:
-        made = _eye_seconds(rects, owner, votes.sum(axis=1) > 0, nodes, spec.rays_per_pixel)
+        made = _eye_seconds(rects, owner, seen, nodes, spec.rays_per_pixel)
         load = np.asarray(loads, float) + made
         owner[sky] = _sky_tiles([rects[i] for i in sky], load, spec.rays_per_pixel)
     else:

@@ -21,7 +21,7 @@ FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
 
 
 def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
-    """Per light (rows of `lights`, position first) and face of a cube around it (`_face`),
+    """Per light (rows of `lights`, position first) and face of a cube around it (`_faces`),
     per block of FACE_BLOCKS x FACE_BLOCKS, the least distance from the light to an occupied
     voxel seen through that block: (lights, 6 * FACE_BLOCKS**2); (0, 0) without lights. A
     shadow ray leaving a node's box nearer its light than its block's bound crosses only
@@ -109,7 +109,7 @@ def light_clear(maps, light, lx, ly, lz, x, y, z):
     if not depth > 0.0:
         return False
     s = FACE_BLOCKS
-    fx = a / depth * (0.5 * s) + 0.5 * s  # as `_seen` projects with step 2 / s
+    fx = a / depth * (0.5 * s) + 0.5 * s  # as `_faces` projects with step 2 / s
     fy = 0.5 * s - b / depth * (0.5 * s)
     i = min(max(int(math.floor(fx)), 0), s - 1)
     j = min(max(int(math.floor(fy)), 0), s - 1)

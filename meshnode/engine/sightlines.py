@@ -225,35 +225,20 @@ def _rectangle(b_lo, b_hi, view, d):
     if not s_min > 0.0:
         return BEHIND, 0, 0, 0, 0
     x0, x1, y0, y1 = INF, -INF, INF, -INF
-    for c in range(8):
+    for c in range(8):  # each corner in front of the plane, and each edge's crossing of it
         cs = _depth(b_lo, b_hi, c, fwd)
-        for k in range(4):  # the corner, then its edges towards its three higher neighbours
-            if k == 0:
-                if cs < s_min:
-                    continue
-                w = 0.0
-                e = c
-            else:
-                e = c | (1 << (k - 1))
-                if e == c:
-                    continue
-                es = _depth(b_lo, b_hi, e, fwd)
-                if (cs < s_min) == (es < s_min):
-                    continue
+        if cs >= s_min:
+            fx, fy = _projected(b_lo, b_hi, c, c, 0.0, view, s_min)
+            x0, x1, y0, y1 = min(x0, fx), max(x1, fx), min(y0, fy), max(y1, fy)
+        for a in range(3):  # the edge to the corner on axis a's high side
+            e = c | (1 << a)
+            if e == c:
+                continue
+            es = _depth(b_lo, b_hi, e, fwd)
+            if (cs < s_min) != (es < s_min):
                 w = (s_min - cs) / (es - cs)
-            px, py, s = 0.0, 0.0, 0.0
-            for a in range(3):
-                lo_a = b_hi[a] if c >> a & 1 else b_lo[a]
-                hi_a = b_hi[a] if e >> a & 1 else b_lo[a]
-                q = lo_a + w * (hi_a - lo_a)
-                px += q * right[a]
-                py += q * up[a]
-                s += q * fwd[a]
-            s = max(s, s_min)
-            fx = px / s / step + 0.5 * width  # as `fill_eye_rays` makes px from fx
-            fy = 0.5 * height - py / s / step
-            x0, x1 = min(x0, fx), max(x1, fx)
-            y0, y1 = min(y0, fy), max(y1, fy)
+                fx, fy = _projected(b_lo, b_hi, c, e, w, view, s_min)
+                x0, x1, y0, y1 = min(x0, fx), max(x1, fx), min(y0, fy), max(y1, fy)
     # sample-grid cell i holds samples at i <= fx < i + 1
     if x0 > x1 or x1 + MARGIN < 0.0 or y1 + MARGIN < 0.0 or x0 - MARGIN >= cols:
         return OFF_IMAGE, 0, 0, 0, 0
@@ -264,6 +249,23 @@ def _rectangle(b_lo, b_hi, view, d):
     j0 = max(int(math.floor(y0 - MARGIN)), 0) // side
     j1 = min(int(math.floor(y1 + MARGIN)), rows - 1) // side
     return ON_IMAGE, i0, i1, j0, j1
+
+
+@inline
+def _projected(b_lo, b_hi, c, e, w, view, s_min):
+    """(fx, fy) on the sample grid of the point `w` of the way from corner c of the box to
+    corner e (bit a: the high side on axis a), at least s_min in front of the eye."""
+    eye, fwd, right, up, step, width, height, cols, rows, side, front = view
+    px, py, s = 0.0, 0.0, 0.0
+    for a in range(3):
+        lo_a = b_hi[a] if c >> a & 1 else b_lo[a]
+        hi_a = b_hi[a] if e >> a & 1 else b_lo[a]
+        q = lo_a + w * (hi_a - lo_a)
+        px += q * right[a]
+        py += q * up[a]
+        s += q * fwd[a]
+    s = max(s, s_min)
+    return px / s / step + 0.5 * width, 0.5 * height - py / s / step  # as `fill_eye_rays`
 
 
 @inline

@@ -7,7 +7,14 @@ import pytest
 
 from protocols import dtypes
 from protocols.errors import BadFrame, FrameTooLarge, ProtocolError, UnknownKind, VersionMismatch
-from protocols.framing import ALIGN, FrameDecoder, encode, frame_buffers
+from protocols.framing import (
+    ALIGN,
+    POOL_LEAST,
+    FrameDecoder,
+    Payloads,
+    encode,
+    frame_buffers,
+)
 from protocols.handshake import check_hello, hello
 from protocols.messages import Kind, make, parse
 from protocols.records import Parts, copied, joined, taken
@@ -94,6 +101,45 @@ def test_arrays_follow_the_map_aligned_and_arrive_as_writable_views():
     frame[:4] = (len(frame) - 4).to_bytes(4, "big")
     with pytest.raises(BadFrame, match="bytes after the map's arrays"):
         FrameDecoder().feed(bytes(frame))
+
+
+def _large(seed):
+    """A ray batch whose frame is over POOL_LEAST (received into a reused buffer)."""
+    rays = ray_batch(POOL_LEAST // dtypes.RAY.itemsize + 1000)
+    rays["pixel"] += seed
+    return rays
+
+
+def _address(array):
+    return array.__array_interface__["data"][0]
+
+
+def test_a_payload_buffer_is_reused_only_once_nothing_views_its_frame():
+    dec = FrameDecoder()
+    first, second = _large(0), _large(7)
+    (kept,) = dec.feed(encode(make(Kind.RAYS, rays=first, dest=1, cell=1)))
+    where = _address(kept["rays"])
+    view = kept["rays"][10:20]  # a slice of the frame's records keeps the buffer lent
+    del kept
+    (got,) = dec.feed(encode(make(Kind.RAYS, rays=second, dest=1, cell=1)))
+    assert _address(got["rays"]) != where
+    np.testing.assert_array_equal(view, first[10:20])  # not overwritten
+    np.testing.assert_array_equal(got["rays"], second)
+    del view, got
+    (again,) = dec.feed(encode(make(Kind.RAYS, rays=first, dest=1, cell=1)))
+    assert _address(again["rays"]) in (where, _address(second))  # a freed buffer, reused
+    np.testing.assert_array_equal(again["rays"], first)
+
+
+def test_payloads_kept_for_reuse_stay_within_their_bound():
+    pool = Payloads(limit=4 * POOL_LEAST)
+    held = [pool.take(POOL_LEAST + k) for k in range(8)]  # all lent at once
+    assert sum(len(b) for b in held) == sum(POOL_LEAST + k for k in range(8))
+    assert pool._held() <= pool.limit
+    assert len({_address(b) for b in held}) == len(held)  # no buffer lent twice
+    del held
+    small = pool.take(100)
+    assert len(small) == 100 and pool._held() <= pool.limit
 
 
 def test_message_fields_are_checked():

@@ -91,6 +91,9 @@ class LocalMesh:
 
     def _environment(self) -> dict:
         env = {**os.environ, **(self.env or {})}
+        # a node never multiplies matrices big enough to share, and numpy's OpenBLAS threads
+        # spin after it loads: 0.1 s of CPU a node start, taken from its neighbours
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
         env.pop("MESHTRACE_SECRET", None)
         if self.secret is not None:
             env["MESHTRACE_SECRET"] = self.secret.decode()

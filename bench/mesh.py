@@ -7,7 +7,7 @@ process.
                          [--modes object,image] [--tiles static] [--tile 32]
                          [--size 512 --spp 1] [--camera FILE --sampling adaptive]
                          [--min-trace 5] [--repeat 3] [--together 1]
-                         [--json FILE] [--plots DIR]
+                         [--nodes-on-cpu CPU] [--json FILE] [--plots DIR]
 
 Per mesh and overlap: wall seconds, the busiest node's tracing CPU seconds, speedup = one
 node's CPU seconds / busiest node's (the best of each; "median": the median over the renders
@@ -45,7 +45,9 @@ against one node's tracing thread, so understated) and rays passed per ray trace
 and `--orders rows,centre` the order dynamic tiles are dealt in. `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The
 machine has 2 cores, so meshes of 4 and more processes share them: wall time shows that;
-CPU seconds show the division of work.
+CPU seconds show the division of work. `--nodes-on-cpu 0` runs every node on CPU 0, one run
+queue sharing it evenly (spread over two, an odd count of busy processes leaves those on the
+fuller queue less, and dynamic tiles, dealt by arrival, give the others more work).
 """
 
 import argparse
@@ -138,6 +140,12 @@ def parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         help="windows in which one node and the mesh are measured at once",
+    )
+    p.add_argument(
+        "--nodes-on-cpu",
+        type=int,
+        metavar="CPU",
+        help="run every node on this one CPU (taskset), so each gets an even share of it",
     )
     p.add_argument("--json", type=Path)
     p.add_argument("--plots", type=Path, help="folder for per-node load plots (PNG)")
@@ -290,6 +298,7 @@ def run_row(
             together=args.together,
             order=order,
             camera=camera,
+            nodes_cpu=args.nodes_on_cpu,
         )
         cut += "" if side == 32 and len(args.tile.split(",")) == 1 else f"/{side}"
         cut += "" if len(args.orders.split(",")) == 1 else f"/{order}"
@@ -310,6 +319,7 @@ def run_row(
         camera=camera,
         max_share=share,
         budget_copies=budget == "hottest",
+        nodes_cpu=args.nodes_on_cpu,
     )
     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
     cut += "+budget copies" if budget == "hottest" and share < 1 else ""

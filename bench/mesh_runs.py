@@ -3,6 +3,7 @@ or measured at the same time as it: this machine's speed moves by the minute and
 by the second, so both sides of a speedup must share the same spells."""
 
 import asyncio
+import shutil
 import statistics
 import time
 
@@ -30,6 +31,7 @@ def on_mesh(
     camera=None,
     max_share=1.0,
     budget_copies=True,
+    nodes_cpu=None,
 ):
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
@@ -38,7 +40,8 @@ def on_mesh(
     with it, and the best of those runs is the row's reference: this machine's speed moves
     by up to 1.6x for minutes at a time, so the two sides are measured over the same span.
     Then `together` times both at once (`at_once`): the stats' `together` holds each
-    window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds."""
+    window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds.
+    `nodes_cpu`: every node runs on that one CPU (`pinned`)."""
     from host.planning.holding import OVERLAPS
     from host.run.localmesh import LocalMesh
     from host.run.meshclient import render_on_mesh
@@ -78,7 +81,7 @@ def on_mesh(
             raise RuntimeError(f"{rows}x{cols}: nodes lost {stats['lost_nodes']}")
         return start, time.perf_counter(), stats
 
-    with LocalMesh(rows * cols, threads=threads, once=False) as addresses:
+    with LocalMesh(rows * cols, threads=threads, once=False, wrap=pinned(nodes_cpu)) as addresses:
         for _ in range(repeat):
             singles.append(single(scene, image, warm=False, camera=camera))
             start, end, stats = mesh_render()
@@ -126,3 +129,16 @@ def at_once(one_node, mesh_render) -> dict:
         "busiest_frame_cpu_seconds": statistics.fmean(frame),
         "mesh_renders": len(inside),
     }
+
+
+def pinned(cpu: int | None):
+    """LocalMesh's `wrap` running every node on CPU `cpu` (None: where the system puts it).
+    Nodes on one run queue share its CPU evenly; spread over two, an odd count leaves those on
+    the fuller queue less (4x4 image space, dynamic tiles: the nodes' CPU 0.384-0.446 s spread
+    over both cores, 0.413-0.424 on one), and a dealer that deals by arrival gives the
+    others more work."""
+    if cpu is None:
+        return None
+    if shutil.which("taskset") is None:
+        raise SystemExit("--nodes-on-cpu needs taskset (util-linux)")
+    return lambda node: ["taskset", "--cpu-list", str(cpu)]

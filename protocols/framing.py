@@ -208,16 +208,19 @@ class Payloads:
         """`size` bytes to receive a payload into (its contents undefined)."""
         if size < POOL_LEAST:
             return np.empty(size, np.uint8)  # touches no page: taken as the bytes arrive
-        free = [k for k in self._kept if k[1] is None or k[1]() is None]
-        fits = [k for k in free if len(k[0]) >= size]
-        if fits:
-            kept = min(fits, key=lambda k: len(k[0]))
-        else:
-            if free and self._held() + size > self.limit:  # make room: drop the smallest free
-                self._kept.remove(min(free, key=lambda k: len(k[0])))
+        free = sorted(
+            (k for k in self._kept if k[1] is None or k[1]() is None), key=lambda k: len(k[0])
+        )
+        kept = next((k for k in free if len(k[0]) >= size), None)
+        if kept is None:
             need = -(-size // POOL_STEP) * POOL_STEP
+            for small in free:  # too small for it: room given back, smallest first
+                if self._held() + need <= self.limit:
+                    break
+                # by identity: `list.remove` compares with ==, which on arrays is elementwise
+                self._kept = [k for k in self._kept if k is not small]
             if self._held() + need > self.limit:
-                return np.empty(size, np.uint8)  # all in use: this one is not kept
+                return np.empty(size, np.uint8)  # the rest are in use: this one is not kept
             kept = [np.empty(need, np.uint8), None]
             self._kept.append(kept)
         view = kept[0][:size]

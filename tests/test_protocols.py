@@ -142,6 +142,20 @@ def test_payloads_kept_for_reuse_stay_within_their_bound():
     assert len(small) == 100 and pool._held() <= pool.limit
 
 
+def test_free_payload_buffers_too_small_give_their_room_to_a_larger_one():
+    mb = POOL_LEAST
+    pool = Payloads(limit=5 * mb)
+    large, small = pool.take(2 * mb), pool.take(mb)
+    del large, small  # both free: 3 of the 5 MB kept
+    bigger = pool.take(3 * mb)  # 3 more: the smallest free buffer gives its room, not both
+    assert sorted(len(k[0]) for k in pool._kept) == [2 * mb, 3 * mb]
+    again = pool.take(2 * mb)  # the free 2 MB buffer, lent again
+    assert any(again.base is k[0] for k in pool._kept)
+    assert len(bigger) == 3 * mb and pool._held() <= pool.limit
+    extra = pool.take(2 * mb)  # every kept buffer lent: one of its own, not kept
+    assert not any(extra.base is k[0] for k in pool._kept) and pool._held() <= pool.limit
+
+
 def test_message_fields_are_checked():
     with pytest.raises(TypeError):
         make(Kind.RAYS, rays=ray_batch(1))  # missing dest

@@ -33,7 +33,16 @@ from protocols import dtypes
 from protocols.camera import CameraSpec
 from protocols.dtypes import WIRE_DTYPES
 from protocols.errors import BadFrame, FrameTooLarge, ProtocolError
-from protocols.framing import HEADER, MAP, MAX_FRAME, FrameDecoder, decode_payload, encode
+from protocols.framing import (
+    HEADER,
+    MAP,
+    MAX_FRAME,
+    POOL_LEAST,
+    FrameDecoder,
+    Payloads,
+    decode_payload,
+    encode,
+)
 from protocols.handshake import NONCE_BYTES, ROLES, auth, check_auth, check_hello, hello, proof
 from protocols.messages import FIELDS, OBJECT_TABLES, PROTOCOL_VERSION, Kind, make, parse
 from protocols.render import MeshPlan
@@ -313,6 +322,38 @@ def test_framer_is_split_invariant_and_bounded(stream, cuts, max_frame):
         assert type(raised) is error[0] and fed - len(chunk) < error[1] <= fed
         assert [repr(m) for m in got] == [repr(m) for m in want[: len(got)]]
     assert all(isinstance(m, dict) for m in got)
+
+
+@fuzz(150)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.booleans(),
+            st.one_of(
+                st.sampled_from([k * POOL_LEAST for k in (0.5, 1, 2, 3, 5)]).map(int),
+                st.integers(0, 5 * POOL_LEAST),
+            ),
+            st.integers(0, 7),
+        ),
+        max_size=24,
+    ),
+    limit=st.sampled_from([0, POOL_LEAST, 3 * POOL_LEAST, 8 * POOL_LEAST]),
+)
+def test_payload_buffers_are_never_lent_twice_and_stay_within_their_bound(steps, limit):
+    """Payloads taken and dropped in any order, of any sizes: a buffer still viewed is never
+    lent again (every live buffer keeps what was written into it), and the pool keeps at most
+    its limit."""
+    pool, live = Payloads(limit), []
+    for i, (take, size, drop) in enumerate(steps):
+        if take:
+            buf = pool.take(size)
+            assert len(buf) == size
+            buf[:] = i % 251
+            live.append((buf, i % 251))
+        elif live:
+            live.pop(drop % len(live))
+        assert all((buf == mark).all() for buf, mark in live)
+        assert pool._held() <= limit
 
 
 @fuzz(200)

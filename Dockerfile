@@ -20,8 +20,9 @@ ARG PIP_EXTRA_INDEX_URL
 ARG PIP_CERT
 WORKDIR /app
 ENV NUMBA_CACHE_DIR=/opt/meshtrace/kernels
-# a node multiplies no large matrices: no OpenBLAS threads spinning after numpy loads
-ENV OPENBLAS_NUM_THREADS=1
+# host.run.localmesh.NODE_ENVIRONMENT: no OpenBLAS threads spinning after numpy loads, no
+# huge pages for a node's short-lived ray batches
+ENV OPENBLAS_NUM_THREADS=1 NUMPY_MADVISE_HUGEPAGE=0
 # The project lives in a virtual environment of its own: the same on the python image and on
 # a Debian one (whose system Python refuses pip installs beside its own packages).
 ENV PATH=/opt/meshtrace/venv/bin:$PATH

@@ -3,6 +3,13 @@
 import os
 from pathlib import Path
 
+from host.run.localmesh import NODE_ENVIRONMENT
+
+# Before numpy loads: a bench's own process (the one node its meshes are measured against, or
+# a link's sender) runs as the nodes it starts do.
+for _name, _value in NODE_ENVIRONMENT.items():
+    os.environ.setdefault(_name, _value)
+
 
 def add_scenes_option(parser) -> None:
     """`--scenes DIR`: the folder of SPD scenes (docs/scenes.md: where they come from), by default

@@ -11,7 +11,6 @@ generated tetra and balls in this process).
 
 import argparse
 import asyncio
-import os
 import socket
 import statistics
 import subprocess
@@ -21,10 +20,6 @@ from pathlib import Path
 
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-# Before numpy loads (the receivers inherit it): its OpenBLAS threads spin for about 0.1 s of
-# CPU after the import, inside the first run's 0.3 s on 2 cores; a node's links run long after
-# its start (and its launcher sets the same: host.run.localmesh, the Dockerfile).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 

@@ -7,6 +7,7 @@ capabilities), nodes are probed on the port they serve, a render is created agai
 from a suspended CronJob, and a results pod mounts the claim renders write. The
 cluster-file command writes what `--cluster` reads, one stable pod name per node."""
 
+import os
 from pathlib import Path
 
 import kubernetes_validate
@@ -185,6 +186,23 @@ def test_code_of_the_project_runs_with_the_build_kernels_in_a_writable_folder():
         assert "emptyDir" in volumes[copied[target]]
         assert pod["initContainers"].index(kernels) == 0  # before anything imports numba
         assert "ENV NUMBA_CACHE_DIR=/opt/meshtrace/kernels" in (ROOT / "Dockerfile").read_text()
+
+
+def test_the_image_runs_its_nodes_as_a_local_mesh_starts_them():
+    """Every variable of the nodes' environment (`host.run.localmesh.NODE_ENVIRONMENT`) is set
+    in the image to the same value, and a local mesh's node gets it unless told otherwise."""
+    from host.run.localmesh import NODE_ENVIRONMENT, LocalMesh
+
+    env = {}
+    for line in (ROOT / "Dockerfile").read_text().splitlines():
+        if line.startswith("ENV "):
+            env.update(pair.split("=", 1) for pair in line.split()[1:] if "=" in pair)
+    assert NODE_ENVIRONMENT and all(env.get(k) == v for k, v in NODE_ENVIRONMENT.items())
+    mesh = LocalMesh(1, env={"NUMPY_MADVISE_HUGEPAGE": "1"})
+    started = mesh._environment()
+    assert started["NUMPY_MADVISE_HUGEPAGE"] == "1"  # the caller's word stands
+    others = {k: v for k, v in NODE_ENVIRONMENT.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    assert all(started[k] == os.environ.get(k, v) for k, v in others.items())
 
 
 def test_nodes_are_probed_on_the_port_they_serve():

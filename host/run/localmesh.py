@@ -19,6 +19,17 @@ from contextlib import contextmanager
 
 from host.run.errors import MeshError
 
+# How a node process runs best, unless its environment says otherwise (the Dockerfile sets the
+# same; bench processes too, so the one node they measure against runs as the nodes do):
+# - OPENBLAS_NUM_THREADS=1: a node multiplies no matrix large enough to share, and numpy's
+#   OpenBLAS threads spin after it loads (0.1 s of CPU a node start, taken from neighbours);
+# - NUMPY_MADVISE_HUGEPAGE=0: numpy asks for huge pages for arrays from 4 MB, and a node's
+#   ray batches come and go: each fresh one faulted in 2 MB pages the system zeroed whole.
+#   Real nodes in turns, 3x3 under a quarter share, the nine frames' CPU summed: balls 2-5%
+#   less in five pairs of six (their system CPU 0.44-0.56 s against 0.53-0.83), mount 2-3%,
+#   teapot -1 to 4%; the mountain's kernels no slower (0.754-0.758 s against 0.786-0.789).
+NODE_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "NUMPY_MADVISE_HUGEPAGE": "0"}
+
 
 class LocalMesh:
     """`with LocalMesh(n) as addresses:` n node processes on 127.0.0.1, each tracing on
@@ -90,10 +101,7 @@ class LocalMesh:
             raise
 
     def _environment(self) -> dict:
-        env = {**os.environ, **(self.env or {})}
-        # a node never multiplies matrices big enough to share, and numpy's OpenBLAS threads
-        # spin after it loads: 0.1 s of CPU a node start, taken from its neighbours
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
+        env = {**NODE_ENVIRONMENT, **os.environ, **(self.env or {})}
         env.pop("MESHTRACE_SECRET", None)
         if self.secret is not None:
             env["MESHTRACE_SECRET"] = self.secret.decode()

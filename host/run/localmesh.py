@@ -25,9 +25,10 @@ from host.run.errors import MeshError
 #   OpenBLAS threads spin after it loads (0.1 s of CPU a node start, taken from neighbours);
 # - NUMPY_MADVISE_HUGEPAGE=0: numpy asks for huge pages for arrays from 4 MB, and a node's
 #   ray batches come and go: each fresh one faulted in 2 MB pages the system zeroed whole.
-#   Real nodes in turns, 3x3 under a quarter share, the nine frames' CPU summed: balls 2-5%
-#   less in five pairs of six (their system CPU 0.44-0.56 s against 0.53-0.83), mount 2-3%,
-#   teapot -1 to 4%; the mountain's kernels no slower (0.754-0.758 s against 0.786-0.789).
+#   Real nodes in turns, 3x3 under a quarter share, the nine frames' CPU summed: balls 2-8%
+#   less in five pairs of six (their system CPU 0.44-0.56 s against 0.53-0.83), mount 2-3%
+#   less, teapot 4% less to 1% more; the mountain's kernels no slower (0.754-0.758 s against
+#   0.786-0.789).
 NODE_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "NUMPY_MADVISE_HUGEPAGE": "0"}
 
 

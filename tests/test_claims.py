@@ -71,7 +71,8 @@ def test_an_eye_ray_entering_its_first_cell_before_the_others_starts_there(name)
             # no occupied voxel lies before that entry (its own cell's work may start later,
             # in another cell, where the ray goes on from `first` by the walk from its exit;
             # the entry here by numpy's slabs, to round-off: a voxel wall on the cell's face)
-            before = start < entry - 1e-12 * np.abs(entry)
+            slack = 1e-12 * np.abs(np.where(np.isfinite(entry), entry, 0.0))  # no inf - inf
+            before = start < entry - slack
             assert not before[early & (cell >= 0)].any(), (name, view)
             # a block seeing no other cell: every ray there or nowhere, entering or not
             alone = seen & np.isinf(others)

@@ -100,7 +100,9 @@ def test_no_eye_ray_meets_an_occupied_voxel_nearer_than_its_bound(name):
 @pytest.mark.parametrize("spd", [False, True])
 def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
     """Every ray's cell and t_min the same bits as the walk from the scene's box gives, and
-    the map spares walks (blocks that see no occupied voxel)."""
+    the map spares walks (blocks that see no occupied voxel); a ray of such a block is
+    marked t_min inf where the walk sent it past the box (or left it missing the box): a
+    kernel ends it at once either way (`test_a_mesh_routing_with_the_eye_map_renders_...`)."""
     scene = read_nff(spd_scene(name))
     lo, hi = scene_box(scene)
     occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
@@ -115,8 +117,18 @@ def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
         box = (np.asarray(lo, float), np.asarray(hi, float))
         got = routed(rays, True, 2, *box, occ, los, his, loc, eye)
         want = routed(rays, True, 2, *box, occ, los, his, loc, NO_EYE_MAP)
-        assert got[0].tobytes() == want[0].tobytes(), (name, view)
         assert np.array_equal(got[1], want[1]) and got[2] == want[2]
+        ended = got[0]["t_min"] == np.inf
+        g = got[0]["pixel"] // eye.per_cell
+        block = (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
+        assert np.array_equal(ended, np.isinf(eye.near[block])), (name, view)
+        run = np.zeros(len(ended), bool)
+        run[got[1][2] : got[1][3]] = True
+        assert run[ended].all(), "a ray that meets nothing is the fallback's"
+        assert not _spans_box(want[0][ended], *box).any(), "the walk ended it too"
+        keep = got[0].copy()
+        keep["t_min"][ended] = want[0]["t_min"][ended]
+        assert keep.tobytes() == want[0].tobytes(), (name, view)
     # The level view's upper half sees nothing, although the box reaches behind the eye's
     # plane: the voxels there bound only the blocks whose rays can reach them.
     assert max(opens[:2]) > 0 and opens[3] >= 0.45, opens
@@ -140,6 +152,16 @@ def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, mon
         assert totals[k] == ref_totals[k], k
     assert [n.rays_sent for n in nodes] == [n.rays_sent for n in ref_nodes]
     assert made and all(eye.near.size for eye, _ in made), "the mesh did not use the map"
+
+
+def _spans_box(rays, lo, hi):
+    """Whether each ray meets the box lo..hi from its t_min on (a slab test)."""
+    o, d = rays["o"], rays["d"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lo - o) / d, (hi - o) / d
+    near = np.nanmax(np.minimum(a, b), axis=1)
+    far = np.nanmin(np.maximum(a, b), axis=1)
+    return np.maximum(near, rays["t_min"]) <= np.minimum(far, rays["t_max"])
 
 
 def _meets_brute(a, b, occ):

@@ -7,13 +7,17 @@ once to compile and load, then timed on this thread.
 
     python -m bench.batch_cpu [--scenes DIR] [--only tetra,balls] [--mesh 3x3] [--overlap 100]
                               [--size 384] [--spp 32] [--copies-eye-batch N] [--json FILE]
+                              [--max-share F]
 
 Printed per scene: the nodes' summed CPU seconds in each part, each part's share, and the
 whole batches' CPU over the kernels' (what `bench.mesh`'s "batch" column divides out: the
 speedup counted on the kernels alone, as one node's is, over that counted on whole
 batches). The mesh's hits, escapes and shadow rays are checked against one node's.
 `--copies-eye-batch N` sets how many eye rays a node makes a batch under copies
-(`meshnode.mesh.node.COPIES_EYE_BATCH`), to measure that choice.
+(`meshnode.mesh.node.COPIES_EYE_BATCH`), to measure that choice. `--max-share F` plans as
+`bench.mesh --balance objects --max-share F --budget-copies hottest` does instead (cells cut
+by the objects, no node holding more than F of them, the budget's copies): the mesh that
+divides the scene. Printed beside the parts: the routing's nanoseconds a ray routed.
 """
 
 import argparse
@@ -56,6 +60,8 @@ def timed_parts(run):
                 return f(*args, **kwargs)
             finally:
                 spent[part] += time.thread_time() - start
+                if part == "routing":  # Engine.routed(self, rays, ...)
+                    spent["routed_rays"] += len(args[1])
 
         return timed
 
@@ -73,6 +79,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench.batch_cpu", description=__doc__.split("\n\n")[0])
     add_simulated_mesh_options(p, only="tetra,balls", size=384, spp=32)
     p.add_argument("--copies-eye-batch", type=int, help="eye rays per batch under copies")
+    p.add_argument("--max-share", type=float, help="plan under this memory budget instead")
     args = p.parse_args(argv)
     if args.copies_eye_batch:
         from meshnode.mesh import node
@@ -80,6 +87,7 @@ def main(argv=None) -> int:
         node.COPIES_EYE_BATCH = args.copies_eye_batch
     from bench import read_scene
     from host.planning.plan import plan_render
+    from host.planning.request import Auto
     from host.run.oneprocess import render
     from host.scene.subset import subset
     from meshnode.mesh.simulator import simulate
@@ -87,29 +95,35 @@ def main(argv=None) -> int:
 
     rows_, cols = (int(v) for v in args.mesh.lower().split("x"))
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
-    plan = MeshPlan(
-        rows_,
-        cols,
-        args.overlap,
-        balance="cost",
-        mode="object",
-        steal=True,
-        copies=True,
-        tile=max(2, args.size // 24),
-    )
+    if args.max_share:
+        plan = MeshPlan(rows_, cols, args.overlap, "objects", "object", max_share=args.max_share)
+        how = f"cells cut by the objects, at most {args.max_share:g} of them a node, copies"
+    else:
+        plan = MeshPlan(
+            rows_,
+            cols,
+            args.overlap,
+            balance="cost",
+            mode="object",
+            steal=True,
+            copies=True,
+            tile=max(2, args.size // 24),
+        )
+        how = "cost cuts, stealing, copies"
     print(
         f"{args.size}x{args.size} at {args.spp} spp, {args.mesh} object space at overlap "
-        f"{args.overlap:g} (cost cuts, stealing, copies), simulated on one thread"
+        f"{args.overlap:g} ({how}), simulated on one thread"
     )
     print(
         f"{'scene':>10} {'batches s':>9} "
         + " ".join(f"{p:>15}" for p in PARTS)
-        + f" {'rest':>15} {'batch/kernels':>13}"
+        + f" {'rest':>15} {'batch/kernels':>13} {'ns a ray routed':>15}"
     )
     rows, bad = [], []
     for name in args.only.split(","):
         scene = read_scene(args.scenes, name)
-        planned = plan_render(Request(scene, image, EngineSpec(), plan=plan))
+        auto = Auto(budget_copies=bool(args.max_share))
+        planned = plan_render(Request(scene, image, EngineSpec(), plan=plan, auto=auto))
         scenes = [subset(scene, k) for k in planned.holders]
 
         run = partial(simulate, scenes, planned.spec, planned.partition, clock="work")
@@ -127,7 +141,8 @@ def main(argv=None) -> int:
         cells = " ".join(f"{spent[p]:>7.3f} ({spent[p] / total:>4.0%})" for p in PARTS)
         print(
             f"{name:>10} {total:>9.3f} {cells} {rest:>7.3f} ({rest / total:>4.0%}) "
-            f"{total / spent['kernels']:>13.2f}"
+            f"{total / spent['kernels']:>13.2f} "
+            f"{1e9 * spent['routing'] / max(spent['routed_rays'], 1):>15.1f}"
         )
         rows.append(
             {
@@ -137,6 +152,7 @@ def main(argv=None) -> int:
                 **{f"{p}_cpu_seconds": spent[p] for p in PARTS},
                 "rest_cpu_seconds": rest,
                 "batch_over_kernels": total / spent["kernels"],
+                "routing_ns_per_ray": 1e9 * spent["routing"] / max(spent["routed_rays"], 1),
             }
         )
     return finish(

@@ -21,7 +21,7 @@ from protocols.render import ImageSpec
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
 from tests.test_mesh_algorithm import SPD_COUNTS
-from tests.test_sightlines import _cells, _views
+from tests.test_sightlines import _cells, _entry, _views
 
 
 def _start_of_each(rays, box, occ, cells, loc):
@@ -81,17 +81,6 @@ def test_an_eye_ray_entering_its_first_cell_before_the_others_starts_there(name)
             tested["none"] += int((first == SEEN_NONE).sum())
             tested["others"] += int((seen & ~early).sum())
     assert tested["first"] > 100 and tested["others"] > 0, tested  # not vacuous
-
-
-def _entry(rays, los, his):
-    """Each ray's t entering its box (numpy slabs; inf where it misses)."""
-    o, d = rays["o"], rays["d"]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = (los - o) / d, (his - o) / d
-    near = np.nanmax(np.minimum(a, b), axis=1)
-    far = np.nanmin(np.maximum(a, b), axis=1)
-    near = np.maximum(near, rays["t_min"])
-    return np.where(near <= far, near, np.inf)
 
 
 def test_bands_cover_every_claimed_cell_once_in_batches():

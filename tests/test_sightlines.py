@@ -83,10 +83,7 @@ def test_no_eye_ray_meets_an_occupied_voxel_nearer_than_its_bound(name):
         assert eye.near.size and "blocks" in reason
         rays = eye_rays(view, image)
         rays = rays[rng.choice(len(rays), 600, replace=False)]
-        g = rays["pixel"] // eye.per_cell
-        bound = eye.near[
-            (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
-        ]
+        bound = _bound(eye, rays)
         first = _first_occupied_brute(rays, occ)
         assert (first >= bound).all(), (view, first[first < bound], bound[first < bound])
         met += np.isfinite(first).sum()
@@ -119,9 +116,7 @@ def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
         want = routed(rays, True, 2, *box, occ, los, his, loc, NO_EYE_MAP)
         assert np.array_equal(got[1], want[1]) and got[2] == want[2]
         ended = got[0]["t_min"] == np.inf
-        g = got[0]["pixel"] // eye.per_cell
-        block = (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
-        assert np.array_equal(ended, np.isinf(eye.near[block])), (name, view)
+        assert np.array_equal(ended, np.isinf(_bound(eye, got[0]))), (name, view)
         run = np.zeros(len(ended), bool)
         run[got[1][2] : got[1][3]] = True
         assert run[ended].all(), "a ray that meets nothing is the fallback's"
@@ -152,6 +147,13 @@ def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, mon
         assert totals[k] == ref_totals[k], k
     assert [n.rays_sent for n in nodes] == [n.rays_sent for n in ref_nodes]
     assert made and all(eye.near.size for eye, _ in made), "the mesh did not use the map"
+
+
+def _bound(eye, rays):
+    """Each eye ray's bound in the `EyeMap` eye: its block's `near`, found from RAY.pixel
+    here in numpy, apart from the kernels' `eye_cell`."""
+    g = rays["pixel"] // eye.per_cell
+    return eye.near[(g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side]
 
 
 def _entry(rays, los, his):

@@ -11,7 +11,10 @@ from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from host.camera.setup import CameraSetup
+from host.planning.occupancy import occupancy_map
 from host.planning.request import Request
 from host.run.aside import CompileAside
 from host.run.firstrun import PINHOLE_STEPS, STEPS, Setup, say_on_stderr
@@ -20,6 +23,7 @@ from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import compile_clock
+from meshnode.engine.sky import counted, deposits, keep, sky_of
 from meshnode.engine.structure_cost import eye_ray_count
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
@@ -59,7 +63,7 @@ def render(
             loading=lambda e: e.stats["structure_load_seconds"],
         )
         if camera is None:  # compiled here, not while timed, and before the wait for aside
-            setup.run("primary rays", lambda: eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1)))
+            sky = setup.run("primary rays", lambda: _sky(scene, image, tracer))
         setup.run("tracing kernel", lambda: aside.then(tracer.warmup))
         if camera is not None:  # the lens's focusing traces: after the kernel
             lens = setup.run("primary rays", lambda: _camera_ready(scene, image, camera, tracer))
@@ -70,12 +74,26 @@ def render(
     corners = image.corners()
     fb = Framebuffer(width, height, corners=corners, spp=image.spp)
     bands = pinhole_bands(*image.sample_grid(), image.spp)
+    sky, why = sky
 
     def trace_band(band):
         rows, cols = band
-        return _traced(tracer, eye_rays(scene.view, image, rows=rows, cols=cols))
+        rays = eye_rays(scene.view, image, rows=rows, cols=cols, keep=keep(sky, rows, cols))
+        return _traced(tracer, rays, deposits(sky, rows, cols))
 
-    return _run_batches(job, fb, [(bands, fb)], trace_band, len(bands))
+    img, stats = _run_batches(job, fb, [(bands, fb)], trace_band, len(bands))
+    return img, {**stats, "sky": why}
+
+
+def _sky(scene: SceneData, image: ImageSpec, tracer: Engine):
+    """(`Sky` of the pinhole eye rays that meet nothing, or None; why and its CPU seconds),
+    from the scene's occupancy map over the engine's scene box (as object-space nodes get
+    it), with the eye rays' kernel compiled."""
+    eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))
+    began, box = time.process_time(), (tracer.scene_lo, tracer.scene_hi)
+    background = tracer.shading.background
+    sky, why = sky_of(box, lambda: occupancy_map(scene, box), scene.view, image, background)
+    return sky, {"eye_rays": why, "cpu_seconds": time.process_time() - began}
 
 
 def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple]]:
@@ -136,9 +154,8 @@ def _run_batches(job: _Job, fb, passes, trace_job, total, camera=None):
         watch.start(fb, 1, 1, [job.tracer.stats["objects"]], total, unit="batches")
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for jobs, sink in passes:
-            for rays, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
-                sink.add(rays["pixel"], rgb)
-                counts["eye_rays"] = len(rays)
+            for ids, rgb, counts in _bounded_map(pool, trace_job, jobs, 2 * threads):
+                sink.add(ids, rgb)
                 cpu += counts.pop("cpu_seconds")
                 for k, v in counts.items():
                     totals[k] = totals.get(k, 0) + v
@@ -196,13 +213,19 @@ def _render_camera(job: _Job, spec, info):
     return fb.image(), stats
 
 
-def _traced(tracer: Engine, rays):
-    """(rays, colour, counts) of one job, counts with the tracing thread's CPU seconds (the
-    figure a mesh node's busiest CPU time compares with, on a loaded machine too)."""
+def _traced(tracer: Engine, rays, sky=None):
+    """(sample ids, colour, counts) of one job, counts with the tracing thread's CPU seconds
+    (the figure a mesh node's busiest CPU time compares with, on a loaded machine too);
+    `sky`: (ids, colours) of its eye rays that meet nothing (`meshnode.engine.sky`), not
+    made, deposited and counted as if traced."""
     cpu = time.thread_time()
     rgb, counts = tracer.trace(rays)
+    ids, counts["eye_rays"] = rays["pixel"], len(rays)
+    if sky is not None and len(sky[0]):
+        ids, rgb = np.concatenate((ids, sky[0])), np.concatenate((rgb, sky[1]))
+        counted(counts, len(sky[0]))
     counts["cpu_seconds"] = time.thread_time() - cpu
-    return rays, rgb, counts
+    return ids, rgb, counts
 
 
 def _bounded_map(pool, fn, jobs, inflight: int):

@@ -1,0 +1,86 @@
+"""Eye rays that meet nothing (`meshnode.engine.sky`): the cells the eye's view of the
+occupancy map calls sky hold only rays that miss every object (a brute-force test of each
+against every triangle), and a render that deposits the background for them instead of
+tracing them gives the image and ray counts of one that traces every ray, to the bit."""
+
+import numpy as np
+import pytest
+
+from host.planning.occupancy import occupancy_map
+from host.planning.request import Request
+from host.run import oneprocess
+from host.scene.nff import read_nff
+from meshnode.engine import Engine, sky
+from meshnode.engine.camera import eye_rays
+from meshnode.engine.counters import RAY_COUNTS
+from protocols.render import EngineSpec, ImageSpec
+from tests.conftest import spd_scene
+
+
+def _triangles_hit(o, d, tri):
+    """Whether each ray (o, d) meets any triangle of `tri` (n, 3, 3) at t > 0: Moller-Trumbore
+    in NumPy, every ray against every triangle, with a tolerance that only ever says hit."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None], e2[None])
+    det = np.einsum("nk,rnk->rn", e1, p)
+    inv = 1.0 / np.where(np.abs(det) < 1e-300, 1e-300, det)
+    s = o[:, None] - tri[None, :, 0]
+    u = np.einsum("rnk,rnk->rn", s, p) * inv
+    q = np.cross(s, e1[None])
+    v = np.einsum("rk,rnk->rn", d, q) * inv
+    t = np.einsum("nk,rnk->rn", e2, q) * inv
+    eps = 1e-6
+    return ((u > -eps) & (v > -eps) & (u + v < 1 + eps) & (t > -eps)).any(axis=1)
+
+
+def _sky(scene, image, engine):
+    box = (engine.scene_lo, engine.scene_hi)
+    found, why = sky.sky_of(
+        box, lambda: occupancy_map(scene, box), scene.view, image, engine.shading.background
+    )
+    assert why
+    return found
+
+
+def test_the_sky_holds_only_eye_rays_that_meet_no_object(monkeypatch):
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
+    scene = read_nff(spd_scene("tetra_s2.nff"))
+    image = ImageSpec(width=48, height=40, spp=2)
+    engine = Engine.from_spec(scene, EngineSpec(threads=1, structure="bvh"), max_depth=1)
+    found = _sky(scene, image, engine)
+    assert found is not None and 0.2 < found.cells.mean() < 0.95  # tetra leaves sky
+    rays = eye_rays(scene.view, image, keep=found.cells)
+    assert len(scene.triangles) == 16 and len(scene.spheres) == len(scene.polygons) == 0
+    assert not _triangles_hit(rays["o"], rays["d"], scene.triangles["v"]).any()
+    # the sky's rays are those that miss, not all of them: the brute force finds the rest
+    rest = eye_rays(scene.view, image, keep=~found.cells)
+    assert _triangles_hit(rest["o"], rest["d"], scene.triangles["v"]).mean() > 0.3
+    ids, rgb = sky.deposits(found, (0, 40), (0, 48))
+    assert np.array_equal(np.sort(ids), np.sort(rays["pixel"]))
+    assert (rgb == np.asarray(scene.background)).all()
+
+
+@pytest.mark.parametrize(
+    "name, image",
+    [
+        ("tetra_s2.nff", ImageSpec(width=40, height=32, spp=3)),
+        ("tetra_s2.nff", ImageSpec(width=40, height=32, spd=True)),  # rays at pixel corners
+        ("balls_s1.nff", ImageSpec(width=32, height=32, spp=2)),  # no sky: nothing changes
+    ],
+)
+def test_a_render_with_the_sky_equals_one_tracing_every_eye_ray(monkeypatch, name, image):
+    scene = read_nff(spd_scene(name))
+    request = Request(scene, image, EngineSpec(threads=1))
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 1 << 62)
+    ref, ref_stats = oneprocess.render(request)
+    assert ref_stats["sky"]["eye_rays"].startswith("not looked for")
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
+    img, stats = oneprocess.render(request)
+    assert np.array_equal(img, ref)
+    assert {k: stats["rays"][k] for k in RAY_COUNTS} == {
+        k: ref_stats["rays"][k] for k in RAY_COUNTS
+    }
+    assert stats["rays"]["escaped"] == ref_stats["rays"]["escaped"]
+    assert stats["rays"]["ray_segments"] == ref_stats["rays"]["ray_segments"]
+    said = stats["sky"]["eye_rays"]
+    assert ("meet nothing: not made" in said) == name.startswith("tetra"), said

@@ -13,8 +13,10 @@ from host.scene.nff import read_nff
 from meshnode.engine import Engine, sky
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import RAY_COUNTS
-from protocols.render import EngineSpec, ImageSpec
+from meshnode.mesh import node
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
 
 
 def _triangles_hit(o, d, tri):
@@ -36,14 +38,13 @@ def _triangles_hit(o, d, tri):
 def _sky(scene, image, engine):
     box = (engine.scene_lo, engine.scene_hi)
     found, why = sky.sky_of(
-        box, lambda: occupancy_map(scene, box), scene.view, image, engine.shading.background
+        box, occupancy_map(scene, box), scene.view, image, engine.shading.background
     )
     assert why
     return found
 
 
-def test_the_sky_holds_only_eye_rays_that_meet_no_object(monkeypatch):
-    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
+def test_the_sky_holds_only_eye_rays_that_meet_no_object():
     scene = read_nff(spd_scene("tetra_s2.nff"))
     image = ImageSpec(width=48, height=40, spp=2)
     engine = Engine.from_spec(scene, EngineSpec(threads=1, structure="bvh"), max_depth=1)
@@ -83,4 +84,54 @@ def test_a_render_with_the_sky_equals_one_tracing_every_eye_ray(monkeypatch, nam
     assert stats["rays"]["escaped"] == ref_stats["rays"]["escaped"]
     assert stats["rays"]["ray_segments"] == ref_stats["rays"]["ray_segments"]
     said = stats["sky"]["eye_rays"]
-    assert ("meet nothing: not made" in said) == name.startswith("tetra"), said
+    assert ("meet nothing: the background deposited" in said) == name.startswith("tetra"), said
+
+
+def _traced_alone(scene, image):
+    """One process's image and counts with every eye ray traced (the sky not looked for)."""
+    saved = sky.SKY_MIN_RAYS
+    sky.SKY_MIN_RAYS = 1 << 62
+    try:
+        img, stats = oneprocess.render(Request(scene, image, EngineSpec(threads=1)))
+    finally:
+        sky.SKY_MIN_RAYS = saved
+    return img, {k: stats["rays"][k] for k in (*RAY_COUNTS, "escaped", "ray_segments")}
+
+
+@pytest.mark.parametrize("tiles", ["static", "dynamic"])
+def test_image_space_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypatch, tiles):
+    # The host sends the occupancy map where the sky is looked for; each node leaves the eye
+    # rays it shows meet nothing out of its kernel calls and deposits the background itself.
+    scene = read_nff(spd_scene("tetra_s2.nff"))
+    ref, counts = _traced_alone(scene, ImageSpec(width=40, height=32, spp=3))
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
+    split, left_out = node.split, []
+    monkeypatch.setattr(node, "split", lambda s, r: left_out.append(split(s, r)) or left_out[-1])
+    img, totals, _, _ = render_mesh(
+        scene, 2, 2, 0, 40, 32, spp=3, mode="image", tiles=tiles, tile=6
+    )
+    assert np.array_equal(img, ref)
+    assert {k: totals[k] for k in counts} == counts
+    untraced = sum(len(deposits) for _, deposits in left_out)
+    assert 0 < untraced < counts["escaped"]  # tetra's sky, of the rays that escape
+
+
+def test_image_space_over_tcp_with_the_sky_equals_one_node(monkeypatch):
+    import asyncio
+
+    from host.run.connections import Nodes
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
+
+    scene, image = read_nff(spd_scene("tetra_s2.nff")), ImageSpec(width=40, height=32, spp=2)
+    ref, counts = _traced_alone(scene, image)
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)  # the host's choice: the nodes follow its map
+    plan = MeshPlan(1, 2, mode="image", tiles="dynamic", tile=8)
+    with LocalMesh(plan.nodes) as addresses:
+        coro = render_on_mesh(
+            Request(scene, image, EngineSpec(threads=1), plan=plan), Nodes(addresses)
+        )
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert np.array_equal(img, ref)
+    assert {k: stats["rays"][k] for k in counts} == counts
+    assert all("meet nothing: the background deposited" in n["sky"] for n in stats["nodes"])

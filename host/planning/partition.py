@@ -17,6 +17,7 @@ from host.planning.objectcells import object_cells
 from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from meshnode.engine.occupancy import occupancy_arrays
+from meshnode.engine.sky import looked_for
 from meshnode.engine.tables import build_tables
 from protocols.partition import Partition
 from protocols.render import EVERYWHERE, RenderSpec
@@ -48,7 +49,10 @@ def partition(
         rects, owner = tiles(gw, gh, plan)
         los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
         keep = np.ones((plan.nodes, build_tables(scene).n), bool)
-        return Partition.make(rects, los, his, box, owner), keep
+        occ = EVERYWHERE  # ... or the map the nodes see the sky from (`meshnode.engine.sky`)
+        if spec.camera is None and not looked_for(spec.image):
+            occ = occupancy_map(scene, box)
+        return Partition.make(rects, los, his, box, owner, occupancy=occ), keep
     if cells is None and plan.balance == "objects":
         cells = object_cells(scene, box, plan.rows, plan.cols)
     elif cells is None:

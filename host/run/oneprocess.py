@@ -23,7 +23,7 @@ from host.run.summary import common
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.kernelcache import compile_clock
-from meshnode.engine.sky import counted, deposits, keep, sky_of
+from meshnode.engine.sky import counted, deposits, keep, looked_for, sky_of
 from meshnode.engine.structure_cost import eye_ray_count
 from protocols.render import EngineSpec, ImageSpec
 from protocols.scene import SceneData
@@ -91,8 +91,10 @@ def _sky(scene: SceneData, image: ImageSpec, tracer: Engine):
     it), with the eye rays' kernel compiled."""
     eye_rays(scene.view, image, rows=(0, 1), cols=(0, 1))
     began, box = time.process_time(), (tracer.scene_lo, tracer.scene_hi)
-    background = tracer.shading.background
-    sky, why = sky_of(box, lambda: occupancy_map(scene, box), scene.view, image, background)
+    sky, why = None, looked_for(image)
+    if not why:
+        background = tracer.shading.background
+        sky, why = sky_of(box, occupancy_map(scene, box), scene.view, image, background)
     return sky, {"eye_rays": why, "cpu_seconds": time.process_time() - began}
 
 

@@ -1,6 +1,8 @@
-"""Eye rays that meet nothing, not made: the sample-grid cells whose every pinhole eye ray the
-scene's occupancy map, seen from the eye (`meshnode.engine.sightlines`), shows meets no
+"""Eye rays that meet nothing, not traced: the sample-grid cells whose every pinhole eye ray
+the scene's occupancy map, seen from the eye (`meshnode.engine.sightlines`), shows meets no
 occupied voxel take the background as those rays would have brought it, with their counts.
+One process does not even make them (`keep`, `deposits`); an image-space node, whose tiles'
+batches are made before they are traced, leaves them out of its kernel calls (`split`).
 
 Such rays are 68% of tetra's at 256x256; made and traced, each cost one node about 36 ns (7
 to make, 29 to find its packet empty and escape). Exact: the map is conservative, so each
@@ -15,6 +17,7 @@ import numpy as np
 
 from meshnode.engine.occupancy import Occupancy
 from meshnode.engine.sightlines import INF, eye_map
+from protocols.dtypes import DEPOSIT
 from protocols.render import ImageSpec
 from protocols.scene import View
 
@@ -35,16 +38,23 @@ class Sky(NamedTuple):
     columns: int
 
 
-def sky_of(box, occupancy, view: View, image: ImageSpec, background) -> tuple[Sky | None, str]:
-    """The `Sky` of pinhole eye rays of `image` from `view` over the scene's occupancy map
-    (`occupancy()`: its voxels per axis and packed bits over `box`, lo and hi, made only
-    where the sky is looked for), None where no cell is sky or the render makes too few eye
-    rays for it to pay, and why, for the stats."""
+def looked_for(image: ImageSpec) -> str:
+    """Why the sky is not looked for in a pinhole render of `image` ("": it is). One rule
+    for one process and a mesh: a render's counts and work units are then the same on both
+    (a ray that meets nothing counts its escape and segment either way)."""
     columns, rows = image.sample_grid()
     rays = columns * rows * (1 if image.corners() else image.spp)
     if rays < SKY_MIN_RAYS:
-        return None, f"not looked for: {rays} eye rays, under {SKY_MIN_RAYS}"
-    eye, why = eye_map(_occupied(box, *occupancy()), view, image)
+        return f"not looked for: {rays} eye rays, under {SKY_MIN_RAYS}"
+    return ""
+
+
+def sky_of(box, occupancy, view: View, image: ImageSpec, background) -> tuple[Sky | None, str]:
+    """The `Sky` of pinhole eye rays of `image` from `view` over the scene's occupancy map
+    (`occupancy`: its voxels per axis and packed bits over `box`, lo and hi), None where no
+    cell is sky, and why, for the stats."""
+    columns, rows = image.sample_grid()
+    eye, why = eye_map(_occupied(box, *occupancy), view, image)
     if eye.near.shape[0] == 0:
         return None, why
     open_blocks = (eye.near == INF).reshape(-1, eye.blocks_x)
@@ -55,7 +65,7 @@ def sky_of(box, occupancy, view: View, image: ImageSpec, background) -> tuple[Sk
     rgb = np.asarray(background, float) * 1.0
     per_cell = 1 if image.corners() else image.spp
     sky = Sky(np.ascontiguousarray(cells), rgb, per_cell, columns)
-    return sky, f"{share:.1%} of the eye rays meet nothing: not made, the background deposited"
+    return sky, f"{share:.1%} of the eye rays meet nothing: the background deposited, not traced"
 
 
 def _occupied(box, res, bits: bytes) -> Occupancy:
@@ -79,7 +89,7 @@ def keep(sky: Sky | None, rows, cols) -> np.ndarray | None:
 def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
     """(sample ids, colours) of the rectangle's eye rays that meet nothing, in id order: what
     each would have deposited."""
-    if sky is None:
+    if sky is None or not sky.rgb.any():  # a black background brings nothing
         return np.zeros(0, np.int64), np.zeros((0, 3))
     j, i = np.nonzero(sky.cells[rows[0] : rows[1], cols[0] : cols[1]])
     first = ((j + rows[0]) * sky.columns + i + cols[0]) * sky.per_cell
@@ -87,9 +97,26 @@ def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
     return ids, np.broadcast_to(sky.rgb, (len(ids), 3))
 
 
+def split(sky: Sky | None, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the eye rays of `rays` to trace, DEPOSIT records of those that meet nothing, in their
+    order): what a batch of rays already made (an image-space node's tiles) leaves out."""
+    if sky is None or len(rays) == 0:
+        return rays, np.zeros(0, DEPOSIT)
+    met = sky.cells.reshape(-1)[rays["pixel"] // sky.per_cell]
+    if not met.any():
+        return rays, np.zeros(0, DEPOSIT)
+    if not sky.rgb.any():  # a black background: no deposit, as `deposits.lit` keeps none
+        return rays[~met], np.zeros(0, DEPOSIT)
+    out = np.empty(int(met.sum()), DEPOSIT)
+    out["pixel"] = rays["pixel"][met]
+    out["rgb"] = sky.rgb
+    return rays[~met], out
+
+
 def counted(counts: dict, escaped: int) -> dict:
     """`counts` of the rays traced with those of `escaped` eye rays that met nothing, as the
     kernel counts one its packet found nothing for: a segment that escapes."""
-    for k in ("eye_rays", "ray_segments", "escaped"):
-        counts[k] = counts.get(k, 0) + escaped
+    if escaped:
+        for k in ("eye_rays", "ray_segments", "escaped"):
+            counts[k] = counts.get(k, 0) + escaped
     return counts

@@ -19,6 +19,7 @@ from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
+from meshnode.engine.sky import Sky, counted, looked_for, sky_of, split
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
@@ -30,7 +31,7 @@ from protocols.dtypes import DEPOSIT, RAY
 from protocols.errors import BadFrame
 from protocols.partition import Partition
 from protocols.records import joined
-from protocols.render import RenderSpec
+from protocols.render import EVERYWHERE, RenderSpec
 from protocols.scene import SceneData, View
 from protocols.state import State
 from protocols.topology import Torus
@@ -120,9 +121,21 @@ class NodeCore:
                 f"of {spec.plan.node_bytes} (MeshPlan.node_bytes)"
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
+        self.sky, self.sky_reason = self._sky()
         self.eye, self.eye_reason = self._eye_map()
         self.claims, self.claims_reason = self._claims()
         self.eye = routing_map(self.eye, list(spec.plan.held(node)))
+
+    def _sky(self) -> tuple[Sky | None, str]:
+        """Image space: the cells whose eye rays meet nothing (`meshnode.engine.sky`), from
+        the map the host sends where the sky is looked for; None elsewhere."""
+        spec, part = self.spec, self.part
+        if spec.plan.mode != "image" or spec.camera is not None:
+            return None, "not looked for: object space, or a camera makes the eye rays"
+        if (part.occ_res, part.occ_bits) == EVERYWHERE:
+            return None, looked_for(spec.image) or "no occupancy map sent"
+        occupancy, background = (part.occ_res, part.occ_bits), self.engine.shading.background
+        return sky_of(part.scene_box, occupancy, self.view, spec.image, background)
 
     def _eye_map(self) -> tuple[EyeMap, str]:
         """The occupancy map seen from the eye, for routing the eye rays this node makes in
@@ -157,7 +170,8 @@ class NodeCore:
             box=(self.los[node], self.his[node]),
             scene_box=part.scene_box,
             max_depth=spec.image.depth,
-            occupancy=(part.occ_res, part.occ_bits),
+            # image space: one process's engine (a map sent there is the sky's)
+            occupancy=EVERYWHERE if spec.plan.mode == "image" else (part.occ_res, part.occ_bits),
             eye_rays_expected=eye_ray_count(spec.image, spec.camera is not None) / spec.plan.nodes,
         )
 
@@ -291,6 +305,8 @@ class NodeCore:
         simulated, 384x384 at 32 spp: 593 engine calls, 310 of them under 8,192 rays; 508
         merged)."""
         began = time.thread_time()
+        # image space: eye rays that meet nothing deposit the background, untraced
+        rays, sky = split(self.sky, rays) if primary else (rays, np.zeros(0, DEPOSIT))
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
@@ -301,9 +317,10 @@ class NodeCore:
         outgoing = {d: [g] for d, g in todo.items() if d != self.node and d not in self.copies}
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))
         held: dict[int, list] = {}
-        deposits, cpu = [], 0.0
+        deposits, cpu = ([sky] if len(sky) else []), 0.0
+        counted(counts, len(sky))
         for taker, batch in todo.items():
-            if taker in outgoing:
+            if taker in outgoing or len(batch) == 0:
                 continue
             engine = self.engine if taker == self.node else self.copies[taker]
             cpu -= time.thread_time()

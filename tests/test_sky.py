@@ -3,6 +3,8 @@ occupancy map calls sky hold only rays that miss every object (a brute-force tes
 against every triangle), and a render that deposits the background for them instead of
 tracing them gives the image and ray counts of one that traces every ray, to the bit."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -67,10 +69,14 @@ def test_the_sky_holds_only_eye_rays_that_meet_no_object():
         ("tetra_s2.nff", ImageSpec(width=40, height=32, spp=3)),
         ("tetra_s2.nff", ImageSpec(width=40, height=32, spd=True)),  # rays at pixel corners
         ("balls_s1.nff", ImageSpec(width=32, height=32, spp=2)),  # no sky: nothing changes
+        ("black", ImageSpec(width=40, height=32, spp=2)),  # tetra on a black background
     ],
 )
 def test_a_render_with_the_sky_equals_one_tracing_every_eye_ray(monkeypatch, name, image):
-    scene = read_nff(spd_scene(name))
+    if name == "black":  # the sky brings no colour, and its rays are still counted
+        scene = replace(read_nff(spd_scene("tetra_s2.nff")), background=(0.0, 0.0, 0.0))
+    else:
+        scene = read_nff(spd_scene(name))
     request = Request(scene, image, EngineSpec(threads=1))
     monkeypatch.setattr(sky, "SKY_MIN_RAYS", 1 << 62)
     ref, ref_stats = oneprocess.render(request)
@@ -84,7 +90,7 @@ def test_a_render_with_the_sky_equals_one_tracing_every_eye_ray(monkeypatch, nam
     assert stats["rays"]["escaped"] == ref_stats["rays"]["escaped"]
     assert stats["rays"]["ray_segments"] == ref_stats["rays"]["ray_segments"]
     said = stats["sky"]["eye_rays"]
-    assert ("meet nothing: the background deposited" in said) == name.startswith("tetra"), said
+    assert ("meet nothing: the background deposited" in said) == ("balls" not in name), said
 
 
 def _traced_alone(scene, image):
@@ -98,21 +104,35 @@ def _traced_alone(scene, image):
     return img, {k: stats["rays"][k] for k in (*RAY_COUNTS, "escaped", "ray_segments")}
 
 
-@pytest.mark.parametrize("tiles", ["static", "dynamic"])
-def test_image_space_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypatch, tiles):
-    # The host sends the occupancy map where the sky is looked for; each node leaves the eye
-    # rays it shows meet nothing out of its kernel calls and deposits the background itself.
+@pytest.mark.parametrize(
+    "plan",
+    [
+        dict(mode="image", tiles="static", tile=6),
+        dict(mode="image", tiles="dynamic", tile=6),
+        dict(mode="object", balance="objects"),
+    ],
+    ids=["image-static", "image-dynamic", "object"],
+)
+def test_mesh_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypatch, plan):
+    # In image space the host sends the occupancy map where the sky is looked for, and each
+    # node leaves the eye rays it shows meet nothing out of its kernel calls, depositing the
+    # background itself; in object space every node does so from its eye map.
     scene = read_nff(spd_scene("tetra_s2.nff"))
     ref, counts = _traced_alone(scene, ImageSpec(width=40, height=32, spp=3))
     monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
     split, left_out = node.split, []
     monkeypatch.setattr(node, "split", lambda s, r: left_out.append(split(s, r)) or left_out[-1])
-    img, totals, _, _ = render_mesh(
-        scene, 2, 2, 0, 40, 32, spp=3, mode="image", tiles=tiles, tile=6
-    )
-    assert np.array_equal(img, ref)
-    assert {k: totals[k] for k in counts} == counts
-    untraced = sum(len(deposits) for _, deposits in left_out)
+    img, totals, _, _ = render_mesh(scene, 2, 2, 1, 40, 32, spp=3, **plan)
+    if plan["mode"] == "image":  # a pixel's samples summed on one node, in the same order
+        assert np.array_equal(img, ref)
+        assert {k: totals[k] for k in counts} == counts
+    else:  # ... or where its rays' trees end: the same sums in another order; a ray
+        # crossing cells is more than one segment
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+        assert {k: totals[k] for k in (*RAY_COUNTS, "escaped")} == {
+            k: counts[k] for k in (*RAY_COUNTS, "escaped")
+        }
+    untraced = sum(escaped for _, _, escaped in left_out)
     assert 0 < untraced < counts["escaped"]  # tetra's sky, of the rays that escape
 
 

@@ -1,8 +1,9 @@
 """Eye rays that meet nothing, not traced: the sample-grid cells whose every pinhole eye ray
 the scene's occupancy map, seen from the eye (`meshnode.engine.sightlines`), shows meets no
 occupied voxel take the background as those rays would have brought it, with their counts.
-One process does not even make them (`keep`, `deposits`); an image-space node, whose tiles'
-batches are made before they are traced, leaves them out of its kernel calls (`split`).
+One process does not even make them (`keep`, `deposits`); a mesh node, whose batches are
+made before they are traced, leaves them out of its routing and kernel calls (`split`): in
+object space those its eye map shows, in image space from the map the host sends.
 
 Such rays are 68% of tetra's at 256x256; made and traced, each cost one node about 36 ns (7
 to make, 29 to find its packet empty and escape). Exact: the map is conservative, so each
@@ -16,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from meshnode.engine.occupancy import Occupancy
-from meshnode.engine.sightlines import INF, eye_map
+from meshnode.engine.sightlines import INF, EyeMap, eye_map
 from protocols.dtypes import DEPOSIT
 from protocols.render import ImageSpec
 from protocols.scene import View
@@ -53,10 +54,16 @@ def sky_of(box, occupancy, view: View, image: ImageSpec, background) -> tuple[Sk
     """The `Sky` of pinhole eye rays of `image` from `view` over the scene's occupancy map
     (`occupancy`: its voxels per axis and packed bits over `box`, lo and hi), None where no
     cell is sky, and why, for the stats."""
-    columns, rows = image.sample_grid()
     eye, why = eye_map(_occupied(box, *occupancy), view, image)
+    return seen(eye, why, image, background)
+
+
+def seen(eye: EyeMap, why: str, image: ImageSpec, background) -> tuple[Sky | None, str]:
+    """The `Sky` an `EyeMap` of `image`'s pinhole eye rays shows (its blocks that see no
+    occupied voxel; `why`: what the map's making said), None where there is none."""
     if eye.near.shape[0] == 0:
         return None, why
+    columns, rows = image.sample_grid()
     open_blocks = (eye.near == INF).reshape(-1, eye.blocks_x)
     cells = np.repeat(np.repeat(open_blocks, eye.side, 0), eye.side, 1)[:rows, :columns]
     share = float(cells.mean())
@@ -89,7 +96,7 @@ def keep(sky: Sky | None, rows, cols) -> np.ndarray | None:
 def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
     """(sample ids, colours) of the rectangle's eye rays that meet nothing, in id order: what
     each would have deposited."""
-    if sky is None or not sky.rgb.any():  # a black background brings nothing
+    if sky is None:
         return np.zeros(0, np.int64), np.zeros((0, 3))
     j, i = np.nonzero(sky.cells[rows[0] : rows[1], cols[0] : cols[1]])
     first = ((j + rows[0]) * sky.columns + i + cols[0]) * sky.per_cell
@@ -97,20 +104,22 @@ def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
     return ids, np.broadcast_to(sky.rgb, (len(ids), 3))
 
 
-def split(sky: Sky | None, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(the eye rays of `rays` to trace, DEPOSIT records of those that meet nothing, in their
-    order): what a batch of rays already made (an image-space node's tiles) leaves out."""
+def split(sky: Sky | None, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """(the eye rays of `rays` to trace, DEPOSIT records of those that meet nothing in their
+    order, how many meet nothing): what a batch of rays already made (a mesh node's) leaves
+    out. A black background deposits nothing, as `deposits.lit` keeps nothing black."""
     if sky is None or len(rays) == 0:
-        return rays, np.zeros(0, DEPOSIT)
+        return rays, np.zeros(0, DEPOSIT), 0
     met = sky.cells.reshape(-1)[rays["pixel"] // sky.per_cell]
-    if not met.any():
-        return rays, np.zeros(0, DEPOSIT)
-    if not sky.rgb.any():  # a black background: no deposit, as `deposits.lit` keeps none
-        return rays[~met], np.zeros(0, DEPOSIT)
-    out = np.empty(int(met.sum()), DEPOSIT)
+    escaped = int(np.count_nonzero(met))
+    if escaped == 0:
+        return rays, np.zeros(0, DEPOSIT), 0
+    if not sky.rgb.any():
+        return rays[~met], np.zeros(0, DEPOSIT), escaped
+    out = np.empty(escaped, DEPOSIT)
     out["pixel"] = rays["pixel"][met]
     out["rgb"] = sky.rgb
-    return rays[~met], out
+    return rays[~met], out, escaped
 
 
 def counted(counts: dict, escaped: int) -> dict:

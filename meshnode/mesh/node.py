@@ -19,7 +19,7 @@ from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
-from meshnode.engine.sky import Sky, counted, looked_for, sky_of, split
+from meshnode.engine.sky import Sky, counted, looked_for, seen, sky_of, split
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
@@ -121,20 +121,24 @@ class NodeCore:
                 f"of {spec.plan.node_bytes} (MeshPlan.node_bytes)"
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
-        self.sky, self.sky_reason = self._sky()
         self.eye, self.eye_reason = self._eye_map()
+        self.sky, self.sky_reason = self._sky()
         self.claims, self.claims_reason = self._claims()
         self.eye = routing_map(self.eye, list(spec.plan.held(node)))
 
     def _sky(self) -> tuple[Sky | None, str]:
-        """Image space: the cells whose eye rays meet nothing (`meshnode.engine.sky`), from
-        the map the host sends where the sky is looked for; None elsewhere."""
+        """The cells whose eye rays meet nothing (`meshnode.engine.sky`), deposited here
+        untraced: in object space those the eye map shows, in image space from the map the
+        host sends where the sky is looked for; None under a camera."""
         spec, part = self.spec, self.part
-        if spec.plan.mode != "image" or spec.camera is not None:
-            return None, "not looked for: object space, or a camera makes the eye rays"
+        background = self.engine.shading.background
+        if spec.plan.mode == "object":
+            return seen(self.eye, self.eye_reason, spec.image, background)
+        if spec.camera is not None:
+            return None, "not looked for: a camera makes the eye rays"
         if (part.occ_res, part.occ_bits) == EVERYWHERE:
             return None, looked_for(spec.image) or "no occupancy map sent"
-        occupancy, background = (part.occ_res, part.occ_bits), self.engine.shading.background
+        occupancy = (part.occ_res, part.occ_bits)
         return sky_of(part.scene_box, occupancy, self.view, spec.image, background)
 
     def _eye_map(self) -> tuple[EyeMap, str]:
@@ -305,8 +309,8 @@ class NodeCore:
         simulated, 384x384 at 32 spp: 593 engine calls, 310 of them under 8,192 rays; 508
         merged)."""
         began = time.thread_time()
-        # image space: eye rays that meet nothing deposit the background, untraced
-        rays, sky = split(self.sky, rays) if primary else (rays, np.zeros(0, DEPOSIT))
+        # eye rays that meet nothing deposit the background, untraced and not routed
+        rays, sky, escaped = split(self.sky, rays) if primary else (rays, rays[:0], 0)
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
@@ -318,7 +322,7 @@ class NodeCore:
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))
         held: dict[int, list] = {}
         deposits, cpu = ([sky] if len(sky) else []), 0.0
-        counted(counts, len(sky))
+        counted(counts, escaped)
         for taker, batch in todo.items():
             if taker in outgoing or len(batch) == 0:
                 continue

@@ -142,7 +142,9 @@ def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, mon
         monkeypatch.setattr(core, "_eye_map", made_here or (lambda self: (NO_EYE_MAP, "off")))
         runs[use] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
-    assert img.tobytes() == ref.tobytes()
+    # the eye rays the map shows meet nothing are not made (`meshnode.engine.sky`), so the
+    # batches differ and deposits from several nodes may reach a pixel in another order
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
     for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit"):
         assert totals[k] == ref_totals[k], k
     assert [n.rays_sent for n in nodes] == [n.rays_sent for n in ref_nodes]

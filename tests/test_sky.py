@@ -115,13 +115,14 @@ def _traced_alone(scene, image):
 )
 def test_mesh_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypatch, plan):
     # In image space the host sends the occupancy map where the sky is looked for, and each
-    # node leaves the eye rays it shows meet nothing out of its kernel calls, depositing the
-    # background itself; in object space every node does so from its eye map.
+    # node makes none of the eye rays it shows meet nothing, a batch of their deposits
+    # standing for them; in object space every node does so from its eye map.
     scene = read_nff(spd_scene("tetra_s2.nff"))
     ref, counts = _traced_alone(scene, ImageSpec(width=40, height=32, spp=3))
     monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
-    split, left_out = node.split, []
-    monkeypatch.setattr(node, "split", lambda s, r: left_out.append(split(s, r)) or left_out[-1])
+    made, stood, eye, batch = [], [], node.eye_rays, node.sky_batch
+    monkeypatch.setattr(node, "eye_rays", lambda *a, **k: made.append(eye(*a, **k)) or made[-1])
+    monkeypatch.setattr(node, "sky_batch", lambda *a: stood.append(batch(*a)) or stood[-1])
     img, totals, _, _ = render_mesh(scene, 2, 2, 1, 40, 32, spp=3, **plan)
     if plan["mode"] == "image":  # a pixel's samples summed on one node, in the same order
         assert np.array_equal(img, ref)
@@ -132,8 +133,12 @@ def test_mesh_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypat
         assert {k: totals[k] for k in (*RAY_COUNTS, "escaped")} == {
             k: counts[k] for k in (*RAY_COUNTS, "escaped")
         }
-    untraced = sum(escaped for _, _, escaped in left_out)
-    assert 0 < untraced < counts["escaped"]  # tetra's sky, of the rays that escape
+    made_ids = np.concatenate([r["pixel"] for r in made])
+    sky_ids = np.concatenate([d["pixel"] for d in stood])
+    assert len(np.intersect1d(made_ids, sky_ids)) == 0  # every eye ray made or stood for once
+    assert len(made_ids) + len(sky_ids) == counts["eye_rays"]
+    assert 0 < len(sky_ids) < counts["escaped"]  # tetra's sky, of the rays that escape
+    assert (np.concatenate(stood)["rgb"] == np.asarray(scene.background)).all()
 
 
 def test_image_space_over_tcp_with_the_sky_equals_one_node(monkeypatch):

@@ -1,9 +1,10 @@
 """Eye rays that meet nothing, not traced: the sample-grid cells whose every pinhole eye ray
 the scene's occupancy map, seen from the eye (`meshnode.engine.sightlines`), shows meets no
 occupied voxel take the background as those rays would have brought it, with their counts.
-One process does not even make them (`keep`, `deposits`); a mesh node, whose batches are
-made before they are traced, leaves them out of its routing and kernel calls (`split`): in
-object space those its eye map shows, in image space from the map the host sends.
+Neither one process (`keep`, `deposits`) nor a mesh node makes them: a node's primary batch
+of DEPOSIT records (`sky_batch`) stands for them, deposited and counted with no routing and
+no kernel call; in object space the node's eye map shows them, in image space the map the
+host sends.
 
 Such rays are 68% of tetra's at 256x256; made and traced, each cost one node about 36 ns (7
 to make, 29 to find its packet empty and escape). Exact: the map is conservative, so each
@@ -19,7 +20,7 @@ import numpy as np
 from meshnode.engine.occupancy import Occupancy
 from meshnode.engine.sightlines import INF, EyeMap, eye_map
 from protocols.dtypes import DEPOSIT
-from protocols.render import ImageSpec
+from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
 from protocols.scene import View
 
 # Eye rays a render must make for the sky to be looked for: the map and its view cost 10-50 ms
@@ -58,6 +59,20 @@ def sky_of(box, occupancy, view: View, image: ImageSpec, background) -> tuple[Sk
     return seen(eye, why, image, background)
 
 
+def node_sky(spec: RenderSpec, part, view: View, eye: EyeMap, why: str, background):
+    """A mesh node's (`Sky` or None, why) (`part`: its Partition): in object space the one
+    its eye map (`eye`, made as `why` says) shows, in image space from the map the host
+    sends where the sky is looked for; None under a camera."""
+    if spec.plan.mode == "object":
+        return seen(eye, why, spec.image, background)
+    if spec.camera is not None:
+        return None, "not looked for: a camera makes the eye rays"
+    if (part.occ_res, part.occ_bits) == EVERYWHERE:
+        return None, looked_for(spec.image) or "no occupancy map sent"
+    occupancy = (part.occ_res, part.occ_bits)
+    return sky_of(part.scene_box, occupancy, view, spec.image, background)
+
+
 def seen(eye: EyeMap, why: str, image: ImageSpec, background) -> tuple[Sky | None, str]:
     """The `Sky` an `EyeMap` of `image`'s pinhole eye rays shows (its blocks that see no
     occupied voxel; `why`: what the map's making said), None where there is none."""
@@ -85,12 +100,26 @@ def _occupied(box, res, bits: bytes) -> Occupancy:
     return Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, (1 - full)[None, :])
 
 
-def keep(sky: Sky | None, rows, cols) -> np.ndarray | None:
-    """Per sample-grid cell of the rectangle (rows by columns), whether its eye rays are made
-    (`camera.eye_rays`' keep); None: all of them."""
+def cells_of(sky: Sky | None, rows, cols) -> np.ndarray:
+    """Per sample-grid cell of the rectangle (rows by columns), whether its eye rays meet
+    nothing."""
     if sky is None:
-        return None
-    return ~sky.cells[rows[0] : rows[1], cols[0] : cols[1]]
+        return np.zeros((rows[1] - rows[0], cols[1] - cols[0]), bool)
+    return sky.cells[rows[0] : rows[1], cols[0] : cols[1]]
+
+
+def keep(sky: Sky | None, rows, cols) -> np.ndarray | None:
+    """Per sample-grid cell of the rectangle, whether its eye rays are made (`camera.eye_rays`'
+    keep); None: all of them."""
+    return None if sky is None else ~cells_of(sky, rows, cols)
+
+
+def _ids(flags: np.ndarray, y: int, x: int, sky: Sky) -> np.ndarray:
+    """Sample ids of the flagged cells of a rectangle whose first cell is (`y`, `x`), in id
+    order."""
+    j, i = np.nonzero(flags)
+    first = ((j + y) * sky.columns + i + x) * sky.per_cell
+    return (first[:, None] + np.arange(sky.per_cell)).ravel()
 
 
 def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
@@ -98,28 +127,20 @@ def deposits(sky: Sky | None, rows, cols) -> tuple[np.ndarray, np.ndarray]:
     each would have deposited."""
     if sky is None:
         return np.zeros(0, np.int64), np.zeros((0, 3))
-    j, i = np.nonzero(sky.cells[rows[0] : rows[1], cols[0] : cols[1]])
-    first = ((j + rows[0]) * sky.columns + i + cols[0]) * sky.per_cell
-    ids = (first[:, None] + np.arange(sky.per_cell)).ravel()
+    ids = _ids(cells_of(sky, rows, cols), rows[0], cols[0], sky)
     return ids, np.broadcast_to(sky.rgb, (len(ids), 3))
 
 
-def split(sky: Sky | None, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """(the eye rays of `rays` to trace, DEPOSIT records of those that meet nothing in their
-    order, how many meet nothing): what a batch of rays already made (a mesh node's) leaves
-    out. A black background deposits nothing, as `deposits.lit` keeps nothing black."""
-    if sky is None or len(rays) == 0:
-        return rays, np.zeros(0, DEPOSIT), 0
-    met = sky.cells.reshape(-1)[rays["pixel"] // sky.per_cell]
-    escaped = int(np.count_nonzero(met))
-    if escaped == 0:
-        return rays, np.zeros(0, DEPOSIT), 0
-    if not sky.rgb.any():
-        return rays[~met], np.zeros(0, DEPOSIT), escaped
-    out = np.empty(escaped, DEPOSIT)
-    out["pixel"] = rays["pixel"][met]
-    out["rgb"] = sky.rgb
-    return rays[~met], out, escaped
+def sky_batch(sky: Sky | None, flags: np.ndarray, y: int, x: int) -> np.ndarray:
+    """A mesh node's primary batch standing for the eye rays that meet nothing of the flagged
+    cells of a rectangle whose first cell is (`y`, `x`): their DEPOSIT records, each the
+    background, in id order (none: no cell flagged, or no sky)."""
+    if sky is None or not flags.any():
+        return np.zeros(0, DEPOSIT)
+    ids = _ids(flags, y, x, sky)
+    out = np.empty(len(ids), DEPOSIT)
+    out["pixel"], out["rgb"] = ids, sky.rgb
+    return out
 
 
 def counted(counts: dict, escaped: int) -> dict:

@@ -19,7 +19,7 @@ from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
 from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
-from meshnode.engine.sky import Sky, counted, looked_for, seen, sky_of, split
+from meshnode.engine.sky import cells_of, counted, node_sky, sky_batch
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
@@ -122,24 +122,10 @@ class NodeCore:
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
         self.eye, self.eye_reason = self._eye_map()
-        self.sky, self.sky_reason = self._sky()
+        background, eye = self.engine.shading.background, (self.eye, self.eye_reason)
+        self.sky, self.sky_reason = node_sky(spec, part, self.view, *eye, background)
         self.claims, self.claims_reason = self._claims()
         self.eye = routing_map(self.eye, list(spec.plan.held(node)))
-
-    def _sky(self) -> tuple[Sky | None, str]:
-        """The cells whose eye rays meet nothing (`meshnode.engine.sky`), deposited here
-        untraced: in object space those the eye map shows, in image space from the map the
-        host sends where the sky is looked for; None under a camera."""
-        spec, part = self.spec, self.part
-        background = self.engine.shading.background
-        if spec.plan.mode == "object":
-            return seen(self.eye, self.eye_reason, spec.image, background)
-        if spec.camera is not None:
-            return None, "not looked for: a camera makes the eye rays"
-        if (part.occ_res, part.occ_bits) == EVERYWHERE:
-            return None, looked_for(spec.image) or "no occupancy map sent"
-        occupancy = (part.occ_res, part.occ_bits)
-        return sky_of(part.scene_box, occupancy, self.view, spec.image, background)
 
     def _eye_map(self) -> tuple[EyeMap, str]:
         """The occupancy map seen from the eye, for routing the eye rays this node makes in
@@ -283,17 +269,24 @@ class NodeCore:
         return books.release() if books is not None else {}
 
     def _claimed_batches(self):
-        """The eye rays of every sample-grid cell this node claims, in bands of rows."""
-        mine = self.claims == self.node
-        for y0, y1, x0, x1 in claimed_bands(mine, self.eye.per_cell, self.eye_batch):
-            keep = mine[y0:y1, x0:x1]
-            yield eye_rays(self.view, self.spec.image, rows=(y0, y1), cols=(x0, x1), keep=keep)
+        """The eye rays of every sample-grid cell this node claims."""
+        return self._made(self.claims == self.node, 0, 0)
 
     def _eye_batches(self, rect):
         x0, x1, y0, y1 = rect
-        rows = max(1, self.eye_batch // max(1, (x1 - x0) * self.spec.image.spp))
-        for y in range(y0, y1, rows):
-            yield eye_rays(self.view, self.spec.image, rows=(y, min(y + rows, y1)), cols=(x0, x1))
+        return self._made(np.ones((y1 - y0, x1 - x0), bool), y0, x0)
+
+    def _made(self, flags: np.ndarray, y: int, x: int):
+        """Batches of the eye rays of the flagged cells of a rectangle whose first cell is
+        (`y`, `x`), in bands of rows of about `eye_batch` rays; those that meet nothing last,
+        as one batch of their deposits (`sky.sky_batch`), made and traced by no one."""
+        image, (h, w) = self.spec.image, flags.shape
+        nothing = flags & cells_of(self.sky, (y, y + h), (x, x + w))
+        made, per_cell = flags & ~nothing, 1 if image.corners() else image.spp
+        for y0, y1, x0, x1 in claimed_bands(made, per_cell, self.eye_batch):
+            rows, cols = (y + y0, y + y1), (x + x0, x + x1)
+            yield eye_rays(self.view, image, rows=rows, cols=cols, keep=made[y0:y1, x0:x1])
+        yield sky_batch(self.sky, nothing, y, x)
 
     def trace(self, rays: np.ndarray, primary: bool = False, taker: int | None = None) -> Batch:
         """Trace a batch here, with the engine of node `taker` (this node's own when None, or
@@ -309,8 +302,8 @@ class NodeCore:
         simulated, 384x384 at 32 spp: 593 engine calls, 310 of them under 8,192 rays; 508
         merged)."""
         began = time.thread_time()
-        # eye rays that meet nothing deposit the background, untraced and not routed
-        rays, sky, escaped = split(self.sky, rays) if primary else (rays, rays[:0], 0)
+        if rays.dtype == DEPOSIT:  # eye rays that meet nothing: their deposits (`sky`)
+            return self._sky_deposits(rays, began)
         todo = {self.node if taker is None else taker: rays}
         if primary and self.spec.plan.mode == "object" and len(self.los) > 1:
             # from where each ray's work starts (the map's first occupied voxel); a ray that
@@ -321,10 +314,9 @@ class NodeCore:
         outgoing = {d: [g] for d, g in todo.items() if d != self.node and d not in self.copies}
         counts: Counter = Counter(rays_forwarded=sum(len(g[0]) for g in outgoing.values()))
         held: dict[int, list] = {}
-        deposits, cpu = ([sky] if len(sky) else []), 0.0
-        counted(counts, escaped)
+        deposits, cpu = [], 0.0
         for taker, batch in todo.items():
-            if taker in outgoing or len(batch) == 0:
+            if taker in outgoing:
                 continue
             engine = self.engine if taker == self.node else self.copies[taker]
             cpu -= time.thread_time()
@@ -340,6 +332,15 @@ class NodeCore:
         routes = self.pixel_routes(deposits)
         counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
         return Batch(routes, outgoing, dict(counts), _joined(held))
+
+    def _sky_deposits(self, sky: np.ndarray, began: float) -> Batch:
+        """A batch standing for eye rays that meet nothing (`sky.sky_batch`): deposited and
+        counted as traced (a black background deposits nothing, as `lit` keeps nothing)."""
+        lit = sky if self.sky.rgb.any() else sky[:0]
+        counts = counted({"cpu_seconds": 0.0}, len(sky))
+        routes = self.pixel_routes(lit)
+        counts["batch_cpu_seconds"] = time.thread_time() - began
+        return Batch(routes, {}, counts, {})
 
     def pixel_routes(self, deposits: np.ndarray) -> dict[int, np.ndarray]:
         """Deposits by where they go: the host, or under adaptive sampling the node owning

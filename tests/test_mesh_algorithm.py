@@ -421,9 +421,10 @@ def test_cells_cut_on_the_work_map_share_out_a_teapot_on_a_floor():
     family = report["simulated_busiest_vs_even_by_family"]
     # 0.53 of even's busiest against 0.99 since the units weigh each event by its fitted
     # cost (segments, which small cells add, weigh five hierarchy steps); it asked for half
-    # when every event was one unit
+    # when every event was one unit; 0.60 against 1.04 since eye rays that meet nothing are
+    # not traced (`meshnode.engine.sky`: no segment, no units)
     best = min(family["shared rows"], family["rows per column"])
-    assert family["work map"] < 0.6 * best and family[report["family"]] < 0.6 * best
+    assert family["work map"] < 0.65 * best and family[report["family"]] < 0.65 * best
     cost = node_costs(scene, spec, None, None, cells)
     assert cost.max() < 0.4 * cost.sum()
     ref_img, ref_counts = single(scene)

@@ -95,7 +95,9 @@ def _sky(scene: SceneData, image: ImageSpec, tracer: Engine):
     if not why:
         background = tracer.shading.background
         sky, why = sky_of(box, occupancy_map(scene, box), scene.view, image, background)
-    return sky, {"eye_rays": why, "cpu_seconds": time.process_time() - began}
+    untraced = 0 if sky is None else int(sky.cells.sum()) * sky.per_cell
+    spent = time.process_time() - began
+    return sky, {"eye_rays": why, "eye_rays_untraced": untraced, "cpu_seconds": spent}
 
 
 def pinhole_bands(grid_w: int, grid_h: int, spp: int) -> list[tuple[tuple, tuple]]:

@@ -10,7 +10,8 @@ Such rays are 68% of tetra's at 256x256; made and traced, each cost one node abo
 to make, 29 to find its packet empty and escape). Exact: the map is conservative, so each
 of those rays would have escaped; an eye ray weighs 1, so it deposits the background itself
 (0.0 + 1.0 * background), and a pixel's samples are all in one cell, so its sum is the
-same fold of the same values, to the bit.
+same fold of the same values, to the bit. Each is counted as made and escaped; no segment
+is traced for it, so `ray_segments` is less by one for each.
 """
 
 from typing import NamedTuple
@@ -144,9 +145,11 @@ def sky_batch(sky: Sky | None, flags: np.ndarray, y: int, x: int) -> np.ndarray:
 
 
 def counted(counts: dict, escaped: int) -> dict:
-    """`counts` of the rays traced with those of `escaped` eye rays that met nothing, as the
-    kernel counts one its packet found nothing for: a segment that escapes."""
+    """`counts` of the rays traced with those of `escaped` eye rays that met nothing: made
+    (or stood for) and escaped, but no segment traced (the work units count only what is
+    traced: a segment's 10 units for a ray that costs next to nothing made the work units of
+    tetra's 4x4 image space spread 13.40 of 16 where its CPU spread 15.82)."""
     if escaped:
-        for k in ("eye_rays", "ray_segments", "escaped"):
+        for k in ("eye_rays", "escaped"):
             counts[k] = counts.get(k, 0) + escaped
     return counts

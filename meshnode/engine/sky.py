@@ -6,8 +6,8 @@ of DEPOSIT records (`sky_batch`) stands for them, deposited and counted with no 
 no kernel call; in object space the node's eye map shows them, in image space the map the
 host sends.
 
-Such rays are 68% of tetra's at 256x256; made and traced, each cost one node about 36 ns (7
-to make, 29 to find its packet empty and escape). Exact: the map is conservative, so each
+Such rays are 68% of tetra's at 256x256; made and traced, each cost one process about 55 ns
+of its frame (7 to make, 29 for its packet to find nothing, the rest its deposit). Exact: the map is conservative, so each
 of those rays would have escaped; an eye ray weighs 1, so it deposits the background itself
 (0.0 + 1.0 * background), and a pixel's samples are all in one cell, so its sum is the
 same fold of the same values, to the bit. Each is counted as made and escaped; no segment
@@ -42,9 +42,9 @@ class Sky(NamedTuple):
 
 
 def looked_for(image: ImageSpec) -> str:
-    """Why the sky is not looked for in a pinhole render of `image` ("": it is). One rule
-    for one process and a mesh: a render's counts and work units are then the same on both
-    (a ray that meets nothing counts its escape and segment either way)."""
+    """Why the sky is not looked for in a pinhole render of `image` ("": it is): one rule
+    for one process and image space, so their segments and work units agree (object-space
+    nodes read it from the eye map they make anyway, at any size)."""
     columns, rows = image.sample_grid()
     rays = columns * rows * (1 if image.corners() else image.spp)
     if rays < SKY_MIN_RAYS:

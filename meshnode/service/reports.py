@@ -44,7 +44,7 @@ def stats_message(session: "Session") -> dict:
     report["engine_reused"] = s.core.engine_reused
     report["eye_map"] = s.core.eye_reason  # whether its eye rays' walks start from the eye's map
     report["eye_claims"] = s.core.claims_reason  # whether it made the eye rays it traces
-    report["sky"] = s.core.sky_reason  # image space: whether eye rays that meet nothing trace
+    report["sky"] = s.core.sky_reason  # whether eye rays that meet nothing are made
     report["copies"] = {str(m): e.stats for m, e in s.core.copies.items()}
     report["chunks_given"] = s.sched.chunks_given  # taken by neighbours (steal)
     report["chunks_taken"] = s.sched.chunks_taken

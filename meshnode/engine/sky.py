@@ -7,11 +7,11 @@ no kernel call; in object space the node's eye map shows them, in image space th
 host sends.
 
 Such rays are 68% of tetra's at 256x256; made and traced, each cost one process about 55 ns
-of its frame (7 to make, 29 for its packet to find nothing, the rest its deposit). Exact: the map is conservative, so each
-of those rays would have escaped; an eye ray weighs 1, so it deposits the background itself
-(0.0 + 1.0 * background), and a pixel's samples are all in one cell, so its sum is the
-same fold of the same values, to the bit. Each is counted as made and escaped; no segment
-is traced for it, so `ray_segments` is less by one for each.
+of its frame (7 to make, 29 for its packet to find nothing, the rest its deposit). Exact:
+the map is conservative, so each of those rays would have escaped; an eye ray weighs 1, so
+it deposits the background itself (0.0 + 1.0 * background), and a pixel's samples are all
+in one cell, so its sum is the same fold of the same values, to the bit. Each is counted
+as made and escaped; no segment is traced for it, so `ray_segments` is less by one each.
 """
 
 from typing import NamedTuple

@@ -11,6 +11,7 @@ import pytest
 from host.planning.occupancy import occupancy_map
 from host.planning.request import Request
 from host.run import oneprocess
+from host.run.summary import summary_line
 from host.scene.nff import read_nff
 from meshnode.engine import Engine, sky
 from meshnode.engine.camera import eye_rays
@@ -90,6 +91,8 @@ def test_a_render_with_the_sky_equals_one_tracing_every_eye_ray(monkeypatch, nam
     assert stats["rays"]["escaped"] == ref_stats["rays"]["escaped"]
     untraced = stats["sky"]["eye_rays_untraced"]  # made or not, escaped, but not traced
     assert stats["rays"]["ray_segments"] == ref_stats["rays"]["ray_segments"] - untraced
+    said = f"{untraced} eye rays meet nothing: not traced"
+    assert (said in summary_line("out.png", stats)) == (untraced > 0)  # beside the rays/s
     said = stats["sky"]["eye_rays"]
     assert ("meet nothing: the background deposited" in said) == ("balls" not in name), said
 

@@ -81,6 +81,8 @@ def summary_line(out, stats: dict) -> str:
         f"trace {stats['trace_seconds']:.3f} s  wall {stats['wall_seconds']:.3f} s  "
         f"{stats['rays_per_second']:.0f} rays/s"
     )
+    if untraced := stats.get("sky", {}).get("eye_rays_untraced", 0):  # counted, not traced
+        text += f" ({untraced} eye rays meet nothing: not traced)"
     if "mesh" in stats:
         mesh = stats["mesh"]
         return (

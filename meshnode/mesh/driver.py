@@ -102,7 +102,7 @@ class Driver:
         for taker, rays in batch.held.items():
             self.sched.rays_in(rays, message=False, taker=taker)
         if step is not None and step.tile >= 0:
-            self.traced.batch_traced(step.tile, batch.counts, len(step.rays))
+            self.traced.batch_traced(step.tile, batch.counts, self.core.stood_for(step.rays))
             if self.traced.done:  # out now, with its deposits: kept if another node is lost
                 self.flush()
 

@@ -333,11 +333,16 @@ class NodeCore:
         counts["batch_cpu_seconds"] = time.thread_time() - began  # routing and deposits too
         return Batch(routes, outgoing, dict(counts), _joined(held))
 
+    def stood_for(self, rays: np.ndarray) -> int:
+        """The eye rays a primary batch stands for: its rays, or under a batch of the sky's
+        cells (`sky.sky_batch`) their samples."""
+        return len(rays) * (self.sky.per_cell if rays.dtype == DEPOSIT else 1)
+
     def _sky_deposits(self, sky: np.ndarray, began: float) -> Batch:
         """A batch standing for eye rays that meet nothing (`sky.sky_batch`): deposited and
         counted as traced (a black background deposits nothing, as `lit` keeps nothing)."""
         lit = sky if self.sky.rgb.any() else sky[:0]
-        counts = counted({"cpu_seconds": 0.0}, len(sky))
+        counts = counted({"cpu_seconds": 0.0}, self.stood_for(sky))
         routes = self.pixel_routes(lit)
         counts["batch_cpu_seconds"] = time.thread_time() - began
         return Batch(routes, {}, counts, {})

@@ -255,7 +255,7 @@ class _Node(Driver):
         rec.batches += 1
         before = rec.cost
         rec.cpu += batch.counts.get("cpu_seconds", 0.0)
-        add_counts(rec.counts, batch.counts, len(step.rays) if step.primary else 0)
+        add_counts(rec.counts, batch.counts, self.core.stood_for(step.rays) if step.primary else 0)
         if step.primary:
             self.mesh._primary_work(step.rays, rec.cost - before)
         self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done

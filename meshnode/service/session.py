@@ -313,10 +313,10 @@ class Session(Driver):
             batch = await loop.run_in_executor(
                 self.service.pool, self.core.trace, rays, primary, step.taker
             )
-            self.stats.traced(batch.counts, len(rays) if primary else 0)
+            self.stats.traced(batch.counts, self.core.stood_for(rays) if primary else 0)
             self.deliver(batch, step)
             if primary:
-                self.progress(len(rays))
+                self.progress(self.core.stood_for(rays))
         except Exception as e:  # noqa: BLE001 - the host must hear of it
             log.exception("node %d: tracing a batch failed", self.node)
             self.fail(e)

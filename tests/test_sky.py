@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from host.planning.occupancy import occupancy_map
+from host.planning.rectangles import guided_tiles, tile_grid
 from host.planning.request import Request
 from host.run import oneprocess
 from host.run.summary import summary_line
@@ -167,3 +168,34 @@ def test_image_space_over_tcp_with_the_sky_equals_one_node(monkeypatch):
     assert {k: stats["rays"][k] for k in kept} == {k: counts[k] for k in kept}
     assert stats["rays"]["ray_segments"] < counts["ray_segments"]  # the sky's are not traced
     assert all("meet nothing: the background deposited" in n["sky"] for n in stats["nodes"])
+    # the tiles all sky were deposited by the host and dealt to no node
+    tiles = stats["sky_tiles"]
+    assert 0 < tiles["tiles"] < tiles["of"]
+    assert sum(stats["tiles_per_node"]) == tiles["of"] - tiles["tiles"]
+
+
+def test_the_tiles_all_sky_are_those_every_cell_of_which_is_sky():
+    # A summed table of the cells that are not sky, against each tile's cells looked at.
+    rng = np.random.default_rng(5)
+    cells = rng.random((23, 31)) < 0.93
+    found = sky.Sky(cells, np.ones(3), 2, 31, np.full(3, 2.0))
+    rects = tile_grid(31, 23, 3)
+    want = [i for i, (x0, x1, y0, y1) in enumerate(rects) if cells[y0:y1, x0:x1].all()]
+    assert want and sky.whole_tiles(found, rects).tolist() == want
+    records = sky.tiles_batch(found, rects, want)  # a record a cell of those tiles
+    assert len(records) == sum((x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in (rects[i] for i in want))
+
+
+def test_the_last_tiles_dealt_are_small_though_the_last_rows_are_sky():
+    # The host deals no tile all sky, so the small tiles go where the last dealt tiles are.
+    width, height, t, last = 64, 64, 8, 6
+    cells = np.zeros((height, width), bool)
+    cells[40:] = True  # the bottom three tile rows: sky
+    found = sky.Sky(cells, np.ones(3), 1, width, np.ones(3))
+    rects = guided_tiles(width, height, t, last, found)
+    dealt = np.setdiff1d(np.arange(len(rects)), sky.whole_tiles(found, rects))
+    sides = [rects[i][1] - rects[i][0] for i in dealt]
+    assert set(sides[-last:]) == {t // 2} and sides[0] == t
+    assert guided_tiles(width, height, t, last) == guided_tiles(width, height, t, last, None)
+    plain = guided_tiles(width, height, t, last)  # no sky: the last row of eight, halved
+    assert [r[1] - r[0] for r in plain].count(t // 2) == 32

@@ -16,12 +16,30 @@ from host.planning.clip import holders
 from host.planning.objectcells import object_cells
 from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
+from host.planning.skytiles import SkyTiles, dealt_sky, sky_tiles
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.sky import looked_for
 from meshnode.engine.tables import build_tables
 from protocols.partition import Partition
 from protocols.render import EVERYWHERE, RenderSpec
 from protocols.scene import SceneData
+
+
+def image_partition(scene: SceneData, spec: RenderSpec) -> tuple[Partition, np.ndarray, SkyTiles]:
+    """Image space's partition, holders (every object on every node) and the tiles the host
+    deposits itself, for every eye ray of theirs meets nothing (`host.planning.skytiles`):
+    the scene's occupancy map goes to the nodes where the sky is looked for, and the dealt
+    tiles are cut around the sky's."""
+    plan, box = spec.plan, scene_box(scene)
+    los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
+    keep = np.ones((plan.nodes, build_tables(scene).n), bool)
+    occ = EVERYWHERE  # ... or the map the nodes see the sky from (`meshnode.engine.sky`)
+    if spec.camera is None and not looked_for(spec.image):
+        occ = occupancy_map(scene, box)
+    sky, why = dealt_sky(scene, spec, box, occ)
+    rects, owner = tiles(*spec.sample_grid, plan, sky)
+    part = Partition.make(rects, los, his, box, owner, occupancy=occ)
+    return part, keep, sky_tiles(sky, why, rects)
 
 
 def partition(
@@ -46,13 +64,7 @@ def partition(
     gw, gh = spec.sample_grid
     box = scene_box(scene)
     if plan.mode == "image":
-        rects, owner = tiles(gw, gh, plan)
-        los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
-        keep = np.ones((plan.nodes, build_tables(scene).n), bool)
-        occ = EVERYWHERE  # ... or the map the nodes see the sky from (`meshnode.engine.sky`)
-        if spec.camera is None and not looked_for(spec.image):
-            occ = occupancy_map(scene, box)
-        return Partition.make(rects, los, his, box, owner, occupancy=occ), keep
+        return image_partition(scene, spec)[:2]
     if cells is None and plan.balance == "objects":
         cells = object_cells(scene, box, plan.rows, plan.cols)
     elif cells is None:

@@ -6,7 +6,7 @@ work (a bad camera, too many nodes for the image) fails before any connection is
 """
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -15,10 +15,11 @@ from host.planning.budget import budgeted, holdings, refusal, report, retreats, 
 from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
-from host.planning.partition import partition
+from host.planning.partition import image_partition, partition
 from host.planning.prepass import node_costs
 from host.planning.replicas import with_replicas
 from host.planning.request import Request
+from host.planning.skytiles import SkyTiles
 from protocols.partition import Partition
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import SceneData
@@ -32,6 +33,7 @@ class Planned:
     camera: dict | None  # what the statistics say of the camera
     balance: dict  # how the cuts were chosen
     seconds: float  # planning time (autofocus probe and cost pre-pass included)
+    sky: SkyTiles = field(default_factory=SkyTiles)  # dynamic tiles the host deposits itself
 
 
 def plan_render(request: Request, memory: int = 0) -> Planned:
@@ -70,6 +72,9 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
         balance.update(report, seconds=time.perf_counter() - t0)
     if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):
         spec = replace(spec, plan=replace(plan, overlap=overlap, shared=shared))
+    if plan.mode == "image":
+        part, keep, sky = image_partition(scene, spec)
+        return Planned(spec, part, keep, info, balance, time.perf_counter() - start, sky)
     part, keep = partition(scene, spec, xs, ys, cells, occupancy, loads)
     if budgeted(spec.plan):
         spec, part, keep, balance["budget"] = _within_budget(

@@ -14,18 +14,21 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from host.planning.plan import Planned
+from host.planning.skytiles import SkyTiles
 from host.run.framebuffer import Framebuffer
 
 
 @dataclass(frozen=True)
 class Kept:
     """The tiles of the first try (`rects`, which every later try keeps), those traced whole
-    so far, the framebuffer's sums over their samples (0 elsewhere) and their ray counts."""
+    so far, the framebuffer's sums over their samples (0 elsewhere) and their ray counts;
+    `sky`: the first try's tiles the host deposits itself (`host.planning.skytiles`)."""
 
     rects: tuple
     tiles: frozenset
     sums: np.ndarray
     counts: dict
+    sky: SkyTiles
 
 
 def keeps_tiles(planned: Planned) -> bool:
@@ -48,7 +51,8 @@ def kept_after(kept: Kept | None, planned: Planned, fb: Framebuffer, collector) 
     for t in tiles:
         x0, x1, y0, y1 = rects[t]
         grid[y0:y1, x0:x1] = True
-    return Kept(rects, tiles, np.where(grid.reshape(-1, 1), fb.sums, 0.0), counts)
+    sums = np.where(grid.reshape(-1, 1), fb.sums, 0.0)
+    return Kept(rects, tiles, sums, counts, kept.sky if kept else planned.sky)
 
 
 def _columns(fb: Framebuffer) -> int:
@@ -65,7 +69,7 @@ def with_kept_tiles(planned: Planned, kept: Kept) -> Planned:
         rects=kept.rects,
         owner=tuple(i % nodes for i in range(len(kept.rects))),
     )
-    return replace(planned, partition=part)
+    return replace(planned, partition=part, sky=kept.sky)
 
 
 def recovery(kept: Kept | None, lost: bool) -> dict:

@@ -198,13 +198,16 @@ async def _attempt(
     spec = planned.spec
     width, height = spec.image.size
     fb = Framebuffer(width, height, spec.corners, spec.ids_per_cell)
-    dealer = _dealer(planned, kept.tiles if kept else frozenset())
+    sky = planned.sky
+    fb.add(sky.records["pixel"], sky.records["rgb"])
+    dealer = _dealer(planned, (kept.tiles if kept else frozenset()) | sky.tiles)
     collector = Collector(fb, names, progress, *patience, dealer, watch, observers.ready)
     if kept is not None:
         fb.sums += kept.sums  # the tiles traced whole before: dealt to nobody this time
-        if progress:
-            collector.traced = kept.counts.get("eye_rays", 0)
-            progress(collector.traced)
+    if progress and (kept is not None or sky.tiles):
+        collector.traced = (kept.counts if kept else {}).get("eye_rays", 0)
+        collector.traced += sky.counts.get("eye_rays", 0)
+        progress(collector.traced)
     attempt.planned, attempt.fb, attempt.collector = planned, fb, collector
     if watch is not None:
         watch.start(
@@ -236,8 +239,9 @@ async def _attempt(
     )
     summary["configure_seconds"] = sent - planned.seconds  # CONFIG and objects sent
     if kept is not None:  # the kept tiles' rays, traced by the lost try
-        for k, v in kept.counts.items():
-            summary["rays"][k] = summary["rays"].get(k, 0) + v
+        _add_counts(summary, kept.counts)
+    _add_counts(summary, sky.counts)  # ... and those of the tiles the sky fills
+    summary["sky_tiles"] = sky.stats
     summary["render"] = spec.to_wire() | {"camera": None}
     summary["balance"] = planned.balance
     summary["plan_seconds"] = planned.seconds
@@ -248,6 +252,12 @@ async def _attempt(
         if "refined_pixels" in summary["rays"]:
             planned.camera["refined_pixels"] = summary["rays"].pop("refined_pixels")
     return fb, summary
+
+
+def _add_counts(summary: dict, counts: dict) -> None:
+    """The summary's ray counts with `counts` (of tiles no node traced) added."""
+    for k, v in counts.items():
+        summary["rays"][k] = summary["rays"].get(k, 0) + v
 
 
 def _dealer(planned: Planned, kept=frozenset()) -> TileDealer | None:

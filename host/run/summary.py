@@ -83,6 +83,8 @@ def summary_line(out, stats: dict) -> str:
     )
     if untraced := stats.get("sky", {}).get("eye_rays_untraced", 0):  # counted, not traced
         text += f" ({untraced} eye rays meet nothing: not traced)"
+    if tiles := stats.get("sky_tiles", {}).get("tiles", 0):  # dealt to no node
+        text += f" ({tiles} of {stats['sky_tiles']['of']} tiles all sky: deposited by the host)"
     if "mesh" in stats:
         mesh = stats["mesh"]
         return (

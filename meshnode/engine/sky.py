@@ -166,3 +166,30 @@ def counted(counts: dict, escaped: int) -> dict:
         for k in ("eye_rays", "escaped"):
             counts[k] = counts.get(k, 0) + escaped
     return counts
+
+
+def whole_tiles(sky: Sky | None, rects) -> np.ndarray:
+    """Indices of the tiles (x0, x1, y0, y1 of the sample grid) every eye ray of which meets
+    nothing: under dynamic image space the host deposits them itself and deals them to no
+    node (a tile costs a node its messages and pixels whatever it traces: tetra 4x4 nodes
+    dealt the sky's tiles did 8% fewer work units in the same CPU). Counted from a summed
+    table of the cells that are not sky, so no loop over cells."""
+    if sky is None or len(rects) == 0:
+        return np.zeros(0, np.int64)
+    table = np.zeros((sky.cells.shape[0] + 1, sky.cells.shape[1] + 1), np.int64)
+    table[1:, 1:] = (~sky.cells).cumsum(0).cumsum(1)
+    x0, x1, y0, y1 = np.asarray(rects, np.int64).T
+    seen = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    return np.flatnonzero(seen == 0)
+
+
+def tiles_batch(sky: Sky | None, rects, tiles) -> np.ndarray:
+    """The DEPOSIT records (`sky_batch`: a record a cell) of the tiles `tiles` of `rects`,
+    whose every cell is sky (`whole_tiles`), in id order."""
+    if sky is None or len(tiles) == 0:
+        return np.zeros(0, DEPOSIT)
+    flags = np.zeros_like(sky.cells)
+    for t in tiles:  # once per tile, not per cell
+        x0, x1, y0, y1 = rects[t]
+        flags[y0:y1, x0:x1] = True
+    return sky_batch(sky, flags, 0, 0)

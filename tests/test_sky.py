@@ -17,7 +17,7 @@ from host.scene.nff import read_nff
 from meshnode.engine import Engine, sky
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import RAY_COUNTS
-from meshnode.mesh import node
+from meshnode.mesh import node, simulator
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
@@ -125,12 +125,15 @@ def test_mesh_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypat
     scene = read_nff(spd_scene("tetra_s2.nff"))
     ref, counts = _traced_alone(scene, ImageSpec(width=40, height=32, spp=3))
     monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
-    made, stood, eye, batch = [], [], node.eye_rays, node.sky_batch
+    made, stood, eye, batch, whole = [], [], node.eye_rays, node.sky_batch, simulator.tiles_batch
     monkeypatch.setattr(node, "eye_rays", lambda *a, **k: made.append(eye(*a, **k)) or made[-1])
     monkeypatch.setattr(node, "sky_batch", lambda *a: stood.append(batch(*a)) or stood[-1])
+    filled = []  # dynamic tiles: those all sky the host deposits, dealt to no node
+    monkeypatch.setattr(simulator, "tiles_batch", lambda *a: filled.append(whole(*a)) or filled[-1])
     img, totals, _, _ = render_mesh(scene, 2, 2, 1, 40, 32, spp=3, **plan)
+    assert (len(filled) > 0) == (plan.get("tiles") == "dynamic")
     made_ids = np.concatenate([r["pixel"] for r in made])
-    cells = np.concatenate(stood)  # a record a cell of 3 samples, under its first sample's id
+    cells = np.concatenate(stood + filled)  # a record a cell of 3 samples, its first id
     sky_ids = (cells["pixel"][:, None] + np.arange(3)).ravel()
     kept = (*RAY_COUNTS, "escaped")
     assert {k: totals[k] for k in kept} == {k: counts[k] for k in kept}

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from meshnode.engine.sky import counted, tiles_batch, whole_tiles
 from meshnode.mesh.adaptive import RectIndex
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.mesh.driver import Driver
@@ -75,9 +76,10 @@ class Outcome:
     # the node that made them (shared by ray count where a batch spans rectangles): what
     # dealing a rectangle to another holder of its cell moves (`host.planning.replicas`)
     tile_work: np.ndarray | None = None
+    host: dict = field(default_factory=dict)  # counts of the tiles the host fills (the sky's)
 
     def totals(self) -> dict[str, int]:
-        out: dict[str, int] = defaultdict(int)
+        out: dict[str, int] = defaultdict(int, self.host)
         for n in self.nodes:
             for k, v in n.counts.items():
                 out[k] += v
@@ -146,13 +148,28 @@ class _Mesh:
         self.transit: list = []  # (arrival round, destination, kind, payload)
         self.deposits: list = []
         self.round = 0
-        self.dealer = None
+        self.dealer, self.host = None, {}
         if spec.plan.dynamic:  # the host deals tiles; its messages take a round each way
-            order = deal_order(cores[0].part.rects, spec.plan.order)
-            self.dealer = TileDealer(order, torus.size, spec.plan.buffer, spec.adaptive)
+            rects = cores[0].part.rects
+            filled = self._sky_tiles(cores[0].sky if not spec.adaptive else None, rects)
+            order = [t for t in deal_order(rects, spec.plan.order) if t not in filled]
+            self.dealer = TileDealer(
+                order, torus.size, spec.plan.buffer, spec.adaptive, count=len(rects)
+            )
             for n, (tiles, last) in self.dealer.first().items():
                 owners = self.dealer.owners_with(last)
                 self._post((self._stamp(-1), n, "tiles", (tiles, last, owners)))
+
+    def _sky_tiles(self, sky, rects) -> set[int]:
+        """The tiles all sky, which the host deposits itself and deals to no node
+        (`host.planning.skytiles`): their records to the host's deposits, their counts to
+        its own."""
+        filled = whole_tiles(sky, rects)
+        if len(filled):
+            records = tiles_batch(sky, rects, filled)
+            self.deposits.append(records)
+            self.host = counted({}, len(records) * sky.per_cell)
+        return set(filled.tolist())
 
     def _stamp(self, src: int, late: int = 0) -> float:
         """When a message `src` sends now arrives (-1: the host): the next round."""
@@ -183,7 +200,9 @@ class _Mesh:
             for n in self.rng.permutation(len(self.cores)):
                 self._act(int(n))
         self._finish()
-        return Outcome(self.deposits, self.records, self.round, tile_work=self.tile_work)
+        return Outcome(
+            self.deposits, self.records, self.round, tile_work=self.tile_work, host=self.host
+        )
 
     def _primary_work(self, rays: np.ndarray, units: int) -> None:
         """A primary batch's work, shared over the rectangles its rays came from."""
@@ -344,7 +363,9 @@ class _TimedMesh(_Mesh):
                 f"simulated mesh: every node waits and nothing is in flight (node states {states})"
             )
         self._finish()
-        return Outcome(self.deposits, self.records, turns, float(self.clock.max()), self.tile_work)
+        return Outcome(
+            self.deposits, self.records, turns, float(self.clock.max()), self.tile_work, self.host
+        )
 
     def _deliver_one(self) -> None:
         """Hand over the earliest message in flight, waking the node it reaches."""

@@ -63,7 +63,11 @@ def with_replicas(
     began = time.process_time()
     before = partition_pass(scene, spec, part, keep)
     busiest, passed = float(costs(before).max()), rays_passed(before)
-    report = {"simulated_load": costs(before).tolist(), "simulated_rays_passed": passed}
+    report = {
+        "simulated_load": costs(before).tolist(),
+        "simulated_rays_passed": passed,
+        "simulated_busiest": busiest,  # ... with the copies chosen, below
+    }
     tries = _candidates(scene, spec, part, keep, before)
     if not tries:
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
@@ -94,6 +98,7 @@ def with_replicas(
         _dealt(part, at, weights),
         {
             **report,
+            "simulated_busiest": now,
             "chosen": [list(h) for h in at.plan.holds],
             "rule": rule,
             "why": f"the hottest {share:.0%} of the copies that fit, each on {HOLDER[rule]}: "

@@ -97,6 +97,10 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "single_cpu_seconds": cpu1,
         "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
         "node_batches": [n["batches"] for n in st["nodes"]],
+        # what the work and frame speedups' busiest node is the busiest of
+        "node_work_units": [work(n["rays"]) for n in st["nodes"]],
+        "node_frame_cpu_seconds": [n.get("frame_cpu_seconds", 0.0) for n in st["nodes"]],
+        "sky_tiles": st.get("sky_tiles", {}),
         "balance": st.get("balance"),
         "counts": {k: st["rays"][k] for k in COUNTS},
         "image": image.to_wire(),

@@ -175,6 +175,7 @@ def test_image_space_over_tcp_with_the_sky_equals_one_node(monkeypatch):
     tiles = stats["sky_tiles"]
     assert 0 < tiles["tiles"] < tiles["of"]
     assert sum(stats["tiles_per_node"]) == tiles["of"] - tiles["tiles"]
+    assert f"{tiles['tiles']} of {tiles['of']} tiles all sky" in summary_line("out", stats)
 
 
 def test_the_tiles_all_sky_are_those_every_cell_of_which_is_sky():

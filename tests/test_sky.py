@@ -203,3 +203,31 @@ def test_the_last_tiles_dealt_are_small_though_the_last_rows_are_sky():
     assert guided_tiles(width, height, t, last) == guided_tiles(width, height, t, last, None)
     plain = guided_tiles(width, height, t, last)  # no sky: the last row of eight, halved
     assert [r[1] - r[0] for r in plain].count(t // 2) == 32
+
+
+def test_a_frame_all_sky_is_deposited_by_the_host_and_every_node_ends(monkeypatch):
+    # No object in view: every tile is the sky's, no node is dealt one, and each is told
+    # at once it gets none; the image is the background, the counts one node's.
+    import asyncio
+
+    from host.run.connections import Nodes
+    from host.run.localmesh import LocalMesh
+    from host.run.meshclient import render_on_mesh
+    from tests.conftest import make_scene
+
+    scene = make_scene(spheres=[((0, 0, -20), 1.0, 0)], lights=[(5, 5, -5)])  # behind the eye
+    scene = replace(scene, background=(0.25, 0.5, 0.75))
+    image = ImageSpec(width=24, height=16, spp=2)
+    ref, counts = _traced_alone(scene, image)
+    monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
+    plan = MeshPlan(1, 2, mode="image", tiles="dynamic", tile=8)
+    with LocalMesh(plan.nodes) as addresses:
+        coro = render_on_mesh(
+            Request(scene, image, EngineSpec(threads=1), plan=plan), Nodes(addresses)
+        )
+        img, stats = asyncio.run(asyncio.wait_for(coro, 120))
+    assert stats["sky_tiles"]["tiles"] == stats["sky_tiles"]["of"] > 0
+    assert stats["tiles_per_node"] == [0, 0]
+    assert np.array_equal(img, ref)
+    kept = (*RAY_COUNTS, "escaped")
+    assert {k: stats["rays"][k] for k in kept} == {k: counts[k] for k in kept}

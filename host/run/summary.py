@@ -4,7 +4,7 @@ render's, summed from every node's STATS: how evenly the nodes worked and how mu
 scene each held (what object space saves).
 """
 
-from meshnode.engine.counters import WALK_COUNTS, spd_counts
+from meshnode.engine.counters import RAY_COUNTS, WALK_COUNTS, spd_counts
 from meshnode.mesh.stats import RAY_KINDS
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
@@ -103,7 +103,7 @@ def summarise(stats, plan: MeshPlan, keep, deposits, setup) -> dict:
     (`keep`, nodes x objects), the deposits the host received and the seconds to set up
     (the wall's and the rest of COMMON are the whole render's: `common`)."""
     nodes = [stats[n] for n in range(plan.nodes)]
-    totals: dict[str, int] = {}
+    totals: dict[str, int] = dict.fromkeys(RAY_COUNTS, 0)  # every count, though no node traced
     for s in nodes:
         for k, v in s["rays"].items():
             totals[k] = totals.get(k, 0) + v

@@ -125,11 +125,11 @@ def test_mesh_nodes_leave_the_sky_untraced_and_give_the_one_node_image(monkeypat
     scene = read_nff(spd_scene("tetra_s2.nff"))
     ref, counts = _traced_alone(scene, ImageSpec(width=40, height=32, spp=3))
     monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)
-    made, stood, eye, batch, whole = [], [], node.eye_rays, node.sky_batch, simulator.tiles_batch
+    made, stood, eye, batch, whole = [], [], node.eye_rays, node.sky_batch, simulator.filled
     monkeypatch.setattr(node, "eye_rays", lambda *a, **k: made.append(eye(*a, **k)) or made[-1])
     monkeypatch.setattr(node, "sky_batch", lambda *a: stood.append(batch(*a)) or stood[-1])
     filled = []  # dynamic tiles: those all sky the host deposits, dealt to no node
-    monkeypatch.setattr(simulator, "tiles_batch", lambda *a: filled.append(whole(*a)) or filled[-1])
+    monkeypatch.setattr(simulator, "filled", lambda *a: (r := whole(*a), filled.append(r[1]))[0])
     img, totals, _, _ = render_mesh(scene, 2, 2, 1, 40, 32, spp=3, **plan)
     assert (len(filled) > 0) == (plan.get("tiles") == "dynamic")
     made_ids = np.concatenate([r["pixel"] for r in made])
@@ -186,7 +186,7 @@ def test_the_tiles_all_sky_are_those_every_cell_of_which_is_sky():
     rects = tile_grid(31, 23, 3)
     want = [i for i, (x0, x1, y0, y1) in enumerate(rects) if cells[y0:y1, x0:x1].all()]
     assert want and sky.whole_tiles(found, rects).tolist() == want
-    records = sky.tiles_batch(found, rects, want)  # a record a cell of those tiles
+    records = sky.filled(found, rects)[1]  # a record a cell of those tiles
     assert len(records) == sum((x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in (rects[i] for i in want))
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.engine.sky import Sky, counted, sky_of, tiles_batch, whole_tiles
+from meshnode.engine.sky import Sky, filled, sky_of
 from protocols.dtypes import DEPOSIT
 from protocols.render import EVERYWHERE, RenderSpec
 from protocols.scene import SceneData
@@ -49,10 +49,9 @@ def dealt_sky(scene: SceneData, spec: RenderSpec, box, occupancy) -> tuple[Sky |
 def sky_tiles(sky: Sky | None, why: str, rects) -> SkyTiles:
     """The tiles of `rects` every eye ray of which meets nothing under `sky` (`why`: what
     finding it said), with their records and counts."""
-    tiles = whole_tiles(sky, rects)
+    tiles, records, counts = filled(sky, rects)
     if len(tiles) == 0:
         return SkyTiles(stats={"tiles": 0, "why": why if sky is None else f"{why}; no tile"})
-    records = tiles_batch(sky, rects, tiles)
-    rays = len(records) * sky.per_cell
+    rays = counts["eye_rays"]
     stats = {"tiles": len(tiles), "of": len(rects), "eye_rays": rays, "why": why}
-    return SkyTiles(frozenset(tiles.tolist()), records, counted({}, rays), stats)
+    return SkyTiles(frozenset(tiles.tolist()), records, counts, stats)

@@ -52,7 +52,7 @@ def kept_after(kept: Kept | None, planned: Planned, fb: Framebuffer, collector) 
         x0, x1, y0, y1 = rects[t]
         grid[y0:y1, x0:x1] = True
     sums = np.where(grid.reshape(-1, 1), fb.sums, 0.0)
-    return Kept(rects, tiles, sums, counts, kept.sky if kept else planned.sky)
+    return Kept(rects, tiles, sums, counts, planned.sky)  # a retry's: the first try's
 
 
 def _columns(fb: Framebuffer) -> int:

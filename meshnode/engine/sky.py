@@ -183,13 +183,16 @@ def whole_tiles(sky: Sky | None, rects) -> np.ndarray:
     return np.flatnonzero(seen == 0)
 
 
-def tiles_batch(sky: Sky | None, rects, tiles) -> np.ndarray:
-    """The DEPOSIT records (`sky_batch`: a record a cell) of the tiles `tiles` of `rects`,
-    whose every cell is sky (`whole_tiles`), in id order."""
-    if sky is None or len(tiles) == 0:
-        return np.zeros(0, DEPOSIT)
+def filled(sky: Sky | None, rects) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(indices, DEPOSIT records, counts) of the tiles of `rects` whose every cell is sky
+    (`whole_tiles`): what the host deposits and counts for them, a record a cell
+    (`sky_batch`) in id order, their eye rays made and escaped (`counted`)."""
+    tiles = whole_tiles(sky, rects)
+    if len(tiles) == 0:
+        return tiles, np.zeros(0, DEPOSIT), {}
     flags = np.zeros_like(sky.cells)
-    for t in tiles:  # once per tile, not per cell
+    for t in tiles.tolist():  # once per tile, not per cell
         x0, x1, y0, y1 = rects[t]
         flags[y0:y1, x0:x1] = True
-    return sky_batch(sky, flags, 0, 0)
+    records = sky_batch(sky, flags, 0, 0)
+    return tiles, records, counted({}, len(records) * sky.per_cell)

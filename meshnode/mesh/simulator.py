@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshnode.engine.sky import counted, tiles_batch, whole_tiles
+from meshnode.engine.sky import filled
 from meshnode.mesh.adaptive import RectIndex
 from meshnode.mesh.dealer import TileDealer, deal_order
 from meshnode.mesh.driver import Driver
@@ -164,12 +164,9 @@ class _Mesh:
         """The tiles all sky, which the host deposits itself and deals to no node
         (`host.planning.skytiles`): their records to the host's deposits, their counts to
         its own."""
-        filled = whole_tiles(sky, rects)
-        if len(filled):
-            records = tiles_batch(sky, rects, filled)
-            self.deposits.append(records)
-            self.host = counted({}, len(records) * sky.per_cell)
-        return set(filled.tolist())
+        tiles, records, self.host = filled(sky, rects)
+        self.deposits.append(records)
+        return set(tiles.tolist())
 
     def _stamp(self, src: int, late: int = 0) -> float:
         """When a message `src` sends now arrives (-1: the host): the next round."""

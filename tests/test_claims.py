@@ -100,12 +100,12 @@ def test_a_mesh_making_the_eye_rays_it_claims_renders_as_one_making_its_rectangl
     name, monkeypatch
 ):
     scene = read_nff(spd_scene(name))
-    core, used = meshnode.mesh.node.NodeCore, []
-    own = core._claims
+    node, used = meshnode.mesh.node, []
+    own = node.node_claims
     runs = {}
     for claim in (True, False):
-        claims_here = (lambda self: used.append(own(self)) or used[-1]) if claim else None
-        monkeypatch.setattr(core, "_claims", claims_here or (lambda self: (None, "off")))
+        claims_here = (lambda *a: used.append(own(*a)) or used[-1]) if claim else None
+        monkeypatch.setattr(node, "node_claims", claims_here or (lambda *a: (None, "off")))
         runs[claim] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
     # deposits arrive in another order: sums within round-off, as a mesh's against one node

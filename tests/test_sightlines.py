@@ -132,14 +132,14 @@ def test_routing_eye_rays_with_the_eye_map_changes_no_ray(name, spd):
 @pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff"])
 def test_a_mesh_routing_with_the_eye_map_renders_and_passes_as_without(name, monkeypatch):
     scene = read_nff(spd_scene(name))
-    core, made = meshnode.mesh.node.NodeCore, []
-    own = core._eye_map
+    node, made = meshnode.mesh.node, []
+    own = node.node_eye_map
     runs = {}
     # the eye map alone: which node makes an eye ray is `test_claims`'s
-    monkeypatch.setattr(core, "_claims", lambda self: (None, "off"))
+    monkeypatch.setattr(node, "node_claims", lambda *a: (None, "off"))
     for use in (True, False):
-        made_here = (lambda self: made.append(own(self)) or made[-1]) if use else None
-        monkeypatch.setattr(core, "_eye_map", made_here or (lambda self: (NO_EYE_MAP, "off")))
+        made_here = (lambda *a: made.append(own(*a)) or made[-1]) if use else None
+        monkeypatch.setattr(node, "node_eye_map", made_here or (lambda *a: (NO_EYE_MAP, "off")))
         runs[use] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
     (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
     # the eye rays the map shows meet nothing are not made (`meshnode.engine.sky`), so the

@@ -16,7 +16,7 @@ from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.partition import image_partition, partition
-from host.planning.prepass import node_costs
+from host.planning.prepass import node_costs, shared_engines
 from host.planning.replicas import with_replicas
 from host.planning.request import Request
 from host.planning.skytiles import SkyTiles
@@ -47,7 +47,13 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
     are overlaps for the pre-pass to choose among, the smallest first
     (`host.planning.balance.balanced_cuts` searches cuts at each; on even cuts
     `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not known.
-    Without overlaps the plan's own overlap is kept."""
+    Without overlaps the plan's own overlap is kept. Its simulated meshes share their
+    engines (`prepass.shared_engines`)."""
+    with shared_engines(request.plan.nodes):
+        return _planned(request, memory)
+
+
+def _planned(request: Request, memory: int) -> Planned:
     start = time.perf_counter()
     scene, engine, plan, camera = request.scene, request.engine, request.plan, request.camera
     image, overlaps = request.sized, request.auto.overlaps

@@ -26,11 +26,16 @@ import numpy as np
 from host.planning.budget import budgeted, cell_bytes, holdings, within
 from host.planning.holding import ratio
 from host.planning.placement import sends
-from host.planning.prepass import coarse_partition, costs, partition_pass, rays_passed
+from host.planning.prepass import (
+    coarse_partition,
+    costs,
+    partition_pass,
+    rays_passed,
+    simulated,
+)
 from host.planning.rectangles import spread
 from host.scene.subset import subset
 from meshnode.mesh.adaptive import RectIndex
-from meshnode.mesh.simulator import simulate
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -214,7 +219,7 @@ def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted)
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
     dealt = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))
-    weighed = simulate([subset(scene, keep[n]) for n in range(part.nodes)], coarse, dealt)
+    weighed = simulated([subset(scene, keep[n]) for n in range(part.nodes)], coarse, dealt)
     now, before = float(costs(weighed).max()), float(costs(counted).max())
     better = now < before
     full = _tile_weights(part, spec, coarse, cpart, weights) if better else None

@@ -27,11 +27,50 @@ import numpy as np
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.routing import start_cells
-from meshnode.engine.sightlines import SEEN_NONE, EyeMap
+from meshnode.engine.sightlines import NO_EYE_MAP, SEEN_NONE, EyeMap, eye_map
 from meshnode.mesh.adaptive import RectIndex
 from protocols.partition import Partition
-from protocols.render import ImageSpec, MeshPlan
+from protocols.render import ImageSpec, MeshPlan, RenderSpec
 from protocols.scene import View
+
+
+def node_eye_map(engines, engine, spec: RenderSpec, part: Partition, view: View, books):
+    """The occupancy map seen from the eye, for routing the eye rays a node makes in object
+    space (`meshnode.engine.sightlines`): pinhole rays made by pixel, not a lens's (they
+    leave the eye from all over it) nor adaptive sampling's (`books`). Made once for every
+    node on the same map (`EngineCache.sightlines`: a simulated mesh's nodes share it), as
+    (EyeMap, why)."""
+    if spec.plan.mode != "object" or len(part.cell_los) < 2:
+        return NO_EYE_MAP, "not used: one cell"
+    if spec.camera is not None or books is not None:
+        return NO_EYE_MAP, "not used: a lens or adaptive sampling makes the eye rays"
+    key = _seen_key("eye map", spec, part, view)
+    return engines.sightlines(
+        engine, key, lambda: eye_map(engine.occupancy, view, spec.image, part.cells)
+    )
+
+
+def node_claims(engines, engine, spec: RenderSpec, part: Partition, view: View, eye: EyeMap):
+    """(which node makes each sample's eye rays, why) under the eye map and static
+    rectangles (`eye_claims`; None where not used): a stolen chunk or a dealt tile is made
+    by whoever takes it. The blocks' cells are found once for every node on the same map."""
+    if not eye.near.shape[0]:
+        return None, "not used: no eye map"
+    if spec.plan.steal or spec.plan.dynamic:
+        return None, "not used: chunks are stolen or tiles dealt"
+    blocks = engines.sightlines(
+        engine,
+        _seen_key("blocks", spec, part, view),
+        lambda: block_cells(engine, part.cells, eye, view, spec.image),
+    )
+    return eye_claims(blocks, eye, part, spec.plan, spec.image.sample_grid())
+
+
+def _seen_key(what: str, spec: RenderSpec, part: Partition, view: View) -> tuple:
+    """What the eye's view of the map depends on beside the map (`EngineCache.sightlines`):
+    the view, the image and the cells."""
+    cells = tuple(np.ascontiguousarray(c, float).tobytes() for c in part.cells)
+    return (what, repr(view), repr(spec.image), *cells)
 
 
 def block_cells(engine, cells, eye: EyeMap, view: View, image: ImageSpec) -> np.ndarray:

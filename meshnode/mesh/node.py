@@ -18,12 +18,11 @@ from meshnode.engine.camera import eye_rays
 from meshnode.engine.deposits import cell_sums, lit
 from meshnode.engine.lenscamera import camera_batches, camera_rays, rect_pixels
 from meshnode.engine.raycheck import first_untraceable
-from meshnode.engine.sightlines import NO_EYE_MAP, EyeMap, eye_map
 from meshnode.engine.sky import cells_of, counted, node_sky, sky_batch
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
-from meshnode.mesh.claims import block_cells, claimed_bands, eye_claims, routing_map
+from meshnode.mesh.claims import claimed_bands, node_claims, node_eye_map, routing_map
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
@@ -121,32 +120,15 @@ class NodeCore:
                 f"of {spec.plan.node_bytes} (MeshPlan.node_bytes)"
             )
         self.books = NodeBooks(node, spec, part, self.view, self.feed) if spec.adaptive else None
-        self.eye, self.eye_reason = self._eye_map()
+        self.eye, self.eye_reason = node_eye_map(
+            engines, self.engine, spec, part, self.view, self.books
+        )
         background, eye = self.engine.shading.background, (self.eye, self.eye_reason)
         self.sky, self.sky_reason = node_sky(spec, part, self.view, *eye, background)
-        self.claims, self.claims_reason = self._claims()
+        self.claims, self.claims_reason = node_claims(
+            engines, self.engine, spec, part, self.view, self.eye
+        )
         self.eye = routing_map(self.eye, list(spec.plan.held(node)))
-
-    def _eye_map(self) -> tuple[EyeMap, str]:
-        """The occupancy map seen from the eye, for routing the eye rays this node makes in
-        object space (`meshnode.engine.sightlines`): pinhole rays made by pixel, not a lens's
-        (they leave the eye from all over it) nor adaptive sampling's."""
-        if self.spec.plan.mode != "object" or len(self.los) < 2:
-            return NO_EYE_MAP, "not used: one cell"
-        if self.spec.camera is not None or self.books is not None:
-            return NO_EYE_MAP, "not used: a lens or adaptive sampling makes the eye rays"
-        return eye_map(self.engine.occupancy, self.view, self.spec.image, self.cells)
-
-    def _claims(self) -> tuple[np.ndarray | None, str]:
-        """Which node makes each sample's eye rays (`claims.eye_claims`), under the eye map
-        and static rectangles: a stolen chunk or a dealt tile is made by whoever takes it."""
-        if not self.eye.near.shape[0]:
-            return None, "not used: no eye map"
-        if self.spec.plan.steal or self.feed is not None:
-            return None, "not used: chunks are stolen or tiles dealt"
-        image = self.spec.image
-        blocks = block_cells(self.engine, self.cells, self.eye, self.view, image)
-        return eye_claims(blocks, self.eye, self.part, self.spec.plan, image.sample_grid())
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary

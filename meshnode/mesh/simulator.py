@@ -96,17 +96,19 @@ def simulate(
     passed_min: int = PASSED_MIN,
     clock: str = "rounds",
     latency: float = LATENCY,
+    engines: EngineCache | None = None,
 ) -> Outcome:
     """Render on a simulated mesh; `scenes[n]` holds node n's objects. `delay` = (src, dst,
     rounds): messages on that link arrive that many rounds (clock "work": latencies) late;
     `eye_batch`: eye rays per primary batch (small ones interleave more); `passed_min`: the
     nodes' Scheduler's; `clock`: "rounds" or "work" (module docstring). Nodes with the same
     objects in the same box (image space) share one engine, so a simulated 16x16 builds it
-    once."""
+    once; `engines`: a cache kept across simulations (a plan's: the same boxes simulated
+    with other copies or dealing build once), else one for this simulation."""
     if clock not in ("rounds", "work"):
         raise ValueError(f"clock must be 'rounds' or 'work', not {clock!r}")
     plan = spec.plan
-    engines = EngineCache()
+    engines = EngineCache() if engines is None else engines
     cores = [NodeCore(n, scenes[n], spec, part, eye_batch, engines) for n in range(plan.nodes)]
     for n, core in enumerate(cores):  # MeshPlan.copies: the very engines the others trace with
         core.copies = {m: cores[m].engine for m in plan.held(n)[1:]}

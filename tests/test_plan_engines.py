@@ -1,0 +1,90 @@
+"""A plan's simulated meshes share their engines and what the eye sees of the map
+(`host.planning.prepass.shared_engines`, `EngineCache.sightlines`): the plan is the one made
+building everything anew for every simulation, and the shared things are made once."""
+
+import contextlib
+import json
+
+import numpy as np
+import pytest
+
+import host.planning.plan as plan_module
+import meshnode.mesh.claims as claims_module
+from host.planning import objectwork, prepass
+from host.planning.plan import plan_render
+from host.planning.request import Auto, Request
+from host.scene.nff import read_nff
+from meshnode.mesh.engines import EngineCache
+from protocols.render import EngineSpec, ImageSpec, MeshPlan
+from tests.conftest import spd_scene
+
+
+def _decisions(report):
+    """A plan's report without what a clock measured (CPU seconds, the rounds afforded)."""
+    if isinstance(report, dict):
+        return {k: _decisions(v) for k, v in report.items() if "seconds" not in k}
+    if isinstance(report, list):
+        return [_decisions(v) for v in report]
+    return report
+
+
+@pytest.mark.parametrize(
+    "name, shape, share", [("balls_s2.nff", (3, 3), 0.25), ("teapot_s1.nff", (2, 2), 0.5)]
+)
+def test_a_plan_with_shared_engines_is_the_plan_made_without(name, shape, share, monkeypatch):
+    # the rounds of re-cutting are afforded from measured CPU: fixed, so both plans cut alike
+    monkeypatch.setattr(objectwork, "_affordable", lambda spec, one, units: (2, "fixed"))
+    scene = read_nff(spd_scene(name))
+    plan = MeshPlan(*shape, 1.0, "objects", "object", "static", max_share=share)
+    request = Request(
+        scene, ImageSpec(96, 96, spp=2), EngineSpec(threads=1), plan=plan, auto=Auto()
+    )
+    made = []
+    eye_map = claims_module.eye_map
+    monkeypatch.setattr(claims_module, "eye_map", lambda *a: made.append(1) or eye_map(*a))
+    shared = plan_render(request)
+    shared_maps = len(made)
+    monkeypatch.setattr(plan_module, "shared_engines", lambda nodes: contextlib.nullcontext())
+    meshes = []
+    simulate = prepass.simulate
+    monkeypatch.setattr(prepass, "simulate", lambda *a, **k: meshes.append(1) or simulate(*a, **k))
+    alone = plan_render(request)
+    assert shared.partition == alone.partition
+    assert np.array_equal(shared.holders, alone.holders)
+    assert shared.spec == alone.spec
+    assert json.dumps(_decisions(shared.balance), default=str) == json.dumps(
+        _decisions(alone.balance), default=str
+    )
+    # the eye's view of a map is made once a simulated mesh (never once a node), and once a
+    # plan where its simulations share the map and the cells
+    simulations = len(made) - shared_maps
+    assert simulations == len(meshes)
+    assert 0 < shared_maps < simulations, (shared_maps, simulations)
+
+
+def test_sightlines_are_made_once_for_every_engine_on_one_map():
+    from meshnode.engine import Engine
+
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    box = (np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))
+    bits = bytes([0b10100101]) * 8  # a 4x4x4 map
+    engines = [
+        Engine.from_spec(scene, EngineSpec(), box=b, scene_box=box, occupancy=((4, 4, 4), bits))
+        for b in (box, (box[0], np.zeros(3)))
+    ]
+    cache, calls = EngineCache(), []
+
+    def make():
+        calls.append(1)
+        return object()
+
+    first = cache.sightlines(engines[0], ("eye map", "view", "cells"), make)
+    # another engine on the same map and scene box: the same made thing
+    assert cache.sightlines(engines[1], ("eye map", "view", "cells"), make) is first
+    # other cells, or another map: made again
+    assert cache.sightlines(engines[0], ("eye map", "view", "other cells"), make) is not first
+    other = Engine.from_spec(
+        scene, EngineSpec(), box=box, scene_box=box, occupancy=((4, 4, 4), bytes(8))
+    )
+    assert cache.sightlines(other, ("eye map", "view", "cells"), make) is not first
+    assert len(calls) == 3

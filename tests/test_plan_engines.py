@@ -88,3 +88,28 @@ def test_sightlines_are_made_once_for_every_engine_on_one_map():
     )
     assert cache.sightlines(other, ("eye map", "view", "cells"), make) is not first
     assert len(calls) == 3
+
+
+def test_boxes_clipped_before_are_not_clipped_again_and_hold_the_same_objects(monkeypatch):
+    from host.planning import clip
+    from host.scene.derived import scene_tables
+
+    scene = read_nff(spd_scene("gears_s1.nff"))  # triangles and polygons: the edge tests too
+    tb = scene_tables(scene)
+    lo, hi = tb.lo.min(axis=0), tb.hi.max(axis=0)
+    rng = np.random.default_rng(3)
+    corners = np.sort(rng.uniform(lo, hi, (2, 6, 3)), axis=0)
+    los, his = corners[0], corners[1]
+    fresh = clip._clipped(scene, los, his)
+    clipped = []
+    own = clip._clipped
+    monkeypatch.setattr(clip, "_clipped", lambda s, a, b: clipped.append(len(a)) or own(s, a, b))
+    first = clip.holders(scene, los[:4], his[:4])
+    again = clip.holders(scene, los, his)  # four of six clipped before
+    assert clipped == [4, 2]
+    assert np.array_equal(first, fresh[:4]) and np.array_equal(again, fresh)
+    again[:] = False  # the caller's array: what is kept does not change
+    assert np.array_equal(clip.holders(scene, los, his), fresh) and clipped == [4, 2]
+    # another scene object (the same file read again) is clipped anew
+    clip.holders(read_nff(spd_scene("gears_s1.nff")), los[:1], his[:1])
+    assert clipped == [4, 2, 1]

@@ -14,15 +14,15 @@ pre-pass may instead cut the cells where its work map puts the work (`host.plann
 import numpy as np
 
 from host.planning.rectangles import column_rows, splits
+from host.scene.derived import scene_tables
 from meshnode.engine.camera import view_basis
 from meshnode.engine.grid import grow_box
-from meshnode.engine.tables import build_tables
 from protocols.scene import SceneData, View
 
 
 def scene_box(scene: SceneData) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of every object, padded as the grid pads them."""
-    tb = build_tables(scene)
+    tb = scene_tables(scene)
     if not tb.n:
         return np.zeros(3), np.ones(3)
     return grow_box(tb.lo.min(axis=0), tb.hi.max(axis=0))

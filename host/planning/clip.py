@@ -6,9 +6,11 @@ so correctness never depends on how tight the test is, only the memory and the w
 
 import numpy as np
 
-from meshnode.engine.tables import build_tables, segments, triangle_normals
+from host.scene.derived import kept, scene_tables
+from meshnode.engine.tables import segments, triangle_normals
 from protocols.scene import SceneData
 
+KEPT_BYTES = 64 << 20  # boxes' holders kept for a scene at most (`holders`: a byte a object)
 EDGE_TESTS_UP_TO = 16  # vertices: a polygon with more keeps its bounds and plane tests only
 # (its edge tests cost a pair per edge and vertex: gears' 128 faces of 144 vertices took 1 s
 # of a 3x3 plan; conservative, so at worst a node holds a face it never meets)
@@ -59,7 +61,7 @@ def _edge_separated(scene: SceneData, tb, los, his, candidates: np.ndarray) -> n
     """(boxes, flat shapes) bool: the separating-axis tests that bounds and plane tests leave
     out (edges crossed with the box axes), run only on each box's remaining candidates. With
     those, exact for triangles and convex polygons; a concave polygon may be kept needlessly."""
-    verts, starts, counts = _flat_shapes(scene, tb)
+    verts, starts, counts = kept(scene, "flat shapes", lambda: _flat_shapes(scene, tb))
     separated = np.zeros(candidates.shape, np.bool_)
     for b in range(len(los)):  # one pass per node box, over the shapes its bounds admit
         idx = np.flatnonzero(candidates[b])
@@ -75,8 +77,24 @@ def holders(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
     the box; triangles and polygons must pass the separating-axis tests (their plane, and
     their edges crossed with the box axes, for those crossing the box's faces with at most
     EDGE_TESTS_UP_TO vertices); cones only their bounds (conservative: a node may hold an
-    object it never meets, never miss one it does)."""
-    tb = build_tables(scene)
+    object it never meets, never miss one it does). A box clipped before against this scene
+    is not clipped again (a plan clips the same cells many times: `host.scene.derived`),
+    within KEPT_BYTES."""
+    los, his = np.asarray(los, float).reshape(-1, 3), np.asarray(his, float).reshape(-1, 3)
+    boxes = kept(scene, "holders", dict)
+    keys = [lo.tobytes() + hi.tobytes() for lo, hi in zip(los, his, strict=True)]
+    new = [i for i, k in enumerate(keys) if k not in boxes]
+    if new:
+        if (len(boxes) + len(new)) * scene_tables(scene).n > KEPT_BYTES:
+            boxes.clear()
+        for i, row in zip(new, _clipped(scene, los[new], his[new]), strict=True):
+            boxes[keys[i]] = row
+    return np.array([boxes[k] for k in keys]).reshape(len(keys), scene_tables(scene).n)
+
+
+def _clipped(scene: SceneData, los: np.ndarray, his: np.ndarray) -> np.ndarray:
+    """`holders`, computed."""
+    tb = scene_tables(scene)
     touch = (tb.lo[None] <= his[:, None]) & (tb.hi[None] >= los[:, None])
     touch = touch.all(axis=2)
     centre, half = (los + his) / 2, (his - los) / 2

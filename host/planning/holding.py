@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from meshnode.engine.tables import build_tables
+from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
 from protocols.scene import SCENE_TABLES, SceneData
 
@@ -26,7 +26,7 @@ def engine_bytes(scene: SceneData) -> int:
     """An engine's memory (`Engine.nbytes`) over these objects, before anything is built:
     the records, the kernels' tables built from them, and a hierarchy's nodes at most (a
     node under a byte budget builds the hierarchy: `MeshPlan.node_bytes`)."""
-    tables = build_tables(scene)
+    tables = scene_tables(scene)
     own = sum(a.nbytes for a in vars(tables).values() if isinstance(a, np.ndarray))
     records = sum(getattr(scene, t).nbytes for t in SCENE_TABLES)
     return int(own + records + HIERARCHY_BYTES_PER_OBJECT * tables.n + ENGINE_FIXED_BYTES)

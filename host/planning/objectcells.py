@@ -20,7 +20,7 @@ memory first, then work.
 
 import numpy as np
 
-from meshnode.engine.tables import build_tables
+from host.scene.derived import scene_tables
 from protocols.scene import SceneData
 
 CANDIDATES = 64  # cut positions tried on each axis
@@ -38,7 +38,7 @@ def object_cells(
     the work lies), so that the nodes' work is even, each side of a cut holding at most
     SLACK times the fewest objects per node that cut could leave, and at most `limit`.
     `rows_first`: a square block of nodes is halved between its rows, not its columns."""
-    tb = build_tables(scene)
+    tb = scene_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
     los, his = np.empty((rows * cols, 3)), np.empty((rows * cols, 3))

@@ -18,7 +18,7 @@ from host.planning.objectcells import WorkGrid, object_cells
 from host.planning.placement import MAX_CELLS, placed, sends
 from host.planning.prepass import coarse_pass, coarse_spec, costs
 from host.planning.seenwork import first_guess
-from meshnode.engine.tables import build_tables
+from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
 from protocols.topology import Torus
@@ -224,4 +224,4 @@ def _measured(grid: WorkGrid, cells, cost) -> np.ndarray:
 
 def object_limit(scene: SceneData, plan) -> float | None:
     """The objects a node may hold under the plan's `max_share` (None: no bound)."""
-    return plan.max_share * build_tables(scene).n if plan.max_share < 1 else None
+    return plan.max_share * scene_tables(scene).n if plan.max_share < 1 else None

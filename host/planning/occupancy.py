@@ -5,8 +5,8 @@ instead of passing it through every cell ahead (`meshnode.engine.occupancy`).
 
 import numpy as np
 
+from host.scene.derived import scene_tables
 from meshnode.engine.occupancy import OCTANTS
-from meshnode.engine.tables import build_tables
 from protocols.partition import MAX_OCC_SIDE
 from protocols.scene import SceneData
 
@@ -30,7 +30,7 @@ def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tupl
     conservative, so a node that skips what the map calls empty misses nothing). Every
     object's range of voxels is marked at its eight corners and summed along the three
     axes: no loop per object."""
-    tb = build_tables(scene)
+    tb = scene_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     ext = hi - lo
     thick = np.maximum(ext, 1e-3 * ext.max())

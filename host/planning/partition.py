@@ -17,9 +17,9 @@ from host.planning.objectcells import object_cells
 from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from host.planning.skytiles import SkyTiles, dealt_sky, sky_tiles
+from host.scene.derived import scene_tables
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.sky import looked_for
-from meshnode.engine.tables import build_tables
 from protocols.partition import Partition
 from protocols.render import EVERYWHERE, RenderSpec
 from protocols.scene import SceneData
@@ -32,7 +32,7 @@ def image_partition(scene: SceneData, spec: RenderSpec) -> tuple[Partition, np.n
     tiles are cut around the sky's."""
     plan, box = spec.plan, scene_box(scene)
     los, his = np.tile(box[0], (plan.nodes, 1)), np.tile(box[1], (plan.nodes, 1))
-    keep = np.ones((plan.nodes, build_tables(scene).n), bool)
+    keep = np.ones((plan.nodes, scene_tables(scene).n), bool)
     occ = EVERYWHERE  # ... or the map the nodes see the sky from (`meshnode.engine.sky`)
     if spec.camera is None and not looked_for(spec.image):
         occ = occupancy_map(scene, box)

@@ -13,12 +13,12 @@ import numpy as np
 
 from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.prepass import coarse_spec
+from host.scene.derived import scene_tables
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.routing import routed
 from meshnode.engine.sightlines import NO_EYE_MAP
-from meshnode.engine.tables import build_tables
 from protocols.render import ImageSpec, RenderSpec
 from protocols.scene import SceneData
 
@@ -68,7 +68,7 @@ def _exits(o, d, lo, hi) -> np.ndarray:
 def objects_density(scene: SceneData, box, bins: int) -> np.ndarray:
     """The objects' centres per voxel of a bins^3 grid over `box`, and a little everywhere
     (rays cross empty space too)."""
-    tb = build_tables(scene)
+    tb = scene_tables(scene)
     lo, hi = box
     centres = 0.5 * (tb.lo + tb.hi) if tb.n else np.zeros((0, 3))
     count, _ = np.histogramdd(centres, bins=bins, range=list(zip(lo, hi, strict=True)))

@@ -55,6 +55,7 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
     )
     traced = sum(st["rays"][k] for k in RAY_KINDS)
     mean, top = link_bytes(st)
+    prepass = (st.get("balance") or {}).get("prepass") or {}
     return {
         "scene": key["scene"],
         "mesh": key["mesh"],
@@ -102,6 +103,9 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "node_frame_cpu_seconds": [n.get("frame_cpu_seconds", 0.0) for n in st["nodes"]],
         "sky_tiles": st.get("sky_tiles", {}),
         "balance": st.get("balance"),
+        # the cost pre-pass's CPU against one node's measured tracing, and what it skipped
+        "prepass_share": prepass.get("cpu_seconds", 0.0) / max(cpu1, 1e-9),
+        "prepass_skipped": [s["stage"] for s in prepass.get("skipped", ())],
         "counts": {k: st["rays"][k] for k in COUNTS},
         "image": image.to_wire(),
         "camera": None if camera is None else camera.sampling.to_wire(),
@@ -157,6 +161,12 @@ def print_row(row: dict) -> None:
         f"{row['passes_per_ray']:>8.3f} "
         f"{','.join(map(str, row['shared'])) or '-'}"
     )
+    if row["prepass_share"]:
+        skipped = ", ".join(dict.fromkeys(row["prepass_skipped"])) or "nothing"
+        print(
+            f"      pre-pass: {row['prepass_share']:.1%} of one node's tracing CPU; "
+            f"skipped: {skipped}"
+        )
 
 
 def plot_row(folder: Path, row: dict, stats: dict) -> None:

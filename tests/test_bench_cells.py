@@ -18,7 +18,9 @@ def test_bench_cells_plans_both_guesses_within_the_budget(tmp_path, capsys):
     rows = json.loads(out.read_text())
     assert [r["guess"] for r in rows] == ["seen", "objects"]
     for r in rows:
-        assert r["fullest_share"] <= 0.6 and r["rounds"] >= 1 and r["busiest_units"] > 0
+        # a render this small affords no re-cut round (`host.planning.allowance`): the first
+        # cut is simulated all the same
+        assert r["fullest_share"] <= 0.6 and r["busiest_units"] > 0
         assert len(r["by_round"]) >= 1 and r["busiest_over_mean"] >= 1.0
     assert seenwork.SEEN == before  # put back as it was
     assert "busiest node against objects" in capsys.readouterr().out

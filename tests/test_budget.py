@@ -5,12 +5,15 @@ that cannot be divided refused before any work, naming the smallest share reache
 
 import asyncio
 import itertools
+import math
+from unittest import mock
 
 import numpy as np
 import pytest
 
 from bench.generate import tetra
 from host.cli import main
+from host.planning import allowance
 from host.planning.budget import BudgetError
 from host.planning.cells import grown, node_cells, scene_box, traced
 from host.planning.clip import holders
@@ -41,8 +44,10 @@ def single(scene, size=SIZE):
 
 def planned_render(scene, plan: MeshPlan, size=SIZE):
     """(image, counts, per-node records, the plan made) of a simulated mesh render planned
-    as the host plans a real one (`plan_render`: budget, retreats, cuts)."""
-    planned = plan_render(Request(scene, ImageSpec(width=size, height=size), ONE, plan=plan))
+    as the host plans a real one (`plan_render`: budget, retreats, cuts), every stage of the
+    pre-pass run (a render this small affords none of them: `host.planning.allowance`)."""
+    with mock.patch.object(allowance, "PREPASS_SHARE", math.inf):
+        planned = plan_render(Request(scene, ImageSpec(width=size, height=size), ONE, plan=plan))
     part = planned.partition
     scenes = [subset(scene, planned.holders[n]) for n in range(part.nodes)]
     out = simulate(scenes, planned.spec, part)
@@ -233,14 +238,19 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     planned = plan_render(Request(scene, ImageSpec(width=128, height=128), ONE, plan=plan))
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
-    # the plan's own pre-pass is bounded by the render it plans: 128 x 128 at one sample
-    # is 4 coarse passes' samples, so a tenth of it affords no re-cut, and the one made
-    # anyway is said (the first guess alone can mislead); a render of 1024 x 1024 at 256 spp
-    # (minutes on one node) affords all three
+    # the plan's own pre-pass is bounded by the render it plans (`host.planning.allowance`):
+    # 128 x 128 at one sample is 4 coarse passes' samples, so a tenth of it affords no
+    # re-cut, and the report says so; a render of 1024 x 1024 at 256 spp (minutes on one
+    # node) affords all three and skips nothing
     reason = planned.balance["rounds_reason"]
-    assert planned.balance["rounds"] == 1 and "of 3" in reason and "always made" in reason
+    assert planned.balance["rounds"] == 0 and reason.startswith("0 of 3"), reason
+    skipped = planned.balance["prepass"]["skipped"]
+    assert skipped[0]["stage"] == "re-cut rounds" and "one node's tracing" in skipped[0]["why"]
+    copies = planned.balance["budget"]["copies"]["why"]
+    assert copies.startswith("skipped: ") and "one node's tracing" in copies, copies
+    assert planned.balance["budget"]["growth"]["why"].startswith("skipped: ")
     big = plan_render(Request(scene, ImageSpec(width=1024, height=1024, spp=256), ONE, plan=plan))
-    assert big.balance["rounds"] == 3
+    assert big.balance["rounds"] == 3 and big.balance["prepass"]["skipped"] == []
 
 
 def test_re_cut_cells_that_break_the_budget_are_cut_again_within_it():

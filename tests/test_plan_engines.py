@@ -1,16 +1,17 @@
 """A plan's simulated meshes share their engines and what the eye sees of the map
-(`host.planning.prepass.shared_engines`, `EngineCache.sightlines`): the plan is the one made
+(`host.planning.prepass.planning`, `EngineCache.sightlines`): the plan is the one made
 building everything anew for every simulation, and the shared things are made once."""
 
 import contextlib
 import json
+import math
 
 import numpy as np
 import pytest
 
 import host.planning.plan as plan_module
 import meshnode.mesh.claims as claims_module
-from host.planning import objectwork, prepass
+from host.planning import allowance, prepass
 from host.planning.plan import plan_render
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
@@ -20,9 +21,11 @@ from tests.conftest import spd_scene
 
 
 def _decisions(report):
-    """A plan's report without what a clock measured (CPU seconds, the rounds afforded)."""
+    """A plan's report without what a clock measured (CPU seconds, the pre-pass's)."""
     if isinstance(report, dict):
-        return {k: _decisions(v) for k, v in report.items() if "seconds" not in k}
+        return {
+            k: _decisions(v) for k, v in report.items() if "seconds" not in k and k != "prepass"
+        }
     if isinstance(report, list):
         return [_decisions(v) for v in report]
     return report
@@ -32,8 +35,8 @@ def _decisions(report):
     "name, shape, share", [("balls_s2.nff", (3, 3), 0.25), ("teapot_s1.nff", (2, 2), 0.5)]
 )
 def test_a_plan_with_shared_engines_is_the_plan_made_without(name, shape, share, monkeypatch):
-    # the rounds of re-cutting are afforded from measured CPU: fixed, so both plans cut alike
-    monkeypatch.setattr(objectwork, "_affordable", lambda spec, one, units: (2, "fixed"))
+    # the pre-pass's stages are afforded from measured CPU: all of them, so both plans alike
+    monkeypatch.setattr(allowance, "PREPASS_SHARE", math.inf)
     scene = read_nff(spd_scene(name))
     plan = MeshPlan(*shape, 1.0, "objects", "object", "static", max_share=share)
     request = Request(
@@ -44,7 +47,9 @@ def test_a_plan_with_shared_engines_is_the_plan_made_without(name, shape, share,
     monkeypatch.setattr(claims_module, "eye_map", lambda *a: made.append(1) or eye_map(*a))
     shared = plan_render(request)
     shared_maps = len(made)
-    monkeypatch.setattr(plan_module, "shared_engines", lambda nodes: contextlib.nullcontext())
+    monkeypatch.setattr(
+        plan_module, "planning", lambda nodes: contextlib.nullcontext(prepass.Allowance())
+    )
     meshes = []
     simulate = prepass.simulate
     monkeypatch.setattr(prepass, "simulate", lambda *a, **k: meshes.append(1) or simulate(*a, **k))
@@ -113,3 +118,30 @@ def test_boxes_clipped_before_are_not_clipped_again_and_hold_the_same_objects(mo
     # another scene object (the same file read again) is clipped anew
     clip.holders(read_nff(spd_scene("gears_s1.nff")), los[:1], his[:1])
     assert clipped == [4, 2, 1]
+
+
+def test_the_allowance_affords_simulations_within_a_tenth_of_the_tracing(monkeypatch):
+    from host.planning.allowance import Allowance
+
+    now = [10.0]
+    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
+    allowed = Allowance(began=10.0)
+    assert allowed.affords("first cut", 5)  # nothing learnt yet: the first cut always runs
+    now[0] += 0.2
+    allowed.ran(0.1)
+    allowed.ran(0.1)
+    allowed.learn(5.2)  # one node traces about 5.2 s: the pre-pass may take 0.52 s
+    assert allowed.seconds == pytest.approx(0.52)
+    assert allowed.affords("rounds", 1, reserve=2)  # 0.2 spent + 3 x 0.1 = 0.5
+    now[0] += 0.1
+    allowed.ran(0.1)
+    assert not allowed.affords("rounds", 1, reserve=2)  # 0.3 + 0.3 > 0.52
+    assert allowed.affords("copies", 2)
+    report = allowed.report()
+    assert report["simulations"] == 3 and report["allowed_cpu_seconds"] == pytest.approx(0.52)
+    assert [s["stage"] for s in report["skipped"]] == ["rounds"]
+    assert "0.52 s" in report["skipped"][0]["why"] and "2 kept" in report["skipped"][0]["why"]
+    nothing = Allowance(began=now[0])
+    nothing.learn(0.0)  # a render with no work affords no simulation
+    nothing.ran(0.01)
+    assert not nothing.affords("rounds")

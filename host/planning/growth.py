@@ -18,7 +18,7 @@ import numpy as np
 from host.planning.budget import cell_bytes
 from host.planning.cells import grown, traced
 from host.planning.clip import holders
-from host.planning.prepass import costs, partition_pass, rays_passed
+from host.planning.prepass import allowance, costs, partition_pass, rays_passed
 from protocols.partition import Partition
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -33,7 +33,11 @@ def grown_within(
     """(partition, holders, report): the nodes' boxes grown as far as GROWTHS and the budget
     allow, all of them or only those not among the busiest (BUSY), whichever the simulated
     mesh finds lightens its busiest node more (or as much, with fewer rays passed); else the
-    partition as it was."""
+    partition as it was; skipped where the pre-pass's allowance affords no two simulations
+    (`host.planning.allowance`)."""
+    if not allowance().affords("growth", 2):
+        why = "skipped: " + allowance().skipped[-1]["why"]
+        return part, keep, {"chosen": [0.0] * spec.plan.nodes, "why": why}
     before = partition_pass(scene, spec, part, keep)
     load = costs(before)
     busiest, passed = float(load.max()), rays_passed(before)
@@ -44,6 +48,8 @@ def grown_within(
         wider, kept, growth = _grown(scene, spec, part, keep, nodes)
         if not any(growth) or any(growth == t["growth"] for t in tried):
             continue
+        if tried and not allowance().affords("growth: the nodes not among the busiest"):
+            break
         after = partition_pass(scene, spec, wider, kept)
         now = float(costs(after).max())
         tried.append({"nodes": who, "growth": growth, "simulated_busiest_vs_plan": now / busiest})

@@ -16,18 +16,17 @@ from host.planning.cells import grown, scene_box, traced
 from host.planning.clip import holders
 from host.planning.objectcells import WorkGrid, object_cells
 from host.planning.placement import MAX_CELLS, placed, sends
-from host.planning.prepass import coarse_pass, coarse_spec, costs
+from host.planning.prepass import allowance, coarse_pass, coarse_spec, costs
 from host.planning.seenwork import first_guess
 from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
 from protocols.topology import Torus
 
-ROUNDS = 3  # re-cuts on the pre-pass's measured work, at most
-# ... and at least, whatever the render: the first guess alone can mislead (teapot 4x4 under
-# 0.15: its busiest node 3.8 times the mean at 4 spp simulated, 1.8 after one round)
-MIN_ROUNDS = 1
-PREPASS_SHARE = 0.1  # of the render's estimated tracing CPU the pre-pass may take
+# Re-cuts on the pre-pass's measured work, at most; as many as its allowance affords (the
+# first guess alone can mislead: teapot 4x4 under 0.15, its busiest node 3.8 times the mean
+# at 4 spp simulated, 1.8 after one round)
+ROUNDS = 3
 # Voxels along each axis of the grid the guessed and measured work is spread on: a cut can
 # only even what the grid tells apart. 32 against 16, real nodes in turns (256x256 at 63 spp,
 # a /tmp script, the busiest node's frame CPU, two pairs): 3x3 under a quarter share balls
@@ -40,7 +39,9 @@ FITS = 3  # passes over every round's measurements fitting the grid to them all
 # One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's
 # estimate of a render's tracing: 4.2, 5.1 and 6.9 ns on teapot, balls and rings (one node's
 # tracing CPU at 66-135 spp over its units at 4 spp, per sample); the lowest, so the
-# pre-pass rather affords too few rounds than too many
+# pre-pass rather affords too little than too much. (The coarse pass's own kernel CPU said
+# 25-30 times too much, teapot 256x256 at 135 spp: 80 s against 2.9 s: its batches are
+# small, and each kernel call costs about 30 us whatever its size.)
 NS_PER_UNIT = 4.0
 # A re-cut whose fullest node breaks the limit (the cuts count objects per node as if every
 # later cut divided them evenly, and the boxes grow by the overlap) is cut again under a cap
@@ -50,7 +51,9 @@ NS_PER_UNIT = 4.0
 TIGHTEN, LOWER, TRIES = 0.97, 0.9, 6
 
 
-def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds=None):
+def balanced_object_cells(
+    scene: SceneData, spec: RenderSpec, limit=None, rounds=None, reserve: int = 0
+):
     """(cells, costs, report): cells cut by the objects (`object_cells`) where a first guess
     puts the work (`host.planning.seenwork`; where those break the budget, for the fewest
     objects), then re-cut `rounds` times on the work the cost pre-pass measured
@@ -58,8 +61,9 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     fitted to every round's measured cells; the cuts whose simulated busiest node is least
     are kept. `limit`: the objects a node may hold (the budget's), else a little over the
     fewest (`objectcells.SLACK`); cuts that break it are made again further inside.
-    `rounds` None: MIN_ROUNDS, or up to ROUNDS, as many as keep the pre-pass within
-    PREPASS_SHARE of one node's tracing (`_affordable`: the report says how many and why)."""
+    `rounds` None: up to ROUNDS, as many as the pre-pass's allowance affords with `reserve`
+    simulations kept for later stages (`host.planning.allowance`, which learns one node's
+    tracing here from the first cut's simulation: the report says how many and why)."""
     plan, box = spec.plan, scene_box(scene)
     began = time.process_time()
     guess = first_guess(scene, spec, box, GRID)
@@ -75,11 +79,14 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
     pick = min(range(len(orders)), key=lambda i: (firsts[i][2] > 1, tried[i][0]))
     _, cap, excess, first = firsts[pick]
     rows_first, over = orders[pick], [excess]
-    one = (time.process_time() - began) / len(orders)
-    why = f"asked for {rounds}"
-    if rounds is None:
-        rounds, why = _affordable(spec, one, float(costs(first).sum()))
-    for _ in range(rounds):
+    allowed, why = allowance(), f"asked for {rounds}"
+    allowed.learn(node_seconds(spec, float(costs(first).sum())))
+    made = 0
+    for _ in range(ROUNDS if rounds is None else rounds):
+        if rounds is None and not allowed.affords("re-cut rounds", 1, reserve):
+            why = f"{made} of {ROUNDS}: " + allowed.skipped[-1]["why"]
+            break
+        made += 1
         grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2]) for t in tried])
         cut, cap, excess = _within(scene, spec, grid, cap, limit, rows_first)
         over.append(excess)
@@ -98,8 +105,10 @@ def balanced_object_cells(scene: SceneData, spec: RenderSpec, limit=None, rounds
             "simulated_busiest_first_cut_by_order": [t[0] for t in tried[: len(orders)]],
             "simulated_busiest_by_round": [t[0] for t in tried],
             "fullest_vs_limit_by_round": over,
-            "rounds": rounds,
-            "rounds_reason": why,
+            "rounds": made,
+            "rounds_reason": why
+            if rounds is not None or made < ROUNDS
+            else f"all {ROUNDS} within the pre-pass's allowance",
             "prepass_cpu_seconds": time.process_time() - began,
             "simulated_busiest_vs_first_cut": busiest / tried[0][0] if tried[0][0] else 1.0,
             "placement": placement,
@@ -167,25 +176,6 @@ def _placed(cells, cost, traffic, plan):
             f"rays passed in the pre-pass, {after / max(traffic.sum(), 1.0):.0%} relayed "
             f"instead of {before / max(traffic.sum(), 1.0):.0%}",
         },
-    )
-
-
-def _affordable(spec: RenderSpec, one: float, units: float) -> tuple[int, str]:
-    """(re-cuts, why): MIN_ROUNDS, or as many of ROUNDS as keep the pre-pass (its first
-    coarse pass, the first guess and cut, took `one` CPU seconds; each round about as much) within
-    PREPASS_SHARE of one node's tracing of the render, estimated from the coarse pass's work
-    (`units`, all nodes: more than one node's, as passed rays are traced again) scaled by
-    the render's samples over the coarse pass's, at NS_PER_UNIT. The coarse pass's own
-    kernel CPU said 25-30 times too much (teapot 256x256 at 135 spp: 80 s against 2.9 s):
-    its batches are small, and each kernel call costs about 30 us whatever its size."""
-    trace = node_seconds(spec, units)
-    fits = int(min(ROUNDS, max(0.0, (PREPASS_SHARE * trace - one) // max(one, 1e-9))))
-    rounds = max(fits, MIN_ROUNDS)
-    return rounds, (
-        f"{rounds} of {ROUNDS}: the first guess and a coarse pass took {one:.2f} s of CPU and "
-        f"one node's tracing is about {trace:.2f} s; the pre-pass may take "
-        f"{PREPASS_SHARE:.0%} of it"
-        + ("" if fits >= MIN_ROUNDS else f", but {MIN_ROUNDS} measured round is always made")
     )
 
 

@@ -16,8 +16,8 @@ from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.partition import image_partition, partition
-from host.planning.prepass import node_costs, shared_engines
-from host.planning.replicas import with_replicas
+from host.planning.prepass import allowance, node_costs, planning
+from host.planning.replicas import COPIES_LEAST, with_replicas
 from host.planning.request import Request
 from host.planning.skytiles import SkyTiles
 from protocols.partition import Partition
@@ -48,9 +48,13 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
     (`host.planning.balance.balanced_cuts` searches cuts at each; on even cuts
     `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not known.
     Without overlaps the plan's own overlap is kept. Its simulated meshes share their
-    engines (`prepass.shared_engines`)."""
-    with shared_engines(request.plan.nodes):
-        return _planned(request, memory)
+    engines and keep within the pre-pass's allowance (`prepass.planning`), which the
+    balance's report gives where any ran."""
+    with planning(request.plan.nodes) as allowed:
+        planned = _planned(request, memory)
+    if allowed.passes:
+        planned.balance["prepass"] = allowed.report()
+    return planned
 
 
 def _planned(request: Request, memory: int) -> Planned:
@@ -73,7 +77,9 @@ def _planned(request: Request, memory: int) -> Planned:
         )
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and plan.balance == "objects":
-        cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan))
+        reserve = COPIES_LEAST if budgeted(plan) and request.auto.budget_copies else 0
+        limit = object_limit(scene, plan)
+        cells, cost, report = balanced_object_cells(scene, spec, limit, reserve=reserve)
         loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
@@ -148,6 +154,8 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep):
     uneven = chosen.get("simulated_busiest", 0.0) / max(np.mean(load), 1e-300) if load else 0.0
     if spec.plan.balance != "objects" or uneven < UNEVEN:
         return at, dealt, keep, chosen
+    if not allowance().affords("cells for the fewest objects", COPIES_LEAST):
+        return at, dealt, keep, {**chosen, "cells": allowance().skipped[-1]}
     fewest, fewest_keep = partition(scene, spec)
     same = np.array_equal(np.asarray(fewest.cells), np.asarray(part.cells))
     if same or not within(spec.plan, holdings(scene, spec, fewest, fewest_keep)):

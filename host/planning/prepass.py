@@ -7,12 +7,14 @@ the same scheduler as real ones, each node's cost counted as its intersection te
 steps and segments, with each segment sent on weighted (`meshnode.mesh.stats.work_units`).
 """
 
+import time
 from contextlib import contextmanager
 from contextvars import ContextVar
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from host.planning.allowance import Allowance
 from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
@@ -22,30 +24,53 @@ from protocols.camera import CameraSampling, Generation
 from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
 
 COARSE = 64  # coarse samples along the longer image axis
-# A plan's simulated meshes build their engines in one cache (`shared_engines`): the same
-# boxes are simulated with other copies, dealings or gates, and rebuilt each time took a
-# fifth of a 3x3 plan's CPU (balls under a quarter share: 117 builds, 0.56 s of 2.7 s).
-# At most this many meshes' engines are kept, the least recently used dropped first.
+# A plan's simulated meshes build their engines in one cache (`planning`): the same boxes
+# are simulated with other copies, dealings or gates, and rebuilt each time took a fifth of a
+# 3x3 plan's CPU (balls under a quarter share: 117 builds, 0.56 s of 2.7 s). At most this
+# many meshes' engines are kept, the least recently used dropped first.
 MESHES_KEPT = 3
-_ENGINES: ContextVar[EngineCache | None] = ContextVar("planning_engines", default=None)
+
+
+@dataclass
+class Planning:
+    """What a plan's simulations share: their engines, and the pre-pass's CPU allowance."""
+
+    engines: EngineCache
+    allowance: Allowance
+
+
+_PLANNING: ContextVar[Planning | None] = ContextVar("planning", default=None)
 
 
 @contextmanager
-def shared_engines(nodes: int):
+def planning(nodes: int):
     """While planning a mesh of `nodes`: every simulated mesh (`simulated`) takes its
-    engines from one cache of at most MESHES_KEPT meshes' worth, dropped when the plan is
-    made."""
-    token = _ENGINES.set(EngineCache(least=MESHES_KEPT * nodes))
+    engines from one cache of at most MESHES_KEPT meshes' worth and is counted against one
+    allowance (`host.planning.allowance`); both dropped when the plan is made. Yields the
+    allowance."""
+    token = _PLANNING.set(Planning(EngineCache(least=MESHES_KEPT * nodes), Allowance()))
     try:
-        yield
+        yield _PLANNING.get().allowance
     finally:
-        _ENGINES.reset(token)
+        _PLANNING.reset(token)
+
+
+def allowance() -> Allowance:
+    """The plan's pre-pass allowance (outside a plan: one without bound)."""
+    now = _PLANNING.get()
+    return now.allowance if now is not None else Allowance()
 
 
 def simulated(scenes, spec: RenderSpec, part):
     """The simulated mesh's Outcome (`meshnode.mesh.simulator.simulate`), its engines from
-    the plan's cache where one is open (`shared_engines`)."""
-    return simulate(scenes, spec, part, engines=_ENGINES.get())
+    the plan's cache and its CPU counted against the plan's allowance where a plan is being
+    made (`planning`)."""
+    now = _PLANNING.get()
+    began = time.process_time()
+    out = simulate(scenes, spec, part, engines=now.engines if now is not None else None)
+    if now is not None:
+        now.allowance.ran(time.process_time() - began)
+    return out
 
 
 def _coarse(bounds: list, n: int, coarse_n: int) -> list:

@@ -27,6 +27,7 @@ from host.planning.budget import budgeted, cell_bytes, holdings, within
 from host.planning.holding import ratio
 from host.planning.placement import sends
 from host.planning.prepass import (
+    allowance,
     coarse_partition,
     costs,
     partition_pass,
@@ -47,6 +48,9 @@ TRIES = (1.0, 0.5, 0.25)  # shares of the copies chosen (hottest first) simulate
 # teapot 0.69 / 0.61, rings 0.83 / 0.79, balls 0.88 / 0.87, gears 0.84 / 0.84), so both are
 # simulated and the lighter kept.
 RULES = ("traffic", "load")
+# Simulations the copies need at least (the mesh without, one set with): the pre-pass's
+# allowance keeps this many for them when it affords re-cut rounds (`host.planning.allowance`)
+COPIES_LEAST = 2
 HOLDER = {
     "traffic": "the node with room that trades most rays with its cell",
     "load": "the least loaded node with room",
@@ -65,6 +69,8 @@ def with_replicas(
     if not budgeted(plan) or plan.nodes < 2 or plan.copies:
         why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
         return spec, part, {"chosen": [], "why": why or "no memory budget on a mesh"}
+    if not allowance().affords("copies", COPIES_LEAST):
+        return spec, part, {"chosen": [], "why": "skipped: " + allowance().skipped[-1]["why"]}
     began = time.process_time()
     before = partition_pass(scene, spec, part, keep)
     busiest, passed = float(costs(before).max()), rays_passed(before)
@@ -78,6 +84,8 @@ def with_replicas(
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
     tried = []
     for rule, share, holds in tries:
+        if tried and not allowance().affords("copies: the other sets"):
+            break
         at = replace(spec, plan=replace(plan, copies=True, holds=holds))
         after = partition_pass(scene, at, part, keep)
         tried.append((float(costs(after).max()), rays_passed(after), rule, share, at, after))
@@ -139,6 +147,9 @@ def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners
     nearest = replace(spec, plan=replace(spec.plan, forward="nearest"))
     if all(nearest.plan.takers(n) == spec.plan.takers(n) for n in range(spec.plan.nodes)):
         why = "every nearest holder is the owner"
+        return spec, {"chosen": spec.plan.forward, "why": why}, owners
+    if not allowance().affords("copies: forwarding"):
+        why = "not simulated: " + allowance().skipped[-1]["why"]
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
     handed = partition_pass(scene, nearest, part, keep)
     now, busiest = float(costs(handed).max()), float(costs(owners).max())
@@ -216,6 +227,8 @@ def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted)
     dealing by it leaves the simulated busiest node lighter (else None: by count)."""
     if spec.adaptive:
         return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
+    if not allowance().affords("copies: dealing"):
+        return None, {"chosen": "count", "why": "not simulated: " + allowance().skipped[-1]["why"]}
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
     dealt = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))

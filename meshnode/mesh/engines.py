@@ -19,7 +19,7 @@ class EngineCache:
     engines (one, or one per box held under MeshPlan.copies), least recently used dropped
     first: bounded memory; and after a render (`trim`) at most `keep_bytes` of them.
     `least`: engines kept at least whatever a render asks (a plan's simulated meshes share
-    one cache: `host.planning.prepass.shared_engines`)."""
+    one cache: `host.planning.prepass.planning`)."""
 
     def __init__(self, keep_bytes: int | None = None, least: int = 1):
         self.engines: dict[bytes, Engine] = {}  # oldest use first

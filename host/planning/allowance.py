@@ -63,6 +63,11 @@ class Allowance:
         )
         return False
 
+    @property
+    def why(self) -> str:
+        """The last refusal's reason (`affords`), for the stage's own report."""
+        return self.skipped[-1]["why"] if self.skipped else ""
+
     def report(self) -> dict:
         """What the statistics say of the pre-pass's CPU."""
         return {

@@ -36,7 +36,7 @@ def grown_within(
     partition as it was; skipped where the pre-pass's allowance affords no two simulations
     (`host.planning.allowance`)."""
     if not allowance().affords("growth", 2):
-        why = "skipped: " + allowance().skipped[-1]["why"]
+        why = "skipped: " + allowance().why
         return part, keep, {"chosen": [0.0] * spec.plan.nodes, "why": why}
     before = partition_pass(scene, spec, part, keep)
     load = costs(before)

@@ -67,11 +67,19 @@ def balanced_object_cells(
     plan, box = spec.plan, scene_box(scene)
     began = time.process_time()
     guess = first_guess(scene, spec, box, GRID)
-    # a square mesh is halved between its columns or its rows first: both are simulated,
-    # the lighter kept for the rounds (teapot 3x3 under a quarter share: rows first, the
-    # busiest node's frame CPU 0.93-0.95 of columns first, three pairs in turns)
+    # a square mesh is halved between its columns or its rows first: both are simulated
+    # where the allowance affords it, the lighter kept for the rounds (teapot 3x3 under a
+    # quarter share: rows first, the busiest node's frame CPU 0.93-0.95 of columns first)
     orders = (False, True) if plan.rows == plan.cols > 1 else (False,)
-    firsts = [_first_cut(scene, spec, guess, limit, r) for r in orders]
+    firsts = [_first_cut(scene, spec, guess, limit, orders[0])]
+    # the first cut's simulation estimates the render's tracing: the pre-pass's allowance
+    allowed, why = allowance(), f"asked for {rounds}"
+    allowed.learn(node_seconds(spec, float(costs(firsts[0][3]).sum())))
+    if len(orders) > 1 and (
+        rounds is not None or allowed.affords("the first cut, rows first", 1, reserve)
+    ):
+        firsts.append(_first_cut(scene, spec, guess, limit, orders[1]))
+    orders = orders[: len(firsts)]
     tried = []
     for cells, _, _, outcome in firsts:
         cost = costs(outcome)
@@ -79,12 +87,10 @@ def balanced_object_cells(
     pick = min(range(len(orders)), key=lambda i: (firsts[i][2] > 1, tried[i][0]))
     _, cap, excess, first = firsts[pick]
     rows_first, over = orders[pick], [excess]
-    allowed, why = allowance(), f"asked for {rounds}"
-    allowed.learn(node_seconds(spec, float(costs(first).sum())))
     made = 0
     for _ in range(ROUNDS if rounds is None else rounds):
         if rounds is None and not allowed.affords("re-cut rounds", 1, reserve):
-            why = f"{made} of {ROUNDS}: " + allowed.skipped[-1]["why"]
+            why = f"{made} of {ROUNDS}: " + allowed.why
             break
         made += 1
         grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2]) for t in tried])

@@ -70,7 +70,7 @@ def with_replicas(
         why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
         return spec, part, {"chosen": [], "why": why or "no memory budget on a mesh"}
     if not allowance().affords("copies", COPIES_LEAST):
-        return spec, part, {"chosen": [], "why": "skipped: " + allowance().skipped[-1]["why"]}
+        return spec, part, {"chosen": [], "why": "skipped: " + allowance().why}
     began = time.process_time()
     before = partition_pass(scene, spec, part, keep)
     busiest, passed = float(costs(before).max()), rays_passed(before)
@@ -149,7 +149,7 @@ def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners
         why = "every nearest holder is the owner"
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
     if not allowance().affords("copies: forwarding"):
-        why = "not simulated: " + allowance().skipped[-1]["why"]
+        why = "not simulated: " + allowance().why
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
     handed = partition_pass(scene, nearest, part, keep)
     now, busiest = float(costs(handed).max()), float(costs(owners).max())
@@ -228,7 +228,7 @@ def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted)
     if spec.adaptive:
         return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
     if not allowance().affords("copies: dealing"):
-        return None, {"chosen": "count", "why": "not simulated: " + allowance().skipped[-1]["why"]}
+        return None, {"chosen": "count", "why": "not simulated: " + allowance().why}
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
     dealt = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))

@@ -226,6 +226,7 @@ HEAVY_FILES = {
     "test_tls.py": 14,
     "test_netns.py": 13,
     "test_pov_scene.py": 12,
+    "test_bench_planning.py": 12,
     "test_grid.py": 11,
     "test_auth.py": 11,
     "test_stealing.py": 11,

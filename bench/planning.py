@@ -36,7 +36,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     add_scenes_option(p)
     p.add_argument("--only", default="balls,gears,rings,teapot,tetra,mount")
     p.add_argument("--meshes", default="3x3")
-    p.add_argument("--max-share", type=float, default=0.25)
+    p.add_argument(
+        "--max-share",
+        default="0.25",
+        help="the share of the objects a node may hold, one for every mesh or one per mesh",
+    )
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--spp", type=int, default=64)
     p.add_argument("--repeat", type=int, default=3, help="rounds of turns (3)")
@@ -44,11 +48,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _request(folder: Path, name: str, rows: int, cols: int, args):
+def _request(folder: Path, name: str, rows: int, cols: int, share: float, args):
     from host.planning.request import Auto, Request
     from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
-    plan = MeshPlan(rows, cols, 1.0, "objects", "object", "static", max_share=args.max_share)
+    plan = MeshPlan(rows, cols, 1.0, "objects", "object", "static", max_share=share)
     image = ImageSpec(args.size, args.size, spp=args.spp)
     scene = read_scene(folder, name)
     return Request(scene, image, EngineSpec(threads=1), plan=plan, auto=Auto(budget_copies=True))
@@ -69,7 +73,7 @@ def _nothing_shared():
         yield
 
 
-def measure(folder: Path, name: str, mesh: str, args) -> dict:
+def measure(folder: Path, name: str, mesh: str, share: float, args) -> dict:
     """One scene's figures on one mesh (module docstring)."""
     from host.planning import allowance
     from host.planning.plan import plan_render
@@ -78,24 +82,25 @@ def measure(folder: Path, name: str, mesh: str, args) -> dict:
 
     def every_stage(shared: bool):
         def run():
-            request = _request(folder, name, rows, cols, args)
+            request = _request(folder, name, rows, cols, share, args)
             with mock.patch.object(allowance, "PREPASS_SHARE", math.inf):
                 with contextlib.nullcontext() if shared else _nothing_shared():
                     return plan_render(request)
 
         return run
 
-    plan_render(_request(folder, name, rows, cols, args))  # kernels loaded, caches warm
+    plan_render(_request(folder, name, rows, cols, share, args))  # kernels loaded, caches warm
     subjects = {
         "shared": every_stage(True),
         "anew": every_stage(False),
-        "bounded": lambda: plan_render(_request(folder, name, rows, cols, args)),
+        "bounded": lambda: plan_render(_request(folder, name, rows, cols, share, args)),
     }
     times, results = interleaved(subjects, args.repeat)
     prepass = results["bounded"].balance.get("prepass", {})
     return {
         "scene": name,
         "mesh": mesh,
+        "max_share": share,
         "spp": args.spp,
         **times.figure("shared").fields("every_stage_shared_cpu_seconds"),
         **times.figure("anew").fields("every_stage_anew_cpu_seconds"),
@@ -114,10 +119,14 @@ def main(argv=None) -> int:
         f"{'anew/shared':>16s} {'at ' + str(args.spp) + ' spp s':>18s} {'allowed s':>9s} "
         "skipped"
     )
-    rows = []
+    rows, meshes = [], args.meshes.split(",")
+    shares = [float(v) for v in args.max_share.split(",")]
+    shares = shares * len(meshes) if len(shares) == 1 else shares
+    if len(shares) != len(meshes):
+        raise SystemExit(f"--max-share: one share, or one per mesh of {args.meshes}")
     for name in args.only.split(","):
-        for mesh in args.meshes.split(","):
-            r = measure(args.scenes, name, mesh, args)
+        for mesh, share in zip(meshes, shares, strict=True):
+            r = measure(args.scenes, name, mesh, share, args)
             rows.append(r)
             pp = r["prepass"]
             skipped = ", ".join(dict.fromkeys(s["stage"] for s in pp.get("skipped", ())))

@@ -118,30 +118,3 @@ def test_boxes_clipped_before_are_not_clipped_again_and_hold_the_same_objects(mo
     # another scene object (the same file read again) is clipped anew
     clip.holders(read_nff(spd_scene("gears_s1.nff")), los[:1], his[:1])
     assert clipped == [4, 2, 1]
-
-
-def test_the_allowance_affords_simulations_within_a_tenth_of_the_tracing(monkeypatch):
-    from host.planning.allowance import Allowance
-
-    now = [10.0]
-    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
-    allowed = Allowance(began=10.0)
-    assert allowed.affords("first cut", 5)  # nothing learnt yet: the first cut always runs
-    now[0] += 0.2
-    allowed.ran(0.1)
-    allowed.ran(0.1)
-    allowed.learn(5.2)  # one node traces about 5.2 s: the pre-pass may take 0.52 s
-    assert allowed.seconds == pytest.approx(0.52)
-    assert allowed.affords("rounds", 1, reserve=2)  # 0.2 spent + 3 x 0.1 = 0.5
-    now[0] += 0.1
-    allowed.ran(0.1)
-    assert not allowed.affords("rounds", 1, reserve=2)  # 0.3 + 0.3 > 0.52
-    assert allowed.affords("copies", 2)
-    report = allowed.report()
-    assert report["simulations"] == 3 and report["allowed_cpu_seconds"] == pytest.approx(0.52)
-    assert [s["stage"] for s in report["skipped"]] == ["rounds"]
-    assert "0.52 s" in report["skipped"][0]["why"] and "2 kept" in report["skipped"][0]["why"]
-    nothing = Allowance(began=now[0])
-    nothing.learn(0.0)  # a render with no work affords no simulation
-    nothing.ran(0.01)
-    assert not nothing.affords("rounds")

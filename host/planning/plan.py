@@ -67,7 +67,7 @@ def _planned(request: Request, memory: int) -> Planned:
     if camera is not None:  # autofocus probes the scene here, before any node is configured
         camera_spec, info = camera.spec(scene, image, lambda: _probe_engine(scene, image, engine))
     spec = RenderSpec(image, engine, plan, camera_spec)
-    xs = ys = cells = loads = None
+    xs = ys = cells = loads = cost = None
     occupancy, overlap, shared = True, plan.overlap, plan.shared
     balance: dict = {"cuts": plan.balance}
     t0 = time.perf_counter()
@@ -96,20 +96,21 @@ def _planned(request: Request, memory: int) -> Planned:
     part, keep = partition(scene, spec, xs, ys, cells, occupancy, loads)
     if budgeted(spec.plan):
         spec, part, keep, balance["budget"] = _within_budget(
-            scene, spec, part, keep, request.auto.budget_copies
+            scene, spec, part, keep, request.auto.budget_copies, cost
         )
         balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 
-def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool = True):
+def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
     that keeps it, its room then filled (`copies`) with copies of the hottest cells and wider
     boxes where the pre-pass says they pay (`host.planning.replicas`, `growth`); BudgetError
     naming the smallest share reached when none does. Under a byte bound the nodes build
     hierarchies (their memory is known before they are built; a grid's is not: shells'
-    took 260 MB for 1.5 MB of objects)."""
+    took 260 MB for 1.5 MB of objects). `load`: each node's simulated work on these cells
+    (the pre-pass's), for copies it cannot afford to simulate (`replicas._unsimulated`)."""
     gave_up = []
     if spec.plan.node_bytes and spec.engine.structure == "auto":
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
@@ -117,19 +118,19 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool 
     held = holdings(scene, spec, part, keep)
     if not within(spec.plan, held) and spec.plan.balance == "objects":
         gave_up.append(f"cells evened on the work: fullest node {max(held['share']):.1%}")
-        part, keep = partition(scene, spec)  # cut for the fewest objects alone
+        part, keep, load = *partition(scene, spec), None  # cut for the fewest objects alone
         held = holdings(scene, spec, part, keep)
     for fallback in retreats(spec.plan):
         if within(spec.plan, held):
             break
         gave_up.append(f"{_difference(spec.plan, fallback)}: fullest node {max(held['share']):.1%}")
-        spec = replace(spec, plan=fallback)
+        spec, load = replace(spec, plan=fallback), None
         part, keep, held = _objects_within(scene, spec)
     if not within(spec.plan, held):
         raise refusal(scene, spec.plan, held)
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
-    spec, part, keep, chosen = _copied(scene, spec, part, keep)
+    spec, part, keep, chosen = _copied(scene, spec, part, keep, load)
     part, keep, growth = grown_within(scene, spec, part, keep)
     held = holdings(scene, spec, part, keep)
     return (
@@ -140,7 +141,7 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies: bool 
     )
 
 
-def _copied(scene: SceneData, spec: RenderSpec, part, keep):
+def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None):
     """(spec, partition, holders, report) of the budget's copies (`with_replicas`) on the
     cells as cut, or where those are cut by the objects evened on the work and the
     simulated busiest node still carries UNEVEN times the mean or more, on cells cut for the
@@ -149,7 +150,7 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep):
     spheres' cell took 54% of the work, and with cells evened on the work only three nodes
     besides its owner had room for its copy (busiest frame 1.02 s against 0.73 cut for the
     fewest objects, the copy then on every node)."""
-    at, dealt, chosen = with_replicas(scene, spec, part, keep)
+    at, dealt, chosen = with_replicas(scene, spec, part, keep, load)
     load = chosen.get("simulated_load", [])
     uneven = chosen.get("simulated_busiest", 0.0) / max(np.mean(load), 1e-300) if load else 0.0
     if spec.plan.balance != "objects" or uneven < UNEVEN:

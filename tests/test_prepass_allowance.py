@@ -1,0 +1,73 @@
+"""The cost pre-pass's allowance (`host.planning.allowance`): simulations only within a tenth of
+one node's tracing, stages refused named with why, and the copies a short render cannot afford
+to simulate chosen anyway where one cell carries most of the work (`replicas._unsimulated`)."""
+
+import numpy as np
+import pytest
+
+from host.planning import allowance
+from host.planning.budget import holdings, within
+from host.planning.partition import partition
+from host.planning.prepass import planning
+from host.planning.replicas import with_replicas
+from host.scene.nff import read_nff
+from protocols.render import ImageSpec, MeshPlan, RenderSpec
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_budget import single
+
+
+def test_the_allowance_affords_simulations_within_a_tenth_of_the_tracing(monkeypatch):
+    from host.planning.allowance import Allowance
+
+    now = [10.0]
+    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
+    allowed = Allowance(began=10.0)
+    assert allowed.affords("first cut", 5)  # nothing learnt yet: the first cut always runs
+    now[0] += 0.2
+    allowed.ran(0.1)
+    allowed.ran(0.1)
+    allowed.learn(5.2)  # one node traces about 5.2 s: the pre-pass may take 0.52 s
+    assert allowed.seconds == pytest.approx(0.52)
+    assert allowed.affords("rounds", 1, reserve=2)  # 0.2 spent + 3 x 0.1 = 0.5
+    now[0] += 0.1
+    allowed.ran(0.1)
+    assert not allowed.affords("rounds", 1, reserve=2)  # 0.3 + 0.3 > 0.52
+    assert allowed.affords("copies", 2)
+    report = allowed.report()
+    assert report["simulations"] == 3 and report["allowed_cpu_seconds"] == pytest.approx(0.52)
+    assert [s["stage"] for s in report["skipped"]] == ["rounds"]
+    assert "0.52 s" in report["skipped"][0]["why"] and "2 kept" in report["skipped"][0]["why"]
+    nothing = Allowance(began=now[0])
+    nothing.learn(0.0)  # a render with no work affords no simulation
+    nothing.ran(0.01)
+    assert not nothing.affords("rounds")
+
+
+@pytest.mark.parametrize("uneven", [True, False])
+def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_the_load_is_uneven(
+    uneven,
+):
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.4)
+    spec = RenderSpec(ImageSpec(width=32, height=32).sized(scene.view), plan=plan)
+    part, keep = partition(scene, spec)  # cut for the fewest objects: room for copies
+    load = np.ones(9)
+    load[4] = 6.0 if uneven else 1.2  # the first cut's simulated work, node by node
+    with planning(9) as allowed:
+        allowed.learn(0.0)  # a render that affords no simulation
+        at, dealt, report = with_replicas(scene, spec, part, keep, load)
+    assert allowed.passes == 0 and report["why"].startswith("skipped: ")
+    if not uneven:
+        assert report["chosen"] == [] and not at.plan.copies
+        return
+    assert report["simulated"] is False and "unsimulated" in report["why"]
+    # every copy is of the busiest node's cell first, on nodes with room; the budget holds
+    assert at.plan.copies and any(4 in h for h in at.plan.holds)
+    assert within(at.plan, holdings(scene, at, dealt, keep))
+    ref, ref_counts = single(scene)
+    img, totals, _, _ = render_mesh(
+        scene, 3, 3, 1.0, 32, 32, balance="objects", copies=True, holds=at.plan.holds
+    )
+    assert {k: totals[k] for k in ref_counts} == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)

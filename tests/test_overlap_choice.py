@@ -3,9 +3,12 @@ without the occupancy map) and keeps the one whose busiest node carries least, a
 whose largest node's engine fits the nodes' memory; the render it plans is still the single
 node's image with the same counts."""
 
+import math
+
 import numpy as np
 import pytest
 
+from host.planning import allowance
 from host.planning.holding import FITS, OVERLAPS, engine_bytes, largest_engine
 from host.planning.plan import plan_render
 from host.planning.prepass import node_costs
@@ -20,6 +23,13 @@ from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec
 from tests.conftest import spd_scene
 
 COUNTS = RAY_COUNTS
+
+
+@pytest.fixture(autouse=True)
+def every_stage(monkeypatch):
+    """Every candidate simulated: renders this small afford none past the first
+    (`host.planning.allowance`), and these tests are about the choice among them."""
+    monkeypatch.setattr(allowance, "PREPASS_SHARE", math.inf)
 
 
 def planned(scene, image, memory=0, balance="cost"):

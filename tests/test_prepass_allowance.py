@@ -71,3 +71,27 @@ def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_the_load
     )
     assert {k: totals[k] for k in ref_counts} == ref_counts
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+
+
+def test_cost_cuts_and_overlaps_keep_within_the_allowance_too():
+    from host.planning.holding import OVERLAPS
+    from host.planning.plan import plan_render
+    from host.planning.request import Auto, Request
+    from protocols.render import EngineSpec
+
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    plan = MeshPlan(2, 2, OVERLAPS[0], balance="cost")
+    auto = Auto(overlaps=OVERLAPS)
+
+    def planned(size: int, spp: int):
+        image = ImageSpec(width=size, height=size, spp=spp)
+        request = Request(scene, image, EngineSpec(threads=1), plan=plan, auto=auto)
+        return plan_render(request).balance["prepass"]
+
+    small = planned(32, 1)  # a render one node traces in milliseconds: the even cuts only
+    stages = {s["stage"] for s in small["skipped"]}
+    assert {"cuts: shared rows", "cuts: work map"} <= stages, stages
+    assert any(s.startswith("overlap ") for s in stages), stages
+    assert all("one node's tracing" in s["why"] for s in small["skipped"])
+    big = planned(1024, 256)  # minutes on one node: every family at every overlap
+    assert big["skipped"] == [] and big["simulations"] > small["simulations"]

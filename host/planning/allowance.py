@@ -24,12 +24,14 @@ class Allowance:
     passes: int = 0  # simulations run
     pass_seconds: float = 0.0  # their CPU in all
     skipped: list = field(default_factory=list)
+    bounded: bool = True  # False: simulations outside a plan (a bench's, a test's) all run
 
     def learn(self, trace: float) -> None:
         """One node's tracing of the render, estimated from the first cut's simulation:
         from now on the pre-pass keeps within PREPASS_SHARE of it."""
         self.trace = float(trace)
-        self.seconds = PREPASS_SHARE * self.trace if self.trace > 0 else 0.0
+        if self.bounded:
+            self.seconds = PREPASS_SHARE * self.trace if self.trace > 0 else 0.0
 
     def ran(self, seconds: float) -> None:
         """A simulation ran, taking `seconds` of CPU."""

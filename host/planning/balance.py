@@ -21,9 +21,9 @@ from host.planning.budget import budgeted, holdings, within
 from host.planning.cells import scene_box
 from host.planning.holding import at_overlap, choose_holding, overlap_report, too_big_for_memory
 from host.planning.objectcells import object_cells
-from host.planning.objectwork import balanced_object_cells, object_limit
+from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.partition import partition
-from host.planning.prepass import efficiency, node_costs
+from host.planning.prepass import allowance, efficiency, node_costs
 from host.planning.rectangles import bands, column_rows, splits
 from host.planning.shared_cells import busiest_vs_none, choose_shared
 from host.planning.workmap import map_tries
@@ -86,6 +86,8 @@ def balanced_cuts(
     found, too_big = {}, []
     for overlap in sorted({plan.overlap, *overlaps}):
         at = at_overlap(spec, overlap)
+        if found and not allowance().affords(f"overlap {overlap:g}", 1 + rounds):
+            continue
         tried = _tries(scene, at, rounds, families, work)
         # cuts that break the memory budget are no candidates (the even ones stay the base)
         fits = [t for t in tried if not budgeted(plan) or _within(scene, at, t)]
@@ -169,11 +171,16 @@ def _shared_on_even(
 
 
 def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[tuple]:
-    """(busiest, xs, ys, costs, family, cells) of even cuts and of every family's re-cuts."""
-    plan = spec.plan
+    """(busiest, xs, ys, costs, family, cells) of even cuts and of every family's re-cuts,
+    each family only where the pre-pass's allowance affords its rounds (the even cuts'
+    simulation estimates the render's tracing: `host.planning.allowance`)."""
+    plan, allowed = spec.plan, allowance()
     even = node_costs(scene, spec, None, None)
+    allowed.learn(node_seconds(spec, float(even.sum())))  # the even cuts estimate the render
     tried = [(float(even.max()), None, None, even, "even", None)]
     for family in families:
+        if not allowed.affords(f"cuts: {family}", 1 if family == "objects" else rounds):
+            continue
         if family == "work map":
             tried += map_tries(scene, spec, rounds, work)
         elif family == "objects":  # cells that divide the objects, then the work

@@ -49,27 +49,32 @@ def choose_holding(
     of `overlaps` (with the plan's) the one whose busiest node simulates least among
     those whose largest node's engine takes at most FITS of `memory` (0: not known, every
     overlap); with the map or without, whichever lightens the busiest node (the map's walk
-    costs, in a fractal of many small empty cubes, more than the passes it saves)."""
-    from host.planning.prepass import node_costs  # the mesh simulator: planning a mesh only
+    costs, in a fractal of many small empty cubes, more than the passes it saves). Each
+    simulation asks the pre-pass's allowance (`host.planning.allowance`): an overlap it
+    refuses is not tried, a map not weighed against none is kept."""
+    from host.planning.prepass import allowance, node_costs  # the simulator: planning only
 
-    plan = spec.plan
+    plan, allowed = spec.plan, allowance()
     tried, too_big = {}, []
     for overlap in sorted({plan.overlap, *overlaps}):
         at = at_overlap(spec, overlap)
-        if overlap != plan.overlap and too_big_for_memory(
-            scene, at, xs, ys, cells, memory, too_big
+        if overlap != plan.overlap and (
+            too_big_for_memory(scene, at, xs, ys, cells, memory, too_big)
+            or not allowed.affords(f"overlap {overlap:g}")
         ):
             continue
         with_map = (
             busiest if overlap == plan.overlap else node_costs(scene, at, xs, ys, cells).max()
         )
         tried[overlap, True] = float(with_map)
-        tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
+        if allowed.affords(f"overlap {overlap:g} without the occupancy map"):
+            tried[overlap, False] = float(node_costs(scene, at, xs, ys, cells, False).max())
     # ties: the smaller overlap (less held), then the map (fewer rays passed)
     (overlap, occupancy), _ = min(tried.items(), key=lambda t: (t[1], t[0][0], not t[0][1]))
+    without = tried.get((overlap, False), tried[overlap, True])  # not simulated: the same
     report = {
         "occupancy_map": occupancy,
-        "simulated_busiest_without_map_vs_with": ratio(tried[overlap, False], tried[overlap, True]),
+        "simulated_busiest_without_map_vs_with": ratio(without, tried[overlap, True]),
     }
     if overlaps:
         report["overlap"] = overlap_report(

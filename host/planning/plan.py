@@ -83,9 +83,10 @@ def _planned(request: Request, memory: int) -> Planned:
         loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
-        even = node_costs(scene, spec, None, None).max()
+        even = node_costs(scene, spec, None, None)
+        allowance().learn(node_seconds(spec, float(even.sum())))  # the render's tracing
         overlap, occupancy, report = choose_holding(
-            scene, spec, None, None, None, even, overlaps, memory
+            scene, spec, None, None, None, even.max(), overlaps, memory
         )
         balance.update(report, seconds=time.perf_counter() - t0)
     if plan.mode == "object" and (overlap, shared) != (plan.overlap, plan.shared):

@@ -58,7 +58,7 @@ def planning(nodes: int):
 def allowance() -> Allowance:
     """The plan's pre-pass allowance (outside a plan: one without bound)."""
     now = _PLANNING.get()
-    return now.allowance if now is not None else Allowance()
+    return now.allowance if now is not None else Allowance(bounded=False)
 
 
 def simulated(scenes, spec: RenderSpec, part):

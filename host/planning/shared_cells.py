@@ -10,7 +10,7 @@ import numpy as np
 from host.planning.budget import budgeted, holdings, within
 from host.planning.holding import ratio, too_big_for_memory
 from host.planning.partition import partition
-from host.planning.prepass import node_costs
+from host.planning.prepass import allowance, node_costs
 from protocols.render import RenderSpec
 
 SHARE_TRIES = 4  # cells tried alone as the shared one (those taking most tiles' eye rays)
@@ -61,6 +61,8 @@ def choose_shared(
             plan, holdings(scene, at, *partition(scene, at, xs, ys, cells))
         ):
             too_big.append({"shared": list(shared), "over": "the plan's memory budget"})
+            return None
+        if not allowance().affords("shared cells"):  # the pre-pass's allowance
             return None
         tried[shared] = float(node_costs(scene, at, xs, ys, cells, occupancy).max())
         return tried[shared]

@@ -380,8 +380,12 @@ def test_version_and_a_closed_pipe_are_quiet(monkeypatch):
     assert main(["camera", str(cameras / "thin_f2.8.toml")]) == 0
 
 
-def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys):
+def test_overlap_auto_renders_at_the_overlap_the_pre_pass_chose(tmp_path, capsys, monkeypatch):
+    from host.planning import allowance
     from host.planning.holding import OVERLAPS
+
+    # every overlap simulated: a 24x24 render affords none past the first (its allowance)
+    monkeypatch.setattr(allowance, "PREPASS_SHARE", float("inf"))
 
     stats = tmp_path / "s.json"
     assert (

@@ -283,10 +283,13 @@ def test_cost_balanced_cuts_give_the_single_node_image(name, rows, cols, family,
     # on to the cell they enter), same image and counts (correctness never depends on the
     # cuts; which family wins on a scene is the pre-pass's choice, tested in simulation).
     import host.planning.plan
+    from host.planning import allowance
     from host.planning.balance import balanced_cuts
 
     families = partial(balanced_cuts, families=(family,))
     monkeypatch.setattr(host.planning.plan, "balanced_cuts", families)
+    # a render this small affords no family's rounds (`host.planning.allowance`)
+    monkeypatch.setattr(allowance, "PREPASS_SHARE", float("inf"))
     scene = read_nff(spd_scene(name))
     rs = records(width=60, height=60, threads=1)
     ref, ref_stats = render(Request(scene, *rs))

@@ -55,6 +55,16 @@ def add_simulated_mesh_options(parser, only: str, size: int, spp: int) -> None:
     parser.add_argument("--json", type=Path)
 
 
+def per_mesh(values: str, meshes: list) -> list[float]:
+    """A comma-separated option given once for every mesh or once per mesh (`--max-share
+    0.5,0.25`), as one float per mesh."""
+    got = [float(v) for v in values.split(",")]
+    got = got * len(meshes) if len(got) == 1 else got
+    if len(got) != len(meshes):
+        raise SystemExit(f"{values}: one value, or one per mesh of {len(meshes)}")
+    return got
+
+
 def finish(rows: list, path: Path | None, bad: list[str], failure: str, success: str) -> int:
     """A benchmark's end: its rows as JSON to `path` (if given), then `failure` and the rows
     that broke an exactness check (exit 1), or `success` (exit 0)."""

@@ -57,7 +57,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import add_scenes_option, finish  # noqa: E402 (after the path is set)
+from bench import add_scenes_option, finish, per_mesh  # noqa: E402 (after the path is set)
 from bench.mesh_reference import camera_setup, sized  # noqa: E402
 from bench.mesh_rows import COUNTS, figures, plot_row, print_header, print_row  # noqa: E402
 from bench.mesh_runs import on_mesh  # noqa: E402
@@ -200,8 +200,7 @@ def bench_scene(args, name: str, base, lens, meshes, overlaps, results: list, ba
     ref = {k: s1["rays"][k] for k in COUNTS}
     print_header(name, image, camera, wall1, s1["trace_cpu_seconds"])
     runs = row_plan(args, overlaps)
-    shares = [float(v) for v in args.max_share.split(",")]
-    shares = shares * len(meshes) if len(shares) == 1 else shares
+    shares = per_mesh(args.max_share, meshes)
     for (rows, cols), share in zip(meshes, shares, strict=True):
         for mode, overlap, thr, cut, (steal, copy, budget) in runs:
             try:

@@ -27,7 +27,7 @@ from unittest import mock
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import add_scenes_option, read_scene  # noqa: E402 (after the path is set)
+from bench import add_scenes_option, per_mesh, read_scene  # noqa: E402 (after the path is set)
 from bench.timing import interleaved  # noqa: E402
 
 
@@ -120,10 +120,7 @@ def main(argv=None) -> int:
         "skipped"
     )
     rows, meshes = [], args.meshes.split(",")
-    shares = [float(v) for v in args.max_share.split(",")]
-    shares = shares * len(meshes) if len(shares) == 1 else shares
-    if len(shares) != len(meshes):
-        raise SystemExit(f"--max-share: one share, or one per mesh of {args.meshes}")
+    shares = per_mesh(args.max_share, meshes)
     for name in args.only.split(","):
         for mesh, share in zip(meshes, shares, strict=True):
             r = measure(args.scenes, name, mesh, share, args)

@@ -38,14 +38,15 @@ SIZE = 16  # image side: tracing takes no time next to setup
 
 
 def load(name: str, scenes: Path):
-    """An SPD scene by name: `tetra8` generated, others read from `scenes`."""
+    """An SPD scene by name: `tetra8` generated, others read from `scenes` or generated
+    where an SPD program makes them (`bench.read_scene`: the full mountain)."""
     if name == "tetra8":
         from bench.generate import tetra
 
         return tetra(8)
-    from host.scene.nff import read_nff
+    from bench import read_scene
 
-    return read_nff(scenes / f"{name}.nff")
+    return read_scene(scenes, name)
 
 
 def measured(scene, rows: int, cols: int, mode: str) -> dict:

@@ -152,8 +152,9 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None):
     besides its owner had room for its copy (busiest frame 1.02 s against 0.73 cut for the
     fewest objects, the copy then on every node)."""
     at, dealt, chosen = with_replicas(scene, spec, part, keep, load)
-    load = chosen.get("simulated_load", [])
-    uneven = chosen.get("simulated_busiest", 0.0) / max(np.mean(load), 1e-300) if load else 0.0
+    simulated = chosen.get("simulated_load", [])
+    top = chosen.get("simulated_busiest", 0.0)
+    uneven = top / max(np.mean(simulated), 1e-300) if simulated else 0.0
     if spec.plan.balance != "objects" or uneven < UNEVEN:
         return at, dealt, keep, chosen
     if not allowance().affords("cells for the fewest objects", COPIES_LEAST):

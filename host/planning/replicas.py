@@ -49,8 +49,9 @@ TRIES = (1.0, 0.5, 0.25)  # shares of the copies chosen (hottest first) simulate
 # simulated and the lighter kept.
 RULES = ("traffic", "load")
 # Where the copies cannot be simulated (the pre-pass's allowance), they are chosen anyway
-# when the cells' simulated busiest node carries this many times the mean (`_unsimulated`)
-UNEVEN = 1.5
+# when the cells' simulated busiest node carries this many times the mean (`_unsimulated`;
+# `host.planning.plan.UNEVEN` gates the second cut for the fewest objects alike)
+UNSIMULATED_UNEVEN = 1.5
 # Simulations the copies need at least (the mesh without, one set with): the pre-pass's
 # allowance keeps this many for them when it affords re-cut rounds (`host.planning.allowance`)
 COPIES_LEAST = 2
@@ -131,14 +132,18 @@ def with_replicas(
 
 def _unsimulated(scene, spec: RenderSpec, part: Partition, keep, load, skipped: str):
     """(spec, partition, report) with copies the pre-pass could not afford to simulate: where
-    the cells' simulated `load` (the first cut's) leaves the busiest node UNEVEN times the
-    mean or more, every copy the load rule chooses, each cell's rays to its owner and its
+    the cells' simulated `load` (the first cut's) leaves the busiest node UNSIMULATED_UNEVEN
+    times the mean or more, every copy the load rule chooses, each cell's rays to its owner and its
     tiles dealt by count; else none. Unsimulated copies can cost a little where the load is
     even (teapot 3x3, busiest frame 0.56 s with copies against 0.52 without), and skipping
     them costs most where one cell holds most of the work (the SPD mountain 4x4 under 0.15,
     its glass spheres' cell: frame CPU speedup 0.94 without)."""
     load = None if load is None else np.asarray(load, float)
-    if load is None or len(load) != spec.plan.nodes or load.max() < UNEVEN * load.mean():
+    if (
+        load is None
+        or len(load) != spec.plan.nodes
+        or load.max() < UNSIMULATED_UNEVEN * load.mean()
+    ):
         return spec, part, {"chosen": [], "why": skipped}
     added = choose_copies(scene, spec, part, keep, load, None)
     if not added:

@@ -2,20 +2,25 @@
 linked, measured on local meshes and simulated for meshes this machine cannot run (issue 38).
 
     python -m bench.setup [--scenes DIR] [--only tetra8,balls,gears] [--measured 1x2,2x2,3x3,4x4]
-                          [--simulated 8x8,16x16] [--mode object] [--bandwidth 1e9] [--json FILE]
+                          [--simulated 8x8,16x16] [--mode object] [--max-share F]
+                          [--bandwidth 1e9] [--json FILE]
 
-Measured: one render of a 16x16 image (tracing negligible) on a fresh local mesh of each size
-(warm kernel cache, no engine reused), its summary's plan seconds (the host's planning:
-cells, clipping, holders), configure seconds (CONFIG and every node's objects sent: the host
-sends them node after node) and setup seconds (from the plan's start until every node has
-built its engine and linked its neighbours). Simulated: the same plan made in this process
+Measured: a fresh local mesh of each size renders a 16x16 image (tracing negligible) twice,
+keeping no engine between its renders (`meshnode serve --keep-engines 1`). The first render
+is the cold start: each node loads its kernels from the disk cache as it builds (once in a
+node's life). The second, of the scene read again (no plan, clip or table kept on the host),
+is setup on nodes that are up: what every later render of a running cluster pays. Each gives
+its summary's plan seconds (the host's planning: cells, clipping, holders, the budget's
+pre-pass under `--max-share`), configure seconds (CONFIG and every node's objects sent: the
+host sends them node after node) and setup seconds (from the plan's start until every node
+has built its engine and linked its neighbours). Simulated: the same plan made in this process
 (real seconds), every node's objects sent one after the other at `--bandwidth` bytes a second
 (the host's link), and the slowest node's build (each node's NodeCore made here, one after
-another, timed on its own) and a fresh process's start (importing, loading the kernels from
-the disk cache and building a small engine, measured once in a subprocess): plan + send +
-slowest build + start, the figure a mesh of that size would show on machines of its own,
-builds in parallel. (Measured meshes share this machine's two cores: a 4x4's sixteen
-processes load their kernels and build at once, so its setup is mostly waiting for a core.)
+another, timed on its own): plan + send + slowest build, the figure a mesh of that size would
+show on machines of their own, builds in parallel; its cold start adds a fresh process's start
+(importing, loading the kernels from the disk cache and building a small engine, measured once
+in a subprocess). (Measured meshes share this machine's two cores: a 4x4's sixteen processes
+load their kernels and build at once, so its cold setup is mostly waiting for a core.)
 `tetra8` is the SPD tetrahedron at size factor 8 (65,536 triangles), generated.
 """
 
@@ -31,6 +36,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import add_scenes_option  # noqa: E402 (after the path is set)
+from host.planning.budget import BudgetError  # noqa: E402
 from host.planning.request import Request  # noqa: E402
 from host.run.connections import Nodes  # noqa: E402
 
@@ -49,24 +55,25 @@ def load(name: str, scenes: Path):
     return read_scene(scenes, name)
 
 
-def measured(scene, rows: int, cols: int, mode: str) -> dict:
-    """Plan, configure and setup seconds of one render on a fresh local mesh."""
+def measured(name: str, scenes: Path, rows: int, cols: int, mode: str, share=None) -> dict:
+    """Plan, configure and setup seconds of a fresh local mesh's first render (`cold`) and of
+    its second (`warm`: kernels loaded, no engine kept, the scene read anew)."""
     from host.run.localmesh import LocalMesh
-    from host.run.meshclient import render_on_mesh
-    from protocols.render import EngineSpec, ImageSpec, MeshPlan
 
-    with LocalMesh(rows * cols) as addresses:
-        _, stats = asyncio.run(
-            render_on_mesh(
-                Request(
-                    scene,
-                    ImageSpec(width=SIZE, height=SIZE),
-                    EngineSpec(threads=1),
-                    plan=MeshPlan(rows, cols, mode=mode),
-                ),
-                Nodes(addresses),
-            )
-        )
+    with LocalMesh(rows * cols, once=False, options=["--keep-engines", "1"]) as addresses:
+        cold = _timed(load(name, scenes), rows, cols, mode, share, addresses)
+        warm = _timed(load(name, scenes), rows, cols, mode, share, addresses)
+    return {**warm, "cold": cold}
+
+
+def _timed(scene, rows: int, cols: int, mode: str, share, addresses) -> dict:
+    """One render's setup figures from its summary."""
+    from host.run.meshclient import render_on_mesh
+
+    request = _request(scene, rows, cols, mode, share)
+    _, stats = asyncio.run(render_on_mesh(request, Nodes(addresses)))
+    if any(n["engine_reused"] for n in stats["nodes"]):
+        raise RuntimeError("a node reused an engine: setup would not count its build")
     return {
         "plan": stats["plan_seconds"],
         "configure": stats["configure_seconds"],
@@ -75,21 +82,31 @@ def measured(scene, rows: int, cols: int, mode: str) -> dict:
     }
 
 
+def _request(scene, rows: int, cols: int, mode: str, share=None) -> Request:
+    """A 16x16 render on a rows x cols mesh; under a budget of `share` (balance "objects",
+    the budget's copies chosen) where one is given."""
+    from host.planning.request import Auto
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    budget = {"balance": "objects", "max_share": share} if share else {}
+    return Request(
+        scene,
+        ImageSpec(width=SIZE, height=SIZE),
+        EngineSpec(threads=1),
+        plan=MeshPlan(rows, cols, mode=mode, **budget),
+        auto=Auto(budget_copies=bool(share)),
+    )
+
+
 def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float, process: float) -> dict:
-    """Plan (real), send (bytes / bandwidth, node after node), the slowest build and a
-    `process`'s start."""
+    """Plan (real), send (bytes / bandwidth, node after node) and the slowest build; cold,
+    a `process`'s start added (no budget: a node's copies are not built here)."""
     from host.planning.plan import plan_render
     from host.scene.subset import subset
     from meshnode.mesh.node import NodeCore
-    from protocols.render import EngineSpec, ImageSpec, MeshPlan
     from protocols.scene import SCENE_TABLES
 
-    engine = EngineSpec(threads=1)
-    planned = plan_render(
-        Request(
-            scene, ImageSpec(width=SIZE, height=SIZE), engine, plan=MeshPlan(rows, cols, mode=mode)
-        )
-    )
+    planned = plan_render(_request(scene, rows, cols, mode))
     part, sent, slowest = planned.partition, 0, 0.0
     for n in range(part.nodes):
         held = subset(scene, planned.holders[n])
@@ -97,12 +114,13 @@ def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float, process:
         start = time.perf_counter()
         NodeCore(n, held, planned.spec, part)  # as the node builds it (a cache of its own)
         slowest = max(slowest, time.perf_counter() - start)
-    plan = planned.seconds
+    setup = planned.seconds + sent / bandwidth + slowest
     return {
-        "plan": plan,
+        "plan": planned.seconds,
         "configure": sent / bandwidth,
-        "setup": plan + sent / bandwidth + slowest + process,
+        "setup": setup,
         "build_max": slowest,
+        "cold": {"setup": setup + process},
     }
 
 
@@ -128,6 +146,11 @@ def main(argv=None) -> int:
     p.add_argument("--measured", default="1x2,2x2,3x3,4x4")
     p.add_argument("--simulated", default="8x8,16x16")
     p.add_argument("--mode", default="object", choices=("object", "image"))
+    p.add_argument(
+        "--max-share",
+        type=float,
+        help="measured meshes under this memory budget (balance objects, copies chosen)",
+    )
     p.add_argument("--bandwidth", type=float, default=1e9, help="host link, bytes a second")
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
@@ -136,22 +159,27 @@ def main(argv=None) -> int:
     print(f"a fresh process's start (imports, kernels loaded, a small engine): {start:.2f} s")
     print(
         f"{'scene':>8} {'mesh':>6} {'how':>9} {'plan s':>7} {'send s':>7} {'build s':>8} "
-        f"{'setup s':>8}"
+        f"{'setup s':>8} {'cold s':>7}   (nodes up, no engine kept; cold: their first render)"
     )
     for name in args.only.split(","):
-        scene = load(name, args.scenes)
         meshes = [(m, "measured") for m in args.measured.split(",") if m] + [
             (m, "simulated") for m in args.simulated.split(",") if m
         ]
         for mesh, how in meshes:
             rows, cols = (int(v) for v in mesh.split("x"))
             if how == "measured":
-                got = measured(scene, rows, cols, args.mode)
+                try:
+                    got = measured(name, args.scenes, rows, cols, args.mode, args.max_share)
+                except BudgetError as e:  # the plan's refusal, before any work: named
+                    print(f"{name:>8} {mesh:>6} {how:>9}  {str(e).split(': ', 1)[1]}")
+                    rows_out.append({"scene": name, "mesh": mesh, "how": how, "refused": str(e)})
+                    continue
             else:
+                scene = load(name, args.scenes)
                 got = simulated(scene, rows, cols, args.mode, args.bandwidth, start)
             print(
                 f"{name:>8} {mesh:>6} {how:>9} {got['plan']:>7.3f} {got['configure']:>7.3f} "
-                f"{got['build_max']:>8.3f} {got['setup']:>8.3f}",
+                f"{got['build_max']:>8.3f} {got['setup']:>8.3f} {got['cold']['setup']:>7.3f}",
                 flush=True,
             )
             rows_out.append({"scene": name, "mesh": mesh, "how": how, **got})

@@ -95,3 +95,29 @@ def test_cost_cuts_and_overlaps_keep_within_the_allowance_too():
     assert all("one node's tracing" in s["why"] for s in small["skipped"])
     big = planned(1024, 256)  # minutes on one node: every family at every overlap
     assert big["skipped"] == [] and big["simulations"] > small["simulations"]
+
+
+def test_a_budget_s_retreat_simulates_its_cut_only_within_the_allowance():
+    from host.planning.plan import plan_render
+    from host.planning.request import Auto, Request
+    from protocols.render import EngineSpec
+
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.22)  # overlap 1 breaks it: 0 instead
+
+    def planned(size: int, spp: int):
+        image = ImageSpec(width=size, height=size, spp=spp)
+        request = Request(scene, image, EngineSpec(threads=1), plan=plan, auto=Auto())
+        return plan_render(request)
+
+    small, big = planned(16, 1), planned(1024, 64)
+    for p in (small, big):
+        assert p.spec.plan.overlap == 0 and within(
+            p.spec.plan, holdings(scene, p.spec, p.partition, p.holders)
+        )
+        assert any(g.startswith("--overlap 1") for g in p.balance["budget"]["gave_up"])
+    retreat = "the retreat's cells evened on work"
+    skipped = {s["stage"]: s["why"] for s in small.balance["prepass"]["skipped"]}
+    assert "one node's tracing" in skipped[retreat]  # cut for the fewest objects instead
+    assert retreat not in {s["stage"] for s in big.balance["prepass"]["skipped"]}
+    assert big.balance["prepass"]["simulations"] > small.balance["prepass"]["simulations"]

@@ -2,6 +2,10 @@
 
 Conservative by design: a node may hold an object it never meets, never miss one it does,
 so correctness never depends on how tight the test is, only the memory and the work do.
+
+The tests run in one kernel (`_touching`), box by object. It calls no engine kernel, so
+numba's cache of this file alone keys it (`meshnode.engine.jit`: the engine's cache folder is
+named after the engine's kernel sources, which this file is not one of).
 """
 
 import numpy as np

@@ -214,33 +214,47 @@ def choose_copies(
     takes most from (`passes`, nodes x nodes; None: none), else the least loaded (each
     holder's load its cells' shares)."""
     plan, nodes = spec.plan, spec.plan.nodes
-    own = cell_bytes(scene, part, keep)
-    held = [{n} for n in range(nodes)]
-    mask = [keep[n].copy() for n in range(nodes)]
-    size = list(own)
+    own = np.asarray(cell_bytes(scene, part, keep))
+    held = [{n} for n in range(nodes)]  # sets, as `carried` sums them (the same bits)
+    holds = np.eye(nodes, dtype=bool)  # holds[n, c]: node n holds cell c
+    mask = np.array(keep[:nodes], bool)  # the objects each node holds
+    count = np.count_nonzero(mask, axis=1)
+    size = own.copy()
     limit = plan.max_share * keep.shape[1] + 1e-9
     traffic = np.zeros((nodes, nodes)) if passes is None else np.asarray(passes, float)
     traffic = traffic + traffic.T
+    full = np.zeros(nodes, bool)  # cells no node has room for: so they stay (holdings grow)
+    cells = [np.flatnonzero(keep[c]) for c in range(nodes)]
 
-    def fits(n: int, c: int) -> bool:
-        if np.count_nonzero(mask[n] | keep[c]) > limit:
-            return False
-        return not plan.node_bytes or size[n] + own[c] <= plan.node_bytes
+    def room(c: int) -> np.ndarray:
+        """The nodes not holding cell c with room for its objects and bytes."""
+        new = np.count_nonzero(~mask[:, cells[c]], axis=1)
+        fits = ~holds[:, c] & (count + new <= limit)
+        if plan.node_bytes:
+            fits &= size + own[c] <= plan.node_bytes
+        return np.flatnonzero(fits)
+
+    def carried(n: int, share) -> float:
+        return sum(share[c] for c in held[n])
 
     added = []
     while True:
-        holders = [sum(c in h for h in held) for c in range(nodes)]
-        share = [float(load[c]) / holders[c] for c in range(nodes)]
-        carried = [sum(share[c] for c in held[n]) for n in range(nodes)]
+        share = [float(load[c]) / h for c, h in enumerate(holds.sum(axis=0).tolist())]
         for c in sorted(range(nodes), key=lambda c: (-share[c], c)):
-            room = [n for n in range(nodes) if c not in held[n] and fits(n, c)]
-            if room:
-                n = min(room, key=lambda n: (-traffic[n, c], carried[n], n))
-                held[n].add(c)
-                mask[n] |= keep[c]
-                size[n] += own[c]
-                added.append((n, c))
-                break
+            if full[c]:
+                continue
+            some = room(c).tolist()
+            if not some:
+                full[c] = True
+                continue
+            n = min(some, key=lambda n: (-traffic[n, c], carried(n, share), n))
+            held[n].add(c)
+            holds[n, c] = True
+            count[n] += np.count_nonzero(~mask[n, cells[c]])
+            mask[n, cells[c]] = True
+            size[n] += own[c]
+            added.append((n, c))
+            break
         else:
             return added
 

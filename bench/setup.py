@@ -98,21 +98,26 @@ def _request(scene, rows: int, cols: int, mode: str, share=None) -> Request:
     )
 
 
-def simulated(scene, rows: int, cols: int, mode: str, bandwidth: float, process: float) -> dict:
-    """Plan (real), send (bytes / bandwidth, node after node) and the slowest build; cold,
-    a `process`'s start added (no budget: a node's copies are not built here)."""
+def simulated(
+    scene, rows: int, cols: int, mode: str, bandwidth: float, process: float, share=None
+) -> dict:
+    """Plan (real), send (bytes / bandwidth, node after node: its cell's objects and its
+    copies') and the slowest build (its engines, copies too); cold, a `process`'s start
+    added. `share`: planned under that budget."""
     from host.planning.plan import plan_render
     from host.scene.subset import subset
     from meshnode.mesh.node import NodeCore
     from protocols.scene import SCENE_TABLES
 
-    planned = plan_render(_request(scene, rows, cols, mode))
-    part, sent, slowest = planned.partition, 0, 0.0
+    planned = plan_render(_request(scene, rows, cols, mode, share))
+    part, spec, sent, slowest = planned.partition, planned.spec, 0, 0.0
+    cells = [subset(scene, planned.holders[n]) for n in range(part.nodes)]
     for n in range(part.nodes):
-        held = subset(scene, planned.holders[n])
-        sent += sum(getattr(held, t).nbytes for t in SCENE_TABLES)
+        copies = {m: cells[m] for m in spec.plan.holds[n]} if spec.plan.holds else {}
+        for held in (cells[n], *copies.values()):
+            sent += sum(getattr(held, t).nbytes for t in SCENE_TABLES)
         start = time.perf_counter()
-        NodeCore(n, held, planned.spec, part)  # as the node builds it (a cache of its own)
+        NodeCore(n, cells[n], spec, part, copies=copies)  # as the node builds them
         slowest = max(slowest, time.perf_counter() - start)
     setup = planned.seconds + sent / bandwidth + slowest
     return {
@@ -149,7 +154,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--max-share",
         type=float,
-        help="measured meshes under this memory budget (balance objects, copies chosen)",
+        help="plan under this memory budget (balance objects, copies chosen)",
     )
     p.add_argument("--bandwidth", type=float, default=1e9, help="host link, bytes a second")
     p.add_argument("--json", type=Path)
@@ -167,16 +172,18 @@ def main(argv=None) -> int:
         ]
         for mesh, how in meshes:
             rows, cols = (int(v) for v in mesh.split("x"))
-            if how == "measured":
-                try:
+            try:
+                if how == "measured":
                     got = measured(name, args.scenes, rows, cols, args.mode, args.max_share)
-                except BudgetError as e:  # the plan's refusal, before any work: named
-                    print(f"{name:>8} {mesh:>6} {how:>9}  {str(e).split(': ', 1)[1]}")
-                    rows_out.append({"scene": name, "mesh": mesh, "how": how, "refused": str(e)})
-                    continue
-            else:
-                scene = load(name, args.scenes)
-                got = simulated(scene, rows, cols, args.mode, args.bandwidth, start)
+                else:
+                    scene = load(name, args.scenes)
+                    got = simulated(
+                        scene, rows, cols, args.mode, args.bandwidth, start, args.max_share
+                    )
+            except BudgetError as e:  # the plan's refusal, before any work: named
+                print(f"{name:>8} {mesh:>6} {how:>9}  {str(e).split(': ', 1)[1]}")
+                rows_out.append({"scene": name, "mesh": mesh, "how": how, "refused": str(e)})
+                continue
             print(
                 f"{name:>8} {mesh:>6} {how:>9} {got['plan']:>7.3f} {got['configure']:>7.3f} "
                 f"{got['build_max']:>8.3f} {got['setup']:>8.3f} {got['cold']['setup']:>7.3f}",

@@ -13,13 +13,13 @@ def test_bench_cells_plans_both_guesses_within_the_budget(tmp_path, capsys):
     before = seenwork.SEEN
     out = tmp_path / "cells.json"
     argv = ["--scenes", str(folder), "--only", "teapot_s1", "--meshes", "2x2"]
-    argv += ["--max-share", "0.6", "--size", "48", "--spp", "1", "--simulate-spp", "1"]
+    argv += ["--max-share", "0.6", "--size", "256", "--spp", "1", "--simulate-spp", "1"]
     assert main([*argv, "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
     assert [r["guess"] for r in rows] == ["seen", "objects"]
     for r in rows:
-        # a render this small affords no re-cut round (`host.planning.allowance`): the first
-        # cut is simulated all the same
+        # a render this small (16 coarse passes' samples) affords the first cut's simulation
+        # but no re-cut round (`host.planning.allowance`)
         assert r["fullest_share"] <= 0.6 and r["busiest_units"] > 0
         assert len(r["by_round"]) >= 1 and r["busiest_over_mean"] >= 1.0
     assert seenwork.SEEN == before  # put back as it was

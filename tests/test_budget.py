@@ -235,13 +235,13 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     assert len(first) == 2
     chosen = first[1] if report["first_cut"] == "rows first" else first[0]
     assert chosen == min(first) <= 0.75 * counted.max()
-    planned = plan_render(Request(scene, ImageSpec(width=128, height=128), ONE, plan=plan))
+    planned = plan_render(Request(scene, ImageSpec(width=256, height=256), ONE, plan=plan))
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
     # the plan's own pre-pass is bounded by the render it plans (`host.planning.allowance`):
-    # 128 x 128 at one sample is 4 coarse passes' samples, so a tenth of it affords no
-    # re-cut, and the report says so; a render of 1024 x 1024 at 256 spp (minutes on one
-    # node) affords all three and skips nothing
+    # 256 x 256 at one sample is 16 coarse passes' samples, so a tenth of it affords the
+    # first cut but no re-cut, and the report says so; a render of 1024 x 1024 at 256 spp
+    # (minutes on one node) affords all three and skips nothing
     reason = planned.balance["rounds_reason"]
     assert planned.balance["rounds"] == 0 and reason.startswith("0 of 3"), reason
     skipped = {s["stage"]: s["why"] for s in planned.balance["prepass"]["skipped"]}
@@ -254,6 +254,14 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     assert planned.balance["budget"]["growth"]["why"].startswith("skipped: ")
     big = plan_render(Request(scene, ImageSpec(width=1024, height=1024, spp=256), ONE, plan=plan))
     assert big.balance["rounds"] == 3 and big.balance["prepass"]["skipped"] == []
+    # 128 x 128 at one sample is 4 coarse passes' samples: not even the first cut fits a
+    # tenth of its tracing, so none is simulated; its cells even the first guess's work
+    tiny = plan_render(Request(scene, ImageSpec(width=128, height=128), ONE, plan=plan))
+    prepass = tiny.balance["prepass"]
+    assert prepass["simulations"] == 0 and tiny.balance["first_cut"] == "not simulated"
+    assert "no simulation fits in 10% of its tracing" in prepass["skipped"][0]["why"]
+    assert prepass["skipped"][0]["stage"] == "the first cut"
+    assert max(tiny.balance["budget"]["share_held"]) <= 0.25
 
 
 def test_re_cut_cells_that_break_the_budget_are_cut_again_within_it():

@@ -110,8 +110,8 @@ def test_a_budget_s_retreat_simulates_its_cut_only_within_the_allowance():
         request = Request(scene, image, EngineSpec(threads=1), plan=plan, auto=Auto())
         return plan_render(request)
 
-    small, big = planned(16, 1), planned(1024, 64)
-    for p in (small, big):
+    tiny, small, big = planned(16, 1), planned(256, 1), planned(1024, 64)
+    for p in (tiny, small, big):
         assert p.spec.plan.overlap == 0 and within(
             p.spec.plan, holdings(scene, p.spec, p.partition, p.holders)
         )
@@ -119,5 +119,9 @@ def test_a_budget_s_retreat_simulates_its_cut_only_within_the_allowance():
     retreat = "the retreat's cells evened on work"
     skipped = {s["stage"]: s["why"] for s in small.balance["prepass"]["skipped"]}
     assert "one node's tracing" in skipped[retreat]  # cut for the fewest objects instead
+    # a render too small for any simulation: neither the first cut's nor the retreat's ran
+    skipped = {s["stage"]: s["why"] for s in tiny.balance["prepass"]["skipped"]}
+    assert "no simulation fits" in skipped[retreat] and "the first cut" in skipped
+    assert tiny.balance["prepass"]["simulations"] == 0
     assert retreat not in {s["stage"] for s in big.balance["prepass"]["skipped"]}
     assert big.balance["prepass"]["simulations"] > small.balance["prepass"]["simulations"]

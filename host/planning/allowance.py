@@ -25,6 +25,7 @@ class Allowance:
     pass_seconds: float = 0.0  # their CPU in all
     skipped: list = field(default_factory=list)
     bounded: bool = True  # False: simulations outside a plan (a bench's, a test's) all run
+    refused: str = ""  # why no simulation at all is afforded (`refuse_all`)
 
     def learn(self, trace: float) -> None:
         """One node's tracing of the render, estimated from the first cut's simulation:
@@ -32,6 +33,25 @@ class Allowance:
         self.trace = float(trace)
         if self.bounded:
             self.seconds = PREPASS_SHARE * self.trace if self.trace > 0 else 0.0
+
+    def refuse_all(self, stage: str, why: str) -> None:
+        """No simulation fits, known before any runs (`stage` skipped for `why`): every
+        later stage is refused with the same reason."""
+        self.seconds, self.refused = 0.0, why
+        self.skipped.append({"stage": stage, "why": why})
+
+    def too_small(self, samples: int, coarse: int) -> str:
+        """Why a render of `samples` samples affords no simulation of `coarse` ("" where it
+        may): a simulation traces the same scene at the same depth, so under 1 /
+        PREPASS_SHARE of them it takes more than the allowance of the render's tracing."""
+        least = coarse / PREPASS_SHARE
+        if samples >= least:
+            return ""
+        return (
+            f"the render traces {samples} samples, fewer than {least:.0f} ({1 / PREPASS_SHARE:.0f}"
+            f" coarse passes of {coarse}): no simulation fits in {PREPASS_SHARE:.0%} of its "
+            "tracing"
+        )
 
     def ran(self, seconds: float) -> None:
         """A simulation ran, taking `seconds` of CPU."""
@@ -52,8 +72,11 @@ class Allowance:
         """Whether `passes` more simulations fit, `reserve` more kept for later stages; a
         refusal is recorded for `stage` with the figures."""
         need = (passes + reserve) * self.per_pass
-        if self.spent + need <= self.seconds:
+        if self.spent + need <= self.seconds and not self.refused:
             return True
+        if self.refused:
+            self.skipped.append({"stage": stage, "why": self.refused})
+            return False
         self.skipped.append(
             {
                 "stage": stage,

@@ -67,13 +67,17 @@ def balanced_object_cells(
     plan, box = spec.plan, scene_box(scene)
     began = time.process_time()
     guess = first_guess(scene, spec, box, GRID)
+    allowed = allowance()
+    if rounds is None and allowed.bounded and (why := _too_small(spec)):
+        allowed.refuse_all("the first cut", why)
+        return _guessed(scene, spec, guess, limit, why, time.process_time() - began)
     # a square mesh is halved between its columns or its rows first: both are simulated
     # where the allowance affords it, the lighter kept for the rounds (teapot 3x3 under a
     # quarter share: rows first, the busiest node's frame CPU 0.93-0.95 of columns first)
     orders = (False, True) if plan.rows == plan.cols > 1 else (False,)
     firsts = [_first_cut(scene, spec, guess, limit, orders[0])]
     # the first cut's simulation estimates the render's tracing: the pre-pass's allowance
-    allowed, why = allowance(), f"asked for {rounds}"
+    why = f"asked for {rounds}"
     allowed.learn(node_seconds(spec, float(costs(firsts[0][3]).sum())))
     if len(orders) > 1 and (
         rounds is not None or allowed.affords("the first cut, rows first", 1, reserve)
@@ -118,6 +122,33 @@ def balanced_object_cells(
             "prepass_cpu_seconds": time.process_time() - began,
             "simulated_busiest_vs_first_cut": busiest / tried[0][0] if tried[0][0] else 1.0,
             "placement": placement,
+        },
+    )
+
+
+def _too_small(spec: RenderSpec) -> str:
+    """Why no simulation of the render fits its allowance ("" where one may): a 16x16
+    render's plan on 3x3 spent 0.3 s simulating 4,096 coarse samples to place 256."""
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
+    coarse = coarse_spec(spec).sample_grid
+    return allowance().too_small(samples, coarse[0] * coarse[1])
+
+
+def _guessed(scene: SceneData, spec: RenderSpec, guess, limit, why: str, seconds: float):
+    """(cells, None, report) of the cuts evening the first guess's work, or where those
+    break the budget, cut for the fewest objects: no simulation, so no measured work."""
+    cells, _, excess = _within(scene, spec, WorkGrid(*scene_box(scene), guess), limit, limit)
+    if excess > 1:
+        plan = spec.plan
+        cells = object_cells(scene, scene_box(scene), plan.rows, plan.cols, limit=limit)
+    return (
+        cells,
+        None,
+        {
+            "first_cut": "not simulated",
+            "rounds": 0,
+            "rounds_reason": why,
+            "prepass_cpu_seconds": seconds,
         },
     )
 

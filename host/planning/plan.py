@@ -49,10 +49,10 @@ def plan_render(request: Request, memory: int = 0) -> Planned:
     `choose_holding` simulates them at each); `memory`: the smallest node's, 0 if not known.
     Without overlaps the plan's own overlap is kept. Its simulated meshes share their
     engines and keep within the pre-pass's allowance (`prepass.planning`), which the
-    balance's report gives where any ran."""
+    balance's report gives where any ran or was skipped."""
     with planning(request.plan.nodes) as allowed:
         planned = _planned(request, memory)
-    if allowed.passes:
+    if allowed.passes or allowed.skipped:
         planned.balance["prepass"] = allowed.report()
     return planned
 
@@ -80,7 +80,8 @@ def _planned(request: Request, memory: int) -> Planned:
         reserve = COPIES_LEAST if budgeted(plan) and request.auto.budget_copies else 0
         limit = object_limit(scene, plan)
         cells, cost, report = balanced_object_cells(scene, spec, limit, reserve=reserve)
-        loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
+        # where the tiles no eye ray enters go (by count where nothing was simulated)
+        loads = node_seconds(spec, cost) if cost is not None else None
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None)
@@ -181,7 +182,8 @@ def _objects_within(scene: SceneData, spec: RenderSpec):
     afford the cut's simulation (the retreat's cut is a later simulation: tree 3x3 under a
     quarter share at 16x16 simulated a second first cut, 0.17 s of a 0.6 s plan)."""
     allowed = allowance()
-    if allowed.trace is not None and not allowed.affords("the retreat's cells evened on work"):
+    learnt = allowed.trace is not None or allowed.refused
+    if learnt and not allowed.affords("the retreat's cells evened on work"):
         part, keep = partition(scene, spec)
         return part, keep, holdings(scene, spec, part, keep)
     cells, cost, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))

@@ -88,13 +88,17 @@ def test_cost_cuts_and_overlaps_keep_within_the_allowance_too():
         request = Request(scene, image, EngineSpec(threads=1), plan=plan, auto=auto)
         return plan_render(request).balance["prepass"]
 
-    small = planned(32, 1)  # a render one node traces in milliseconds: the even cuts only
+    small = planned(256, 1)  # 16 coarse passes' samples: the even cuts' simulation only
     stages = {s["stage"] for s in small["skipped"]}
     assert {"cuts: shared rows", "cuts: work map"} <= stages, stages
     assert any(s.startswith("overlap ") for s in stages), stages
     assert all("one node's tracing" in s["why"] for s in small["skipped"])
     big = planned(1024, 256)  # minutes on one node: every family at every overlap
     assert big["skipped"] == [] and big["simulations"] > small["simulations"]
+    tiny = planned(32, 1)  # fewer samples than ten coarse passes: not even the even cuts
+    assert tiny["simulations"] == 0
+    assert tiny["skipped"][0]["stage"] == "the even cuts' simulation"
+    assert "no simulation fits" in tiny["skipped"][0]["why"]
 
 
 def test_a_budget_s_retreat_simulates_its_cut_only_within_the_allowance():

@@ -16,7 +16,7 @@ from host.planning.cells import grown, scene_box, traced
 from host.planning.clip import holders
 from host.planning.objectcells import WorkGrid, object_cells
 from host.planning.placement import MAX_CELLS, placed, sends
-from host.planning.prepass import allowance, coarse_pass, coarse_spec, costs
+from host.planning.prepass import allowance, coarse_pass, coarse_spec, costs, unaffordable
 from host.planning.seenwork import first_guess
 from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
@@ -68,7 +68,7 @@ def balanced_object_cells(
     began = time.process_time()
     guess = first_guess(scene, spec, box, GRID)
     allowed = allowance()
-    if rounds is None and allowed.bounded and (why := _too_small(spec)):
+    if rounds is None and allowed.bounded and (why := unaffordable(spec)):
         allowed.refuse_all("the first cut", why)
         return _guessed(scene, spec, guess, limit, why, time.process_time() - began)
     # a square mesh is halved between its columns or its rows first: both are simulated
@@ -124,14 +124,6 @@ def balanced_object_cells(
             "placement": placement,
         },
     )
-
-
-def _too_small(spec: RenderSpec) -> str:
-    """Why no simulation of the render fits its allowance ("" where one may): a 16x16
-    render's plan on 3x3 spent 0.3 s simulating 4,096 coarse samples to place 256."""
-    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
-    coarse = coarse_spec(spec).sample_grid
-    return allowance().too_small(samples, coarse[0] * coarse[1])
 
 
 def _guessed(scene: SceneData, spec: RenderSpec, guess, limit, why: str, seconds: float):

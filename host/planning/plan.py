@@ -16,7 +16,7 @@ from host.planning.growth import grown_within
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.partition import image_partition, partition
-from host.planning.prepass import allowance, node_costs, planning
+from host.planning.prepass import allowance, node_costs, planning, unaffordable
 from host.planning.replicas import COPIES_LEAST, with_replicas
 from host.planning.request import Request
 from host.planning.skytiles import SkyTiles
@@ -71,7 +71,12 @@ def _planned(request: Request, memory: int) -> Planned:
     occupancy, overlap, shared = True, plan.overlap, plan.shared
     balance: dict = {"cuts": plan.balance}
     t0 = time.perf_counter()
-    if plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
+    searched = plan.balance == "cost" or (overlaps and plan.balance == "even")
+    if plan.mode == "object" and plan.nodes > 1 and searched and (why := unaffordable(spec)):
+        # the even cuts at the plan's overlap: no simulation to weigh others by
+        allowance().refuse_all("the even cuts' simulation", why)
+        balance.update(family="even", why=why)
+    elif plan.mode == "object" and plan.nodes > 1 and plan.balance == "cost":
         xs, ys, report, cells, occupancy, overlap, shared = balanced_cuts(
             scene, spec, overlaps=overlaps, memory=memory
         )

@@ -61,6 +61,15 @@ def allowance() -> Allowance:
     return now.allowance if now is not None else Allowance(bounded=False)
 
 
+def unaffordable(spec: RenderSpec) -> str:
+    """Why no simulation of the render fits the pre-pass's allowance ("" where one may,
+    `Allowance.too_small`): a 16x16 render's plan on 3x3 spent 0.3 s simulating 4,096
+    coarse samples to place 256."""
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
+    coarse = coarse_spec(spec).sample_grid
+    return allowance().too_small(samples, coarse[0] * coarse[1])
+
+
 def simulated(scenes, spec: RenderSpec, part):
     """The simulated mesh's Outcome (`meshnode.mesh.simulator.simulate`), its engines from
     the plan's cache and its CPU counted against the plan's allowance where a plan is being

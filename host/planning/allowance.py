@@ -71,12 +71,12 @@ class Allowance:
     def affords(self, stage: str, passes: int = 1, reserve: int = 0) -> bool:
         """Whether `passes` more simulations fit, `reserve` more kept for later stages; a
         refusal is recorded for `stage` with the figures."""
-        need = (passes + reserve) * self.per_pass
-        if self.spent + need <= self.seconds and not self.refused:
-            return True
         if self.refused:
             self.skipped.append({"stage": stage, "why": self.refused})
             return False
+        need = (passes + reserve) * self.per_pass
+        if self.spent + need <= self.seconds:
+            return True
         self.skipped.append(
             {
                 "stage": stage,

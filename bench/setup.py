@@ -10,8 +10,10 @@ keeping no engine between its renders (`meshnode serve --keep-engines 1`). The f
 is the cold start: each node loads its kernels from the disk cache as it builds (once in a
 node's life). The second, of the scene read again (no plan, clip or table kept on the host),
 is setup on nodes that are up: what every later render of a running cluster pays. Each gives
-its summary's plan seconds (the host's planning: cells, clipping, holders, the budget's
-pre-pass under `--max-share`), configure seconds (CONFIG and every node's objects sent: the
+its summary's plan seconds (the host's planning: cells, clipping, holders, and under
+`--max-share` the budget's cells and copies; a 16x16 render affords the cost pre-pass no
+simulation, `host.planning.allowance`, where a larger one adds at most a tenth of its
+tracing), configure seconds (CONFIG and every node's objects sent: the
 host sends them node after node) and setup seconds (from the plan's start until every node
 has built its engine and linked its neighbours). Simulated: the same plan made in this process
 (real seconds), every node's objects sent one after the other at `--bandwidth` bytes a second

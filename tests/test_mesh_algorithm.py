@@ -363,6 +363,35 @@ def test_holders_clip_triangles_and_convex_polygons_exactly():
     assert want.sum() > 100 and (bounds & ~want).sum() > 100
 
 
+def test_holders_keep_a_sphere_that_reaches_the_box_and_a_cone_whose_bounds_do():
+    # Spheres by their centre's distance to the box (exact, within the 1e-9 margin that keeps
+    # it conservative); cones by their bounds alone (conservative by design).
+    from host.scene.derived import scene_tables
+
+    rng = np.random.default_rng(11)
+    spheres = [(tuple(rng.uniform(-1, 1, 3)), float(rng.choice([0.05, 0.3, 0.8])), 0)]
+    spheres += [
+        (tuple(rng.uniform(-1, 1, 3)), float(rng.uniform(0.02, 0.6)), 0) for _ in range(299)
+    ]
+    cones = []
+    for _ in range(100):
+        base = rng.uniform(-1, 1, 3)
+        cones.append((tuple(base), 0.1, tuple(base + rng.normal(0, 0.4, 3)), 0.05, 0))
+    scene = make_scene(spheres=spheres, cones=cones)
+    los = rng.uniform(-1.2, 0.6, (16, 3))
+    his = los + rng.uniform(0.05, 0.8, (16, 3))
+    keep = holders(scene, los, his)
+    centres = np.array([c for c, _, _ in spheres])
+    radii = np.array([r for _, r, _ in spheres])
+    gap = np.maximum(np.maximum(los[:, None] - centres[None], centres[None] - his[:, None]), 0)
+    distance = np.sqrt((gap**2).sum(axis=2))
+    assert (keep[:, :300] == (distance <= radii[None])).all()
+    assert 50 < (distance <= radii[None]).sum() < 16 * 300 - 50  # neither all nor none
+    tb = scene_tables(scene)
+    bounds = ((tb.lo[None, 300:] <= his[:, None]) & (tb.hi[None, 300:] >= los[:, None])).all(2)
+    assert (keep[:, 300:] == bounds).all() and 0 < bounds.sum() < bounds.size
+
+
 def test_holders_keep_a_warped_polygon_where_the_engine_hits_it():
     # A quad with one corner lifted: the engine hits it on the plane through its first
     # vertex (Newell normal), here at z = 0.75 below (1.8, 0.2), inside a box the outline of

@@ -70,7 +70,7 @@ def balanced_object_cells(
     allowed = allowance()
     if rounds is None and allowed.bounded and (why := unaffordable(spec)):
         allowed.refuse_all("the first cut", why)
-        return _guessed(scene, spec, guess, limit, why, time.process_time() - began)
+        return _guessed(scene, spec, box, guess, limit, why, time.process_time() - began)
     # a square mesh is halved between its columns or its rows first: both are simulated
     # where the allowance affords it, the lighter kept for the rounds (teapot 3x3 under a
     # quarter share: rows first, the busiest node's frame CPU 0.93-0.95 of columns first)
@@ -126,13 +126,12 @@ def balanced_object_cells(
     )
 
 
-def _guessed(scene: SceneData, spec: RenderSpec, guess, limit, why: str, seconds: float):
+def _guessed(scene: SceneData, spec: RenderSpec, box, guess, limit, why: str, seconds: float):
     """(cells, None, report) of the cuts evening the first guess's work, or where those
     break the budget, cut for the fewest objects: no simulation, so no measured work."""
-    cells, _, excess = _within(scene, spec, WorkGrid(*scene_box(scene), guess), limit, limit)
+    cells, _, excess = _within(scene, spec, WorkGrid(*box, guess), limit, limit)
     if excess > 1:
-        plan = spec.plan
-        cells = object_cells(scene, scene_box(scene), plan.rows, plan.cols, limit=limit)
+        cells = object_cells(scene, box, spec.plan.rows, spec.plan.cols, limit=limit)
     return (
         cells,
         None,
@@ -211,7 +210,9 @@ def _placed(cells, cost, traffic, plan):
 def node_seconds(spec: RenderSpec, units):
     """Tracing CPU seconds of the render for work `units` measured on the coarse pass (each
     node's, or all nodes'): scaled by the render's samples over the coarse pass's, at
-    NS_PER_UNIT a unit."""
+    NS_PER_UNIT a unit; None where nothing was measured (no simulation afforded)."""
+    if units is None:
+        return None
     samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
     coarse = coarse_spec(spec)
     per = np.asarray(units, float) / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])

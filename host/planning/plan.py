@@ -85,8 +85,7 @@ def _planned(request: Request, memory: int) -> Planned:
         reserve = COPIES_LEAST if budgeted(plan) and request.auto.budget_copies else 0
         limit = object_limit(scene, plan)
         cells, cost, report = balanced_object_cells(scene, spec, limit, reserve=reserve)
-        # where the tiles no eye ray enters go (by count where nothing was simulated)
-        loads = node_seconds(spec, cost) if cost is not None else None
+        loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
         even = node_costs(scene, spec, None, None)
@@ -183,21 +182,17 @@ def _objects_within(scene: SceneData, spec: RenderSpec):
     """(partition, holders, holdings) of cells cut by the objects: evened on the pre-pass's
     work within the budget's objects per node (`host.planning.objectwork`, the sky's tiles
     dealt against its loads), or where those still break the budget, cut for the fewest
-    objects alone; so too where the pre-pass has learnt the render's tracing and cannot
-    afford the cut's simulation (the retreat's cut is a later simulation: tree 3x3 under a
+    objects alone; so too where the pre-pass's allowance cannot afford the cut's
+    simulation (the retreat's cut is a later simulation: tree 3x3 under a
     quarter share at 16x16 simulated a second first cut, 0.17 s of a 0.6 s plan)."""
-    allowed = allowance()
-    learnt = allowed.trace is not None or allowed.refused
-    if learnt and not allowed.affords("the retreat's cells evened on work"):
-        part, keep = partition(scene, spec)
-        return part, keep, holdings(scene, spec, part, keep)
-    cells, cost, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))
-    part, keep = partition(scene, spec, cells=cells, loads=node_seconds(spec, cost))
-    held = holdings(scene, spec, part, keep)
-    if not within(spec.plan, held):
-        part, keep = partition(scene, spec)
+    if allowance().affords("the retreat's cells evened on work"):
+        cells, cost, _ = balanced_object_cells(scene, spec, object_limit(scene, spec.plan))
+        part, keep = partition(scene, spec, cells=cells, loads=node_seconds(spec, cost))
         held = holdings(scene, spec, part, keep)
-    return part, keep, held
+        if within(spec.plan, held):
+            return part, keep, held
+    part, keep = partition(scene, spec)
+    return part, keep, holdings(scene, spec, part, keep)
 
 
 def _difference(was: MeshPlan, now: MeshPlan) -> str:

@@ -44,6 +44,38 @@ def test_the_allowance_affords_simulations_within_a_tenth_of_the_tracing(monkeyp
     assert not nothing.affords("rounds")
 
 
+def test_the_allowance_estimates_a_stage_by_the_engines_it_builds_kernel_loads_apart(
+    monkeypatch,
+):
+    from host.planning.allowance import Allowance
+
+    now, loads = [10.0], [1.0]
+    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
+    monkeypatch.setattr(allowance, "load_seconds", lambda: loads[0])
+    allowed = Allowance(began=10.0)
+    now[0] += 0.2  # the first cut: 0.05 s loading kernels, 0.1 s simulating, 9 engines built
+    loads[0] += 0.05
+    allowed.ran(0.1, built=9, build_seconds=0.09)
+    allowed.learn(4.0)  # the pre-pass may take 0.4 s
+    assert allowed.spent == pytest.approx(0.15)  # the process's kernel loads are not its own
+    assert allowed.per_pass == pytest.approx(0.01) and allowed.per_build == pytest.approx(0.01)
+    assert allowed.cost(1) == pytest.approx(0.1)  # new cells: every node's engine built
+    assert allowed.cost(2, builds=0) == pytest.approx(0.02)  # the copies: on the cells' engines
+    for _ in range(2):  # 0.15 + 0.1 (and 0.02 kept for the copies), then 0.25 + 0.12: rounds
+        assert allowed.affords("re-cut rounds", 1, reserve=2)
+        now[0] += 0.1
+        allowed.ran(0.1, built=9, build_seconds=0.09)
+    assert not allowed.affords("re-cut rounds", 1, reserve=2)  # 0.35 + 0.12 > 0.4
+    assert "about 0.100 s CPU" in allowed.why
+    assert allowed.affords("copies", 2, builds=0)  # 0.35 + 0.02: two simulations of new
+    assert not allowed.affords("growth", 2)  # cells would not have fitted
+    report = allowed.report()
+    assert report["engines_built"] == 27 and report["kernel_load_cpu_seconds"] == pytest.approx(
+        0.05
+    )
+    assert report["cpu_seconds"] == pytest.approx(0.35)
+
+
 @pytest.mark.parametrize("uneven", [True, False])
 def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_the_load_is_uneven(
     uneven,

@@ -18,6 +18,7 @@ from host.planning.allowance import Allowance
 from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
+from meshnode.engine.loading import load_seconds
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
@@ -72,13 +73,17 @@ def unaffordable(spec: RenderSpec) -> str:
 
 def simulated(scenes, spec: RenderSpec, part):
     """The simulated mesh's Outcome (`meshnode.mesh.simulator.simulate`), its engines from
-    the plan's cache and its CPU counted against the plan's allowance where a plan is being
-    made (`planning`)."""
+    the plan's cache, where a plan is being made (`planning`), and its CPU counted against
+    the plan's allowance with the engines it built (kernels loaded meanwhile left out)."""
     now = _PLANNING.get()
-    began = time.process_time()
-    out = simulate(scenes, spec, part, engines=now.engines if now is not None else None)
-    if now is not None:
-        now.allowance.ran(time.process_time() - began)
+    if now is None:
+        return simulate(scenes, spec, part)
+    cache = now.engines
+    began, loads = time.process_time(), load_seconds()
+    built, building = cache.built, cache.build_seconds
+    out = simulate(scenes, spec, part, engines=cache)
+    seconds = time.process_time() - began - (load_seconds() - loads)
+    now.allowance.ran(seconds, cache.built - built, cache.build_seconds - building)
     return out
 
 

@@ -53,7 +53,9 @@ RULES = ("traffic", "load")
 # `host.planning.plan.UNEVEN` gates the second cut for the fewest objects alike)
 UNSIMULATED_UNEVEN = 1.5
 # Simulations the copies need at least (the mesh without, one set with): the pre-pass's
-# allowance keeps this many for them when it affords re-cut rounds (`host.planning.allowance`)
+# allowance keeps this many for them when it affords re-cut rounds (`host.planning.allowance`).
+# Every copy simulation is of the plan's own cells, so it builds no engine: the cut's
+# simulation built them, and the plan's cache keeps them (`prepass.MESHES_KEPT`)
 COPIES_LEAST = 2
 HOLDER = {
     "traffic": "the node with room that trades most rays with its cell",
@@ -75,7 +77,7 @@ def with_replicas(
     if not budgeted(plan) or plan.nodes < 2 or plan.copies:
         why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
         return spec, part, {"chosen": [], "why": why or "no memory budget on a mesh"}
-    if not allowance().affords("copies", COPIES_LEAST):
+    if not allowance().affords("copies", COPIES_LEAST, builds=0):
         return _unsimulated(scene, spec, part, keep, load, "skipped: " + allowance().why)
     began = time.process_time()
     before = partition_pass(scene, spec, part, keep)
@@ -90,7 +92,7 @@ def with_replicas(
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
     tried = []
     for rule, share, holds in tries:
-        if tried and not allowance().affords("copies: the other sets"):
+        if tried and not allowance().affords("copies: the other sets", builds=0):
             break
         at = replace(spec, plan=replace(plan, copies=True, holds=holds))
         after = partition_pass(scene, at, part, keep)
@@ -187,7 +189,7 @@ def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners
     if all(nearest.plan.takers(n) == spec.plan.takers(n) for n in range(spec.plan.nodes)):
         why = "every nearest holder is the owner"
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
-    if not allowance().affords("copies: forwarding"):
+    if not allowance().affords("copies: forwarding", builds=0):
         why = "not simulated: " + allowance().why
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
     handed = partition_pass(scene, nearest, part, keep)
@@ -280,7 +282,7 @@ def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted)
     dealing by it leaves the simulated busiest node lighter (else None: by count)."""
     if spec.adaptive:
         return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
-    if not allowance().affords("copies: dealing"):
+    if not allowance().affords("copies: dealing", builds=0):
         return None, {"chosen": "count", "why": "not simulated: " + allowance().why}
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays

@@ -41,8 +41,17 @@ import importlib.util
 import os
 import pickle
 import sys
+import time
 
 BLAS = "scipy.linalg.cython_blas"
+_LOADING = [0.0]  # CPU seconds this process spent loading kernels from the disk cache
+
+
+def load_seconds() -> float:
+    """CPU seconds this process has spent loading kernels from the disk cache (0 where numba
+    is left as it is): a process pays it once a kernel, so whoever first traces here (the
+    host's cost pre-pass) can tell it from its own work."""
+    return _LOADING[0]
 
 
 def install() -> None:
@@ -88,9 +97,11 @@ def _loads_ready_the_runtime_only(cache, rtsys, entrypoints) -> None:
     def load_overload(self, sig, target_context):
         """The cached compile result for `sig`, or None: numba then compiles it, after
         the extensions' initialisation its compile chain would have run first."""
+        began = time.process_time()
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
             loaded = self._load_overload(sig, target_context)
+        _LOADING[0] += time.process_time() - began
         if loaded is None:
             _blas_alone()
             entrypoints.init_all()

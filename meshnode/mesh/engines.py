@@ -3,11 +3,13 @@ of objects costs seconds, and a user re-rendering the same scene on a running cl
 size, sampling or camera) should not pay it again."""
 
 import hashlib
+import time
 from collections.abc import Callable
 
 import numpy as np
 
 from meshnode.engine import Engine
+from meshnode.engine.loading import load_seconds
 from protocols.render import EngineSpec
 from protocols.scene import SCENE_TABLES, SceneData
 
@@ -26,6 +28,8 @@ class EngineCache:
         self.keep_bytes = keep_bytes  # kept between renders at most (None: no bound)
         self.least = least
         self.seen: dict[tuple, tuple] = {}  # `sightlines`, oldest first
+        self.built = 0  # engines built, not reused: what a simulated mesh's cells cost anew
+        self.build_seconds = 0.0  # ... and their CPU
 
     def trim(self) -> None:
         """After a render: the oldest engines go until the rest fit `keep_bytes` (their
@@ -50,7 +54,10 @@ class EngineCache:
         if engine is None:
             while len(self.engines) >= max(1, keep, self.least):  # old memory goes first
                 del self.engines[next(iter(self.engines))]
+            began, loads = time.process_time(), load_seconds()
             engine = Engine.from_spec(scene, spec, **placement)
+            self.built += 1  # its CPU, kernels loaded from the disk cache meanwhile left out
+            self.build_seconds += time.process_time() - began - (load_seconds() - loads)
         self.engines[key] = engine
         return engine, reused
 

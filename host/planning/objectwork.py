@@ -37,12 +37,16 @@ ROUNDS = 3
 GRID = 32
 FITS = 3  # passes over every round's measurements fitting the grid to them all
 # One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's
-# estimate of a render's tracing: 4.2, 5.1 and 6.9 ns on teapot, balls and rings (one node's
-# tracing CPU at 66-135 spp over its units at 4 spp, per sample); the lowest, so the
-# pre-pass rather affords too little than too much. (The coarse pass's own kernel CPU said
-# 25-30 times too much, teapot 256x256 at 135 spp: 80 s against 2.9 s: its batches are
-# small, and each kernel call costs about 30 us whatever its size.)
-NS_PER_UNIT = 4.0
+# estimate of a render's tracing: the lowest of the SPD scenes', so the pre-pass rather
+# affords too little than too much. At 4.0 (fitted when the kernels were slower) the estimate
+# was 0.94-1.61 times one node's measured tracing CPU (256x256, 3x3 under a quarter share,
+# at `bench.mesh --min-trace 3`'s samples: tetra 1.61, teapot 1.27, balls 1.25, mount 1.19,
+# rings and gears 0.95), and the pre-pass took 12-18% of the tracing on five of the six;
+# measured per unit: tetra 2.49 ns, teapot 3.16, balls 3.19, mount 3.36, rings and gears
+# 4.2. (The coarse pass's own kernel CPU says 25-30 times too much, teapot 256x256 at 135
+# spp: 80 s against 2.9 s: its batches are small, and each kernel call costs about 30 us
+# whatever its size.)
+NS_PER_UNIT = 2.5
 # A re-cut whose fullest node breaks the limit (the cuts count objects per node as if every
 # later cut divided them evenly, and the boxes grow by the overlap) is cut again under a cap
 # lowered by the excess (to TIGHTEN of it, at least a tenth), up to TRIES times: teapot 3x3

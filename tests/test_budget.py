@@ -81,6 +81,24 @@ def test_object_cells_tile_the_scene_and_divide_the_objects():
             assert share.max() <= limit < by_view.max(), (name, rows, cols)
 
 
+def test_a_cut_takes_its_box_s_objects_bounds_sorted_as_sorting_them_would():
+    # `_Cutter` sorts every object's bounds and centres once per axis; each cut takes its
+    # box's objects from those in order: the same values as sorting the box's own
+    from host.planning.objectcells import _Cutter
+
+    rng = np.random.default_rng(7)
+    lo = rng.normal(size=(500, 3)).round(2)  # ties on purpose
+    hi = lo + rng.random((500, 3))
+    cutter = _Cutter((lo, hi), None, None)
+    for idx in (np.arange(500), np.flatnonzero(rng.random(500) < 0.3), np.array([4]), []):
+        idx = np.asarray(idx, np.int64)
+        los, his, centres = cutter.values(idx)
+        for a in range(3):
+            np.testing.assert_array_equal(los[a], np.sort(lo[idx, a]))
+            np.testing.assert_array_equal(his[a], np.sort(hi[idx, a]))
+            np.testing.assert_array_equal(centres[a], np.sort(0.5 * (lo[idx, a] + hi[idx, a])))
+
+
 def test_work_evened_cuts_count_a_block_by_its_nodes_not_its_columns():
     # Under a limit of objects a node, a cut between a column of three nodes and two columns
     # of six compared the objects per column with the limit (three times the per-node

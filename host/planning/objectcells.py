@@ -85,6 +85,24 @@ class _Cutter:
     def __init__(self, bounds, work, limit, rows_first=False):
         self.lo, self.hi = bounds
         self.work, self.limit, self.rows_first = work, limit, rows_first
+        # per axis, every object's lower bounds, upper bounds and centres in order, sorted
+        # once: a cut takes its box's objects from them in order, where sorting each box's
+        # anew took half of a 65,536-triangle tetra's cut search
+        centres = 0.5 * (self.lo + self.hi)
+        self.sorted = [
+            [(np.argsort(v[:, a], kind="stable"), np.sort(v[:, a])) for a in range(3)]
+            for v in (self.lo, self.hi, centres)
+        ]
+        self.member = np.zeros(len(self.lo), bool)
+
+    def values(self, idx: np.ndarray) -> tuple:
+        """Per axis, the lower bounds, upper bounds and centres of the objects `idx`, each
+        sorted (`_cut`'s inputs)."""
+        self.member[:] = False
+        self.member[idx] = True
+        return tuple(
+            [values[self.member[order]] for order, values in per_axis] for per_axis in self.sorted
+        )
 
     def bisect(self, idx, lo, hi, block, cols, los, his) -> None:
         """Cut the box (lo, hi), which holds the objects `idx`, among the nodes of `block`
@@ -103,15 +121,16 @@ class _Cutter:
             first, second = (r0, k, c0, c1), (k, r1, c0, c1)
             nodes = ((k - r0) * (c1 - c0), (r1 - k) * (c1 - c0))
         olo, ohi = self.lo[idx], self.hi[idx]
-        axis, cut = _cut(olo, ohi, self.work, lo, hi, nodes, self.limit)
+        axis, cut = _cut(self.values(idx), self.work, lo, hi, nodes, self.limit)
         mid_hi, mid_lo = hi.copy(), lo.copy()
         mid_hi[axis] = mid_lo[axis] = cut
         self.bisect(idx[olo[:, axis] <= cut], lo, mid_hi, first, cols, los, his)
         self.bisect(idx[ohi[:, axis] >= cut], mid_lo, hi, second, cols, los, his)
 
 
-def _cut(olo, ohi, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, float]:
-    """(axis, position) of one cut of the box (lo, hi) holding the objects (olo, ohi): the
+def _cut(sorted_, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, float]:
+    """(axis, position) of one cut of the box (lo, hi) holding the objects whose lower
+    bounds, upper bounds and centres are `sorted_` (per axis, sorted: `_Cutter.values`): the
     one whose fuller side per node holds fewest objects (the objects below it, those crossing
     it too, shared by `nodes[0]` nodes, those above by `nodes[1]`: an object crossing the cut
     is held on both sides, so the cut at the count's quantile is not always the best: a
@@ -119,7 +138,9 @@ def _cut(olo, ohi, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, fl
     axis; with `work` (a WorkGrid), among the cuts within the objects' limit (those
     quantiles, and CANDIDATES even steps across the box), the one whose busier side per
     node has least work."""
-    if not len(olo):
+    los, his, centres = sorted_
+    count = len(los[0])
+    if not count:
         axis = int(np.argmax(hi - lo))
         return axis, float(lo[axis] + nodes[0] / sum(nodes) * (hi[axis] - lo[axis]))
     share = nodes[0] / sum(nodes)
@@ -129,13 +150,12 @@ def _cut(olo, ohi, work, lo, hi, nodes: tuple[int, int], limit) -> tuple[int, fl
         q = np.linspace(0.0, 1.0, CANDIDATES + 2)[1:-1]
     tries = []  # (objects score, work score, axis, position)
     for axis in range(3):
-        centres = 0.5 * (olo[:, axis] + ohi[:, axis])
-        cuts = np.quantile(centres, q)
+        cuts = np.quantile(centres[axis], q)
         if work is not None:
             cuts = np.concatenate([cuts, lo[axis] + q * (hi[axis] - lo[axis])])
         cuts = np.clip(cuts, lo[axis], hi[axis])
-        below = np.searchsorted(np.sort(olo[:, axis]), cuts, side="right")
-        above = len(olo) - np.searchsorted(np.sort(ohi[:, axis]), cuts, side="left")
+        below = np.searchsorted(los[axis], cuts, side="right")
+        above = count - np.searchsorted(his[axis], cuts, side="left")
         held = np.maximum(below / nodes[0], above / nodes[1])
         if work is None:
             busier = np.abs(q - share)  # ties: nearest the even share

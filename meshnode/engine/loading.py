@@ -48,9 +48,9 @@ _LOADING = [0.0]  # CPU seconds this process spent loading kernels from the disk
 
 
 def load_seconds() -> float:
-    """CPU seconds this process has spent loading kernels from the disk cache (0 where numba
-    is left as it is): a process pays it once a kernel, so whoever first traces here (the
-    host's cost pre-pass) can tell it from its own work."""
+    """CPU seconds this process's threads have spent loading kernels from the disk cache (0
+    where numba is left as it is): a process pays it once a kernel, so whoever first traces
+    here (the host's cost pre-pass) can tell it from its own work."""
     return _LOADING[0]
 
 
@@ -97,11 +97,11 @@ def _loads_ready_the_runtime_only(cache, rtsys, entrypoints) -> None:
     def load_overload(self, sig, target_context):
         """The cached compile result for `sig`, or None: numba then compiles it, after
         the extensions' initialisation its compile chain would have run first."""
-        began = time.process_time()
+        began = time.thread_time()  # the loading thread's own: another's may run meanwhile
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
             loaded = self._load_overload(sig, target_context)
-        _LOADING[0] += time.process_time() - began
+        _LOADING[0] += time.thread_time() - began
         if loaded is None:
             _blas_alone()
             entrypoints.init_all()

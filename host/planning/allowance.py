@@ -112,8 +112,8 @@ class Allowance:
         if self.refused:
             self.skipped.append({"stage": stage, "why": self.refused})
             return False
-        each = self.cost(passes, builds) / max(passes, 1)
-        need = self.cost(passes, builds) + self.cost(reserve, 0)
+        these = self.cost(passes, builds)
+        each, need = these / max(passes, 1), these + self.cost(reserve, 0)
         if self.spent + need <= self.seconds:
             return True
         self.skipped.append(

@@ -7,7 +7,6 @@ the same scheduler as real ones, each node's cost counted as its intersection te
 steps and segments, with each segment sent on weighted (`meshnode.mesh.stats.work_units`).
 """
 
-import time
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, replace
@@ -18,7 +17,7 @@ from host.planning.allowance import Allowance
 from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
-from meshnode.engine.loading import load_seconds
+from meshnode.engine.loading import cpu_less_loads
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
@@ -79,10 +78,9 @@ def simulated(scenes, spec: RenderSpec, part):
     if now is None:
         return simulate(scenes, spec, part)
     cache = now.engines
-    began, loads = time.process_time(), load_seconds()
-    built, building = cache.built, cache.build_seconds
+    began, built, building = cpu_less_loads(), cache.built, cache.build_seconds
     out = simulate(scenes, spec, part, engines=cache)
-    seconds = time.process_time() - began - (load_seconds() - loads)
+    seconds = cpu_less_loads() - began
     now.allowance.ran(seconds, cache.built - built, cache.build_seconds - building)
     return out
 

@@ -207,7 +207,7 @@ class Engine:
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
             "occupancy": {
                 "voxels": self.occupancy.res.tolist(),
-                "occupied": float(np.mean(self.occupancy.clear == 0)),
+                "occupied": float(np.mean(self.occupancy.clear[0] == 0)),  # 0 in every row
                 "reason": "segments leaving this node's box with only empty voxels of the "
                 "scene ahead end here; others resume at the first occupied voxel"
                 if self.occupancy.res.prod() > 1

@@ -15,9 +15,11 @@ from meshnode.engine.bvh import empty_nodes
 from meshnode.engine.bvhbuild import Bvh
 from meshnode.engine.grid import Grid, box_only, build_grid
 from meshnode.engine.structure_cost import (
+    Estimate,
     choose,
     grid_estimate,
     grid_forecast,
+    grid_least,
     hierarchy_estimate,
 )
 from meshnode.engine.tables import Tables
@@ -69,7 +71,8 @@ def build_structure(
 ) -> Structure:
     """The structure `asked` ("grid", "bvh", "auto") over `box` (lo, hi): "auto" takes the
     grid when a `resolution` is given, else the one of smaller expected total seconds for
-    `rays` rays (the hierarchy is built either way: its forecast is the estimate's)."""
+    `rays` rays (the hierarchy is built either way: its forecast is the estimate's; the
+    grid is forecast only where its lower bound, `grid_least`, is under the hierarchy's)."""
     lo, hi = box
     timer = _Timer()
     if asked == "grid" or (asked == "auto" and resolution is not None):
@@ -83,14 +86,29 @@ def build_structure(
     hierarchy = hierarchy_estimate(
         tables.n, s["expected_tests"], s["expected_visits"], rays, s["structure_bytes"]
     )
-    grid = grid_estimate(grid_forecast(tables.lo, tables.hi, lo, hi, density), rays)
-    chosen, why = choose([hierarchy, grid], rays)
+    grid = grid_least(tables.lo, tables.hi, lo, hi, rays)
+    if hierarchy.total <= grid.total:  # the grid cannot win: not forecast
+        chosen, why = hierarchy, _unforecast(hierarchy, grid, rays)
+    else:
+        grid = grid_estimate(grid_forecast(tables.lo, tables.hi, lo, hi, density), rays)
+        chosen, why = choose([hierarchy, grid], rays)
     timer.build += time.perf_counter() - start  # choosing counts as building
     estimates = {e.structure: e.to_dict() for e in (hierarchy, grid)}
     if chosen is hierarchy:
         return timer.done(Structure(bvh, None, why, estimates))
     built = timer.grid(tables, lo, hi, density, storage, None)
     return timer.done(Structure(None, built, why, estimates))
+
+
+def _unforecast(hierarchy: Estimate, least: Estimate, rays: float) -> str:
+    """Why the hierarchy was taken with the grid's lower bound alone (`grid_least`)."""
+    return (
+        f"expected for {rays:.3g} rays: hierarchy {hierarchy.build:.3g} s to build + "
+        f"{hierarchy.trace:.3g} s to trace = {hierarchy.total:.3g} s; grid at least "
+        f"{least.load + least.build:.3g} s to build + {least.trace:.3g} s to trace = "
+        f"{least.total:.3g} s: the hierarchy is expected sooner than the grid could be, "
+        "which is not forecast"
+    )
 
 
 class _Timer:

@@ -173,6 +173,7 @@ class Estimate:
     trace: float  # the render's expected rays, at `per_ray` each
     per_ray: float
     bytes: int
+    least: bool = False  # a lower bound of the estimate (`grid_least`), not the estimate
 
     @property
     def total(self) -> float:
@@ -187,6 +188,7 @@ class Estimate:
             "total_seconds": self.total,
             "seconds_per_ray": self.per_ray,
             "bytes": self.bytes,
+            **({"lower_bound": True} if self.least else {}),
         }
 
 
@@ -207,6 +209,26 @@ def grid_estimate(forecast: GridForecast, rays: float) -> Estimate:
         + PER_GRID_VOXEL * forecast.voxels
     )
     return Estimate("grid", GRID_LOAD, build, rays * per_ray, per_ray, forecast.bytes)
+
+
+def grid_least(lo, hi, box_lo, box_hi, rays: float) -> Estimate:
+    """A lower bound of `grid_estimate(grid_forecast(...), rays)` at any resolution, from
+    the objects' boxes alone: every object one reference at least (counted, then filled),
+    one voxel, one step a crossing ray, and the tests of spans no larger than the objects'
+    boxes within the grid's (a span holds its object's part inside the grid). Where the
+    hierarchy's whole estimate is under it, the grid cannot win and is not forecast: the
+    forecast's counts over the grid took 30% of an engine's build in the cost pre-pass's
+    simulations (gears 4x4), and the hierarchy came out 12-44 times cheaper on the SPD
+    scenes' cells."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    glo, ghi = grow_box(np.asarray(box_lo, float), np.asarray(box_hi, float))
+    n = len(lo)
+    inside = _half_area(np.clip(hi, glo, ghi) - np.clip(lo, glo, ghi))
+    # (1 - 1e-9: the spans' sides are sums of voxel sides, rounded)
+    tests = float(inside.sum() / _half_area(ghi - glo)) * (1 - 1e-9) if n else 0.0
+    per_ray = PER_RAY + PER_GRID_TEST * tests + PER_GRID_STEP
+    build = (2 * PER_GRID_CANDIDATE + PER_GRID_REF) * n + PER_GRID_VOXEL
+    return Estimate("grid", GRID_LOAD, build, rays * per_ray, per_ray, 4 * (2 + n), least=True)
 
 
 NAMES = {"bvh": "hierarchy", "grid": "grid"}

@@ -324,3 +324,22 @@ def test_shared_cells_are_chosen_only_within_the_budget():
     assert refused and all(r["over"] == "the plan's memory budget" for r in refused)
     _, free = choose_shared(scene, spec, None, None, None, True, 1.0, efficiency=0.0)
     assert len(free["simulated_busiest_vs_none"]) > 1  # without a budget they were simulated
+
+
+def test_a_cells_engine_bytes_are_counted_once_per_scene_and_objects_held():
+    from host.planning import budget
+    from host.scene.derived import scene_tables
+
+    scene = read_nff(spd_scene("gears_s1.nff"))
+    n = scene_tables(scene).n
+    rng = np.random.default_rng(7)
+    masks = [rng.random(n) < share for share in (0.1, 0.4, 0.9)]
+    counted = []
+    with mock.patch.object(
+        budget, "engine_bytes", side_effect=lambda s: counted.append(s) or engine_bytes(s)
+    ):
+        for mask in masks * 2:  # each mask asked twice, as the budget and the copies ask
+            assert budget.held_bytes(scene, mask) == engine_bytes(subset(scene, mask))
+        again = read_nff(spd_scene("gears_s1.nff"))  # another scene: counted anew
+        budget.held_bytes(again, masks[0])
+    assert len(counted) == len(masks) + 1

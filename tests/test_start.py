@@ -237,3 +237,34 @@ def test_a_cold_first_render_compiles_its_tracing_kernel_in_a_second_process(tmp
     assert (misses, hits) == ("0", "1")  # loaded from the cache the second process filled
     assert float(aside) > 0 and int(eye_rays) == 16 * 12
     assert "compiled the tracing kernel in a second process in" in r.stderr
+
+
+def test_compiles_and_loads_are_timed_once_outermost_on_the_thread_that_runs_them():
+    # the host's cost pre-pass leaves kernels readied out of its CPU (`load_seconds`): a
+    # kernel compiled on a first run counts there, its callees within it, a second call not
+    import time
+
+    import numba
+    import numpy as np
+
+    from meshnode.engine.loading import load_seconds
+
+    @numba.njit(cache=False)
+    def inner(a):
+        return a.sum()
+
+    @numba.njit(cache=False)
+    def outer(a):
+        return inner(a) * 2.0
+
+    before, cpu = load_seconds(), time.process_time()
+    assert outer(np.ones(3)) == 6.0
+    counted, spent = load_seconds() - before, time.process_time() - cpu
+    assert 0.5 * spent < counted <= spent + 1e-3  # the compile, callees once, not twice
+    again = load_seconds()
+    assert outer(np.ones(4)[::2]) == 4.0  # a new type: compiled again
+    assert load_seconds() > again
+    settled = load_seconds()
+    for _ in range(3):
+        outer(np.ones(3))
+    assert load_seconds() == settled

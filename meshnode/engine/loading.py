@@ -41,22 +41,27 @@ import importlib.util
 import os
 import pickle
 import sys
+import threading
 import time
 
 BLAS = "scipy.linalg.cython_blas"
-_LOADING = [0.0]  # CPU seconds this process spent loading kernels from the disk cache
+# CPU seconds this process spent loading kernels from the disk cache, or compiling those
+# missing from it
+_LOADING = [0.0]
+_DEPTH = threading.local()  # compiles under way on this thread (a kernel compiles its callees)
 
 
 def load_seconds() -> float:
-    """CPU seconds this process's threads have spent loading kernels from the disk cache (0
-    where numba is left as it is): a process pays it once a kernel, so whoever first traces
-    here (the host's cost pre-pass) can tell it from its own work."""
+    """CPU seconds this process's threads have spent loading kernels from the disk cache, or
+    compiling them where it lacked them (0 where numba is left as it is): a process pays it
+    once a kernel (a machine once a kernel, for compiles), so whoever first traces here (the
+    host's cost pre-pass) can tell it from its own work."""
     return _LOADING[0]
 
 
 def cpu_less_loads() -> float:
-    """This process's CPU seconds less its kernel loads (`load_seconds`): a clock for work
-    whose first run in a process also loads the kernels it calls."""
+    """This process's CPU seconds less its kernel loads and compiles (`load_seconds`): a
+    clock for work whose first run in a process also readies the kernels it calls."""
     return time.process_time() - _LOADING[0]
 
 
@@ -73,6 +78,7 @@ def install() -> None:
         _environments_without_imports(environment)
         _cache_folders_checked_once(caching)
         _runtime_kept_compiled(nrtdynmod)
+        _compiles_timed(dispatcher.Dispatcher)
 
 
 def _blas_alone() -> None:
@@ -103,11 +109,9 @@ def _loads_ready_the_runtime_only(cache, rtsys, entrypoints) -> None:
     def load_overload(self, sig, target_context):
         """The cached compile result for `sig`, or None: numba then compiles it, after
         the extensions' initialisation its compile chain would have run first."""
-        began = time.thread_time()  # the loading thread's own: another's may run meanwhile
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
             loaded = self._load_overload(sig, target_context)
-        _LOADING[0] += time.thread_time() - began
         if loaded is None:
             _blas_alone()
             entrypoints.init_all()
@@ -115,6 +119,29 @@ def _loads_ready_the_runtime_only(cache, rtsys, entrypoints) -> None:
 
     load_overload.readies_runtime_only = True
     cache.load_overload = load_overload
+
+
+def _compiles_timed(dispatcher) -> None:
+    """A dispatcher's `compile` (a load from the disk cache, or a compile where it misses)
+    timed into `load_seconds` on the thread that runs it (another's may run meanwhile),
+    the outermost only: a kernel's compile compiles the functions it calls."""
+    if not hasattr(dispatcher, "compile") or hasattr(dispatcher.compile, "timed"):
+        return
+    compile_ = dispatcher.compile
+
+    def compile(self, sig):
+        depth = getattr(_DEPTH, "n", 0)
+        began = time.thread_time() if depth == 0 else 0.0
+        _DEPTH.n = depth + 1
+        try:
+            return compile_(self, sig)
+        finally:
+            _DEPTH.n = depth
+            if depth == 0:
+                _LOADING[0] += time.thread_time() - began
+
+    compile.timed = True
+    dispatcher.compile = compile
 
 
 def _extensions_before_compiling(base) -> None:

@@ -151,3 +151,23 @@ def test_the_pre_pass_gives_the_map_where_it_lightens_the_busiest_node(name):
     assert ratio == pytest.approx(busiest[False] / busiest[True], rel=1e-3)
     if name == "balls_s1.nff":  # a floor and spheres: most of the scene's box is empty
         assert cuts.occupancy and ratio > 1.05, ratio
+
+
+def test_the_hosts_map_is_made_once_per_scene_box_and_size():
+    from unittest import mock
+
+    from host.planning import occupancy
+
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    box = scene_box(scene)
+    half = (box[0], (np.asarray(box[0]) + np.asarray(box[1])) / 2)
+    made = []
+    real = occupancy._mapped
+    with mock.patch.object(occupancy, "_mapped", lambda *a: made.append(a) or real(*a)):
+        first = occupancy.occupancy_map(scene, box)
+        assert occupancy.occupancy_map(scene, tuple(np.array(b) for b in box)) is first
+        assert occupancy.occupancy_map(scene, box, 8**3) != first  # another size
+        assert occupancy.occupancy_map(scene, half) != first  # another box
+        again = read_nff(spd_scene("balls_s1.nff"))  # another scene: made anew, alike
+        assert occupancy.occupancy_map(again, box) == first
+    assert len(made) == 4

@@ -6,7 +6,7 @@ every trial of growth). Scenes are not changed once read: a subset or a replaced
 another object, with its own."""
 
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 
 from meshnode.engine.tables import Tables, build_tables
 from protocols.scene import SceneData
@@ -25,8 +25,9 @@ def derived(scene: SceneData) -> dict:
     return store
 
 
-def kept(scene: SceneData, name: str, make: Callable):
-    """`make()` once while `scene` lives, under `name`."""
+def kept(scene: SceneData, name: Hashable, make: Callable):
+    """`make()` once while `scene` lives, under `name` (a string, or a tuple naming what it
+    was made from)."""
     store = derived(scene)
     if name not in store:
         store[name] = make()

@@ -10,15 +10,12 @@ costs memory: cells that follow the view (for cells cut by the objects), the sha
 the neighbours' copies, and the overlap.
 """
 
-import hashlib
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from host.planning.holding import engine_bytes
-from host.scene.derived import kept
-from host.scene.subset import subset
+from host.planning.holding import held_bytes
 from meshnode.engine.occupancy import OCTANTS
 from protocols.render import RenderSpec
 from protocols.scene import SceneData
@@ -58,17 +55,6 @@ def cell_bytes(scene: SceneData, part: "Partition", keep: np.ndarray, cells=None
     occ = OCTANTS * int(np.prod(part.occ_res))
     cells = range(len(keep)) if cells is None else cells
     return [held_bytes(scene, keep[m]) + occ for m in cells]
-
-
-def held_bytes(scene: SceneData, held: np.ndarray) -> int:
-    """`engine_bytes` of the objects `held` (a mask over the scene's), once per scene and
-    mask: a plan counts the same cells for its budget, its copies and its growth (gears 4x4
-    under 0.15: 32 counts of 16 cells, each building the cell's tables, 0.11 s of 0.37)."""
-    counted = kept(scene, "engine_bytes", dict)
-    key = len(held), hashlib.blake2b(np.packbits(held).tobytes(), digest_size=16).digest()
-    if key not in counted:
-        counted[key] = engine_bytes(subset(scene, held))
-    return counted[key]
 
 
 def within(plan, held: dict) -> bool:

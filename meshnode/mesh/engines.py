@@ -87,11 +87,12 @@ SIGHTLINES_KEPT = 8  # `EngineCache.sightlines` entries kept
 def _engine_key(scene: SceneData, options: dict) -> bytes:
     """A digest of everything an engine is built from: objects, background, options (bytes
     and arrays digested as they are: the repr of an occupancy map's 32 KB of bits was a
-    tenth of a plan's CPU)."""
-    h = hashlib.blake2b(digest_size=32)
+    tenth of a plan's CPU). SHA-256, which CPUs hash in hardware: 8 ms for the 12 MB of a
+    65,536-triangle tetra's records, against BLAKE2b's 21."""
+    h = hashlib.sha256()
     for table in (getattr(scene, t) for t in SCENE_TABLES):
         h.update(len(table).to_bytes(8, "little"))
-        h.update(np.ascontiguousarray(table).tobytes())
+        h.update(np.ascontiguousarray(table).view(np.uint8))  # its bytes, not copied
     h.update(repr(tuple(scene.background)).encode())
     for name, value in sorted(options.items()):
         h.update(name.encode())

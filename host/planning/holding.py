@@ -48,19 +48,15 @@ class _Shares:
 
     def __init__(self, scene: SceneData):
         tb = scene_tables(scene)
-        n = tb.n
-        each = np.full(n, 2 * 4 + 2 * 24 + HIERARCHY_BYTES_PER_OBJECT, np.int64)  # ids, bounds
-        at = tb.offsets
+        each = np.full(tb.n, 2 * 4 + 2 * 24 + HIERARCHY_BYTES_PER_OBJECT, np.int64)  # ids, bounds
+        self.at = at = tb.offsets
         kinds = zip(OBJECT_KINDS, (tb.spheres, tb.triangles, tb.polygons, tb.cones), strict=True)
         for k, (kind, rows) in enumerate(kinds):
             record = getattr(scene, kind).dtype.itemsize
             row = 0 if rows is None else rows.itemsize * rows.shape[1]
             each[at[k] : at[k + 1]] += row + record
-        self.triangles = np.zeros(n, bool)
-        self.triangles[at[1] : at[2]] = True
-        self.smooth = np.zeros(n, bool)
-        self.smooth[at[1] : at[2]] = scene.triangles["smooth"] != 0
-        self.banded = np.zeros(n, bool)
+        self.smooth = scene.triangles["smooth"] != 0  # per triangle
+        self.banded = np.zeros(0, bool)  # per polygon
         if tb.poly_info is not None:
             first, count, bands = tb.poly_info[:, 4], tb.poly_info[:, 1], tb.poly_info[:, 5]
             listed = np.zeros(len(count), np.int64)
@@ -71,17 +67,19 @@ class _Shares:
             uv = tb.poly_uv.itemsize * 2
             each[at[2] : at[3]] += tb.poly_info.itemsize * 6 + count * (uv + vertex)
             each[at[2] : at[3]] += 8 * (bands + listed)
-            self.banded[at[2] : at[3]] = bands > 0
+            self.banded = bands > 0
         self.each = each
         self.normal = 0 if tb.triangles is None else tb.triangles.itemsize * 9
         fixed = (tb.offsets, tb.materials, tb.lights, scene.materials, scene.lights)
         self.fixed = sum(0 if a is None else a.nbytes for a in fixed) + ENGINE_FIXED_BYTES
 
     def __call__(self, held: np.ndarray) -> int:
+        at = self.at
+        triangles, polygons = held[at[1] : at[2]], held[at[2] : at[3]]
         total = self.fixed + int(self.each[held].sum())
-        if (held & self.smooth).any():
-            total += self.normal * int((held & self.triangles).sum())
-        return total + 8 * bool((held & self.banded).any())
+        if (triangles & self.smooth).any():
+            total += self.normal * int(np.count_nonzero(triangles))
+        return total + 8 * bool((polygons & self.banded).any())
 
 
 def largest_engine(scene, spec: RenderSpec, xs, ys, cells=None) -> int:

@@ -53,7 +53,15 @@ def test_an_empty_map_is_clear_everywhere():
 
 
 @pytest.mark.parametrize(
-    "name", ["balls_s1.nff", "mount_s1.nff", "teapot_s1.nff", "gears_s1.nff", "tetra_s3.nff"]
+    "name",
+    [
+        "balls_s1.nff",
+        "mount_s1.nff",
+        "teapot_s1.nff",
+        "gears_s1.nff",
+        "tetra_s3.nff",
+        "rings_s1.nff",
+    ],
 )
 def test_no_ray_with_an_object_ahead_is_told_the_way_is_clear(name):
     """Rays from random points of the scene's box in random directions: the first occupied

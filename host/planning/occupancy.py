@@ -7,6 +7,7 @@ import numpy as np
 
 from host.scene.derived import kept, scene_tables
 from meshnode.engine.occupancy import OCTANTS
+from meshnode.engine.voxelize import touched_map
 from protocols.partition import MAX_OCC_SIDE
 from protocols.scene import SceneData
 
@@ -26,7 +27,7 @@ def map_voxels(plan) -> int:
 def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:
     """(voxels per axis, packed bits) of the scene's occupancy map over `box`: about
     `voxels` near-cubic voxels (a flat scene gets layers too), a voxel set where some
-    object's bounds, padded as the grid pads a box, reach it (`meshnode.engine.occupancy`:
+    object's surface reaches it, the voxel padded (`meshnode.engine.occupancy`:
     conservative, so a node that skips what the map calls empty misses nothing). Made once
     while the scene lives: a plan's first guess, its simulations and its partition each
     asked for it (the 65,536-triangle tetra: 19 ms a map, three of a 0.3 s plan)."""
@@ -36,23 +37,20 @@ def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tupl
 
 
 def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes]:
-    """`occupancy_map`, made: every object's range of voxels is marked at its eight corners
-    and summed along the three axes, no loop per object."""
+    """`occupancy_map`, made: each object marks the voxels of its bounds that its surface
+    reaches (`voxelize.touched_map`, the tests the grid's references are kept by), every
+    voxel grown by the padding. A voxel an object's bounds reach but its surface does not
+    stays empty: a ray crossing it meets nothing there, and passing it on to the node whose
+    cell it is in was a pass to end it (3x3 under a quarter share: teapot 0.167 -> 0.112
+    passes a ray, mount 0.135 -> 0.105, tetra 0.090 -> 0.064)."""
     tb = scene_tables(scene)
     ext = hi - lo
     thick = np.maximum(ext, 1e-3 * ext.max())
     res = np.clip(np.round(thick * (voxels / thick.prod()) ** (1 / 3)), 1, MAX_OCC_SIDE)
     res = res.astype(np.int64)
-    diff = np.zeros(tuple((res + 1)[::-1]), np.int64)  # z, y, x: x fastest once flattened
+    full = np.zeros(int(res.prod()), bool)  # x fastest
     if tb.n:
-        pad = 1e-6 * float(ext.max()) + 1e-12 * np.maximum(np.abs(tb.lo), np.abs(tb.hi))
-        cell = ext / res
-        first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, res - 1).astype(np.int64)
-        last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, res - 1).astype(np.int64) + 1
-        nx, ny = res[0] + 1, res[1] + 1
-        for corner in range(8):  # counted with bincount: numpy's add.at is 5x slower
-            at = [np.where(corner >> a & 1, last[:, a], first[:, a]) for a in range(3)]
-            marks = np.bincount(at[0] + nx * (at[1] + ny * at[2]), minlength=diff.size)
-            diff.reshape(-1)[:] += (-1) ** bin(corner).count("1") * marks
-    full = diff.cumsum(0).cumsum(1).cumsum(2)[:-1, :-1, :-1] > 0
-    return tuple(res.tolist()), np.packbits(full.ravel()).tobytes()
+        reach = max(float(np.abs(tb.lo).max()), float(np.abs(tb.hi).max()))
+        pad = 1e-6 * float(ext.max()) + 1e-12 * reach
+        touched_map(lo, ext / res, res, tb.lo, tb.hi, pad, tb.geometry(), full)
+    return tuple(res.tolist()), np.packbits(full).tobytes()

@@ -1,0 +1,140 @@
+"""The host's occupancy map marks where the objects' surfaces are, not their bounds: every
+point of every surface lies in a marked voxel (sampled on spheres, triangles, polygons' rims
+and cones, SPD scenes and slanted shapes made here), the map lies within the objects' padded
+bounds (rasterised here by NumPy, the map the host made before), and leaves out what the
+bounds hold but no surface reaches; a mesh with it gives the image it gives without a map."""
+
+import numpy as np
+import pytest
+
+import host.planning.partition
+from host.planning.cells import scene_box
+from host.planning.occupancy import occupancy_map
+from host.scene.nff import read_nff
+from protocols import dtypes
+from protocols.render import EVERYWHERE
+from protocols.scene import SceneData, View
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_mesh_algorithm import SPD_COUNTS
+
+SCENES = ["teapot_s1.nff", "mount_s1.nff", "rings_s1.nff", "tetra_s3.nff", "gears_s1.nff"]
+
+
+def _slanted() -> SceneData:
+    """Long thin triangles, cones and cylinders at odd angles, spheres of several sizes and
+    a polygon: shapes whose bounds are mostly empty."""
+    rng = np.random.default_rng(7)
+    tri = np.zeros(40, dtypes.TRIANGLE)
+    corner = rng.uniform(-1, 1, (40, 1, 3))
+    tri["v"] = corner + rng.normal(scale=0.6, size=(40, 3, 3)) * [1.0, 0.05, 1.0]
+    tri["gid"] = np.arange(40)
+    cones = np.zeros(12, dtypes.CONE)
+    cones["base"] = rng.uniform(-1, 1, (12, 3))
+    cones["apex"] = cones["base"] + rng.normal(scale=0.8, size=(12, 3))
+    cones["base_r"] = rng.uniform(0.01, 0.1, 12)
+    cones["apex_r"] = np.where(np.arange(12) % 2, cones["base_r"], rng.uniform(0, 0.1, 12))
+    cones["gid"] = 40 + np.arange(12)
+    spheres = np.zeros(6, dtypes.SPHERE)
+    spheres["center"] = rng.uniform(-1, 1, (6, 3))
+    spheres["radius"] = [0.02, 0.05, 0.2, 0.5, -0.3, 0.9]
+    spheres["gid"] = 52 + np.arange(6)
+    polygons = np.zeros(1, dtypes.POLYGON)
+    polygons[0] = (58, 0, 0, 5)
+    angles = np.linspace(0, 2 * np.pi, 5, endpoint=False)
+    vertices = np.stack([np.cos(angles), 0.3 * np.cos(angles) + np.sin(angles), np.sin(angles)], 1)
+    materials = np.zeros(1, dtypes.MATERIAL)
+    view = View((0.0, -5.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 40.0, 0.0, 16, 16)
+    return SceneData(
+        view,
+        materials=materials,
+        spheres=spheres,
+        triangles=tri,
+        polygons=polygons,
+        vertices=vertices,
+        cones=cones,
+    )
+
+
+def _surface_points(scene: SceneData, per: int, rng) -> np.ndarray:
+    """Points on every object's surface: spheres and cones all over, triangles inside and on
+    their edges, polygons on their rims (their corners and edges)."""
+    points = []
+    for s in scene.spheres:
+        d = rng.normal(size=(per, 3))
+        points.append(s["center"] + abs(s["radius"]) * d / np.linalg.norm(d, axis=1)[:, None])
+    for t in scene.triangles:
+        u, v = rng.random((2, per))
+        u[: per // 4] = 1 - v[: per // 4]  # a quarter on the third edge
+        flip = u + v > 1
+        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        p0, p1, p2 = t["v"]
+        points.append(p0 + u[:, None] * (p1 - p0) + v[:, None] * (p2 - p0))
+    for c in scene.cones:
+        axis = c["apex"] - c["base"]
+        a = axis / np.linalg.norm(axis)
+        side = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        side /= np.linalg.norm(side)
+        other = np.cross(a, side)
+        s, angle = rng.random(per), rng.uniform(0, 2 * np.pi, per)
+        r = abs(c["base_r"]) + s * (abs(c["apex_r"]) - abs(c["base_r"]))
+        ring = np.cos(angle)[:, None] * side + np.sin(angle)[:, None] * other
+        points.append(c["base"] + s[:, None] * axis + r[:, None] * ring)
+    for p in scene.polygons:
+        rim = scene.vertices[p["start"] : p["start"] + p["count"]]
+        s = rng.random((len(rim), 1))
+        points.append(rim + s * (np.roll(rim, -1, axis=0) - rim))
+        points.append(rim)
+    return np.concatenate(points)
+
+
+def _marked(scene: SceneData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the map as a (z, y, x) bool array, its box's lo, a voxel's size)."""
+    lo, hi = (np.asarray(b, float) for b in scene_box(scene))
+    res, bits = occupancy_map(scene, (lo, hi))
+    full = np.unpackbits(np.frombuffer(bits, np.uint8), count=int(np.prod(res))).astype(bool)
+    return full.reshape(res[::-1]), lo, (hi - lo) / np.array(res)
+
+
+@pytest.mark.parametrize("name", [*SCENES, "slanted"])
+def test_every_surface_point_lies_in_a_marked_voxel(name):
+    scene = _slanted() if name == "slanted" else read_nff(spd_scene(name))
+    full, lo, cell = _marked(scene)
+    points = _surface_points(scene, 64, np.random.default_rng(3))
+    at = np.clip(np.floor((points - lo) / cell).astype(np.int64), 0, np.array(full.shape[::-1]) - 1)
+    missed = ~full[at[:, 2], at[:, 1], at[:, 0]]
+    assert not missed.any(), (name, points[missed][:5])
+
+
+@pytest.mark.parametrize("name", [*SCENES, "slanted"])
+def test_the_map_lies_within_the_bounds_and_leaves_out_what_no_surface_reaches(name):
+    from host.scene.derived import scene_tables
+
+    scene = _slanted() if name == "slanted" else read_nff(spd_scene(name))
+    full, lo, cell = _marked(scene)
+    tb = scene_tables(scene)
+    bounds = np.zeros_like(full)
+    top = np.array(full.shape[::-1]) - 1
+    pad = 1e-6 * float(np.max(cell * full.shape[::-1]))
+    first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, top).astype(np.int64)
+    last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, top).astype(np.int64)
+    for (x0, y0, z0), (x1, y1, z1) in zip(first, last, strict=True):
+        bounds[z0 : z1 + 1, y0 : y1 + 1, x0 : x1 + 1] = True
+    assert not (full & ~bounds).any()
+    if name != "gears_s1.nff":  # gears: flat polygons in axis planes fill their bounds
+        assert full.sum() < 0.8 * bounds.sum(), (name, full.sum(), bounds.sum())
+
+
+@pytest.mark.parametrize("name", ["rings_s1.nff", "tetra_s3.nff"])
+def test_the_surfaces_map_changes_nothing_but_the_passing(name, monkeypatch):
+    scene = read_nff(spd_scene(name))
+    runs = {}
+    for skip in (True, False):
+        if not skip:  # one occupied voxel: every segment goes on as it did before the map
+            monkeypatch.setattr(host.planning.partition, "occupancy_map", lambda *_: EVERYWHERE)
+        runs[skip] = render_mesh(scene, 2, 2, 2, 32, 32, spp=2)
+    (img, totals, nodes, _), (ref, ref_totals, ref_nodes, _) = runs[True], runs[False]
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-12)
+    for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit"):
+        assert totals[k] == ref_totals[k], k
+    assert sum(n.rays_sent for n in nodes) < sum(n.rays_sent for n in ref_nodes)

@@ -27,16 +27,19 @@ from host.planning.request import Request  # noqa: E402
 from host.run.connections import Nodes  # noqa: E402
 
 
-async def render_losing(scene, image, addresses, plan, engine, total: int, victim, wait=300.0):
+async def render_losing(
+    scene, image, addresses, plan, engine, total: int, victim, wait=300.0, share=0.5
+):
     """(image, stats) of a render on running nodes at `addresses`, process `victim` (None:
-    none) killed once half of the `total` primary rays are traced; `wait` bounds each step."""
+    none) killed once `share` of the `total` primary rays are reported traced (the sky's,
+    which the host deposits as the frame starts, among them); `wait` bounds each step."""
     from host.run.meshclient import render_on_mesh
 
     half, traced = asyncio.Event(), [0]
 
     def progress(rays: int) -> None:
         traced[0] += rays
-        if traced[0] >= total // 2:
+        if traced[0] >= share * total:
             half.set()
 
     task = asyncio.create_task(

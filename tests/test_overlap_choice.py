@@ -67,8 +67,9 @@ def test_the_chosen_overlap_simulates_least_of_the_candidates(balance):
 
 
 def _cells(got):
-    """The cells the plan used when the pre-pass cut them on its work map, else None."""
-    return got.partition.cells if got.balance.get("family") == "work map" else None
+    """The cells the plan used when the pre-pass cut them in object space (on its work map,
+    or by the objects), else None (cut from the image's)."""
+    return got.partition.cells if got.balance.get("family") in ("work map", "objects") else None
 
 
 def test_overlaps_whose_largest_node_would_not_fit_are_not_taken():

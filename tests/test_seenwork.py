@@ -27,13 +27,12 @@ s 4 0 0 1
 """
 
 
-def _slab_hits(o, d, lo, hi) -> np.ndarray:
-    """Whether each ray (o, d) meets the box lo..hi ahead of its origin."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t0, t1 = (lo - o) / d, (hi - o) / d
-    near = np.nanmax(np.minimum(t0, t1), axis=1)
-    far = np.nanmin(np.maximum(t0, t1), axis=1)
-    return (near <= far) & (far >= 0)
+def _sphere_hits(o, d, centre, radius) -> np.ndarray:
+    """Whether each ray (o, d) meets the sphere ahead of its origin (d need not be unit)."""
+    w = o - np.asarray(centre, float)
+    a, b, c = (d * d).sum(axis=1), (w * d).sum(axis=1), (w * w).sum(axis=1) - radius**2
+    disc = b * b - a * c
+    return (disc >= 0) & (-b + np.sqrt(np.maximum(disc, 0)) >= 0)
 
 
 def test_seen_starts_count_the_rays_meeting_an_object_at_its_near_side():
@@ -45,12 +44,12 @@ def test_seen_starts_count_the_rays_meeting_an_object_at_its_near_side():
     width, height = coarse_spec(spec).image.size
     rays = eye_rays(scene.view, ImageSpec(width=width, height=height))
     o, d = rays["o"], rays["d"]
-    # the map marks voxels the bounds reach, so a ray meeting a sphere's bounds counts, and
-    # one missing them by more than a map voxel (64^3 over the box) does not
+    # the map marks the voxels the spheres' surfaces reach, so a ray meeting a sphere counts,
+    # and one missing it by more than a map voxel's diagonal (64^3 over the box) does not
     voxel = (box[1] - box[0]) / 40.0  # larger than a map voxel (about 6 / 133) on every axis
-    spheres = [(np.array(c, float) - 1, np.array(c, float) + 1) for c in ((0, 0, 0), (4, 0, 0))]
-    least = sum(_slab_hits(o, d, lo, hi) for lo, hi in spheres) > 0
-    most = sum(_slab_hits(o, d, lo - voxel, hi + voxel) for lo, hi in spheres) > 0
+    centres, reach = ((0, 0, 0), (4, 0, 0)), float(np.linalg.norm(voxel))
+    least = sum(_sphere_hits(o, d, c, 1.0) for c in centres) > 0
+    most = sum(_sphere_hits(o, d, c, 1.0 + reach) for c in centres) > 0
     assert least.sum() <= seen.sum() <= most.sum()
     assert 0 < least.sum() < len(rays)  # some rays pass through the gap or beside
     # no start lies in the gap between the spheres (a ray through it may meet a sphere's

@@ -1,0 +1,136 @@
+"""What the occupancy map's marking buys an object-space mesh, on the same cells: the plan made
+once (`host render`'s, under a memory budget), then its mesh simulated in this process with
+the map marked where the objects' bounds reach (how the host marked it before session 45,
+rasterised here) and with the map as the host marks it now (where their surfaces reach:
+`meshnode.engine.voxelize.touched_map`). Counts, not time: the same cells, nodes and rays,
+so what changes is only which segments the map ends or passes on.
+
+    python -m bench.occupancy_map [--scenes DIR] [--only balls,rings,teapot,tetra,mount]
+                                  [--meshes 2x2,3x3,4x4] [--max-share 0.5,0.25,0.15]
+                                  [--size 256] [--spp 8] [--json FILE]
+
+Printed per scene and mesh, for each map: its occupied share, rays passed per eye ray, the
+nodes' summed work units and the busiest node's; and their ratios, surfaces over bounds.
+The mesh's hits, escapes and shadow rays are checked equal under both maps.
+"""
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import add_scenes_option, finish, per_mesh  # noqa: E402 (after the path is set)
+
+SAME = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_rays")
+
+
+def bounds_bits(scene, part) -> bytes:
+    """The partition's map as it was marked before: every voxel some object's bounds,
+    padded by a millionth of the box's extent, reach."""
+    from host.scene.derived import scene_tables
+
+    lo, hi = np.asarray(part.scene_lo, float), np.asarray(part.scene_hi, float)
+    res = np.asarray(part.occ_res, np.int64)
+    cell, tb = (hi - lo) / res, scene_tables(scene)
+    pad = 1e-6 * float((hi - lo).max())
+    first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, res - 1).astype(np.int64)
+    last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, res - 1).astype(np.int64)
+    full = np.zeros(tuple(res[::-1]), bool)
+    for (x0, y0, z0), (x1, y1, z1) in zip(first, last, strict=True):  # once per object
+        full[z0 : z1 + 1, y0 : y1 + 1, x0 : x1 + 1] = True
+    return np.packbits(full.ravel()).tobytes()
+
+
+def simulated(scene, planned, part) -> dict:
+    """The mesh of `planned` simulated on partition `part`: its counts and work."""
+    from host.scene.subset import subset
+    from meshnode.mesh.simulator import simulate
+
+    outcome = simulate([subset(scene, k) for k in planned.holders], planned.spec, part)
+    units = np.array([n.cost for n in outcome.nodes], float)
+    bits = np.unpackbits(np.frombuffer(part.occ_bits, np.uint8), count=int(np.prod(part.occ_res)))
+    return {
+        "occupied": float(bits.mean()),
+        "passed": sum(n.rays_sent for n in outcome.nodes),
+        "units": float(units.sum()),
+        "busiest": float(units.max()),
+        "counts": outcome.totals(),
+    }
+
+
+def _pair(old: dict, new: dict, key: str, scale: float = 1.0, form: str = ".3f") -> str:
+    """`key` under the bounds map and the surfaces map, and their ratio."""
+    a, b = old[key] * scale, new[key] * scale
+    return f"{a:{form}} -> {b:{form}} ({b / a if a else 1.0:.2f})"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="bench.occupancy_map", description=__doc__.split("\n\n")[0])
+    add_scenes_option(p)
+    p.add_argument("--only", default="balls,rings,teapot,tetra,mount")
+    p.add_argument("--meshes", default="2x2,3x3,4x4")
+    p.add_argument("--max-share", default="0.5,0.25,0.15", help="one, or one per mesh")
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--spp", type=int, default=8)
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    from bench import read_scene
+    from host.planning.plan import plan_render
+    from host.planning.request import Auto, Request
+    from protocols.render import EngineSpec, ImageSpec, MeshPlan
+
+    meshes = args.meshes.split(",")
+    shares = per_mesh(args.max_share, meshes)
+    image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
+    eye = args.size * args.size * args.spp
+    print(f"{args.size}x{args.size} at {args.spp} spp; the same cells under both maps")
+    print(
+        f"{'scene':>9} {'mesh':>4} {'occupied':>17} {'passes a ray':>17} "
+        f"{'summed units':>22} {'busiest units':>22}"
+    )
+    rows, bad = [], []
+    for name in args.only.split(","):
+        for mesh, share in zip(meshes, shares, strict=True):
+            scene = read_scene(args.scenes, name)
+            rr, cc = (int(v) for v in mesh.lower().split("x"))
+            plan = MeshPlan(rr, cc, 1.0, "objects", "object", max_share=share)
+            request = Request(scene, image, EngineSpec(), plan=plan, auto=Auto(budget_copies=True))
+            planned = plan_render(request)
+            part = planned.partition
+            was = dataclasses.replace(part, occ_bits=bounds_bits(scene, part))
+            old, new = simulated(scene, planned, was), simulated(scene, planned, part)
+            if any(old["counts"][k] != new["counts"][k] for k in SAME):
+                bad.append(f"{name} {mesh}: {[(old['counts'][k], new['counts'][k]) for k in SAME]}")
+            cells = (
+                _pair(old, new, "occupied"),
+                _pair(old, new, "passed", 1 / eye),
+                _pair(old, new, "units", 1e-6, ".1f"),
+                _pair(old, new, "busiest", 1e-6, ".2f"),
+            )
+            print(f"{name:>9} {mesh:>4} " + " ".join(cells))
+            rows.append(
+                {
+                    "scene": name,
+                    "mesh": mesh,
+                    "max_share": share,
+                    **{f"bounds_{k}": v for k, v in old.items() if k != "counts"},
+                    **{f"surfaces_{k}": v for k, v in new.items() if k != "counts"},
+                    "eye_rays": eye,
+                }
+            )
+    return finish(
+        rows,
+        args.json,
+        bad,
+        "MISMATCH (ray counts) between the two maps:\n",
+        "the mesh counted the same hits, escapes and shadow rays under both maps",
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -138,3 +138,59 @@ def test_the_surfaces_map_changes_nothing_but_the_passing(name, monkeypatch):
     for k in (*SPD_COUNTS, "hits", "escaped", "shadow_rays_lit"):
         assert totals[k] == ref_totals[k], k
     assert sum(n.rays_sent for n in nodes) < sum(n.rays_sent for n in ref_nodes)
+
+
+def test_a_face_on_a_voxel_boundary_stops_the_walk_before_its_hit_from_far_away():
+    """Squares lying exactly on voxel faces (axis planes) and one a hair inside a voxel,
+    hit by rays from a thousand boxes away at grazing and steep angles: the map's padding
+    keeps the first occupied voxel at or before every hit, as the kernels need (a walk that
+    stepped past a surface would resume beyond it and miss it)."""
+    import math
+
+    from meshnode.engine import Engine
+    from meshnode.engine.counters import N_COUNTERS
+    from meshnode.engine.occupancy import first_occupied, occupancy_arrays
+    from meshnode.engine.traverse import box_span
+
+    corners = np.zeros(2, dtypes.SPHERE)  # the scene's box: two small spheres far apart
+    corners["center"] = [(-8.0, -8.0, -8.0), (8.0, 8.0, 8.0)]
+    corners["radius"] = 0.01
+    view = View((0.0, -50.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 40.0, 0.0, 16, 16)
+    base = SceneData(view, materials=np.zeros(1, dtypes.MATERIAL), spheres=corners)
+    lo, hi = (np.asarray(b, float) for b in scene_box(base))
+    res = np.array(occupancy_map(base, (lo, hi))[0])
+    cell = (hi - lo) / res
+    squares = []
+    for axis, k, shift in ((2, 40, 0.0), (0, 23, 0.0), (1, 31, 0.0), (2, 12, 1e-9)):
+        at = lo[axis] + k * cell[axis] + shift  # a voxel face (or just past it)
+        u, v = [a for a in range(3) if a != axis]
+        quad = np.zeros((4, 3))
+        quad[:, axis] = at
+        quad[:, u] = [-3.0, 3.0, 3.0, -3.0]
+        quad[:, v] = [-3.0, -3.0, 3.0, 3.0]
+        squares += [quad[[0, 1, 2]], quad[[0, 2, 3]]]
+    tri = np.zeros(len(squares), dtypes.TRIANGLE)
+    tri["v"] = squares
+    tri["gid"] = 2 + np.arange(len(squares))
+    scene = SceneData(view, materials=np.zeros(1, dtypes.MATERIAL), spheres=corners, triangles=tri)
+    assert np.allclose(scene_box(scene), (lo, hi))  # the squares leave the box as it was
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
+    rng = np.random.default_rng(5)
+    n = 2000
+    targets = np.asarray(squares)[rng.integers(len(squares), size=n)]
+    w = rng.dirichlet(np.ones(3), size=n)
+    points = (w[:, :, None] * targets).sum(axis=1)
+    far = rng.normal(size=(n, 3))
+    far[: n // 2] *= [1.0, 1.0, 0.02]  # half of them nearly in the squares' planes
+    far /= np.linalg.norm(far, axis=1, keepdims=True)
+    origins = points + 1000.0 * 16.0 * far
+    dirs = points - origins
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_hit, _ = Engine(scene, brute=True).first_hits(origins, dirs)
+    counters = np.zeros(N_COUNTERS, np.int64)
+    for (ox, oy, oz), (dx, dy, dz), th in zip(origins, dirs, t_hit, strict=True):
+        rx, ry, rz = (1.0 / v if v != 0.0 else math.inf for v in (dx, dy, dz))
+        t0, t1 = box_span(ox, oy, oz, rx, ry, rz, 0.0, math.inf, *lo, *hi)
+        t = first_occupied(ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, *occ, counters)
+        assert t <= th, ((ox, oy, oz), (dx, dy, dz), t, th)
+    assert np.isfinite(t_hit).mean() > 0.99  # the rays do hit the squares

@@ -9,8 +9,7 @@ apart from `grid` (resolution, storage, the build that calls `voxel_refs` to cou
 fill) and from the host's map (`host.planning.occupancy`, which calls `touched_map`): overlap
 tests are geometry, not grid or map policy. The map's occupied share of 64^3 voxels, objects'
 bounds against these tests: teapot 9.4 -> 6.0%, mount 9.3 -> 5.3, rings 16.2 -> 11.6, tetra
-14.0 -> 10.9 (its vertices lie on voxel faces, which the map's padding reaches), sombrero 12.3
--> 6.5, jacks 29.4 -> 4.4; balls and gears the same (small spheres, flat polygons).
+14.0 -> 7.1, sombrero 12.3 -> 6.5, jacks 29.4 -> 4.4; balls the same (small spheres).
 """
 
 import math

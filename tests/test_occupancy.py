@@ -119,7 +119,7 @@ def test_a_partition_checks_its_occupancy_map():
         )
 
 
-@pytest.mark.parametrize("name", ["balls_s1.nff", "teapot_s1.nff"])
+@pytest.mark.parametrize("name", ["balls_s1.nff", "teapot_s1.nff", "rings_s1.nff", "tetra_s3.nff"])
 def test_skipping_empty_space_changes_nothing_but_the_passing(name, monkeypatch):
     scene = read_nff(spd_scene(name))
     runs = {}

@@ -27,15 +27,10 @@ def voxel_refs(glo, cell, res, lo, hi, geo, fill, counts, starts, refs):
     Bounds give a voxel range; spheres and planar objects then keep only voxels they touch
     (box-sphere distance, plane straddles box), which cuts references for large objects."""
     nx, ny = res[0], res[1]
+    ijk_lo = np.empty(3, np.int64)
+    ijk_hi = np.empty(3, np.int64)
     for u in range(lo.shape[0]):
-        ijk_lo = np.empty(3, np.int64)
-        ijk_hi = np.empty(3, np.int64)
-        for a in range(3):
-            tol = 1e-7 * cell[a]
-            i0 = int(math.floor((lo[u, a] - tol - glo[a]) / cell[a]))
-            i1 = int(math.floor((hi[u, a] + tol - glo[a]) / cell[a]))
-            ijk_lo[a] = min(max(i0, 0), res[a] - 1)
-            ijk_hi[a] = min(max(i1, 0), res[a] - 1)
+        _bounds_voxels(lo, hi, u, 0.0, 1e-7, glo, cell, res, ijk_lo, ijk_hi)
         for iz in range(ijk_lo[2], ijk_hi[2] + 1):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
@@ -73,11 +68,7 @@ def touched_map(glo, cell, res, lo, hi, grow, geo, full):
     ijk_lo = np.empty(3, np.int64)
     ijk_hi = np.empty(3, np.int64)
     for u in range(lo.shape[0]):
-        for a in range(3):
-            i0 = int(math.floor((lo[u, a] - grow - glo[a]) / cell[a]))
-            i1 = int(math.floor((hi[u, a] + grow - glo[a]) / cell[a]))
-            ijk_lo[a] = min(max(i0, 0), res[a] - 1)
-            ijk_hi[a] = min(max(i1, 0), res[a] - 1)
+        _bounds_voxels(lo, hi, u, grow, 0.0, glo, cell, res, ijk_lo, ijk_hi)
         for iz in range(ijk_lo[2], ijk_hi[2] + 1):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
@@ -98,6 +89,18 @@ def touched_map(glo, cell, res, lo, hi, grow, geo, full):
                         geo.cone,
                     ):
                         full[v] = True
+
+
+@kernel
+def _bounds_voxels(lo, hi, u, grow, share, glo, cell, res, ijk_lo, ijk_hi):
+    """The first and last voxel along each axis (into ijk_lo, ijk_hi) that object u's bounds
+    reach, grown by `grow` plus `share` of a voxel, clamped to the grid."""
+    for a in range(3):
+        margin = grow + share * cell[a]
+        i0 = int(math.floor((lo[u, a] - margin - glo[a]) / cell[a]))
+        i1 = int(math.floor((hi[u, a] + margin - glo[a]) / cell[a]))
+        ijk_lo[a] = min(max(i0, 0), res[a] - 1)
+        ijk_hi[a] = min(max(i1, 0), res[a] - 1)
 
 
 @kernel

@@ -30,12 +30,18 @@ SAME = ("eye_hits", "escaped", "shadow_rays", "shadow_rays_blocked", "reflected_
 
 
 def bounds_bits(scene, part) -> bytes:
-    """The partition's map as it was marked before: every voxel some object's bounds,
-    padded by a millionth of the box's extent, reach."""
+    """The partition's map as it was marked before session 45 (`bounds_map`), packed."""
+    box = np.asarray(part.scene_lo, float), np.asarray(part.scene_hi, float)
+    return np.packbits(bounds_map(scene, *box, part.occ_res).ravel()).tobytes()
+
+
+def bounds_map(scene, lo, hi, res) -> np.ndarray:
+    """(z, y, x) bool: the map over lo..hi of `res` voxels as the host marked it before
+    session 45: every voxel some object's bounds, padded by a millionth of the box's extent,
+    reach."""
     from host.scene.derived import scene_tables
 
-    lo, hi = np.asarray(part.scene_lo, float), np.asarray(part.scene_hi, float)
-    res = np.asarray(part.occ_res, np.int64)
+    res = np.asarray(res, np.int64)
     cell, tb = (hi - lo) / res, scene_tables(scene)
     pad = 1e-6 * float((hi - lo).max())
     first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, res - 1).astype(np.int64)
@@ -43,7 +49,7 @@ def bounds_bits(scene, part) -> bytes:
     full = np.zeros(tuple(res[::-1]), bool)
     for (x0, y0, z0), (x1, y1, z1) in zip(first, last, strict=True):  # once per object
         full[z0 : z1 + 1, y0 : y1 + 1, x0 : x1 + 1] = True
-    return np.packbits(full.ravel()).tobytes()
+    return full
 
 
 def simulated(scene, planned, part) -> dict:

@@ -105,18 +105,11 @@ def test_every_surface_point_lies_in_a_marked_voxel(name):
 
 @pytest.mark.parametrize("name", [*SCENES, "slanted"])
 def test_the_map_lies_within_the_bounds_and_leaves_out_what_no_surface_reaches(name):
-    from host.scene.derived import scene_tables
+    from bench.occupancy_map import bounds_map
 
     scene = _slanted() if name == "slanted" else read_nff(spd_scene(name))
     full, lo, cell = _marked(scene)
-    tb = scene_tables(scene)
-    bounds = np.zeros_like(full)
-    top = np.array(full.shape[::-1]) - 1
-    pad = 1e-6 * float(np.max(cell * full.shape[::-1]))
-    first = np.clip(np.floor((tb.lo - pad - lo) / cell), 0, top).astype(np.int64)
-    last = np.clip(np.floor((tb.hi + pad - lo) / cell), 0, top).astype(np.int64)
-    for (x0, y0, z0), (x1, y1, z1) in zip(first, last, strict=True):
-        bounds[z0 : z1 + 1, y0 : y1 + 1, x0 : x1 + 1] = True
+    bounds = bounds_map(scene, lo, lo + cell * full.shape[::-1], full.shape[::-1])
     assert not (full & ~bounds).any()
     if name != "gears_s1.nff":  # gears: flat polygons in axis planes fill their bounds
         assert full.sum() < 0.8 * bounds.sum(), (name, full.sum(), bounds.sum())

@@ -1,17 +1,18 @@
 """What the occupancy map's marking buys an object-space mesh, on the same cells: the plan made
 once (`host render`'s, under a memory budget), then its mesh simulated in this process with
 the map marked where the objects' bounds reach (how the host marked it before session 45,
-rasterised here) and with the map as the host marks it now (where their surfaces reach:
-`meshnode.engine.voxelize.touched_map`). Counts, not time: the same cells, nodes and rays,
-so what changes is only which segments the map ends or passes on.
+rasterised here), where their surfaces reach (`meshnode.engine.voxelize.touched_map`,
+session 45) and, as the host marks it now, with each occupied voxel's 4x4x4 sub-voxels a
+walk tests before it stops there (`Partition.occ_fine`, session 46). Counts, not time: the
+same cells, nodes and rays, so what changes is only which segments the map ends or passes on.
 
     python -m bench.occupancy_map [--scenes DIR] [--only balls,rings,teapot,tetra,mount]
                                   [--meshes 2x2,3x3,4x4] [--max-share 0.5,0.25,0.15]
                                   [--size 256] [--spp 8] [--json FILE]
 
 Printed per scene and mesh, for each map: its occupied share, rays passed per eye ray, the
-nodes' summed work units and the busiest node's; and their ratios, surfaces over bounds.
-The mesh's hits, escapes and shadow rays are checked equal under both maps.
+nodes' summed work units and the busiest node's; and their ratios to the bounds map's. The
+mesh's hits, escapes and shadow rays are checked equal under all three maps.
 """
 
 import argparse
@@ -69,10 +70,11 @@ def simulated(scene, planned, part) -> dict:
     }
 
 
-def _pair(old: dict, new: dict, key: str, scale: float = 1.0, form: str = ".3f") -> str:
-    """`key` under the bounds map and the surfaces map, and their ratio."""
-    a, b = old[key] * scale, new[key] * scale
-    return f"{a:{form}} -> {b:{form}} ({b / a if a else 1.0:.2f})"
+def _row(runs: dict, key: str, scale: float = 1.0, form: str = ".3f") -> str:
+    """`key` under each map, and the last two maps' ratios to the first's."""
+    values = [r[key] * scale for r in runs.values()]
+    ratios = "/".join(f"{v / values[0] if values[0] else 1.0:.2f}" for v in values[1:])
+    return " -> ".join(f"{v:{form}}" for v in values) + f" ({ratios})"
 
 
 def main(argv=None) -> int:
@@ -94,11 +96,11 @@ def main(argv=None) -> int:
     shares = per_mesh(args.max_share, meshes)
     image = ImageSpec(width=args.size, height=args.size, spp=args.spp)
     eye = args.size * args.size * args.spp
-    print(f"{args.size}x{args.size} at {args.spp} spp; the same cells under both maps")
     print(
-        f"{'scene':>9} {'mesh':>4} {'occupied':>17} {'passes a ray':>17} "
-        f"{'summed units':>22} {'busiest units':>22}"
+        f"{args.size}x{args.size} at {args.spp} spp; the same cells under each map: bounds -> "
+        "surfaces -> sub-voxels (ratios to the bounds map's)"
     )
+    print(f"{'scene':>9} {'mesh':>4} occupied; passes a ray; summed units; busiest units")
     rows, bad = [], []
     for name in args.only.split(","):
         for mesh, share in zip(meshes, shares, strict=True):
@@ -108,15 +110,24 @@ def main(argv=None) -> int:
             request = Request(scene, image, EngineSpec(), plan=plan, auto=Auto(budget_copies=True))
             planned = plan_render(request)
             part = planned.partition
-            was = dataclasses.replace(part, occ_bits=bounds_bits(scene, part))
-            old, new = simulated(scene, planned, was), simulated(scene, planned, part)
-            if any(old["counts"][k] != new["counts"][k] for k in SAME):
-                bad.append(f"{name} {mesh}: {[(old['counts'][k], new['counts'][k]) for k in SAME]}")
+            maps = {
+                "bounds": dataclasses.replace(
+                    part, occ_bits=bounds_bits(scene, part), occ_fine=b""
+                ),
+                "surfaces": dataclasses.replace(part, occ_fine=b""),
+                "sub-voxels": part,
+            }
+            runs = {k: simulated(scene, planned, m) for k, m in maps.items()}
+            first = runs["bounds"]["counts"]
+            if any(r["counts"][k] != first[k] for r in runs.values() for k in SAME):
+                bad.append(
+                    f"{name} {mesh}: {[[r['counts'][k] for k in SAME] for r in runs.values()]}"
+                )
             cells = (
-                _pair(old, new, "occupied"),
-                _pair(old, new, "passed", 1 / eye),
-                _pair(old, new, "units", 1e-6, ".1f"),
-                _pair(old, new, "busiest", 1e-6, ".2f"),
+                _row(runs, "occupied"),
+                _row(runs, "passed", 1 / eye),
+                _row(runs, "units", 1e-6, ".1f"),
+                _row(runs, "busiest", 1e-6, ".2f"),
             )
             print(f"{name:>9} {mesh:>4} " + " ".join(cells))
             rows.append(
@@ -124,8 +135,12 @@ def main(argv=None) -> int:
                     "scene": name,
                     "mesh": mesh,
                     "max_share": share,
-                    **{f"bounds_{k}": v for k, v in old.items() if k != "counts"},
-                    **{f"surfaces_{k}": v for k, v in new.items() if k != "counts"},
+                    **{
+                        f"{k.replace('-', '_')}_{f}": v
+                        for k, r in runs.items()
+                        for f, v in r.items()
+                        if f != "counts"
+                    },
                     "eye_rays": eye,
                 }
             )
@@ -133,8 +148,8 @@ def main(argv=None) -> int:
         rows,
         args.json,
         bad,
-        "MISMATCH (ray counts) between the two maps:\n",
-        "the mesh counted the same hits, escapes and shadow rays under both maps",
+        "MISMATCH (ray counts) between the maps:\n",
+        "the mesh counted the same hits, escapes and shadow rays under all three maps",
     )
 
 

@@ -14,6 +14,7 @@ from protocols.errors import BadFrame, UnknownKind
 from protocols.records import Parts
 from protocols.scene import TABLE_DTYPES
 
+# 15: Partition.occ_fine (the occupied voxels' sub-voxels a walk tests);
 # 14: RAYS.cell (the engine a ray is for: a copy its node holds), MeshPlan.forward;
 # 13: MeshPlan.holds (a budget's copies, node by node);
 # 12: CameraSampling.rays gone (CONFIG's camera takes its rays per pixel from ImageSpec.spp),
@@ -22,7 +23,7 @@ from protocols.scene import TABLE_DTYPES
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 14
+PROTOCOL_VERSION = 15
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 # PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a

@@ -27,7 +27,9 @@ class Partition(Spec):
     the scene's box, with its occupancy map (`occ_res` voxels along x, y, z, and `occ_bits`,
     one bit per voxel packed as numpy's packbits does, x fastest: 1 where some object may
     lie; nodes end or skip segments with only empty voxels ahead; the default, one occupied
-    voxel, skips nothing); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
+    voxel, skips nothing), and `occ_fine`: each occupied voxel's 4x4x4 sub-voxels a surface may
+    reach, in voxel order, a little-endian uint64 each (bit x + 4 y + 16 z; empty: none, the
+    voxels alone); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
     eye rays on where its owner (a node holding that node's engine: a neighbour, or any
     node for a shared cell) does not."""
 
@@ -42,6 +44,7 @@ class Partition(Spec):
     occ_res: tuple = EVERYWHERE[0]
     occ_bits: bytes = EVERYWHERE[1]
     takers: tuple = ()
+    occ_fine: bytes = b""
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -88,14 +91,19 @@ class Partition(Spec):
                 f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
                 f"of the {'x'.join(map(str, res.tolist()))} voxels"
             )
+        occupied = int(np.unpackbits(np.frombuffer(self.occ_bits, np.uint8))[: res.prod()].sum())
+        if not isinstance(self.occ_fine, bytes) or len(self.occ_fine) not in (0, 8 * occupied):
+            self.fail(
+                "occ_fine", f"must be empty or 8 bytes for each of the {occupied} occupied voxels"
+            )
 
     @classmethod
     def make(
         cls, rects, los, his, scene_box, owner=None, cells=None, occupancy=EVERYWHERE, takers=()
     ) -> "Partition":
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
-        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits);
-        `takers` empty: each rectangle's owner takes its eye rays on."""
+        hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits[,
+        sub-voxel masks]); `takers` empty: each rectangle's owner takes its eye rays on."""
 
         def rows(a):
             return tuple(tuple(x) for x in np.asarray(a, float).tolist())
@@ -113,6 +121,7 @@ class Partition(Spec):
             tuple(int(v) for v in occupancy[0]),
             bytes(occupancy[1]),
             tuple(int(t) for t in takers),
+            bytes(occupancy[2]) if len(occupancy) > 2 else b"",
         )
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:

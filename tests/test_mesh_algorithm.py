@@ -270,7 +270,7 @@ def test_eye_rays_are_made_on_the_node_whose_cell_they_enter(name):
             x0, x1, y0, y1 = rect
             rays = eye_rays(scene.view, spec.image, (y0, y1), (x0, x1))
             lo, hi = (np.asarray(b, float) for b in (part.scene_lo, part.scene_hi))
-            occ = occupancy_arrays(lo, hi, part.occ_res, part.occ_bits)
+            occ = occupancy_arrays(lo, hi, part.occ_res, part.occ_bits, part.occ_fine)
             skip_empty(rays, lo, hi, *occ, np.zeros(N_COUNTERS, np.int64))  # as nodes route
             cell = entry_cells(rays, part)
             made_away += int(((cell >= 0) & (cell != owner)).sum())
@@ -647,7 +647,7 @@ def test_eye_rays_skip_only_empty_space_before_their_first_hit(name):
         rays,
         lo,
         hi,
-        *occupancy_arrays(lo, hi, part.occ_res, part.occ_bits),
+        *occupancy_arrays(lo, hi, part.occ_res, part.occ_bits, part.occ_fine),
         np.zeros(N_COUNTERS, np.int64),
     )
     t, _ = Engine(scene, brute=True).first_hits(rays["o"], rays["d"])

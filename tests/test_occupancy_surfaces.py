@@ -11,6 +11,7 @@ import pytest
 from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
+from meshnode.engine.occupancy import SUB
 from protocols import dtypes
 from protocols.scene import SceneData, View
 from tests.conftest import spd_scene
@@ -85,22 +86,34 @@ def _surface_points(scene: SceneData, per: int, rng) -> np.ndarray:
     return np.concatenate(points)
 
 
-def _marked(scene: SceneData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(the map as a (z, y, x) bool array, its box's lo, a voxel's size)."""
+def _marked(scene: SceneData, fine: bool = False):
+    """(the map as a (z, y, x) bool array, its box's lo, a voxel's size); with `fine`, the
+    map of its sub-voxels instead (SUB times finer: a voxel's marked sub-voxels)."""
     lo, hi = (np.asarray(b, float) for b in scene_box(scene))
-    res, bits = occupancy_map(scene, (lo, hi))
+    res, bits, masks = occupancy_map(scene, (lo, hi))
     full = np.unpackbits(np.frombuffer(bits, np.uint8), count=int(np.prod(res))).astype(bool)
-    return full.reshape(res[::-1]), lo, (hi - lo) / np.array(res)
+    if not fine:
+        return full.reshape(res[::-1]), lo, (hi - lo) / np.array(res)
+    per = np.zeros((full.size, SUB**3), bool)  # bit x + SUB y + SUB^2 z of each voxel
+    per[full] = np.unpackbits(np.frombuffer(masks, np.uint8), bitorder="little").reshape(-1, SUB**3)
+    nx, ny, nz = res
+    sub = per.reshape(nz, ny, nx, SUB, SUB, SUB).transpose(0, 3, 1, 4, 2, 5)
+    return sub.reshape(nz * SUB, ny * SUB, nx * SUB), lo, (hi - lo) / (np.array(res) * SUB)
 
 
+@pytest.mark.parametrize("fine", [False, True], ids=["voxel", "sub-voxel"])
 @pytest.mark.parametrize("name", [*SCENES, "slanted"])
-def test_every_surface_point_lies_in_a_marked_voxel(name):
+def test_every_surface_point_lies_in_a_marked_voxel(name, fine):
+    """Surface points sampled on every object lie in marked voxels, and in marked
+    sub-voxels of them (`Partition.occ_fine`), which a walk tests before it stops."""
     scene = _slanted() if name == "slanted" else read_nff(spd_scene(name))
-    full, lo, cell = _marked(scene)
+    full, lo, cell = _marked(scene, fine)
     points = _surface_points(scene, 64, np.random.default_rng(3))
     at = np.clip(np.floor((points - lo) / cell).astype(np.int64), 0, np.array(full.shape[::-1]) - 1)
     missed = ~full[at[:, 2], at[:, 1], at[:, 0]]
     assert not missed.any(), (name, points[missed][:5])
+    if fine:  # and the sub-voxels leave most of an occupied voxel out
+        assert full.mean() < 0.45 * _marked(scene)[0].mean(), name
 
 
 @pytest.mark.parametrize("name", [*SCENES, "slanted"])

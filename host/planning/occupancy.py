@@ -6,7 +6,7 @@ instead of passing it through every cell ahead (`meshnode.engine.occupancy`).
 import numpy as np
 
 from host.scene.derived import kept, scene_tables
-from meshnode.engine.occupancy import OCTANTS
+from meshnode.engine.occupancy import FINE_BYTES, OCTANTS, SUB
 from meshnode.engine.voxelize import touched_map
 from protocols.partition import MAX_OCC_SIDE
 from protocols.scene import SceneData
@@ -23,15 +23,17 @@ PAD = 1e-7
 
 def map_voxels(plan) -> int:
     """Voxels in the plan's occupancy map: OCC_VOXELS, fewer where a byte budget is tight (a
-    node keeps OCTANTS bytes a voxel, `meshnode.engine.occupancy`), so the map takes at most
-    MAP_SHARE of it (64^3 voxels were 2 MB: twice a 1 MB budget)."""
+    node keeps OCTANTS + FINE_BYTES bytes a voxel, `meshnode.engine.occupancy`), so the map
+    takes at most MAP_SHARE of it (64^3 voxels were 2 MB: twice a 1 MB budget)."""
     if not plan.node_bytes:
         return OCC_VOXELS
-    return int(max(1, min(OCC_VOXELS, MAP_SHARE * plan.node_bytes // OCTANTS)))
+    per = OCTANTS + FINE_BYTES
+    return int(max(1, min(OCC_VOXELS, MAP_SHARE * plan.node_bytes // per)))
 
 
-def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes]:
-    """(voxels per axis, packed bits) of the scene's occupancy map over `box`: about
+def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes, bytes]:
+    """(voxels per axis, packed bits, sub-voxel masks) of the scene's occupancy map over `box`
+    (`Partition.occ_res`, `occ_bits`, `occ_fine`): about
     `voxels` near-cubic voxels (a flat scene gets layers too), a voxel set where some
     object's surface reaches it, the voxel padded (`meshnode.engine.occupancy`:
     conservative, so a node that skips what the map calls empty misses nothing). Made once
@@ -42,7 +44,7 @@ def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tupl
     return kept(scene, key, lambda: _mapped(scene, lo, hi, voxels))
 
 
-def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes]:
+def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes, bytes]:
     """`occupancy_map`, made: each object marks the voxels of its bounds that its surface
     reaches (`voxelize.touched_map`, the tests the grid's references are kept by), every
     voxel grown by the padding. A voxel an object's bounds reach but its surface does not
@@ -56,8 +58,10 @@ def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes]:
     res = np.clip(np.round(thick * (voxels / thick.prod()) ** (1 / 3)), 1, MAX_OCC_SIDE)
     res = res.astype(np.int64)
     full = np.zeros(int(res.prod()), bool)  # x fastest
+    fine = np.zeros(int(res.prod()), np.uint64)  # an occupied voxel's sub-voxels
     if tb.n:
         reach = max(float(np.abs(tb.lo).max()), float(np.abs(tb.hi).max()))
         pad = PAD * float(ext.max()) + 1e-12 * reach
-        touched_map(lo, ext / res, res, tb.lo, tb.hi, pad, tb.geometry(), full)
-    return tuple(res.tolist()), np.packbits(full).tobytes()
+        touched_map(lo, ext / res, res, tb.lo, tb.hi, pad, tb.geometry(), full, fine, SUB)
+    masks = fine[full].astype("<u8").tobytes()  # in voxel order (`Partition.occ_fine`)
+    return tuple(res.tolist()), np.packbits(full).tobytes(), masks

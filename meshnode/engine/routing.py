@@ -68,7 +68,7 @@ def start_cells(rays, scene_lo, scene_hi, occ, los, his, loc):
     """Per ray the cell its work starts in as `routed` finds it with no eye map (the walk of
     the map `occ` from the scene's box), -1 where it meets no occupied voxel: sampled once a
     block, where each block's eye rays are best made (`meshnode.mesh.claims`)."""
-    occ_lo, occ_cell, occ_res, occ_clear = occ
+    occ_lo, occ_cell, occ_res, occ_clear, occ_fine = occ
     coords, at, nc, first, members, scale = loc
     counters = np.zeros(N_COUNTERS, np.int64)
     out = np.full(rays.shape[0], -1, np.int64)
@@ -96,6 +96,7 @@ def start_cells(rays, scene_lo, scene_hi, occ, los, his, loc):
             occ_cell,
             occ_res,
             occ_clear,
+            occ_fine,
             counters,
             -math.inf,
         )
@@ -140,7 +141,7 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
 
     One pass where a node made five over every batch (a copy, skip_empty, owners, an argsort
     and a split): simulated tetra 3x3, those took 2x the tracing kernel's CPU."""
-    occ_lo, occ_cell, occ_res, occ_clear = occ
+    occ_lo, occ_cell, occ_res, occ_clear, occ_fine = occ
     coords, at, nc, first, members, scale = loc
     # the last sample-grid cell's ids, bound, the cell seen nearest and the others' bound
     ids_from, ids_to, t_from, nearest, others = 0, 0, -math.inf, -1, -math.inf
@@ -208,6 +209,7 @@ def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
                 occ_cell,
                 occ_res,
                 occ_clear,
+                occ_fine,
                 counters,
                 t_from,
             )

@@ -95,14 +95,17 @@ def seen(eye: EyeMap, why: str, image: ImageSpec, background) -> tuple[Sky | Non
     return sky, f"{share:.1%} of the eye rays meet nothing: the background deposited, not traced"
 
 
-def _occupied(box, res, bits: bytes) -> Occupancy:
+def _occupied(box, res, bits: bytes, fine: bytes = b"") -> Occupancy:
     """The map as `eye_map` reads it (row 0 of `clear`: 0 where a voxel is occupied), without
     the empty cubes a walk jumps by (`occupancy.reaches`: eight sweeps the sky has no use
-    for); voxels sized as `occupancy.occupancy_arrays` sizes them."""
+    for, nor the sub-voxels: the voxels alone are conservative); voxels sized as
+    `occupancy.occupancy_arrays` sizes them."""
     lo, hi = (np.asarray(b, float) for b in box)
     res = np.asarray(res, np.int64)
     full = np.unpackbits(np.frombuffer(bits, np.uint8), count=int(np.prod(res)))
-    return Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, (1 - full)[None, :])
+    return Occupancy(
+        lo, np.maximum((hi - lo) / res, 1e-300), res, (1 - full)[None, :], np.zeros(0, np.uint64)
+    )
 
 
 def cells_of(sky: Sky | None, rows, cols) -> np.ndarray:

@@ -275,7 +275,7 @@ def trace_batch(
     gid, off, sph, tri, poly, pinfo, puv, pband, cone = geo
     mat, materials, tri_n, amb, background, max_depth, t_eps = shading
     glo, cell, res = box
-    occ_lo, occ_cell, occ_res, occ_clear = occ
+    occ_lo, occ_cell, occ_res, occ_clear, occ_fine = occ
     n_lights = 0 if lights is None else lights.shape[0]
     cap = int(max_depth) * (n_lights + 2) + 4
     so = np.empty((cap, 3))
@@ -432,6 +432,7 @@ def trace_batch(
                             occ_cell,
                             occ_res,
                             occ_clear,
+                            occ_fine,
                             counters,
                         )
                         == math.inf
@@ -595,6 +596,7 @@ def trace_batch(
                             occ_cell,
                             occ_res,
                             occ_clear,
+                            occ_fine,
                             counters,
                         )
                     if t_on < math.inf:

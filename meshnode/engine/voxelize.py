@@ -59,21 +59,29 @@ def voxel_refs(glo, cell, res, lo, hi, geo, fill, counts, starts, refs):
 
 
 @kernel
-def touched_map(glo, cell, res, lo, hi, grow, geo, full):
+def touched_map(glo, cell, res, lo, hi, grow, geo, full, fine, sub):
     """Mark full[x + nx * (y + ny * z)] for every voxel that some object's surface reaches
     with the voxel grown by `grow` on every side (the occupancy map's padding, so a walk's
     round-off never steps past a surface), testing the voxels of each object's bounds grown
-    alike as `_touches` tests them."""
+    alike as `_touches` tests them; and in fine[v] (uint64, bit x + sub y + sub^2 z) the
+    sub-voxels of a sub^3 split of the voxel that a surface reaching it reaches, grown alike.
+    A sub-voxel grown lies inside its voxel grown, so only voxels an object reaches have
+    theirs tested: a large sphere's shell, not its bounds, at the finer size."""
     nx, ny = res[0], res[1]
     ijk_lo = np.empty(3, np.int64)
     ijk_hi = np.empty(3, np.int64)
+    sub_lo = np.empty(3, np.int64)
+    sub_hi = np.empty(3, np.int64)
+    part = cell / sub
+    every = np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(64 - sub**3)
     for u in range(lo.shape[0]):
         _bounds_voxels(lo, hi, u, grow, 0.0, glo, cell, res, ijk_lo, ijk_hi)
+        _bounds_voxels(lo, hi, u, grow, 0.0, glo, part, res * sub, sub_lo, sub_hi)
         for iz in range(ijk_lo[2], ijk_hi[2] + 1):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
                     v = ix + nx * (iy + ny * iz)
-                    if not full[v] and _touches(
+                    if fine[v] == every or not _touches(
                         u,
                         ix,
                         iy,
@@ -88,7 +96,43 @@ def touched_map(glo, cell, res, lo, hi, grow, geo, full):
                         geo.poly,
                         geo.cone,
                     ):
-                        full[v] = True
+                        continue
+                    full[v] = True
+                    fine[v] |= _sub_touched(
+                        u, ix, iy, iz, sub, sub_lo, sub_hi, fine[v], glo, part, grow, geo
+                    )
+
+
+@kernel
+def _sub_touched(u, ix, iy, iz, sub, sub_lo, sub_hi, marked, glo, part, grow, geo):
+    """The bits of voxel (ix, iy, iz)'s sub-voxels (size `part`) that object u's surface
+    reaches, grown by `grow`, among those not yet `marked` and inside its bounds' sub-voxels
+    sub_lo..sub_hi (a plane's test alone would mark its plane past its edges)."""
+    out = np.uint64(0)
+    x0, y0, z0 = ix * sub, iy * sub, iz * sub
+    for sz in range(max(sub_lo[2] - z0, 0), min(sub_hi[2] - z0, sub - 1) + 1):
+        for sy in range(max(sub_lo[1] - y0, 0), min(sub_hi[1] - y0, sub - 1) + 1):
+            for sx in range(max(sub_lo[0] - x0, 0), min(sub_hi[0] - x0, sub - 1) + 1):
+                bit = np.uint64(1) << np.uint64(sx + sub * (sy + sub * sz))
+                if marked & bit:
+                    continue
+                if _touches(
+                    u,
+                    x0 + sx,
+                    y0 + sy,
+                    z0 + sz,
+                    glo,
+                    part,
+                    grow,
+                    True,
+                    geo.off,
+                    geo.sph,
+                    geo.tri,
+                    geo.poly,
+                    geo.cone,
+                ):
+                    out |= bit
+    return out
 
 
 @kernel

@@ -143,7 +143,9 @@ class NodeCore:
             scene_box=part.scene_box,
             max_depth=spec.image.depth,
             # image space: one process's engine (a map sent there is the sky's)
-            occupancy=EVERYWHERE if spec.plan.mode == "image" else (part.occ_res, part.occ_bits),
+            occupancy=EVERYWHERE
+            if spec.plan.mode == "image"
+            else (part.occ_res, part.occ_bits, part.occ_fine),
             eye_rays_expected=eye_ray_count(spec.image, spec.camera is not None) / spec.plan.nodes,
         )
 

@@ -85,21 +85,7 @@ def touched_map(glo, cell, res, lo, hi, grow, geo, full, fine, sub, tests):
             for iy in range(ijk_lo[1], ijk_hi[1] + 1):
                 for ix in range(ijk_lo[0], ijk_hi[0] + 1):
                     v = ix + nx * (iy + ny * iz)
-                    if fine[v] == every or not _touches(
-                        u,
-                        ix,
-                        iy,
-                        iz,
-                        glo,
-                        cell,
-                        grow,
-                        True,
-                        geo.off,
-                        geo.sph,
-                        geo.tri,
-                        geo.poly,
-                        geo.cone,
-                    ):
+                    if fine[v] == every or not _reached(u, ix, iy, iz, glo, cell, grow, geo):
                         continue
                     full[v] = True
                     if tests <= 0 or _bits(fine[v]) * 2 >= sub**3:
@@ -139,23 +125,18 @@ def _sub_touched(u, ix, iy, iz, sub, sub_lo, sub_hi, marked, glo, part, grow, ge
                 if marked & bit:
                     continue
                 made += 1
-                if _touches(
-                    u,
-                    x0 + sx,
-                    y0 + sy,
-                    z0 + sz,
-                    glo,
-                    part,
-                    grow,
-                    True,
-                    geo.off,
-                    geo.sph,
-                    geo.tri,
-                    geo.poly,
-                    geo.cone,
-                ):
+                if _reached(u, x0 + sx, y0 + sy, z0 + sz, glo, part, grow, geo):
                     out |= bit
     return out, made
+
+
+@kernel
+def _reached(u, ix, iy, iz, glo, size, grow, geo):
+    """`_touches` as the map tests a voxel (or sub-voxel) of size `size`: edges and cones
+    included, the kinds from the scene's `geo`."""
+    return _touches(
+        u, ix, iy, iz, glo, size, grow, True, geo.off, geo.sph, geo.tri, geo.poly, geo.cone
+    )
 
 
 @kernel

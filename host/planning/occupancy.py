@@ -36,20 +36,23 @@ def map_voxels(plan) -> int:
     return int(max(1, min(OCC_VOXELS, MAP_SHARE * plan.node_bytes // per)))
 
 
-def occupancy_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple[tuple, bytes, bytes]:
+def occupancy_map(
+    scene: SceneData, box, voxels: int = OCC_VOXELS, sub_voxels: bool = True
+) -> tuple[tuple, bytes, bytes]:
     """(voxels per axis, packed bits, sub-voxel masks) of the scene's occupancy map over `box`
-    (`Partition.occ_res`, `occ_bits`, `occ_fine`): about
+    (`Partition.occ_res`, `occ_bits`, `occ_fine`; no masks without `sub_voxels`: the sky,
+    which reads the voxels alone, spares their tests): about
     `voxels` near-cubic voxels (a flat scene gets layers too), a voxel set where some
     object's surface reaches it, the voxel padded (`meshnode.engine.occupancy`:
     conservative, so a node that skips what the map calls empty misses nothing). Made once
     while the scene lives: a plan's first guess, its simulations and its partition each
     asked for it (the 65,536-triangle tetra: 19 ms a map, three of a 0.3 s plan)."""
     lo, hi = (np.asarray(b, float) for b in box)
-    key = ("occupancy map", lo.tobytes(), hi.tobytes(), int(voxels))
-    return kept(scene, key, lambda: _mapped(scene, lo, hi, voxels))
+    key = ("occupancy map", lo.tobytes(), hi.tobytes(), int(voxels), sub_voxels)
+    return kept(scene, key, lambda: _mapped(scene, lo, hi, voxels, sub_voxels))
 
 
-def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes, bytes]:
+def _mapped(scene: SceneData, lo, hi, voxels: int, sub_voxels=True) -> tuple[tuple, bytes, bytes]:
     """`occupancy_map`, made: each object marks the voxels of its bounds that its surface
     reaches (`voxelize.touched_map`, the tests the grid's references are kept by), every
     voxel grown by the padding. A voxel an object's bounds reach but its surface does not
@@ -68,7 +71,17 @@ def _mapped(scene: SceneData, lo, hi, voxels: int) -> tuple[tuple, bytes, bytes]
         reach = max(float(np.abs(tb.lo).max()), float(np.abs(tb.hi).max()))
         pad = PAD * float(ext.max()) + 1e-12 * reach
         touched_map(
-            lo, ext / res, res, tb.lo, tb.hi, pad, tb.geometry(), full, fine, SUB, SUB_TESTS
-        )
-    masks = fine[full].astype("<u8").tobytes()  # in voxel order (`Partition.occ_fine`)
+            lo,
+            ext / res,
+            res,
+            tb.lo,
+            tb.hi,
+            pad,
+            tb.geometry(),
+            full,
+            fine,
+            SUB,
+            SUB_TESTS if sub_voxels else 0,
+        )  # (with no tests to spend, the voxels alone)
+    masks = fine[full].astype("<u8").tobytes() if sub_voxels else b""  # in voxel order
     return tuple(res.tolist()), np.packbits(full).tobytes(), masks

@@ -35,7 +35,7 @@ def image_partition(scene: SceneData, spec: RenderSpec) -> tuple[Partition, np.n
     keep = np.ones((plan.nodes, scene_tables(scene).n), bool)
     occ = EVERYWHERE  # ... or the map the nodes see the sky from (`meshnode.engine.sky`)
     if spec.camera is None and not looked_for(spec.image):
-        occ = occupancy_map(scene, box)[:2]  # the voxels alone: the sky needs no more
+        occ = occupancy_map(scene, box, sub_voxels=False)  # the sky reads the voxels alone
     sky, why = dealt_sky(scene, spec, box, occ)
     rects, owner = tiles(*spec.sample_grid, plan, sky)
     part = Partition.make(rects, los, his, box, owner, occupancy=occ)

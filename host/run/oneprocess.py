@@ -94,7 +94,8 @@ def _sky(scene: SceneData, image: ImageSpec, tracer: Engine):
     sky, why = None, looked_for(image)
     if not why:
         background = tracer.shading.background
-        sky, why = sky_of(box, occupancy_map(scene, box), scene.view, image, background)
+        occ = occupancy_map(scene, box, sub_voxels=False)  # the sky reads the voxels alone
+        sky, why = sky_of(box, occ, scene.view, image, background)
     untraced = 0 if sky is None else int(sky.cells.sum()) * sky.per_cell
     spent = time.process_time() - began
     return sky, {"eye_rays": why, "eye_rays_untraced": untraced, "cpu_seconds": spent}

@@ -4,7 +4,6 @@ the nodes' own reports) and still gives the single node's image and ray counts, 
 that cannot be divided refused before any work, naming the smallest share reached."""
 
 import asyncio
-import itertools
 import math
 from unittest import mock
 
@@ -67,10 +66,8 @@ def test_object_cells_tile_the_scene_and_divide_the_objects():
         scene = read_nff(spd_scene(name))
         box = scene_box(scene)
         meshes = ((2, 2), (3, 3), (4, 4))
-        for ((rows, cols), limit), rows_first in itertools.product(
-            zip(meshes, limits, strict=True), (False, True)
-        ):
-            los, his = object_cells(scene, box, rows, cols, rows_first=rows_first)
+        for (rows, cols), limit in zip(meshes, limits, strict=True):
+            los, his = object_cells(scene, box, rows, cols)
             assert np.all(los <= his)
             assert np.prod(his - los, axis=1).sum() == pytest.approx(np.prod(box[1] - box[0]))
             inside = (los >= box[0] - 1e-12) & (his <= box[1] + 1e-12)
@@ -247,12 +244,9 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     cells, cost, report = balanced_object_cells(scene, spec, object_limit(scene, plan), rounds=3)
     counted = node_costs(scene, spec, None, None, object_cells(scene, scene_box(scene), 3, 3))
     assert cost.max() <= 0.75 * counted.max()
-    # the square mesh's first cuts halved its columns, then its rows, first: both simulated,
-    # the lighter kept for the rounds, and each divides the work better than the objects do
-    first = report["simulated_busiest_first_cut_by_order"]
-    assert len(first) == 2
-    chosen = first[1] if report["first_cut"] == "rows first" else first[0]
-    assert chosen == min(first) <= 0.75 * counted.max()
+    # the first cut, on the first guess alone, divides the work better than the objects do
+    first = report["simulated_busiest_by_round"]
+    assert len(first) == 4 and first[0] <= 0.75 * counted.max()
     planned = plan_render(Request(scene, ImageSpec(width=256, height=256), ONE, plan=plan))
     assert max(planned.balance["budget"]["share_held"]) <= 0.25
     assert planned.balance["budget"]["gave_up"] == []  # the work-evened cells kept
@@ -264,9 +258,7 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     assert planned.balance["rounds"] == 0 and reason.startswith("0 of 3"), reason
     skipped = {s["stage"]: s["why"] for s in planned.balance["prepass"]["skipped"]}
     assert "one node's tracing" in skipped["re-cut rounds"]
-    # the square mesh's second first cut too: one simulation of the first estimates the render
-    assert "the first cut, rows first" in skipped
-    assert len(planned.balance["simulated_busiest_first_cut_by_order"]) == 1
+    assert len(planned.balance["simulated_busiest_by_round"]) == 1  # the first cut alone
     copies = planned.balance["budget"]["copies"]["why"]
     assert copies.startswith("skipped: ") and "one node's tracing" in copies, copies
     assert planned.balance["budget"]["growth"]["why"].startswith("skipped: ")
@@ -298,8 +290,7 @@ def test_re_cut_cells_that_break_the_budget_are_cut_again_within_it():
     # the first cut (on the first guess) and each round's: those within the budget simulated
     first, *rounds = balance["fullest_vs_limit_by_round"]
     kept = [x for x in rounds if x <= 1]
-    # (both first cuts of a square mesh, columns then rows halved first)
-    assert first <= 1 and len(balance["simulated_busiest_by_round"]) == 2 + len(kept)
+    assert first <= 1 and len(balance["simulated_busiest_by_round"]) == 1 + len(kept)
 
 
 def test_shared_cells_are_chosen_only_within_the_budget():

@@ -5,8 +5,9 @@ fractal mountain under a wide sky) lands on one node, however many there are. He
 box is bisected recursively, as a k-d tree is built, along whichever world axis its objects
 spread furthest on, at the position that leaves each side the share of the objects its nodes
 will hold; the mesh of nodes is halved alongside (its columns, or its rows when it has more
-of them; a square block either way, `rows_first`, the pre-pass simulating both), so the two
-halves of every cut land on two halves of the torus and most rays leaving a cell enter a
+of them; a square block its columns: halving its rows makes the same cells, transposed on
+the torus, since each cut picks its own axis), so the two halves of every cut land on two
+halves of the torus and most rays leaving a cell enter a
 neighbour's. Cells may be any boxes: a ray is handed to whichever node's cell
 holds it and routed there over as many links as it takes (`meshnode.engine.locator.owners`).
 
@@ -29,22 +30,17 @@ CANDIDATES = 64  # cut positions tried on each axis
 SLACK = 1.25
 
 
-def object_cells(
-    scene: SceneData, box, rows: int, cols: int, work=None, limit=None, rows_first=False
-):
+def object_cells(scene: SceneData, box, rows: int, cols: int, work=None, limit=None):
     """(los, his), each (rows*cols, 3): node r*cols+c's cell, the cells tiling `box`. Without
     `work`, cut so that the node holding most objects (its cell's, and those crossing its
     cuts) holds as few as the cuts can make it; with `work` (a `WorkGrid`: where in space
     the work lies), so that the nodes' work is even, each side of a cut holding at most
-    SLACK times the fewest objects per node that cut could leave, and at most `limit`.
-    `rows_first`: a square block of nodes is halved between its rows, not its columns."""
+    SLACK times the fewest objects per node that cut could leave, and at most `limit`."""
     tb = scene_tables(scene)
     lo, hi = (np.asarray(b, float) for b in box)
     bounds = (tb.lo, tb.hi) if tb.n else (np.zeros((0, 3)), np.zeros((0, 3)))
     los, his = np.empty((rows * cols, 3)), np.empty((rows * cols, 3))
-    cut = _Cutter(
-        bounds, work, limit, rows_first, kept(scene, "sorted bounds", lambda: _sorted(*bounds))
-    )
+    cut = _Cutter(bounds, work, limit, kept(scene, "sorted bounds", lambda: _sorted(*bounds)))
     cut.bisect(np.arange(tb.n), lo, hi, (0, rows, 0, cols), cols, los, his)
     return los, his
 
@@ -102,12 +98,11 @@ def _sorted(lo, hi) -> list:
 
 class _Cutter:
     """The recursive bisection's inputs: every object's bounds, where the work lies (a
-    `WorkGrid`, or None), the objects a node may hold (or None), and which side of a square
-    block of nodes is halved."""
+    `WorkGrid`, or None) and the objects a node may hold (or None)."""
 
-    def __init__(self, bounds, work, limit, rows_first=False, sorted_=None):
+    def __init__(self, bounds, work, limit, sorted_=None):
         self.lo, self.hi = bounds
-        self.work, self.limit, self.rows_first = work, limit, rows_first
+        self.work, self.limit = work, limit
         self.sorted = _sorted(*bounds) if sorted_ is None else sorted_
         self.member = np.zeros(len(self.lo), bool)
 
@@ -128,7 +123,7 @@ class _Cutter:
         if (r1 - r0) * (c1 - c0) == 1:
             los[r0 * cols + c0], his[r0 * cols + c0] = lo, hi
             return
-        if c1 - c0 > r1 - r0 or (c1 - c0 == r1 - r0 and not self.rows_first):
+        if c1 - c0 >= r1 - r0:
             k = c0 + (c1 - c0) // 2
             first, second = (r0, r1, c0, k), (r0, r1, k, c1)
             nodes = ((k - c0) * (r1 - r0), (c1 - k) * (r1 - r0))

@@ -159,32 +159,57 @@ def _index(o, d, t, lo, inv, i0, i1):
 
 
 @inline
-def _sub_bits(o, d, t_a, t_b, lo, q, i):
-    """The bits of the sub-voxels along one axis that the path from t_a to t_b (in voxel i
-    of corner lo and inverse size q) may cross: its end points' sub-voxel coordinates, each
-    widened by SUB_MARGIN and clamped into the voxel."""
-    fa = ((o + t_a * d - lo) * q - i) * SUB
-    fb = ((o + t_b * d - lo) * q - i) * SUB
+def _sub_range(fa, fb):
+    """The sub-voxel coordinates along one axis a path between the points fa and fb (in
+    sub-voxels from the voxel's low wall) may cross: their span widened by SUB_MARGIN and
+    clamped into the voxel."""
     a = min(max(min(fa, fb) - SUB_MARGIN, 0.0), SUB - 1.0)
     b = min(max(max(fa, fb) + SUB_MARGIN, 0.0), SUB - 1.0)
     return int(a), int(b)
 
 
 @inline
+def _sub_at(o, d, t, lo, q, i):
+    """The point at t along one axis, in sub-voxels from the low wall of voxel i (corner lo,
+    inverse size q)."""
+    return ((o + t * d - lo) * q - i) * SUB
+
+
+@inline
+def _half_bits(ax, bx, ay, by, az, bz):
+    """The bits of the sub-voxels a path between two points (per axis a, b: `_sub_at`) may
+    cross (`_sub_range` on each axis)."""
+    x0, x1 = _sub_range(ax, bx)
+    y0, y1 = _sub_range(ay, by)
+    z0, z1 = _sub_range(az, bz)
+    return SUB_RANGES[0, x0, x1] & SUB_RANGES[1, y0, y1] & SUB_RANGES[2, z0, z1]
+
+
+@inline
 def _path_meets(mask, ox, oy, oz, dx, dy, dz, t, t_end, lo, q, ix, iy, iz):
     """Whether the ray's path from t to t_end through voxel (ix, iy, iz) may cross a sub-voxel
     of `mask`: the path in two halves, each the sub-voxels its end points span on every
-    axis; True where its arithmetic is not finite (nothing skipped)."""
+    axis (the middle point made once for both); True where its arithmetic is not finite
+    (nothing skipped)."""
     if not (t_end >= t and t_end - t < INF):
         return True
-    met = np.uint64(0)
     t_mid = 0.5 * (t + t_end)
-    for half in range(2):
-        t_a, t_b = (t, t_mid) if half == 0 else (t_mid, t_end)
-        x0, x1 = _sub_bits(ox, dx, t_a, t_b, lo[0], q[0], ix)
-        y0, y1 = _sub_bits(oy, dy, t_a, t_b, lo[1], q[1], iy)
-        z0, z1 = _sub_bits(oz, dz, t_a, t_b, lo[2], q[2], iz)
-        met |= SUB_RANGES[0, x0, x1] & SUB_RANGES[1, y0, y1] & SUB_RANGES[2, z0, z1]
+    ax, ay, az = (
+        _sub_at(ox, dx, t, lo[0], q[0], ix),
+        _sub_at(oy, dy, t, lo[1], q[1], iy),
+        _sub_at(oz, dz, t, lo[2], q[2], iz),
+    )
+    mx, my, mz = (
+        _sub_at(ox, dx, t_mid, lo[0], q[0], ix),
+        _sub_at(oy, dy, t_mid, lo[1], q[1], iy),
+        _sub_at(oz, dz, t_mid, lo[2], q[2], iz),
+    )
+    bx, by, bz = (
+        _sub_at(ox, dx, t_end, lo[0], q[0], ix),
+        _sub_at(oy, dy, t_end, lo[1], q[1], iy),
+        _sub_at(oz, dz, t_end, lo[2], q[2], iz),
+    )
+    met = _half_bits(ax, mx, ay, my, az, mz) | _half_bits(mx, bx, my, by, mz, bz)
     return (mask & met) != 0
 
 
@@ -219,24 +244,25 @@ def first_occupied(
             if fine.shape[0] == 0:
                 found = t
                 break
-            t_end = min(
-                _region_exit(ox, dx, rx, ix, ix, lx, cx),
-                min(
-                    _region_exit(oy, dy, ry, iy, iy, ly, cy),
-                    _region_exit(oz, dz, rz, iz, iz, lz, cz),
-                ),
-            )
+            # the voxel's own walls: where its path ends, and the step out of it
+            tx = _region_exit(ox, dx, rx, ix, ix, lx, cx)
+            ty = _region_exit(oy, dy, ry, iy, iy, ly, cy)
+            tz = _region_exit(oz, dz, rz, iz, iz, lz, cz)
+            t_end = min(tx, min(ty, tz))
             if _path_meets(fine[v], ox, oy, oz, dx, dy, dz, t, min(t_end, t1), lo, q3, ix, iy, iz):
                 found = t
                 break
-            k = 1  # its marked sub-voxels lie off the ray's way: step out of it
-        r = k - 1  # the cube reaches r voxels on from this one, the ray's way on each axis
-        x0, x1 = (ix, min(ix + r, nx - 1)) if dx >= 0.0 else (max(ix - r, 0), ix)
-        y0, y1 = (iy, min(iy + r, ny - 1)) if dy >= 0.0 else (max(iy - r, 0), iy)
-        z0, z1 = (iz, min(iz + r, nz - 1)) if dz >= 0.0 else (max(iz - r, 0), iz)
-        tx = _region_exit(ox, dx, rx, x0, x1, lx, cx)
-        ty = _region_exit(oy, dy, ry, y0, y1, ly, cy)
-        tz = _region_exit(oz, dz, rz, z0, z1, lz, cz)
+            x0 = x1 = ix  # its marked sub-voxels lie off the ray's way: step out of it
+            y0 = y1 = iy
+            z0 = z1 = iz
+        else:
+            r = k - 1  # the cube reaches r voxels on from this one, the ray's way on each axis
+            x0, x1 = (ix, min(ix + r, nx - 1)) if dx >= 0.0 else (max(ix - r, 0), ix)
+            y0, y1 = (iy, min(iy + r, ny - 1)) if dy >= 0.0 else (max(iy - r, 0), iy)
+            z0, z1 = (iz, min(iz + r, nz - 1)) if dz >= 0.0 else (max(iz - r, 0), iz)
+            tx = _region_exit(ox, dx, rx, x0, x1, lx, cx)
+            ty = _region_exit(oy, dy, ry, y0, y1, ly, cy)
+            tz = _region_exit(oz, dz, rz, z0, z1, lz, cz)
         t = min(tx, min(ty, tz))
         if t > t1:
             found = INF
@@ -244,19 +270,26 @@ def first_occupied(
         if not t >= t0:
             break
         # Out through the wall reached first; along the other axes the point is still
-        # inside the cube's slab (clamped against round-off), so every step leaves the cube.
+        # inside the cube's slab (clamped against round-off), so every step leaves the cube;
+        # a one-voxel cube's slab is that voxel (no index to find).
         if t == tx:
             ix = x1 + 1 if dx > 0.0 else x0 - 1
-            iy = _index(oy, dy, t, ly, qy, y0, y1)
-            iz = _index(oz, dz, t, lz, qz, z0, z1)
+            if y0 < y1:
+                iy = _index(oy, dy, t, ly, qy, y0, y1)
+            if z0 < z1:
+                iz = _index(oz, dz, t, lz, qz, z0, z1)
         elif t == ty:
             iy = y1 + 1 if dy > 0.0 else y0 - 1
-            ix = _index(ox, dx, t, lx, qx, x0, x1)
-            iz = _index(oz, dz, t, lz, qz, z0, z1)
+            if x0 < x1:
+                ix = _index(ox, dx, t, lx, qx, x0, x1)
+            if z0 < z1:
+                iz = _index(oz, dz, t, lz, qz, z0, z1)
         else:
             iz = z1 + 1 if dz > 0.0 else z0 - 1
-            ix = _index(ox, dx, t, lx, qx, x0, x1)
-            iy = _index(oy, dy, t, ly, qy, y0, y1)
+            if x0 < x1:
+                ix = _index(ox, dx, t, lx, qx, x0, x1)
+            if y0 < y1:
+                iy = _index(oy, dy, t, ly, qy, y0, y1)
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
             found = INF
             break

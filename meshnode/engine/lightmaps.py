@@ -1,9 +1,10 @@
 """What each light sees of the occupancy map: per block of the six faces of a cube around it,
-how near a ray from the light can meet an occupied voxel.
+how near a ray from the light can meet a marked sub-voxel (the box of each occupied voxel's,
+`sightlines.marked_box`).
 
 Shadow rays all end at their light: seen from each light through the six faces of a cube
 around it (`light_maps`), a shadow ray leaving a node's box nearer its light than the bound
-of its direction's block has only empty voxels left to cross, and ends lit without the walk
+of its direction's block has no marked sub-voxel left to cross, and ends lit without the walk
 of the map from its exit that would find so (`light_clear`). The eye's side, and the padding
 that keeps the bounds exact, are `meshnode.engine.sightlines`'.
 """
@@ -15,7 +16,7 @@ import numpy as np
 
 from meshnode.engine.jit import kernel, leaf
 from meshnode.engine.occupancy import Occupancy
-from meshnode.engine.sightlines import INF, MARGIN, padded_voxel
+from meshnode.engine.sightlines import INF, MARGIN, marked_box, padded_voxel
 
 FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
 
@@ -30,6 +31,7 @@ def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
         return np.zeros((0, 0))
     return _light_maps(
         occ.clear[0].tobytes(),
+        occ.fine.tobytes(),
         occ.lo.tobytes(),
         occ.cell.tobytes(),
         tuple(occ.res.tolist()),
@@ -39,7 +41,7 @@ def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
 
 @lru_cache(maxsize=8)
 def _light_maps(
-    occupied: bytes, lo: bytes, cell: bytes, res: tuple, positions: bytes
+    occupied: bytes, fine: bytes, lo: bytes, cell: bytes, res: tuple, positions: bytes
 ) -> np.ndarray:
     """`light_maps` of a map and the lights' positions, as bytes: one array for every engine
     built on the same map (the cost pre-pass builds hundreds)."""
@@ -47,11 +49,12 @@ def _light_maps(
     lo_, cell_ = np.frombuffer(lo, float), np.frombuffer(cell, float)
     res_ = np.asarray(res, np.int64)
     points = np.frombuffer(positions, float).reshape(-1, 3)
-    return np.stack([_faces(occupied_, lo_, cell_, res_, p, FACE_BLOCKS) for p in points])
+    marked = marked_box(len(occupied_), np.frombuffer(fine, np.uint64))
+    return np.stack([_faces(occupied_, marked, lo_, cell_, res_, p, FACE_BLOCKS) for p in points])
 
 
 @kernel
-def _faces(occupied, lo, cell, res, point, s):
+def _faces(occupied, marked, lo, cell, res, point, s):
     """The six faces' blocks (`light_maps`) of one point. A voxel at distance r from the
     point is seen through a face (axis a, facing +a or -a) only where it lies at least
     r / sqrt(3) out along that axis (inside the face's pyramid a point's distance is at
@@ -62,7 +65,7 @@ def _faces(occupied, lo, cell, res, point, s):
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
             continue
-        r = padded_voxel(v, lo, cell, res, point, b_lo, b_hi)
+        r = padded_voxel(v, lo, cell, res, point, b_lo, b_hi, marked)
         bound = r * (1.0 - 1e-12)
         for face in range(6):
             a = face // 2

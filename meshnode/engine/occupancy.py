@@ -169,16 +169,20 @@ def _sub_range(fa, fb):
 
 
 @inline
-def _sub_at(o, d, t, lo, q, i):
-    """The point at t along one axis, in sub-voxels from the low wall of voxel i (corner lo,
-    inverse size q)."""
-    return ((o + t * d - lo) * q - i) * SUB
+def _sub_point(ox, oy, oz, dx, dy, dz, t, lo, q, ix, iy, iz):
+    """The ray's point at t in sub-voxels from the low walls of voxel (ix, iy, iz) (corner
+    lo, inverse size q)."""
+    return (
+        ((ox + t * dx - lo[0]) * q[0] - ix) * SUB,
+        ((oy + t * dy - lo[1]) * q[1] - iy) * SUB,
+        ((oz + t * dz - lo[2]) * q[2] - iz) * SUB,
+    )
 
 
 @inline
 def _half_bits(ax, bx, ay, by, az, bz):
-    """The bits of the sub-voxels a path between two points (per axis a, b: `_sub_at`) may
-    cross (`_sub_range` on each axis)."""
+    """The bits of the sub-voxels a path between two points (per axis a, b: `_sub_point`)
+    may cross (`_sub_range` on each axis)."""
     x0, x1 = _sub_range(ax, bx)
     y0, y1 = _sub_range(ay, by)
     z0, z1 = _sub_range(az, bz)
@@ -194,21 +198,9 @@ def _path_meets(mask, ox, oy, oz, dx, dy, dz, t, t_end, lo, q, ix, iy, iz):
     if not (t_end >= t and t_end - t < INF):
         return True
     t_mid = 0.5 * (t + t_end)
-    ax, ay, az = (
-        _sub_at(ox, dx, t, lo[0], q[0], ix),
-        _sub_at(oy, dy, t, lo[1], q[1], iy),
-        _sub_at(oz, dz, t, lo[2], q[2], iz),
-    )
-    mx, my, mz = (
-        _sub_at(ox, dx, t_mid, lo[0], q[0], ix),
-        _sub_at(oy, dy, t_mid, lo[1], q[1], iy),
-        _sub_at(oz, dz, t_mid, lo[2], q[2], iz),
-    )
-    bx, by, bz = (
-        _sub_at(ox, dx, t_end, lo[0], q[0], ix),
-        _sub_at(oy, dy, t_end, lo[1], q[1], iy),
-        _sub_at(oz, dz, t_end, lo[2], q[2], iz),
-    )
+    ax, ay, az = _sub_point(ox, oy, oz, dx, dy, dz, t, lo, q, ix, iy, iz)
+    mx, my, mz = _sub_point(ox, oy, oz, dx, dy, dz, t_mid, lo, q, ix, iy, iz)
+    bx, by, bz = _sub_point(ox, oy, oz, dx, dy, dz, t_end, lo, q, ix, iy, iz)
     met = _half_bits(ax, mx, ay, my, az, mz) | _half_bits(mx, bx, my, by, mz, bz)
     return (mask & met) != 0
 

@@ -132,15 +132,12 @@ def marked_box(voxels: int, fine: np.ndarray) -> np.ndarray:
     axis (x, y, z low, then high); the whole voxel where there are no sub-voxel masks."""
     out = np.empty((6, voxels))
     out[:3], out[3:] = 0.0, 1.0
-    if not fine.shape[0]:
-        return out
+    marked = np.flatnonzero(fine)  # occupied voxels with a mask: a tenth of the map or less
+    masks = fine[marked]
     for a in range(3):
-        present = np.stack([(fine & SUB_RANGES[a, c, c]) != 0 for c in range(SUB)])
-        some = present.any(axis=0)
-        first = np.argmax(present, axis=0)
-        last = SUB - 1 - np.argmax(present[::-1], axis=0)
-        out[a] = np.where(some, first / SUB, 0.0)
-        out[3 + a] = np.where(some, (last + 1) / SUB, 1.0)
+        present = np.stack([(masks & SUB_RANGES[a, c, c]) != 0 for c in range(SUB)])
+        out[a, marked] = np.argmax(present, axis=0) / SUB
+        out[3 + a, marked] = (SUB - np.argmax(present[::-1], axis=0)) / SUB
     return out
 
 

@@ -10,13 +10,12 @@ that keeps the bounds exact, are `meshnode.engine.sightlines`'.
 """
 
 import math
-from functools import lru_cache
 
 import numpy as np
 
 from meshnode.engine.jit import kernel, leaf
 from meshnode.engine.occupancy import Occupancy
-from meshnode.engine.sightlines import INF, MARGIN, marked_box, padded_voxel
+from meshnode.engine.sightlines import INF, MARGIN, marked_boxes, padded_voxel, per_map
 
 FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
 
@@ -26,31 +25,20 @@ def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
     per block of FACE_BLOCKS x FACE_BLOCKS, the least distance from the light to an occupied
     voxel seen through that block: (lights, 6 * FACE_BLOCKS**2); (0, 0) without lights. A
     shadow ray leaving a node's box nearer its light than its block's bound crosses only
-    empty voxels to it (`light_clear`), so the walk of the map from its exit is not made."""
+    empty voxels to it (`light_clear`), so the walk of the map from its exit is not made.
+    Made once a map and lights (`sightlines.per_map`): every engine built on the map reads
+    the same (the cost pre-pass builds hundreds)."""
     if lights is None or not len(lights):
         return np.zeros((0, 0))
-    return _light_maps(
-        occ.clear[0].tobytes(),
-        occ.fine.tobytes(),
-        occ.lo.tobytes(),
-        occ.cell.tobytes(),
-        tuple(occ.res.tolist()),
-        np.ascontiguousarray(lights[:, :3]).tobytes(),
-    )
+    points = np.ascontiguousarray(lights[:, :3], float)
 
+    def make():
+        marked, occupied = marked_boxes(occ), occ.clear[0]
+        return np.stack(
+            [_faces(occupied, marked, occ.lo, occ.cell, occ.res, p, FACE_BLOCKS) for p in points]
+        )
 
-@lru_cache(maxsize=8)
-def _light_maps(
-    occupied: bytes, fine: bytes, lo: bytes, cell: bytes, res: tuple, positions: bytes
-) -> np.ndarray:
-    """`light_maps` of a map and the lights' positions, as bytes: one array for every engine
-    built on the same map (the cost pre-pass builds hundreds)."""
-    occupied_ = np.frombuffer(occupied, np.uint8)
-    lo_, cell_ = np.frombuffer(lo, float), np.frombuffer(cell, float)
-    res_ = np.asarray(res, np.int64)
-    points = np.frombuffer(positions, float).reshape(-1, 3)
-    marked = marked_box(len(occupied_), np.frombuffer(fine, np.uint64))
-    return np.stack([_faces(occupied_, marked, lo_, cell_, res_, p, FACE_BLOCKS) for p in points])
+    return per_map(occ, ("lights", points.tobytes()), make)
 
 
 @kernel

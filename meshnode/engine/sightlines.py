@@ -31,6 +31,7 @@ point out of every marked sub-voxel, and a clear segment out of all of them.
 """
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -73,35 +74,20 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[E
     sees nearest and how near it sees any other (`EyeMap.first`, `EyeMap.others`): an eye
     ray entering the first before any other's voxels starts its work there, so the node
     tracing that cell can make it (`meshnode.mesh.claims`) and route it with no walk."""
-    cell_los, cell_his = (np.zeros((0, 3)), np.zeros((0, 3))) if cells is None else cells
     width, height = image.size
-    eye, fwd, right, up, step = view_basis(view, width, height)
     columns, rows = image.sample_grid()
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
-    near, first, others, work = _seen(
-        occ.clear[0],
-        marked_box(occ.clear.shape[1], occ.fine),
-        occ.lo,
-        occ.cell,
-        occ.res,
-        eye,
-        fwd,
-        right,
-        up,
-        step,
-        float(width),
-        float(height),
-        columns,
-        rows,
-        side,
-        bx,
-        by,
-        np.ascontiguousarray(cell_los, float),
-        np.ascontiguousarray(cell_his, float),
-    )
+    view_ = (*view_basis(view, width, height), float(width), float(height), columns, rows, side)
+    args = (occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res, *view_, bx, by)
+    # the bounds depend on the map, view and image alone: made once for every simulated
+    # mesh of a plan (balls 3x3: 5 ms of the map's 10); the cells seen, for each partition
+    near, work = per_map(occ, ("eye", repr(view), repr(image)), lambda: _near(*args))
     if work > WORK_MAX:
         return NO_EYE_MAP, f"not used: {work} voxel-block writes past {WORK_MAX}"
+    first, others = np.full(bx * by, SEEN_NONE, np.int64), np.full(bx * by, INF)
+    if cells is not None:
+        first, others = _cells_seen(*args, *(np.ascontiguousarray(c, float) for c in cells))
     per_cell = 1 if image.corners() else image.spp
     open_blocks = float(np.mean(near == INF))
     return EyeMap(near, side, columns, per_cell, bx, first, others), (
@@ -141,6 +127,33 @@ def marked_box(voxels: int, fine: np.ndarray) -> np.ndarray:
     return out
 
 
+def marked_boxes(occ: Occupancy) -> np.ndarray:
+    """`marked_box` of the map `occ`, made once a map (`per_map`): the eye's map and the
+    lights' read it for every simulated mesh the cost pre-pass runs (balls: 5 ms a time)."""
+    return per_map(occ, ("marked",), lambda: marked_box(occ.clear.shape[1], occ.fine))
+
+
+# `per_map`'s entries: (map's clear, map's fine, value) by the map's identity and a key
+_PER_MAP: dict = {}
+PER_MAP_KEPT = 8
+
+
+def per_map(occ: Occupancy, key: tuple, make: Callable):
+    """`make()` once for the map `occ` and `key`. Every engine built on one packed map
+    shares its arrays (`occupancy.occupancy_arrays`), so their identity names the map: no
+    hashing of its megabytes per engine (the lights' maps keyed on the map's bytes took 1 ms
+    an engine, 9 ms of a 3x3 simulation's 90). Each entry holds the arrays it is keyed by,
+    so no other map's can take their ids while it stays; the newest PER_MAP_KEPT stay."""
+    where = (occ.lo.tobytes(), occ.cell.tobytes(), occ.res.tobytes())
+    full = (id(occ.clear), id(occ.fine), *where, *key)
+    entry = _PER_MAP.get(full)
+    if entry is None:
+        entry = _PER_MAP[full] = (occ.clear, occ.fine, make())
+        while len(_PER_MAP) > PER_MAP_KEPT:
+            del _PER_MAP[next(iter(_PER_MAP))]
+    return entry[2]
+
+
 @leaf
 def padded_voxel(v, lo, cell, res, point, b_lo, b_hi, marked):
     """The box of voxel v's marked sub-voxels (`marked_box`; x fastest), padded by PAD of a
@@ -155,8 +168,65 @@ def padded_voxel(v, lo, cell, res, point, b_lo, b_hi, marked):
     return _distance(b_lo, b_hi)
 
 
+@leaf
+def _front(width, height, step):
+    """The least cosine between an eye ray and the eye's axis (a sample's px, py are at most
+    (width / 2 + 1) steps across): a point at distance r nearer the eye's plane than
+    r * front lies outside every eye ray's frustum (`_rectangle`)."""
+    reach = (0.5 * max(width, height) + 2.0) * step
+    return 1.0 / math.sqrt(1.0 + 2.0 * reach * reach)
+
+
 @kernel
-def _seen(
+def _near(
+    occupied,
+    marked,
+    lo,
+    cell,
+    res,
+    eye,
+    fwd,
+    right,
+    up,
+    step,
+    width,
+    height,
+    cols,
+    rows,
+    side,
+    bx,
+    by,
+):
+    """(per block the least distance from the eye to a padded occupied voxel's box of marked
+    sub-voxels (`marked`, as `marked_box`) projecting onto it, the voxel-block writes made;
+    past WORK_MAX it stops). `occupied`: a row of `Occupancy.clear`, 0 where a voxel is
+    occupied. A voxel reaching behind the eye's plane bounds every block."""
+    near = np.full(bx * by, INF)
+    everywhere, work = INF, 0
+    view = (eye, fwd, right, up, step, width, height, cols, rows, side, _front(width, height, step))
+    b_lo, b_hi = np.empty(3), np.empty(3)
+    for v in range(occupied.shape[0]):
+        if occupied[v] != 0:
+            continue
+        bound = padded_voxel(v, lo, cell, res, eye, b_lo, b_hi, marked) * (1.0 - 1e-12)
+        state, i0, i1, j0, j1 = _rectangle(b_lo, b_hi, view, bound)
+        if state == BEHIND:
+            everywhere = min(everywhere, bound)
+        elif state == ON_IMAGE:
+            work += (i1 - i0 + 1) * (j1 - j0 + 1)
+            if work > WORK_MAX:
+                return near, work
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    near[j * bx + i] = min(near[j * bx + i], bound)
+    if everywhere < INF:
+        for b in range(near.shape[0]):
+            near[b] = min(near[b], everywhere)
+    return near, work
+
+
+@kernel
+def _cells_seen(
     occupied,
     marked,
     lo,
@@ -177,40 +247,20 @@ def _seen(
     cell_los,
     cell_his,
 ):
-    """(per block the least distance from the eye to a padded occupied voxel's box of marked
-    sub-voxels (`marked`, as `marked_box`) projecting onto it, per block the cell of
-    cell_los..cell_his of the nearest part of those boxes and the least distance to a part
-    of any other cell (`EyeMap.first`, `EyeMap.others`; SEEN_NONE and inf without cells),
-    the voxel-block writes made). `occupied`: a row of `Occupancy.clear`, 0 where a voxel
-    is occupied. A voxel reaching behind the eye's plane
-    bounds every block and is seen by every block. A voxel across cells is seen part by
-    part, each part (widened by round-off) under its own cell."""
-    near = np.full(bx * by, INF)
+    """(per block the cell of cell_los..cell_his of the nearest part of the padded boxes of
+    marked sub-voxels (`_near`'s) projecting onto it, per block the least distance to a part
+    of any other cell: `EyeMap.first`, `EyeMap.others`). A voxel across cells is seen part
+    by part, each part (widened by round-off) under its own cell; a part reaching behind
+    the eye's plane is seen by every block."""
     first = np.full(bx * by, SEEN_NONE, np.int64)
     first_d, others = np.full(bx * by, INF), np.full(bx * by, INF)
     behind = np.full(cell_los.shape[0], INF)  # per cell, its nearest part behind the eye
-    everywhere, work = INF, 0
-    # the least cosine between an eye ray and the eye's axis (a sample's px, py are at most
-    # (width / 2 + 1) steps across): a point at distance r nearer the eye's plane than
-    # r * front lies outside every eye ray's frustum (`_rectangle`)
-    reach = (0.5 * max(width, height) + 2.0) * step
-    front = 1.0 / math.sqrt(1.0 + 2.0 * reach * reach)
-    view = (eye, fwd, right, up, step, width, height, cols, rows, side, front)
+    view = (eye, fwd, right, up, step, width, height, cols, rows, side, _front(width, height, step))
     b_lo, b_hi, p_lo, p_hi = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
             continue
-        bound = padded_voxel(v, lo, cell, res, eye, b_lo, b_hi, marked) * (1.0 - 1e-12)
-        state, i0, i1, j0, j1 = _rectangle(b_lo, b_hi, view, bound)
-        if state == BEHIND:
-            everywhere = min(everywhere, bound)
-        elif state == ON_IMAGE:
-            work += (i1 - i0 + 1) * (j1 - j0 + 1)
-            if work > WORK_MAX:
-                return near, first, others, work
-            for j in range(j0, j1 + 1):
-                for i in range(i0, i1 + 1):
-                    near[j * bx + i] = min(near[j * bx + i], bound)
+        padded_voxel(v, lo, cell, res, eye, b_lo, b_hi, marked)
         for c in range(cell_los.shape[0]):
             if not _part_in_cell(b_lo, b_hi, eye, cell_los[c], cell_his[c], p_lo, p_hi):
                 continue
@@ -222,14 +272,11 @@ def _seen(
                 for j in range(j0, j1 + 1):
                     for i in range(i0, i1 + 1):
                         _seen_part(first, first_d, others, j * bx + i, c, d)
-    if everywhere < INF:
-        for b in range(near.shape[0]):
-            near[b] = min(near[b], everywhere)
     for c in range(behind.shape[0]):
         if behind[c] < INF:
-            for b in range(near.shape[0]):
+            for b in range(first.shape[0]):
                 _seen_part(first, first_d, others, b, c, behind[c])
-    return near, first, others, work
+    return first, others
 
 
 OFF_IMAGE, ON_IMAGE, BEHIND = 0, 1, 2  # `_rectangle`'s states

@@ -76,6 +76,41 @@ def test_the_allowance_estimates_a_stage_by_the_engines_it_builds_kernel_loads_a
     assert report["cpu_seconds"] == pytest.approx(0.35)
 
 
+def test_the_map_s_tables_made_once_a_plan_are_spent_but_not_expected_again(monkeypatch):
+    from host.planning.allowance import Allowance
+
+    now = [10.0]
+    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
+    allowed = Allowance(began=10.0)
+    now[0] += 0.1  # the first cut: 0.04 s of its 0.1 making the map's tables, 0.03 building
+    allowed.ran(0.1, built=9, build_seconds=0.03, once=0.04)
+    assert allowed.spent == pytest.approx(0.1)  # spent all the same
+    assert allowed.per_pass == pytest.approx(0.03) and allowed.per_build == pytest.approx(0.03 / 9)
+    assert allowed.cost(1) == pytest.approx(0.06)  # a round on new cells: no tables again
+    assert allowed.report()["map_tables_cpu_seconds"] == pytest.approx(0.04)
+
+
+def test_simulations_on_one_map_make_its_tables_once():
+    from host.planning.plan import plan_render
+    from host.planning.prepass import coarse_pass, costs
+    from host.planning.request import Request
+    from meshnode.engine.sightlines import per_map_seconds
+    from protocols.render import EngineSpec
+
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    plan = MeshPlan(2, 2, 1.0, "objects", "object", max_share=0.5)
+    request = Request(scene, ImageSpec(width=64, height=64, spp=64), EngineSpec(), plan=plan)
+    spec = plan_render(request).spec
+    with planning(plan.nodes) as allowed:
+        before = per_map_seconds()
+        first = costs(coarse_pass(scene, spec, None, None))
+        made = per_map_seconds()
+        again = costs(coarse_pass(scene, spec, None, None))  # the same map: its tables kept
+        assert per_map_seconds() == made
+        assert allowed.passes == 2 and allowed.once_seconds == pytest.approx(made - before)
+    np.testing.assert_array_equal(first, again)
+
+
 @pytest.mark.parametrize("uneven", [True, False])
 def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_the_load_is_uneven(
     uneven,

@@ -132,6 +132,28 @@ async def test_a_link_for_another_render_is_refused_as_a_neighbour():
         await asyncio.wait_for(service.shutdown(), 10)
 
 
+async def test_a_neighbour_dialled_before_its_config_keeps_the_link_for_that_render():
+    # Node 0 is configured and dials node 1 before node 1's CONFIG has come (a busy machine):
+    # node 1 cannot say which node it is yet; the link is kept for its session all the same
+    # (it failed the render: "it says it is node -1, not node 1").
+    from protocols.render import MeshPlan
+
+    dialler, listener = await serving(), await serving()
+    try:
+        host = await host_link(dialler.port, SECRET)
+        await host.send(config(node=0, plan=MeshPlan(1, 2)))
+        kind, _ = await asyncio.wait_for(host.recv(), 10)  # node 0's session has begun
+        assert kind is Kind.PROGRESS and listener.session is None
+        link = await asyncio.wait_for(dialler.dial(1, f"127.0.0.1:{listener.port}"), 10)
+        await asyncio.wait_for(listener.links_ready.wait(), 10)  # filed for node 1's session
+        assert listener.pending[0][0] == dialler.session.config.render_id
+        await link.close()
+        await host.close()
+    finally:
+        await asyncio.wait_for(dialler.shutdown(), 10)
+        await asyncio.wait_for(listener.shutdown(), 10)
+
+
 async def test_a_neighbour_address_that_is_no_node_fails_the_render_and_the_node_serves_on():
     # An authenticated host names a neighbour address where a stranger listens: the node
     # dials it, the stranger cannot prove the secret, the render fails naming that address,

@@ -20,7 +20,7 @@ from meshnode.engine.lightmaps import FACE_BLOCKS, light_clear, light_maps
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import SUB, occupancy_arrays
 from meshnode.engine.routing import routed
-from meshnode.engine.sightlines import NO_EYE_MAP, eye_map
+from meshnode.engine.sightlines import NO_EYE_MAP, eye_map, marked_box
 from protocols.render import ImageSpec
 from protocols.scene import View
 from tests.conftest import spd_scene
@@ -81,6 +81,26 @@ def _first_marked_brute(rays, occ):
             if hit.any():
                 out[i] = max(float(near[hit].min()), r["t_min"])
     return out
+
+
+@pytest.mark.parametrize("name", ["tetra_s3.nff", "gears_s1.nff"])
+def test_each_voxel_s_box_of_marked_sub_voxels_bounds_exactly_those_sub_voxels(name):
+    scene = read_nff(spd_scene(name))
+    lo, hi = scene_box(scene)
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi), voxels=16**3))
+    boxes = marked_box(occ.clear.shape[1], occ.fine)
+    vlo, vhi = _marked_boxes(occ)  # every marked sub-voxel, by brute force over the bits
+    corner = (vlo - occ.lo) / occ.cell
+    voxel = np.floor(corner + 1e-9).astype(np.int64)  # the voxel each sub-voxel lies in
+    v = voxel[:, 0] + occ.res[0] * (voxel[:, 1] + occ.res[1] * voxel[:, 2])
+    frac_lo, frac_hi = corner - voxel, corner - voxel + 1 / SUB
+    assert len(np.unique(v)) > 10
+    for u in np.unique(v):
+        mine = v == u
+        np.testing.assert_allclose(boxes[:3, u], frac_lo[mine].min(axis=0), atol=1e-9)
+        np.testing.assert_allclose(boxes[3:, u], frac_hi[mine].max(axis=0), atol=1e-9)
+    empty = np.setdiff1d(np.arange(occ.clear.shape[1]), v)  # no mask: the whole voxel
+    assert (boxes[:3, empty] == 0).all() and (boxes[3:, empty] == 1).all()
 
 
 @pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff", "mount_s1.nff", "rings_s1.nff"])

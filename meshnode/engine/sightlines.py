@@ -79,8 +79,8 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[E
     columns, rows = image.sample_grid()
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
-    view_ = (*view_basis(view, width, height), float(width), float(height), columns, rows, side)
-    args = (occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res, *view_, bx, by)
+    seen_from = (*view_basis(view, width, height), float(width), float(height), columns, rows, side)
+    args = ((occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res), seen_from, bx, by)
     # the bounds depend on the map, view and image alone: made once for every simulated
     # mesh of a plan (balls 3x3: 5 ms of the map's 10); the cells seen, for each partition
     near, work = per_map(occ, ("eye", repr(view), repr(image)), lambda: _near(*args))
@@ -194,42 +194,29 @@ def padded_voxel(v, lo, cell, res, point, b_lo, b_hi, marked):
     return _distance(b_lo, b_hi)
 
 
-@leaf
-def _front(width, height, step):
-    """The least cosine between an eye ray and the eye's axis (a sample's px, py are at most
-    (width / 2 + 1) steps across): a point at distance r nearer the eye's plane than
-    r * front lies outside every eye ray's frustum (`_rectangle`)."""
+@inline
+def _view(seen_from):
+    """The eye's view as `_rectangle` reads it: `seen_from` (eye, fwd, right, up, step, width,
+    height, columns, rows, block side) and the least cosine between an eye ray and the eye's
+    axis (a sample's px, py are at most (width / 2 + 1) steps across): a point at distance r
+    nearer the eye's plane than r * front lies outside every eye ray's frustum."""
+    eye, fwd, right, up, step, width, height, cols, rows, side = seen_from
     reach = (0.5 * max(width, height) + 2.0) * step
-    return 1.0 / math.sqrt(1.0 + 2.0 * reach * reach)
+    front = 1.0 / math.sqrt(1.0 + 2.0 * reach * reach)
+    return (eye, fwd, right, up, step, width, height, cols, rows, side, front)
 
 
 @kernel
-def _near(
-    occupied,
-    marked,
-    lo,
-    cell,
-    res,
-    eye,
-    fwd,
-    right,
-    up,
-    step,
-    width,
-    height,
-    cols,
-    rows,
-    side,
-    bx,
-    by,
-):
+def _near(voxels, seen_from, bx, by):
     """(per block the least distance from the eye to a padded occupied voxel's box of marked
     sub-voxels (`marked`, as `marked_box`) projecting onto it, the voxel-block writes made;
     past WORK_MAX it stops). `occupied`: a row of `Occupancy.clear`, 0 where a voxel is
     occupied. A voxel reaching behind the eye's plane bounds every block."""
+    occupied, marked, lo, cell, res = voxels
+    view = _view(seen_from)
+    eye = view[0]
     near = np.full(bx * by, INF)
     everywhere, work = INF, 0
-    view = (eye, fwd, right, up, step, width, height, cols, rows, side, _front(width, height, step))
     b_lo, b_hi = np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:
@@ -252,27 +239,7 @@ def _near(
 
 
 @kernel
-def _cells_seen(
-    occupied,
-    marked,
-    lo,
-    cell,
-    res,
-    eye,
-    fwd,
-    right,
-    up,
-    step,
-    width,
-    height,
-    cols,
-    rows,
-    side,
-    bx,
-    by,
-    cell_los,
-    cell_his,
-):
+def _cells_seen(voxels, seen_from, bx, by, cell_los, cell_his):
     """(per block the cell of cell_los..cell_his of the nearest part of the padded boxes of
     marked sub-voxels (`_near`'s) projecting onto it, per block the least distance to a part
     of any other cell: `EyeMap.first`, `EyeMap.others`). A voxel across cells is seen part
@@ -281,7 +248,9 @@ def _cells_seen(
     first = np.full(bx * by, SEEN_NONE, np.int64)
     first_d, others = np.full(bx * by, INF), np.full(bx * by, INF)
     behind = np.full(cell_los.shape[0], INF)  # per cell, its nearest part behind the eye
-    view = (eye, fwd, right, up, step, width, height, cols, rows, side, _front(width, height, step))
+    occupied, marked, lo, cell, res = voxels
+    view = _view(seen_from)
+    eye = view[0]
     b_lo, b_hi, p_lo, p_hi = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for v in range(occupied.shape[0]):
         if occupied[v] != 0:

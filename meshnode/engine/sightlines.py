@@ -161,8 +161,7 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
     hashing of its megabytes per engine (the lights' maps keyed on the map's bytes took 1 ms
     an engine, 9 ms of a 3x3 simulation's 90). Each entry holds the arrays it is keyed by,
     so no other map's can take their ids while it stays; the newest PER_MAP_KEPT stay."""
-    where = (occ.lo.tobytes(), occ.cell.tobytes(), occ.res.tobytes())
-    full = (id(occ.clear), id(occ.fine), *where, *key)
+    full = (*map_key(occ), *key)
     entry = _PER_MAP.get(full)
     if entry is None:
         began = cpu_less_loads()
@@ -171,6 +170,12 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
         while len(_PER_MAP) > PER_MAP_KEPT:
             del _PER_MAP[next(iter(_PER_MAP))]
     return entry[2]
+
+
+def map_key(occ: Occupancy) -> tuple:
+    """What names the map `occ` among those alive: its shared arrays' identity (a cache
+    keyed so must hold them, so no other map's can take their ids) and where it lies."""
+    return (id(occ.clear), id(occ.fine), occ.lo.tobytes(), occ.cell.tobytes(), occ.res.tobytes())
 
 
 def per_map_seconds() -> float:
@@ -209,9 +214,10 @@ def _view(seen_from):
 @kernel
 def _near(voxels, seen_from, bx, by):
     """(per block the least distance from the eye to a padded occupied voxel's box of marked
-    sub-voxels (`marked`, as `marked_box`) projecting onto it, the voxel-block writes made;
-    past WORK_MAX it stops). `occupied`: a row of `Occupancy.clear`, 0 where a voxel is
-    occupied. A voxel reaching behind the eye's plane bounds every block."""
+    sub-voxels projecting onto it, the voxel-block writes made; past WORK_MAX it stops).
+    `voxels`: (a row of `Occupancy.clear`, 0 where a voxel is occupied; the boxes, as
+    `marked_box`; the map's corner, voxel size and voxels per axis); `seen_from`: as `_view`
+    takes it. A voxel reaching behind the eye's plane bounds every block."""
     occupied, marked, lo, cell, res = voxels
     view = _view(seen_from)
     eye = view[0]

@@ -9,7 +9,7 @@ import numpy as np
 
 from meshnode.engine import Engine
 from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.sightlines import per_map_seconds
+from meshnode.engine.sightlines import map_key, per_map_seconds
 from protocols.render import EngineSpec
 from protocols.scene import SCENE_TABLES, SceneData
 
@@ -72,12 +72,11 @@ class EngineCache:
         map's array can take its id while it stays."""
         occ = engine.occupancy
         where = (engine.scene_lo.tobytes(), engine.scene_hi.tobytes())
-        full = (id(occ.clear), occ.lo.tobytes(), occ.cell.tobytes(), occ.res.tobytes(), where)
-        full = (*full, *key)
+        full = (*map_key(occ), where, *key)
         if full in self.seen:
-            return self.seen[full][1]
+            return self.seen[full][2]
         made = make()
-        self.seen[full] = (occ.clear, made)
+        self.seen[full] = (occ.clear, occ.fine, made)
         while len(self.seen) > SIGHTLINES_KEPT:
             del self.seen[next(iter(self.seen))]
         return made

@@ -37,31 +37,46 @@ from bench import add_simulated_mesh_options, finish  # noqa: E402 (after the pa
 
 def traced_by_engine(scene, image, plan):
     """(the planned RenderSpec, Counter of work units by (node, cell whose engine traced
-    them)) of `host render`'s plan of `scene` under `plan`, simulated in work units."""
+    them)) of `host render`'s plan of `scene` under `plan`, simulated in work units: each
+    engine call's units go to the cell it holds (a primary batch traces with its own
+    engine and its copies alike)."""
     from host.planning.plan import plan_render
     from host.planning.request import Auto, Request
     from host.scene.subset import subset
+    from meshnode.engine.engine import Engine
     from meshnode.mesh import simulator
+    from meshnode.mesh.node import NodeCore
+    from meshnode.mesh.stats import work_units
     from protocols.render import EngineSpec
 
     planned = plan_render(
         Request(scene, image, EngineSpec(), plan=plan, auto=Auto(budget_copies=True))
     )
     units: Counter = Counter()
-    start = simulator._Node.start
+    cells: dict[int, int] = {}  # id(engine) -> the cell it holds (a simulated mesh shares them)
+    tracing = [-1]  # the node whose batch is being traced
+    made, trace, trace_node = NodeCore.__init__, NodeCore.trace, Engine.trace_node
 
-    def counted(node, step):
-        before = node.record.cost
-        start(node, step)
-        cell = node.node if step.taker is None else step.taker
-        units[node.node, cell] += node.record.cost - before
+    def registered(core, *args, **kwargs):
+        made(core, *args, **kwargs)
+        cells[id(core.engine)] = core.node
+        cells.update({id(e): c for c, e in core.copies.items()})
 
-    simulator._Node.start = counted
+    def traced(core, *args, **kwargs):
+        tracing[0] = core.node
+        return trace(core, *args, **kwargs)
+
+    def counted(engine, rays):
+        out = trace_node(engine, rays)
+        units[tracing[0], cells[id(engine)]] += work_units(out[1])
+        return out
+
+    NodeCore.__init__, NodeCore.trace, Engine.trace_node = registered, traced, counted
     try:
         scenes = [subset(scene, k) for k in planned.holders]
         simulator.simulate(scenes, planned.spec, planned.partition, clock="work")
     finally:
-        simulator._Node.start = start
+        NodeCore.__init__, NodeCore.trace, Engine.trace_node = made, trace, trace_node
     return planned.spec, units
 
 

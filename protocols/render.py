@@ -12,6 +12,7 @@ The command line builds them (its defaults are these fields' defaults), the host
 the node reads them; `sample_grid` is the one place the SPD corner-sampling rule lives.
 """
 
+import math
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -151,7 +152,11 @@ class MeshPlan(Spec):
     to the cell's owner ("owner"), or to whichever of the cell's holders is fewest hops away
     ("nearest", the owner on a tie): a copy then takes on the rays of the nodes around it,
     not only its holder's own, as R2E2 hands rays to a node holding what they need (the
-    budget's copies choose by the simulated mesh, `host.planning.replicas`)."""
+    budget's copies choose by the simulated mesh, `host.planning.replicas`).
+    `claim_shares` (with holds; one tuple a cell, empty: none): the shares of a cell's eye
+    rays each of its holders (`holders`, in that order) makes and traces, where a copy
+    should take on a part of the cell's own work and not only the rays passed to it
+    (`meshnode.mesh.claims`; the host weighs them, `host.planning.holder_shares`)."""
 
     rows: int = 1
     cols: int = 1
@@ -169,6 +174,7 @@ class MeshPlan(Spec):
     max_share: float = 1.0
     node_bytes: int = 0
     forward: str = "owner"
+    claim_shares: tuple = ()
 
     def check(self) -> None:
         self.want_int("rows", 1, MAX_NODES)
@@ -192,6 +198,7 @@ class MeshPlan(Spec):
         self._check_shared()
         self._check_holds()
         self.want_choice("forward", FORWARDS)
+        self._check_claim_shares()
         self.want_number("max_share", 0.0, 1.0, open_lo=True)
         self.want_int("node_bytes", 0, 1 << 60)
         if self.mode == "image" and (self.max_share < 1 or self.node_bytes):
@@ -234,6 +241,42 @@ class MeshPlan(Spec):
                     f"node {n}'s must name distinct other nodes from 0 to {self.nodes - 1}",
                 )
 
+    def _check_claim_shares(self) -> None:
+        """Every cell's shares, if any, one a holder: finite, at least 0, some above."""
+        shares = self.claim_shares
+        if shares == ():
+            return
+        if not isinstance(shares, tuple) or len(shares) != self.nodes or not self.holds:
+            self.fail("claim_shares", f"must list {self.nodes} tuples, one a cell, with holds")
+        holders = self.holders_table()
+        for c, got in enumerate(shares):
+            if got == ():
+                continue
+            if (
+                not isinstance(got, tuple)
+                or len(got) != len(holders[c])
+                or not all(
+                    isinstance(w, int | float) and not isinstance(w, bool) and 0 <= w < math.inf
+                    for w in got
+                )
+                or not sum(got) > 0
+            ):
+                self.fail(
+                    "claim_shares",
+                    f"cell {c}'s must be {len(holders[c])} finite shares, one for each of its "
+                    "holders, at least 0 and not all 0",
+                )
+
+    def holders_table(self) -> list[list[int]]:
+        """`holders` of every cell at once (under holds: one pass over them)."""
+        if not self.holds:
+            return [self.holders(c) for c in range(self.nodes)]
+        out = [[c] for c in range(self.nodes)]
+        for n, cells in enumerate(self.holds):
+            for c in cells:
+                out[c].append(n)
+        return out
+
     @classmethod
     def decode(cls, values: dict) -> dict:
         if isinstance(values.get("shared"), list):  # msgpack gives a list
@@ -241,6 +284,9 @@ class MeshPlan(Spec):
         holds = values.get("holds")
         if isinstance(holds, list) and all(isinstance(h, list) for h in holds):
             values = {**values, "holds": tuple(tuple(h) for h in holds)}
+        shares = values.get("claim_shares")
+        if isinstance(shares, list) and all(isinstance(h, list) for h in shares):
+            values = {**values, "claim_shares": tuple(tuple(h) for h in shares)}
         return values
 
     def held(self, node: int) -> list[int]:
@@ -264,10 +310,7 @@ class MeshPlan(Spec):
         held = set(self.held(node))
         if not self.holds or self.forward == "owner":
             return [node if c in held else c for c in range(self.nodes)]
-        holders = [[c] for c in range(self.nodes)]  # `holders` of every cell in one pass
-        for n, cells in enumerate(self.holds):
-            for c in cells:
-                holders[c].append(n)
+        holders = self.holders_table()
         torus = Torus(self.rows, self.cols)
         return [
             node if c in held else min(holders[c], key=lambda h: torus.distance(node, h))

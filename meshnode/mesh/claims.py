@@ -121,8 +121,44 @@ def eye_claims(blocks: np.ndarray, eye: EyeMap, part: Partition, plan: MeshPlan,
     one = seen >= 0
     claims = owner.copy()
     claims[one] = takers[owner[one], seen[one]]
+    shared = np.repeat(np.repeat(shared_claims(blocks, plan), eye.side, 0), eye.side, 1)
+    shared = shared[:rows, :columns]
+    claims = np.where(shared >= 0, shared, claims)
     moved = float(np.mean(claims != owner))
-    return claims, f"{np.mean(one):.0%} of the samples start in a cell; {moved:.0%} made there"
+    why = f"{np.mean(one):.0%} of the samples start in a cell; {moved:.0%} made there"
+    if plan.claim_shares:
+        why += f"; {np.mean(shared >= 0):.0%} dealt over their cell's holders"
+    return claims, why
+
+
+def shared_claims(blocks: np.ndarray, plan: MeshPlan) -> np.ndarray:
+    """Per block (as `blocks`), the holder of its cell that makes its eye rays where the
+    plan shares that cell's own work over its holders (`MeshPlan.claim_shares`), -1 where
+    not: the cell's blocks in rows, in runs of SHARED_RUN, each run to the holder furthest
+    below its share so far, so every holder's blocks lie all over the cell's part of the
+    image (the same work mix) and a batch's rays stay neighbours."""
+    out = np.full(blocks.shape, -1, np.int64)
+    if not plan.claim_shares:
+        return out
+    flat = out.reshape(-1)
+    cells = blocks.reshape(-1)
+    for c, (shares, holders) in enumerate(
+        zip(plan.claim_shares, plan.holders_table(), strict=True)
+    ):
+        at = np.flatnonzero(cells == c)
+        if not shares or not len(at):
+            continue
+        want = np.asarray(shares, float) / sum(shares)
+        given = np.zeros(len(holders))
+        for start in range(0, len(at), SHARED_RUN):
+            run = at[start : start + SHARED_RUN]
+            i = int(np.argmax(want * (start + len(run)) - given))
+            flat[run] = holders[i]
+            given[i] += len(run)
+    return out
+
+
+SHARED_RUN = 16  # blocks of a shared cell dealt to one holder at a time
 
 
 @lru_cache(maxsize=4)

@@ -1,0 +1,83 @@
+"""How a cell's own work is shared among the nodes holding its engine (`MeshPlan.claim_shares`).
+
+A budget's copies (`host.planning.replicas`) put a hot cell's engine on several nodes, but
+the node that makes a block's eye rays was the one its rectangle's node hands that cell's
+rays to: its owner where the rectangle is the owner's, so a copy traced only the rays passed
+to it. On the busiest node of the 3x3 plans under a quarter share 78-89% of the work is
+traced in its primary batches (balls, teapot, mount: its claimed eye rays and all they
+spawn in the cell), so handing copies passed rays alone cannot even the load; a linear
+program spreading each cell's work freely over its holders bounds what sharing the claims
+can: the busiest node x1.18-1.46 lighter on 3x3, x2.07 on teapot 4x4 (`python -m
+bench.holder_split`).
+
+The shares fill the holders' loads in small equal quanta of each shared cell's work, the
+cells fewest nodes hold first, each quantum to its cell's least loaded holder (the cells one
+node holds are that node's load from the start); then quanta move off the busiest node while
+that lightens it: near the program's optimum, in plain arithmetic.
+"""
+
+import numpy as np
+
+QUANTA = 64  # parts of each shared cell's work dealt to its holders
+
+
+def claim_shares(plan, cell_work) -> tuple:
+    """`MeshPlan.claim_shares` for `plan` (with holds) from each cell's work as simulated
+    without copies (`cell_work[c]`: node c's load then), as the least busiest holder
+    dealing quanta finds them; () where no cell has two holders or none has work."""
+    work = np.maximum(np.asarray(cell_work, float), 0.0)
+    holders = plan.holders_table()
+    if len(work) != plan.nodes or not work.sum() > 0:
+        return ()
+    shared = [c for c in range(plan.nodes) if len(holders[c]) > 1 and work[c] > 0]
+    if not shared:
+        return ()
+    load = np.where([len(h) == 1 for h in holders], work, 0.0)
+    dealt = {c: np.zeros(len(holders[c]), np.int64) for c in shared}
+    # the cells fewest nodes hold first: a cell every node holds fills what the others left
+    for c in sorted(shared, key=lambda c: (len(holders[c]), -work[c], c)):
+        quantum = work[c] / QUANTA
+        for _ in range(QUANTA):
+            i = min(range(len(holders[c])), key=lambda i: (load[holders[c][i]], i))
+            load[holders[c][i]] += quantum
+            dealt[c][i] += 1
+    _evened(load, dealt, holders, work)
+    return tuple(
+        tuple(float(x) for x in dealt[c] / QUANTA) if c in dealt else () for c in range(plan.nodes)
+    )
+
+
+def _evened(load, dealt: dict, holders: list, work) -> None:
+    """Quanta moved off the busiest node, each to the least loaded other holder of its cell,
+    while that leaves both below the busiest's load (the greedy dealing's order can leave a
+    node that holds two shared cells over the rest)."""
+    for _ in range(QUANTA * len(dealt)):
+        top = int(np.argmax(load))
+        best = None
+        for c, given in dealt.items():
+            if top not in holders[c] or not given[holders[c].index(top)]:
+                continue
+            i = min(range(len(holders[c])), key=lambda i: (load[holders[c][i]], i))
+            quantum = work[c] / QUANTA
+            if load[holders[c][i]] + quantum < load[top] and (best is None or quantum < best[2]):
+                best = (c, i, quantum)
+        if best is None:
+            return
+        c, i, quantum = best
+        given = dealt[c]
+        given[holders[c].index(top)] -= 1
+        given[i] += 1
+        load[top] -= quantum
+        load[holders[c][i]] += quantum
+
+
+def busiest(plan, cell_work, shares: tuple) -> float:
+    """The busiest node's load if each cell's work went to its holders in `shares` (a cell
+    with none: all to its owner)."""
+    work = np.asarray(cell_work, float)
+    load = np.zeros(plan.nodes)
+    for c, hs in enumerate(plan.holders_table()):
+        got = shares[c] if shares and shares[c] else (1.0,) + (0.0,) * (len(hs) - 1)
+        for h, w in zip(hs, got, strict=True):
+            load[h] += work[c] * w / sum(got)
+    return float(load.max())

@@ -1,0 +1,130 @@
+"""A copied cell's own work shared over its holders (`MeshPlan.claim_shares`): the shares are
+checked as a peer sends them, even the holders' loads as a linear program would (brute force
+over a fine grid of splits), deal each shared cell's blocks to its holders in their shares,
+and leave the image and ray counts the single node's."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+import meshnode.mesh.node
+from host.planning.holder_shares import busiest, claim_shares
+from host.scene.nff import read_nff
+from meshnode.mesh.claims import SHARED_RUN, shared_claims
+from protocols.render import MeshPlan
+from protocols.spec import SpecError
+from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
+from tests.test_budget import single
+
+HOLDS = ((), (0,), (0, 1), ())  # cell 0 held by nodes 0, 1, 2; cell 1 by 1, 2
+
+
+def _plan(**fields) -> MeshPlan:
+    return MeshPlan(2, 2, copies=True, holds=HOLDS, **fields)
+
+
+def test_shares_are_checked_as_a_peer_sends_them():
+    good = _plan(claim_shares=((0.5, 0.25, 0.25), (1, 0), (), ()))
+    assert MeshPlan.decode(good.to_wire())["claim_shares"] == good.claim_shares
+    bad = [
+        ((0.5, 0.5), (), (), ()),  # cell 0 has three holders
+        ((), (), ()),  # a cell missing
+        ((0.5, float("nan"), 0.5), (), (), ()),
+        ((0.5, -0.1, 0.6), (), (), ()),
+        ((0, 0, 0), (), (), ()),
+        ((True, 1, 1), (), (), ()),
+        ((1, 1, float("inf")), (), (), ()),
+    ]
+    for shares in bad:
+        with pytest.raises(SpecError, match="claim_shares"):
+            _plan(claim_shares=shares)
+    with pytest.raises(SpecError, match="claim_shares"):
+        MeshPlan(2, 2, claim_shares=((1,), (1,), (1,), (1,)))  # no copies to share over
+
+
+def _least_busiest(plan, work, steps: int = 40) -> float:
+    """The least busiest node over every split of the shared cells' work on a grid of
+    `steps` parts (brute force, for the small plan of HOLDS)."""
+    holders = plan.holders_table()
+    shared = [c for c in range(plan.nodes) if len(holders[c]) > 1]
+    options = []
+    for c in shared:
+        n = len(holders[c])
+        parts = [p for p in itertools.product(range(steps + 1), repeat=n) if sum(p) == steps]
+        options.append([(c, tuple(x / steps for x in p)) for p in parts])
+    best = np.inf
+    for pick in itertools.product(*options):
+        shares = [()] * plan.nodes
+        for c, s in pick:
+            shares[c] = s
+        best = min(best, busiest(plan, work, tuple(shares)))
+    return best
+
+
+@pytest.mark.parametrize("work", [(8, 3, 1, 2), (1, 9, 1, 1), (5, 5, 0, 4), (30, 1, 1, 1)])
+def test_shares_even_the_holders_loads_as_the_best_split_does(work):
+    plan = _plan()
+    shares = claim_shares(plan, work)
+    holders = plan.holders_table()
+    for c, s in enumerate(shares):
+        assert (len(s) == len(holders[c])) if len(holders[c]) > 1 and work[c] else s == ()
+        assert not s or sum(s) == pytest.approx(1.0)
+    got = busiest(plan, work, shares)
+    quantum = max(work) / 64
+    assert got <= busiest(plan, work, ()) + 1e-12
+    assert got <= _least_busiest(plan, work) + 2 * quantum
+
+
+def test_no_shares_without_a_cell_held_twice_or_without_work():
+    assert claim_shares(MeshPlan(2, 2, copies=True, holds=((), (), (), ())), (1, 2, 3, 4)) == ()
+    assert claim_shares(_plan(), (0, 0, 0, 0)) == ()
+
+
+def test_a_shared_cells_blocks_go_to_its_holders_in_their_shares():
+    plan = _plan(claim_shares=((0.5, 0.25, 0.25), (0.0, 1.0), (), ()))
+    rng = np.random.default_rng(3)
+    blocks = rng.integers(-1, 4, (64, 48))
+    dealt = shared_claims(blocks, plan)
+    assert np.array_equal(dealt, shared_claims(blocks, plan))  # every node deals alike
+    assert (dealt[blocks >= 2] == -1).all() and (dealt[blocks == -1] == -1).all()
+    assert set(np.unique(dealt[blocks == 1])) == {2}  # cell 1's all to its second holder
+    zero = dealt[blocks == 0]
+    for holder, share in zip((0, 1, 2), (0.5, 0.25, 0.25), strict=True):
+        assert abs(np.count_nonzero(zero == holder) - share * zero.size) <= SHARED_RUN
+    # runs of SHARED_RUN of a cell's blocks in rows go to one holder
+    first = dealt.reshape(-1)[np.flatnonzero(blocks.reshape(-1) == 0)[:SHARED_RUN]]
+    assert len(set(first.tolist())) == 1
+    assert (shared_claims(blocks, _plan()) == -1).all()
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 3), (2, 3)])
+def test_shared_claims_give_the_single_node_image(shape, monkeypatch):
+    made, own = [], meshnode.mesh.node.node_claims
+    monkeypatch.setattr(
+        meshnode.mesh.node, "node_claims", lambda *a: made.append(own(*a)) or made[-1]
+    )
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    ref, ref_counts = single(scene)
+    nodes = shape[0] * shape[1]
+    holds = tuple(tuple(c for c in (0, 1) if c != n) for n in range(nodes))  # 0, 1 everywhere
+    rng = np.random.default_rng(nodes)
+    shares = tuple(
+        tuple(float(w) for w in rng.random(nodes)) if c < 2 else () for c in range(nodes)
+    )
+    img, totals, _, _ = render_mesh(
+        scene,
+        *shape,
+        1.0,
+        32,
+        32,
+        balance="objects",
+        copies=True,
+        holds=holds,
+        claim_shares=shares,
+    )
+    assert {k: totals[k] for k in ref_counts} == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    dealt = [float(why.split("; ")[-1].split("%")[0]) for _, why in made if "holders" in why]
+    assert dealt and min(dealt) > 0, [why for _, why in made]

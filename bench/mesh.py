@@ -109,7 +109,9 @@ def parser() -> argparse.ArgumentParser:
         "--budget-copies",
         default="hottest",
         help="object space under --max-share: the budget's room filled with copies of the "
-        "hottest cells or left empty, to compare: hottest,none",
+        "hottest cells (each copied cell's own work shared over its holders; 'owners': each "
+        "block's eye rays made where its rectangle's node hands them) or left empty, to "
+        "compare: hottest,owners,none",
     )
     p.add_argument("--size", type=int, help="image SIZE x SIZE (default: the SPD rules)")
     p.add_argument(
@@ -317,11 +319,13 @@ def run_row(
         together=args.together,
         camera=camera,
         max_share=share,
-        budget_copies=budget == "hottest",
+        budget_copies=budget in ("hottest", "owners"),
+        share_claims=budget == "hottest",
         nodes_cpu=args.nodes_on_cpu,
     )
     cut += ("+steal" if steal else "") + ("+copies" if copy else "")
-    cut += "+budget copies" if budget == "hottest" and share < 1 else ""
+    if share < 1 and budget in ("hottest", "owners"):
+        cut += "+budget copies" + (" (owners' claims)" if budget == "owners" else "")
     return got, cut, None, None
 
 

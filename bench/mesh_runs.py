@@ -32,6 +32,7 @@ def on_mesh(
     max_share=1.0,
     budget_copies=True,
     nodes_cpu=None,
+    share_claims=True,
 ):
     """(wall seconds, stats, one node's run) of the render on a local mesh: of `repeat`
     renders on the same running nodes, the one whose busiest node traced least; its
@@ -41,7 +42,8 @@ def on_mesh(
     by up to 1.6x for minutes at a time, so the two sides are measured over the same span.
     Then `together` times both at once (`at_once`): the stats' `together` holds each
     window's one-node CPU seconds and its mesh renders' mean busiest-node CPU seconds.
-    `nodes_cpu`: every node runs on that one CPU (`pinned`)."""
+    `nodes_cpu`: every node runs on that one CPU (`pinned`); `share_claims`: under the
+    budget's copies, each copied cell's own work shared over its holders."""
     from host.planning.holding import OVERLAPS
     from host.run.localmesh import LocalMesh
     from host.run.meshclient import render_on_mesh
@@ -72,7 +74,11 @@ def on_mesh(
                     image,
                     camera=camera,
                     plan=plan,
-                    auto=Auto(overlaps=OVERLAPS if auto else (), budget_copies=budget_copies),
+                    auto=Auto(
+                        overlaps=OVERLAPS if auto else (),
+                        budget_copies=budget_copies,
+                        share_claims=share_claims,
+                    ),
                 ),
                 Nodes(addresses),
             )

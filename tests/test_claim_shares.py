@@ -4,19 +4,24 @@ over a fine grid of splits), deal each shared cell's blocks to its holders in th
 and leave the image and ray counts the single node's."""
 
 import itertools
+import math
+from unittest import mock
 
 import numpy as np
 import pytest
 
 import meshnode.mesh.node
+from host.planning import allowance
 from host.planning.holder_shares import busiest, claim_shares
+from host.planning.plan import plan_render
+from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
 from meshnode.mesh.claims import SHARED_RUN, shared_claims
-from protocols.render import MeshPlan
+from protocols.render import ImageSpec, MeshPlan
 from protocols.spec import SpecError
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
-from tests.test_budget import single
+from tests.test_budget import ONE, single
 
 HOLDS = ((), (0,), (0, 1), ())  # cell 0 held by nodes 0, 1, 2; cell 1 by 1, 2
 
@@ -128,3 +133,25 @@ def test_shared_claims_give_the_single_node_image(shape, monkeypatch):
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     dealt = [float(why.split("; ")[-1].split("%")[0]) for _, why in made if "holders" in why]
     assert dealt and min(dealt) > 0, [why for _, why in made]
+
+
+@pytest.mark.parametrize("share", [True, False])
+def test_the_plan_shares_copied_cells_only_when_asked(share):
+    scene = read_nff(spd_scene("teapot.nff"))
+    plan = MeshPlan(3, 3, max_share=0.25, balance="objects")
+    image = ImageSpec(width=48, height=48, spp=2)
+    with mock.patch.object(allowance, "PREPASS_SHARE", math.inf):
+        planned = plan_render(Request(scene, image, ONE, plan=plan, auto=Auto(share_claims=share)))
+    copies = planned.balance["budget"]["copies"]
+    assert planned.spec.plan.holds, copies  # the hot spout's cell is copied
+    claims = copies["claims"]
+    assert claims["why"]
+    if not share:
+        assert planned.spec.plan.claim_shares == () and claims["chosen"] == "owner"
+        return
+    assert claims["chosen"] == "shared", claims
+    assert claims["busiest_cells_work_shared_vs_owner"] < 1
+    shares = planned.spec.plan.claim_shares
+    assert [list(s) for s in shares] == claims["shares"]
+    holders = planned.spec.plan.holders_table()
+    assert all(not s or len(s) == len(holders[c]) > 1 for c, s in enumerate(shares))

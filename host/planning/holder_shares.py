@@ -16,7 +16,11 @@ node holds are that node's load from the start); then quanta move off the busies
 that lightens it: near the program's optimum, in plain arithmetic.
 """
 
+from dataclasses import replace
+
 import numpy as np
+
+from host.planning.holding import ratio
 
 QUANTA = 64  # parts of each shared cell's work dealt to its holders
 
@@ -81,3 +85,29 @@ def busiest(plan, cell_work, shares: tuple) -> float:
         for h, w in zip(hs, got, strict=True):
             load[h] += work[c] * w / sum(got)
     return float(load.max())
+
+
+def shared(spec, cell_work) -> tuple:
+    """(spec, report): the plan (a RenderSpec's, with holds) with each copied cell's eye
+    rays shared over its holders (`claim_shares`), from each cell's work simulated without
+    copies (None: not known), where that leaves the busiest node lighter by the cells'
+    work than each cell's work on its owner; else as it was, and why."""
+    if cell_work is None or len(cell_work) != spec.plan.nodes:
+        return spec, {"chosen": "owner", "why": "no cell's work was simulated"}
+    shares = claim_shares(spec.plan, cell_work)
+    if not shares:
+        return spec, {"chosen": "owner", "why": "no copied cell has work"}
+    before = busiest(spec.plan, cell_work, ())
+    after = busiest(spec.plan, cell_work, shares)
+    if not after < before:
+        why = "sharing the claims leaves the busiest node's cells' work as it was"
+        return spec, {"chosen": "owner", "why": why}
+    plan = replace(spec.plan, claim_shares=shares)
+    return replace(spec, plan=plan), {
+        "chosen": "shared",
+        "shares": [list(s) for s in shares],
+        "busiest_cells_work_shared_vs_owner": ratio(after, before),
+        "why": "each copied cell's eye rays made by its holders in these shares: by the "
+        f"cells' simulated work the busiest node carries {ratio(after, before):.2f} of what "
+        "it does with each cell's work on its owner",
+    }

@@ -14,6 +14,7 @@ from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.cells import scene_box
 from host.planning.growth import grown_within
+from host.planning.holder_shares import shared
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.occupancy import map_voxels, occupancy_map
@@ -116,13 +117,15 @@ def _planned(request: Request, memory: int) -> Planned:
     part, keep = partition(scene, spec, xs, ys, cells, occupancy, loads)
     if budgeted(spec.plan):
         spec, part, keep, balance["budget"] = _within_budget(
-            scene, spec, part, keep, request.auto.budget_copies, cost
+            scene, spec, part, keep, request.auto.budget_copies, cost, request.auto.share_claims
         )
         balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 
-def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None):
+def _within_budget(
+    scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None, share=True
+):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
     that keeps it, its room then filled (`copies`) with copies of the hottest cells and wider
@@ -130,7 +133,8 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies=True, 
     naming the smallest share reached when none does. Under a byte bound the nodes build
     hierarchies (their memory is known before they are built; a grid's is not: shells'
     took 260 MB for 1.5 MB of objects). `load`: each node's simulated work on these cells
-    (the pre-pass's), for copies it cannot afford to simulate (`replicas._unsimulated`)."""
+    (the pre-pass's), for copies it cannot afford to simulate (`replicas._unsimulated`).
+    `share`: each copied cell's own work shared over its holders (`holder_shares.shared`)."""
     gave_up = []
     if spec.plan.node_bytes and spec.engine.structure == "auto":
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
@@ -151,6 +155,10 @@ def _within_budget(scene: SceneData, spec: RenderSpec, part, keep, copies=True, 
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
     spec, part, keep, chosen = _copied(scene, spec, part, keep, load)
+    if spec.plan.holds and share:
+        spec, chosen["claims"] = shared(spec, chosen.get("simulated_load"))
+    elif spec.plan.holds:
+        chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)
     held = holdings(scene, spec, part, keep)
     return (

@@ -24,7 +24,6 @@ from dataclasses import replace
 import numpy as np
 
 from host.planning.budget import budgeted, cell_bytes, holdings, within
-from host.planning.holder_shares import busiest, claim_shares
 from host.planning.holding import ratio
 from host.planning.placement import sends
 from host.planning.prepass import (
@@ -115,7 +114,6 @@ def with_replicas(
         raise AssertionError("copies chosen past the memory budget")
     at, forward, counted = _forwarded(scene, at, part, keep, after)
     weights, dealing = _weighed(scene, at, part, keep, counted)
-    at, claims = shared(at, costs(before))
     return (
         at,
         _dealt(part, at, weights),
@@ -129,7 +127,6 @@ def with_replicas(
             "does without",
             "forward": forward,
             "dealing": dealing,
-            "claims": claims,
             "prepass_cpu_seconds": time.process_time() - began,
         },
     )
@@ -155,7 +152,6 @@ def _unsimulated(scene, spec: RenderSpec, part: Partition, keep, load, skipped: 
         return spec, part, {"chosen": [], "why": skipped + "; no node has room for a copy"}
     at = replace(spec, plan=replace(spec.plan, copies=True, holds=_holds(spec.plan.nodes, added)))
     uneven = float(load.max() / load.mean())
-    at, claims = shared(at, load)
     return (
         at,
         _dealt(part, at),
@@ -163,7 +159,7 @@ def _unsimulated(scene, spec: RenderSpec, part: Partition, keep, load, skipped: 
             "chosen": [list(h) for h in at.plan.holds],
             "rule": "load",
             "simulated": False,
-            "claims": claims,
+            "simulated_load": load.tolist(),  # the first cut's: each cell's work, no copies
             "why": f"{skipped}; unsimulated, {HOLDER['load']}: the first cut's simulated "
             f"busiest node carries {uneven:.2f} times the mean",
         },
@@ -210,29 +206,6 @@ def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners
         },
         (handed if better else owners),
     )
-
-
-def shared(spec: RenderSpec, cell_work) -> tuple[RenderSpec, dict]:
-    """(spec, report): the plan with each copied cell's eye rays shared over its holders
-    (`host.planning.holder_shares`), from each cell's work simulated without copies, where
-    that leaves the busiest node lighter by the cells' work; else as it was."""
-    shares = claim_shares(spec.plan, cell_work)
-    if not shares:
-        return spec, {"chosen": "owner", "why": "no copied cell has work"}
-    before = busiest(spec.plan, cell_work, ())
-    after = busiest(spec.plan, cell_work, shares)
-    if not after < before:
-        why = "sharing the claims leaves the busiest node's cells' work as it was"
-        return spec, {"chosen": "owner", "why": why}
-    plan = replace(spec.plan, claim_shares=shares)
-    return replace(spec, plan=plan), {
-        "chosen": "shared",
-        "shares": [list(s) for s in shares],
-        "busiest_cells_work_shared_vs_owner": ratio(after, before),
-        "why": "each copied cell's eye rays made by its holders in these shares: by the "
-        f"cells' simulated work the busiest node carries {ratio(after, before):.2f} of what "
-        "it does with them made by the holder its rectangle's node hands them to",
-    }
 
 
 def choose_copies(

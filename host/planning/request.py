@@ -25,12 +25,15 @@ class Auto:
     (bytes to plan each node for, instead of what the nodes report) and `overlaps` (object
     space: overlaps for the cost pre-pass to choose among; empty keeps the plan's) and
     `budget_copies` (under a memory budget, fill each node's room with copies of the
-    hottest cells where the pre-pass finds they pay: `host.planning.replicas`)."""
+    hottest cells where the pre-pass finds they pay: `host.planning.replicas`) and
+    `share_claims` (with those copies, each copied cell's own work shared over its holders:
+    `host.planning.holder_shares`)."""
 
     mode: str | None = None
     node_memory: int | None = None
     overlaps: tuple[float, ...] = ()
     budget_copies: bool = True
+    share_claims: bool = True
 
     def __post_init__(self):
         if self.mode is not None and self.mode not in PLAN_MODES:

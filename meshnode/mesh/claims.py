@@ -145,9 +145,9 @@ def shared_claims(blocks: np.ndarray, plan: MeshPlan) -> np.ndarray:
     for c, (shares, holders) in enumerate(
         zip(plan.claim_shares, plan.holders_table(), strict=True)
     ):
-        at = np.flatnonzero(cells == c)
-        if not shares or not len(at):
+        if not shares:
             continue
+        at = np.flatnonzero(cells == c)
         want = np.asarray(shares, float) / sum(shares)
         given = np.zeros(len(holders))
         for start in range(0, len(at), SHARED_RUN):

@@ -12,7 +12,7 @@ import pytest
 
 import meshnode.mesh.node
 from host.planning import allowance
-from host.planning.holder_shares import busiest, claim_shares
+from host.planning.holder_shares import busiest, claim_shares, rescaled
 from host.planning.plan import plan_render
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
@@ -153,5 +153,18 @@ def test_the_plan_shares_copied_cells_only_when_asked(share):
     assert claims["busiest_cells_work_shared_vs_owner"] < 1
     shares = planned.spec.plan.claim_shares
     assert [list(s) for s in shares] == claims["shares"]
+    # refined on the simulated mesh: the lightest simulated kept, each round lighter
+    seen, kept = claims["refined"]["simulated_busiest"], claims["refined"]["rounds"]
+    assert seen and seen[kept] == min(seen), claims["refined"]
+    assert all(a > b for a, b in zip(seen[:kept], seen[1 : kept + 1], strict=True))
     holders = planned.spec.plan.holders_table()
     assert all(not s or len(s) == len(holders[c]) > 1 for c, s in enumerate(shares))
+
+
+def test_rescaled_shares_move_from_holders_over_the_mean_to_those_under():
+    plan = _plan(claim_shares=((0.5, 0.25, 0.25), (0.5, 0.5), (), ()))
+    out = rescaled(plan, (10.0, 5.0, 5.0, 4.0))  # node 0 over the mean (6), 1 and 2 under
+    assert out[2:] == ((), ())
+    assert out[0][0] < 0.5 and out[0][1] > 0.25 and out[0][2] > 0.25
+    assert out[1] == pytest.approx((0.5, 0.5))  # its holders 1, 2 carry alike
+    assert all(sum(s) == pytest.approx(1.0) for s in out[:2])

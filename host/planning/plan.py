@@ -14,7 +14,7 @@ from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.cells import scene_box
 from host.planning.growth import grown_within
-from host.planning.holder_shares import shared
+from host.planning.holder_shares import refined, shared
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.occupancy import map_voxels, occupancy_map
@@ -160,6 +160,9 @@ def _within_budget(
     elif spec.plan.holds:
         chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)
+    if spec.plan.claim_shares:
+        spec, chosen["claims"]["refined"] = refined(scene, spec, part, keep)
+        chosen["claims"]["shares"] = [list(s) for s in spec.plan.claim_shares]
     held = holdings(scene, spec, part, keep)
     return (
         spec,

@@ -15,6 +15,12 @@ Simulated 3x3 under a quarter share at 4 spp, one plan each way, rays passed: te
 322k (claiming each block for the cell it sees nearest instead passed balls' rays more:
 its spheres stand in front of the floor most of their blocks' rays reach).
 
+Where a cell's engine is copied onto other nodes and the plan shares the cell's own work over
+them (`MeshPlan.claim_shares`), its blocks are dealt over all its holders in those shares
+(`shared_claims`): made by the holder its rectangle's node hands them to, a copy took on only
+the rays passed to it, while most of the busiest node's work is its own eye rays' (the full
+SPD mountain 3x3 under a quarter share, frame CPU speedup 2.69 -> 5.34).
+
 Every node computes the same claims from the same map, partition and plan, so each sample
 is made exactly once; a ray is routed from the same t_min to the same cell wherever it is
 made, so images and counts do not change.

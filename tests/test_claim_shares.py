@@ -49,9 +49,9 @@ def test_shares_are_checked_as_a_peer_sends_them():
         MeshPlan(2, 2, claim_shares=((1,), (1,), (1,), (1,)))  # no copies to share over
 
 
-def _least_busiest(plan, work, steps: int = 40) -> float:
-    """The least busiest node over every split of the shared cells' work on a grid of
-    `steps` parts (brute force, for the small plan of HOLDS)."""
+def _least_busiest(plan, work, primary=None, steps: int = 40) -> float:
+    """The least busiest node over every split of the shared cells' primary work on a grid
+    of `steps` parts (brute force, for the small plan of HOLDS)."""
     holders = plan.holders_table()
     shared = [c for c in range(plan.nodes) if len(holders[c]) > 1]
     options = []
@@ -64,22 +64,35 @@ def _least_busiest(plan, work, steps: int = 40) -> float:
         shares = [()] * plan.nodes
         for c, s in pick:
             shares[c] = s
-        best = min(best, busiest(plan, work, tuple(shares)))
+        best = min(best, busiest(plan, work, tuple(shares), primary))
     return best
 
 
-@pytest.mark.parametrize("work", [(8, 3, 1, 2), (1, 9, 1, 1), (5, 5, 0, 4), (30, 1, 1, 1)])
-def test_shares_even_the_holders_loads_as_the_best_split_does(work):
+@pytest.mark.parametrize(
+    "work,primary",
+    [
+        ((8, 3, 1, 2), None),
+        ((1, 9, 1, 1), None),
+        ((5, 5, 0, 4), None),
+        ((30, 1, 1, 1), None),
+        ((8, 3, 1, 2), (6, 1, 1, 2)),  # cell 0's 2 passed units stay with node 0
+        ((12, 6, 1, 2), (4, 6, 1, 1)),
+    ],
+)
+def test_shares_even_the_holders_loads_as_the_best_split_does(work, primary):
     plan = _plan()
-    shares = claim_shares(plan, work)
+    shares = claim_shares(plan, work, primary)
     holders = plan.holders_table()
     for c, s in enumerate(shares):
-        assert (len(s) == len(holders[c])) if len(holders[c]) > 1 and work[c] else s == ()
+        moves = work[c] if primary is None else primary[c]
+        assert (len(s) == len(holders[c])) if len(holders[c]) > 1 and moves else s == ()
         assert not s or sum(s) == pytest.approx(1.0)
-    got = busiest(plan, work, shares)
+    got = busiest(plan, work, shares, primary)
     quantum = max(work) / 64
-    assert got <= busiest(plan, work, ()) + 1e-12
-    assert got <= _least_busiest(plan, work) + 2 * quantum
+    assert got <= busiest(plan, work, (), primary) + 1e-12
+    assert got <= _least_busiest(plan, work, primary) + 2 * quantum
+    if primary is not None:  # what does not move stays with the owner
+        assert got >= max(w - p for w, p in zip(work, primary, strict=True))
 
 
 def test_no_shares_without_a_cell_held_twice_or_without_work():

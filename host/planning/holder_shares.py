@@ -31,30 +31,40 @@ QUANTA = 64  # parts of each shared cell's work dealt to its holders
 REFINE_ROUNDS = 3
 
 
-def claim_shares(plan, cell_work) -> tuple:
+def claim_shares(plan, cell_work, primary=None) -> tuple:
     """`MeshPlan.claim_shares` for `plan` (with holds) from each cell's work as simulated
-    without copies (`cell_work[c]`: node c's load then), as the least busiest holder
-    dealing quanta finds them; () where no cell has two holders or none has work."""
-    work = np.maximum(np.asarray(cell_work, float), 0.0)
+    without copies (`cell_work[c]`: node c's load then) and the part of it in primary batches
+    (`primary`; None: all of it), as the least busiest holder dealing quanta finds them: a
+    cell's primary work moves with its claims, the rest (rays passed into the cell) stays
+    with its owner. () where no cell has two holders or none has work."""
+    work, moving = _parts(plan, cell_work, primary)
     holders = plan.holders_table()
     if len(work) != plan.nodes or not work.sum() > 0:
         return ()
-    shared = [c for c in range(plan.nodes) if len(holders[c]) > 1 and work[c] > 0]
+    shared = [c for c in range(plan.nodes) if len(holders[c]) > 1 and moving[c] > 0]
     if not shared:
         return ()
-    load = np.where([len(h) == 1 for h in holders], work, 0.0)
+    load = np.where([len(h) == 1 for h in holders], work, work - moving)
     dealt = {c: np.zeros(len(holders[c]), np.int64) for c in shared}
     # the cells fewest nodes hold first: a cell every node holds fills what the others left
-    for c in sorted(shared, key=lambda c: (len(holders[c]), -work[c], c)):
-        quantum = work[c] / QUANTA
+    for c in sorted(shared, key=lambda c: (len(holders[c]), -moving[c], c)):
+        quantum = moving[c] / QUANTA
         for _ in range(QUANTA):
             i = min(range(len(holders[c])), key=lambda i: (load[holders[c][i]], i))
             load[holders[c][i]] += quantum
             dealt[c][i] += 1
-    _evened(load, dealt, holders, work)
+    _evened(load, dealt, holders, moving)
     return tuple(
         tuple(float(x) for x in dealt[c] / QUANTA) if c in dealt else () for c in range(plan.nodes)
     )
+
+
+def _parts(plan, cell_work, primary):
+    """(each cell's work, the part of it that moves with its claims), clipped to 0..work."""
+    work = np.maximum(np.asarray(cell_work, float), 0.0)
+    if primary is None or len(primary) != len(work):
+        return work, work
+    return work, np.clip(np.asarray(primary, float), 0.0, work)
 
 
 def _evened(load, dealt: dict, holders: list, work) -> None:
@@ -81,30 +91,32 @@ def _evened(load, dealt: dict, holders: list, work) -> None:
         load[holders[c][i]] += quantum
 
 
-def busiest(plan, cell_work, shares: tuple) -> float:
-    """The busiest node's load if each cell's work went to its holders in `shares` (a cell
-    with none: all to its owner)."""
-    work = np.asarray(cell_work, float)
-    load = np.zeros(plan.nodes)
+def busiest(plan, cell_work, shares: tuple, primary=None) -> float:
+    """The busiest node's load if each cell's primary work (`primary`; None: all its work)
+    went to its holders in `shares` (a cell with none: all to its owner), the rest to its
+    owner."""
+    work, moving = _parts(plan, cell_work, primary)
+    load = work - moving
     for c, hs in enumerate(plan.holders_table()):
         got = shares[c] if shares and shares[c] else (1.0,) + (0.0,) * (len(hs) - 1)
         for h, w in zip(hs, got, strict=True):
-            load[h] += work[c] * w / sum(got)
+            load[h] += moving[c] * w / sum(got)
     return float(load.max())
 
 
-def shared(spec, cell_work) -> tuple:
+def shared(spec, cell_work, primary=None) -> tuple:
     """(spec, report): the plan (a RenderSpec's, with holds) with each copied cell's eye
     rays shared over its holders (`claim_shares`), from each cell's work simulated without
-    copies (None: not known), where that leaves the busiest node lighter by the cells'
-    work than each cell's work on its owner; else as it was, and why."""
+    copies (None: not known) and the part of it in primary batches (`primary`), where that
+    leaves the busiest node lighter by the cells' work than each cell's work on its owner;
+    else as it was, and why."""
     if cell_work is None or len(cell_work) != spec.plan.nodes:
         return spec, {"chosen": "owner", "why": "no cell's work was simulated"}
-    shares = claim_shares(spec.plan, cell_work)
+    shares = claim_shares(spec.plan, cell_work, primary)
     if not shares:
         return spec, {"chosen": "owner", "why": "no copied cell has work"}
-    before = busiest(spec.plan, cell_work, ())
-    after = busiest(spec.plan, cell_work, shares)
+    before = busiest(spec.plan, cell_work, (), primary)
+    after = busiest(spec.plan, cell_work, shares, primary)
     if not after < before:
         why = "sharing the claims leaves the busiest node's cells' work as it was"
         return spec, {"chosen": "owner", "why": why}

@@ -16,7 +16,14 @@ from host.planning.cells import grown, scene_box, traced
 from host.planning.clip import holders
 from host.planning.objectcells import WorkGrid, object_cells
 from host.planning.placement import MAX_CELLS, placed, sends
-from host.planning.prepass import allowance, coarse_pass, coarse_spec, costs, unaffordable
+from host.planning.prepass import (
+    allowance,
+    coarse_pass,
+    coarse_spec,
+    costs,
+    primary_costs,
+    unaffordable,
+)
 from host.planning.seenwork import first_guess
 from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
@@ -84,27 +91,32 @@ def balanced_object_cells(
     # the first cut's simulation estimates the render's tracing: the pre-pass's allowance
     cost = costs(first)
     allowed.learn(node_seconds(spec, float(cost.sum())))
-    tried, over = [(float(cost.max()), cells, cost, sends(first))], [excess]
+    # each node's work and the part of it in its primary batches (`holder_shares`), together
+    both = np.column_stack([cost, primary_costs(first)])
+    tried, over = [(float(cost.max()), cells, both, sends(first))], [excess]
     made = 0
     for _ in range(ROUNDS if rounds is None else rounds):
         if rounds is None and not allowed.affords("re-cut rounds", 1, reserve):
             why = f"{made} of {ROUNDS}: " + allowed.why
             break
         made += 1
-        grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2]) for t in tried])
+        grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2][:, 0]) for t in tried])
         cut, cap, excess = _within(scene, spec, grid, cap, limit)
         over.append(excess)
         if excess > 1:  # the plan would refuse these cells: no round to learn from
             continue
         outcome = coarse_pass(scene, spec, None, None, cut)
         cost = costs(outcome)
-        tried.append((float(cost.max()), cut, cost, sends(outcome)))
-    busiest, cells, cost, traffic = min(tried, key=lambda t: t[0])
-    cells, cost, placement = _placed(cells, cost, traffic, plan)
+        both = np.column_stack([cost, primary_costs(outcome)])
+        tried.append((float(cost.max()), cut, both, sends(outcome)))
+    busiest, cells, both, traffic = min(tried, key=lambda t: t[0])
+    cells, both, placement = _placed(cells, both, traffic, plan)
+    cost = both[:, 0]
     return (
         cells,
         cost,
         {
+            "simulated_primary_load": both[:, 1].tolist(),
             "simulated_busiest_by_round": [t[0] for t in tried],
             "fullest_vs_limit_by_round": over,
             "rounds": made,

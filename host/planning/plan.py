@@ -117,14 +117,21 @@ def _planned(request: Request, memory: int) -> Planned:
     part, keep = partition(scene, spec, xs, ys, cells, occupancy, loads)
     if budgeted(spec.plan):
         spec, part, keep, balance["budget"] = _within_budget(
-            scene, spec, part, keep, request.auto.budget_copies, cost, request.auto.share_claims
+            scene,
+            spec,
+            part,
+            keep,
+            request.auto.budget_copies,
+            cost,
+            request.auto.share_claims,
+            balance.get("simulated_primary_load"),
         )
         balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 
 def _within_budget(
-    scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None, share=True
+    scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None, share=True, primary=None
 ):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
@@ -134,7 +141,8 @@ def _within_budget(
     hierarchies (their memory is known before they are built; a grid's is not: shells'
     took 260 MB for 1.5 MB of objects). `load`: each node's simulated work on these cells
     (the pre-pass's), for copies it cannot afford to simulate (`replicas._unsimulated`).
-    `share`: each copied cell's own work shared over its holders (`holder_shares.shared`)."""
+    `share`: each copied cell's own work shared over its holders (`holder_shares.shared`),
+    `primary` the part of `load` in each node's primary batches."""
     gave_up = []
     if spec.plan.node_bytes and spec.engine.structure == "auto":
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
@@ -142,13 +150,13 @@ def _within_budget(
     held = holdings(scene, spec, part, keep)
     if not within(spec.plan, held) and spec.plan.balance == "objects":
         gave_up.append(f"cells evened on the work: fullest node {max(held['share']):.1%}")
-        part, keep, load = *partition(scene, spec), None  # cut for the fewest objects alone
+        part, keep, load, primary = *partition(scene, spec), None, None  # the fewest objects
         held = holdings(scene, spec, part, keep)
     for fallback in retreats(spec.plan):
         if within(spec.plan, held):
             break
         gave_up.append(f"{_difference(spec.plan, fallback)}: fullest node {max(held['share']):.1%}")
-        spec, load = replace(spec, plan=fallback), None
+        spec, load, primary = replace(spec, plan=fallback), None, None
         part, keep, held = _objects_within(scene, spec)
     if not within(spec.plan, held):
         raise refusal(scene, spec.plan, held)
@@ -156,7 +164,9 @@ def _within_budget(
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
     spec, part, keep, chosen = _copied(scene, spec, part, keep, load)
     if spec.plan.holds and share:
-        spec, chosen["claims"] = shared(spec, chosen.get("simulated_load"))
+        work = chosen.get("simulated_load")
+        primary = chosen.get("simulated_primary_load", primary)
+        spec, chosen["claims"] = shared(spec, work, primary)
     elif spec.plan.holds:
         chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)

@@ -158,6 +158,12 @@ def costs(outcome) -> np.ndarray:
     return np.array([r.cost for r in outcome.nodes], float)
 
 
+def primary_costs(outcome) -> np.ndarray:
+    """Every simulated node's cost in its primary batches (its eye rays and all they spawn
+    on the node), in work units."""
+    return np.array([r.primary_cost for r in outcome.nodes], float)
+
+
 def coarse_mesh(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
     """(coarse spec, partition, each node's objects) of the mesh `node_costs` simulates."""
     coarse = coarse_spec(spec)

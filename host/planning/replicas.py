@@ -31,6 +31,7 @@ from host.planning.prepass import (
     coarse_partition,
     costs,
     partition_pass,
+    primary_costs,
     rays_passed,
     simulated,
 )
@@ -84,6 +85,7 @@ def with_replicas(
     busiest, passed = float(costs(before).max()), rays_passed(before)
     report = {
         "simulated_load": costs(before).tolist(),
+        "simulated_primary_load": primary_costs(before).tolist(),
         "simulated_rays_passed": passed,
         "simulated_busiest": busiest,  # ... with the copies chosen, below
     }

@@ -59,6 +59,7 @@ class NodeRecord:
     chunks_taken: int = 0  # chunks it took from neighbours
     given_in: dict = field(default_factory=dict)  # chunks given by state (TRACE, REFINE)
     counts: dict = field(default_factory=lambda: defaultdict(int))
+    primary_cost: int = 0  # of `cost`, in its primary batches (eye rays and all they spawn here)
 
     @property
     def cost(self) -> int:
@@ -276,6 +277,7 @@ class _Node(Driver):
         add_counts(rec.counts, batch.counts, self.core.stood_for(step.rays) if step.primary else 0)
         if step.primary:
             self.mesh._primary_work(step.rays, rec.cost - before)
+            rec.primary_cost += rec.cost - before
         self.mesh._worked(self.node, rec.cost - before)  # its output leaves once it is done
         self.deliver(batch, step)
         self.sched.batch_done()

@@ -31,6 +31,7 @@ from meshnode.engine.counters import RAY_COUNTS
 from meshnode.mesh.simulator import simulate
 from protocols.render import EngineSpec, ImageSpec, MeshPlan
 from tests.conftest import spd_scene
+from tests.meshsim import render_mesh
 
 SIZE = 32
 ONE = EngineSpec(threads=1)
@@ -39,6 +40,19 @@ ONE = EngineSpec(threads=1)
 def single(scene, size=SIZE):
     img, stats = render(Request(scene, ImageSpec(width=size, height=size), ONE), progress=False)
     return img, {k: stats["rays"][k] for k in RAY_COUNTS}
+
+
+def copied_render(scene, shape, **plan):
+    """The per-node records of a simulated SIZE x SIZE render of `scene` on a `shape` mesh,
+    cells cut by the objects, with copies and the plan's other fields (`plan`), its image
+    and counts checked against one node's."""
+    ref, ref_counts = single(scene)
+    img, totals, records, _ = render_mesh(
+        scene, *shape, 1.0, SIZE, SIZE, balance="objects", copies=True, **plan
+    )
+    assert {k: totals[k] for k in ref_counts} == ref_counts
+    np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
+    return records
 
 
 def planned_render(scene, plan: MeshPlan, size=SIZE):

@@ -108,7 +108,7 @@ def row(name: str, spec, units: Counter) -> dict:
     for (node, cell), u in units.items():
         load[node] += u
         work[cell] += u
-    holders = [plan.holders(c) for c in range(plan.nodes)]
+    holders = plan.holders_table()
     split = split_bound(work, holders)
     total = load.sum()
     return {

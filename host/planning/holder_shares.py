@@ -7,10 +7,11 @@ to it. On the busiest node of the 3x3 plans under a quarter share 78-89% of the 
 traced in its primary batches (balls, teapot, mount: its claimed eye rays and all they
 spawn in the cell), so handing copies passed rays alone cannot even the load; a linear
 program spreading each cell's work freely over its holders bounds what sharing the claims
-can: the busiest node x1.18-1.46 lighter on 3x3, x2.07 on teapot 4x4 (`python -m
+can: the busiest node x1.32-1.76 lighter on 3x3, x2.10 on teapot 4x4 (`python -m
 bench.holder_split`).
 
-The shares fill the holders' loads in small equal quanta of each shared cell's work, the
+The shares fill the holders' loads in small equal quanta of each shared cell's primary work
+(the rays passed into a cell stay with its owner), the
 cells fewest nodes hold first, each quantum to its cell's least loaded holder (the cells one
 node holds are that node's load from the start); then quanta move off the busiest node while
 that lightens it: near the program's optimum, in plain arithmetic.
@@ -37,7 +38,7 @@ def claim_shares(plan, cell_work, primary=None) -> tuple:
     (`primary`; None: all of it), as the least busiest holder dealing quanta finds them: a
     cell's primary work moves with its claims, the rest (rays passed into the cell) stays
     with its owner. () where no cell has two holders or none has work."""
-    work, moving = _parts(plan, cell_work, primary)
+    work, moving = _parts(cell_work, primary)
     holders = plan.holders_table()
     if len(work) != plan.nodes or not work.sum() > 0:
         return ()
@@ -59,7 +60,7 @@ def claim_shares(plan, cell_work, primary=None) -> tuple:
     )
 
 
-def _parts(plan, cell_work, primary):
+def _parts(cell_work, primary):
     """(each cell's work, the part of it that moves with its claims), clipped to 0..work."""
     work = np.maximum(np.asarray(cell_work, float), 0.0)
     if primary is None or len(primary) != len(work):
@@ -95,7 +96,7 @@ def busiest(plan, cell_work, shares: tuple, primary=None) -> float:
     """The busiest node's load if each cell's primary work (`primary`; None: all its work)
     went to its holders in `shares` (a cell with none: all to its owner), the rest to its
     owner."""
-    work, moving = _parts(plan, cell_work, primary)
+    work, moving = _parts(cell_work, primary)
     load = work - moving
     for c, hs in enumerate(plan.holders_table()):
         got = shares[c] if shares and shares[c] else (1.0,) + (0.0,) * (len(hs) - 1)
@@ -123,7 +124,6 @@ def shared(spec, cell_work, primary=None) -> tuple:
     plan = replace(spec.plan, claim_shares=shares)
     return replace(spec, plan=plan), {
         "chosen": "shared",
-        "shares": [list(s) for s in shares],
         "busiest_cells_work_shared_vs_owner": ratio(after, before),
         "why": "each copied cell's eye rays made by its holders in these shares: by the "
         f"cells' simulated work the busiest node carries {ratio(after, before):.2f} of what "

@@ -170,7 +170,7 @@ def _within_budget(
     elif spec.plan.holds:
         chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)
-    if spec.plan.claim_shares:
+    if spec.plan.claim_shares:  # the shares as refined, if the allowance affords it
         spec, chosen["claims"]["refined"] = refined(scene, spec, part, keep)
         chosen["claims"]["shares"] = [list(s) for s in spec.plan.claim_shares]
     held = holdings(scene, spec, part, keep)

@@ -116,7 +116,7 @@ def test_a_shared_cells_blocks_go_to_its_holders_in_their_shares():
     assert (shared_claims(blocks, _plan()) == -1).all()
 
 
-@pytest.mark.parametrize("shape", [(2, 2), (3, 3), (2, 3)])
+@pytest.mark.parametrize("shape", [(1, 2), (2, 2), (3, 3), (2, 3)])
 def test_shared_claims_give_the_single_node_image(shape, monkeypatch):
     made, own = [], meshnode.mesh.node.node_claims
     monkeypatch.setattr(

@@ -37,7 +37,8 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
             "voxel_steps": s1["voxel_steps"],
         }
     )
-    work_busiest = max(work(n["rays"]) for n in st["nodes"])
+    node_work = [work(n["rays"]) for n in st["nodes"]]
+    work_busiest = max(node_work)
     busiest = st["busiest_node_cpu_seconds"]
     together = (
         statistics.median(
@@ -56,7 +57,7 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
     traced = sum(st["rays"][k] for k in RAY_KINDS)
     mean, top = link_bytes(st)
     prepass = (st.get("balance") or {}).get("prepass") or {}
-    return {
+    row = {
         "scene": key["scene"],
         "mesh": key["mesh"],
         "mode": key["mode"],
@@ -99,8 +100,10 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "node_cpu_seconds": [n["busy_cpu_seconds"] for n in st["nodes"]],
         "node_batches": [n["batches"] for n in st["nodes"]],
         # what the work and frame speedups' busiest node is the busiest of
-        "node_work_units": [work(n["rays"]) for n in st["nodes"]],
+        "node_work_units": node_work,
         "node_frame_cpu_seconds": [n.get("frame_cpu_seconds", 0.0) for n in st["nodes"]],
+        "one_frame_cpu_seconds": s1["frame_cpu_seconds"],
+        "work_summed_over_one": sum(node_work) / max(work1, 1),
         "sky_tiles": st.get("sky_tiles", {}),
         "balance": st.get("balance"),
         # the cost pre-pass's CPU against one node's measured tracing, and what it skipped
@@ -109,6 +112,33 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "counts": {k: st["rays"][k] for k in COUNTS},
         "image": image.to_wire(),
         "camera": None if camera is None else camera.sampling.to_wire(),
+    }
+    row["frame_parts"] = frame_parts(row)  # the frame speedup's parts: overhead and balance
+    return row
+
+
+def frame_parts(row: dict) -> dict:
+    """Where the frame speedup goes: it is N / (summed x balance), with `summed` the nodes'
+    frame CPU added up over one process's frame CPU (the work the mesh adds: kernels tracing
+    more, routing, the event loop) and `balance` the busiest node's over the mean node's.
+    `summed` is split into the nodes' kernels, their routing around the kernels in whole
+    batches, and the rest of their process (the event loop, framing, the sky's deposits),
+    each over one process's frame; `work` is the kernels' summed work units over one's, and
+    `even` the speedup were the nodes evenly loaded (N / summed)."""
+    one = max(row["one_frame_cpu_seconds"], 1e-9)
+    frames, batches = row["node_frame_cpu_seconds"], row["node_batch_cpu_seconds"]
+    kernels = row["node_cpu_seconds"]
+    summed = sum(frames) / one
+    n = len(frames)
+    return {
+        "summed": summed,
+        "balance": max(frames) / max(sum(frames) / n, 1e-9),
+        "even": n / max(summed, 1e-9),
+        "kernels": sum(kernels) / one,
+        "routing": (sum(batches) - sum(kernels)) / one,
+        "outside_batches": (sum(frames) - sum(batches)) / one,
+        "one_kernels": row["single_cpu_seconds"] / one,
+        "work": row["work_summed_over_one"],
     }
 
 
@@ -161,6 +191,16 @@ def print_row(row: dict) -> None:
         f"{row['passes_per_ray']:>8.3f} "
         f"{','.join(map(str, row['shared'])) or '-'}"
     )
+    if row["mode"] == "object":
+        f = frame_parts(row)
+        print(
+            f"      frame: the nodes' summed {f['summed']:.2f} of one process's (kernels "
+            f"{f['kernels']:.2f}, their work units {f['work']:.2f} of one's; routing "
+            f"{f['routing']:.2f}; outside batches {f['outside_batches']:.2f}; one process's "
+            f"kernels {f['one_kernels']:.2f}), busiest / mean {f['balance']:.2f}: "
+            f"{len(row['node_frame_cpu_seconds'])} / ({f['summed']:.2f} x {f['balance']:.2f}); "
+            f"evenly loaded {f['even']:.2f}"
+        )
     if row["prepass_share"]:
         skipped = ", ".join(dict.fromkeys(row["prepass_skipped"])) or "nothing"
         print(

@@ -30,7 +30,7 @@ the best of each (least tracing CPU; least busiest-node CPU): this machine's spe
 up to 1.6x for minutes at a time, so both sides are measured over the same span. Each
 core's speed also moves by up to 25% within seconds, each core on its own, so a reference
 taken a few seconds from the mesh still lands on other spells: `--together N` then measures
-one node and the mesh at once, N times (one node renders on a thread here while the mesh
+one node and the mesh at once, N times (one node renders in a process of its own while the mesh
 renders again and again until one node is done, so both share the same spells and the same
 load), and "at once" is the median of those windows' one-node CPU / busiest-node CPU.
 `--overlaps 2,auto` compares a fixed overlap with the one the cost pre-pass chooses
@@ -39,8 +39,9 @@ nodes tracing on that many threads, side by side;
 `--balance even,cost,objects` compares the cuts likewise; `--max-share` gives object space
 a memory budget per mesh (`MeshPlan.max_share`: the plan gives up what breaks it), and the
 rows show it ("budget") beside the share the fullest node held ("held"), the speedup on the
-busiest node's whole process CPU for the frame ("frame": in turns; "frame@once": at once,
-against one node's tracing thread, so understated) and rays passed per ray traced;
+busiest node's whole process CPU for the frame against one process's ("frame": in turns;
+"frame@once": at once, one node rendering in a process of its own) and rays passed per ray
+traced, with a line taking the frame speedup apart (`mesh_rows.frame_parts`);
 `--tiles static,dynamic` the image space tilings, `--tile 32,64` their tile sides (samples)
 and `--orders rows,centre` the order dynamic tiles are dealt in. `--plots DIR` writes a
 per-node load plot (PNG) for every row: each node's tracing CPU against the busiest's. The

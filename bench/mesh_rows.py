@@ -49,7 +49,7 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
     )
     frame_together = (
         statistics.median(
-            w["one_node_cpu_seconds"] / w["busiest_frame_cpu_seconds"] for w in st["together"]
+            w["one_node_frame_cpu_seconds"] / w["busiest_frame_cpu_seconds"] for w in st["together"]
         )
         if st["together"]
         else float("nan")
@@ -81,9 +81,9 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "together_speedup": together,
         "paired_speedups": st["paired_speedups"],
         "work_speedup": work1 / work_busiest,
-        # on whole processes' CPU for the frame (kernels, routing, framing, event loop): in
-        # turns, one process's frame CPU over the busiest node's; at once (`together`), one
-        # process's tracing thread over the busiest node's whole process
+        # on whole processes' CPU for the frame (kernels, routing, framing, event loop): one
+        # process's frame CPU over the busiest node's, in turns and at once (`together`: one
+        # node in a process of its own, `bench.one_process`)
         "frame_speedup": s1["frame_cpu_seconds"] / max(st["busiest_node_frame_cpu_seconds"], 1e-9),
         "frame_together_speedup": frame_together,
         "busiest_frame_cpu_seconds": st["busiest_node_frame_cpu_seconds"],

@@ -3,13 +3,22 @@ or measured at the same time as it: this machine's speed moves by the minute and
 by the second, so both sides of a speedup must share the same spells."""
 
 import asyncio
+import json
+import pickle
 import shutil
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 from bench.mesh_reference import single
 from host.planning.request import Auto, Request
 from host.run.connections import Nodes
+
+AT_ONCE_RENDERS = 1000  # mesh renders while one node renders, at most
+AT_ONCE_WAIT = 600  # seconds one node's process may take to finish after them
 
 
 def on_mesh(
@@ -93,9 +102,7 @@ def on_mesh(
             start, end, stats = mesh_render()
             runs.append((end - start, stats))
         for _ in range(together):
-            windows.append(
-                at_once(lambda: single(scene, image, warm=False, camera=camera), mesh_render)
-            )
+            windows.append(at_once((scene, image, camera), mesh_render))
     wall, best = min(runs, key=lambda r: r[1]["busiest_node_cpu_seconds"])
     best["together"] = windows
     best["setup_reused_seconds"] = best["setup_seconds"]
@@ -107,34 +114,59 @@ def on_mesh(
     return wall, best, min(singles, key=lambda r: r[1]["trace_cpu_seconds"])
 
 
-def at_once(one_node, mesh_render) -> dict:
-    """One node and the mesh measured over the same seconds: one node renders on a thread of
-    this process while the mesh renders again and again, until one node is done; the mesh
-    renders that ended by then (at least the first) give the mean busiest-node CPU seconds.
+def at_once(job: tuple, mesh_render) -> dict:
+    """One node and the mesh measured over the same seconds: one node renders `job` (scene,
+    image, camera) in a process of its own (`bench.one_process`) while the mesh renders
+    again and again until it is done; the mesh renders that ended within its measured frame
+    (at least the one that overlapped it most) give the mean busiest-node CPU seconds.
     This machine's cores change speed by up to 25% within seconds, each on its own, so one
     node measured before or after the mesh can land on a fast spell and the mesh on a slow
     one; at once, both share the same spells of both cores and the same load (every core
-    busy, the tracing threads time-shared)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(1) as pool:
-        ref = pool.submit(lambda: (one_node(), time.perf_counter()))
-        renders = [mesh_render()]
-        while not ref.done():
-            renders.append(mesh_render())
-        (_, stats), ended = ref.result()
-    inside = [r for r in renders if r[1] <= ended] or renders[:1]
+    busy, the tracing threads time-shared). In a process of its own, one node's whole
+    process CPU for the frame is its own, the figure a node's frame CPU compares with (on a
+    thread of this process it was mixed with the mesh's host)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "job.pickle"
+        path.write_bytes(pickle.dumps(job))
+        ref = subprocess.Popen(
+            [sys.executable, "-m", "bench.one_process", str(path)],
+            stdout=subprocess.PIPE,
+            cwd=Path(__file__).resolve().parents[1],
+        )
+        try:
+            renders = [mesh_render()]
+            while ref.poll() is None and len(renders) < AT_ONCE_RENDERS:
+                renders.append(mesh_render())
+            out, _ = ref.communicate(timeout=AT_ONCE_WAIT)
+        finally:
+            if ref.poll() is None:
+                ref.kill()
+                ref.wait()
+    if ref.returncode != 0:
+        raise RuntimeError(f"at once: one node's process failed (exit {ref.returncode})")
+    one = json.loads(out.decode().strip().splitlines()[-1])
+    inside = _within(renders, one["began"], one["ended"])
     busiest = [r[2]["busiest_node_cpu_seconds"] for r in inside]
     frame = [r[2]["busiest_node_frame_cpu_seconds"] for r in inside]
     return {
-        "one_node_cpu_seconds": stats["trace_cpu_seconds"],
+        "one_node_cpu_seconds": one["trace_cpu_seconds"],
+        "one_node_frame_cpu_seconds": one["frame_cpu_seconds"],
         "busiest_cpu_seconds": statistics.fmean(busiest),
-        # the whole process's CPU of the busiest node (`frame_cpu_seconds`); one node's
-        # side stays its tracing thread's (this process runs the mesh's host beside it), so
-        # a speedup on it is understated, never flattered
+        # the whole process's CPU of the busiest node (`frame_cpu_seconds`), against one
+        # node's whole process for the frame
         "busiest_frame_cpu_seconds": statistics.fmean(frame),
         "mesh_renders": len(inside),
+        "window": (one["began"], one["ended"]),  # one node's measured frame (perf_counter)
     }
+
+
+def _within(renders: list, began: float, ended: float) -> list:
+    """The mesh renders (start, end, stats) that ended within began..ended, else the one
+    that overlapped it most."""
+    inside = [r for r in renders if began <= r[1] <= ended]
+    if inside:
+        return inside
+    return [max(renders, key=lambda r: min(r[1], ended) - max(r[0], began))]
 
 
 def pinned(cpu: int | None):

@@ -1,10 +1,12 @@
 """How rays are gathered for passing, measured where it matters: a budgeted object-space render
 that passes millions of rays, on local meshes whose nodes each gather another way, in turns.
-A setting is RAYS/AGE/BATCH/EYE: rays leaving for a neighbour are sent once RAYS wait
+A setting is RAYS/AGE/BATCH/EYE/SET: rays leaving for a neighbour are sent once RAYS wait
 (`meshnode.mesh.driver.PASS_RAYS`) or they have waited AGE batches (`PASS_AGE`), queued
 incoming messages are merged into batches of up to BATCH rays
-(`meshnode.mesh.scheduler.PASSED_BATCH`), and eye rays are made EYE a batch
-(`meshnode.mesh.node.EYE_BATCH`); an absent part keeps the production value.
+(`meshnode.mesh.scheduler.PASSED_BATCH`), eye rays are made EYE a batch
+(`meshnode.mesh.node.EYE_BATCH`), and with SET 1 the RAYS that leave over one link together
+go as one RAYS_SET frame, with 0 a frame each (`meshnode.service.sends.RAYS_SETS`); an absent
+part keeps the production value.
 
     python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
                             [--size 384] [--spp 16] [--passing 16384/4/4096,16384/16/16384]
@@ -19,7 +21,7 @@ frame CPU to the first setting's. Every render's ray counts must equal the first
 image be within 1e-5 of it (object space sums a pixel's deposits in the order they arrive;
 exit 1 if not).
 
-`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE` is such a node: the production
+`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE/SET` is such a node: the production
 service with only those constants changed.
 """
 
@@ -38,28 +40,35 @@ from bench import add_scenes_option, finish  # noqa: E402
 
 
 def serve(argv: list[str]) -> int:
-    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE` says."""
+    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE/SET` says."""
     from meshnode.mesh import driver, node, scheduler
-    from meshnode.service import cli
+    from meshnode.service import cli, sends
 
     at = argv.index("--passing")
-    rays, age, batch, eye = setting(argv[at + 1])
+    rays, age, batch, eye, sets = setting(argv[at + 1])
     driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH = rays, age, batch
-    node.EYE_BATCH = eye
+    node.EYE_BATCH, sends.RAYS_SETS = eye, bool(sets)
     del argv[at : at + 2]
     return cli.main(argv)
 
 
-def setting(text: str) -> tuple[int, int, int, int]:
-    """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH) of a RAYS/AGE/BATCH/EYE setting, absent
-    parts the production values."""
+def setting(text: str) -> tuple[int, int, int, int, int]:
+    """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH, RAYS_SETS) of a RAYS/AGE/BATCH/EYE/SET
+    setting, absent parts the production values."""
     from meshnode.mesh import driver, node, scheduler
+    from meshnode.service import sends
 
     parts = text.split("/")
-    default = (driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH, node.EYE_BATCH)
-    if len(parts) > 4 or not all(p.isdigit() or p == "" for p in parts):
-        raise SystemExit(f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE (whole numbers)")
-    parts += [""] * (4 - len(parts))
+    default = (
+        driver.PASS_RAYS,
+        driver.PASS_AGE,
+        scheduler.PASSED_BATCH,
+        node.EYE_BATCH,
+        int(sends.RAYS_SETS),
+    )
+    if len(parts) > 5 or not all(p.isdigit() or p == "" for p in parts):
+        raise SystemExit(f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE/SET (whole numbers)")
+    parts += [""] * (5 - len(parts))
     return tuple(int(p) if p else d for p, d in zip(parts, default, strict=True))
 
 

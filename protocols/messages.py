@@ -14,6 +14,7 @@ from protocols.errors import BadFrame, UnknownKind
 from protocols.records import Parts
 from protocols.scene import TABLE_DTYPES
 
+# 16: RAYS_SET (several RAYS for one link in one frame);
 # 15: Partition.occ_fine (the occupied voxels' sub-voxels a walk tests);
 # 14: RAYS.cell (the engine a ray is for: a copy its node holds), MeshPlan.forward;
 # 13: MeshPlan.holds (a budget's copies, node by node);
@@ -23,7 +24,7 @@ from protocols.scene import TABLE_DTYPES
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 15
+PROTOCOL_VERSION = 16
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 # PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a
@@ -61,6 +62,8 @@ class Kind(IntEnum):
     ECHO = 19  # child to parent: its subtree's answer to a wave (meshnode.mesh.termination)
     TILES_TRACED = 20  # node to host, dynamic image space: tiles whose every deposit it has
     # sent (all before this message), with their ray counts: kept if another node is lost
+    RAYS_SET = 21  # several RAYS over one link in one frame: `parts` (dest, cell, count) each,
+    # their rays end to end in `rays` (most of a flush's RAYS are a few rays each)
 
 
 # field -> type (a Python type, a tuple of them, or a NumPy dtype for wire arrays)
@@ -90,6 +93,7 @@ FIELDS = {
     },
     Kind.OBJECTS: {"table": str, "records": None, "node": int, "last": bool},
     Kind.RAYS: {"rays": dtypes.RAY, "dest": int, "cell": int},
+    Kind.RAYS_SET: {"rays": dtypes.RAY, "parts": np.dtype("<i8")},
     Kind.PIXELS: {"deposits": dtypes.DEPOSIT, "dest": int},
     Kind.STATE: {"wave": int, "state": int},
     Kind.ECHO: {"wave": int, "dirty": bool, "sent": int, "received": int},

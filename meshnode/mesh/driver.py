@@ -97,8 +97,9 @@ class Driver:
             waiting = self.leaving.setdefault((takers[cell], cell), [[], 0, 0])
             waiting[0] += passed
             waiting[1] += sum(len(p) for p in passed)
-        for key in [k for k, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]:
-            self.send_leaving(key)
+        due = [k for k, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]
+        if due:
+            self.send_leaving(due)
         for taker, rays in batch.held.items():
             self.sched.rays_in(rays, message=False, taker=taker)
         if step is not None and step.tile >= 0:
@@ -106,12 +107,13 @@ class Driver:
             if self.traced.done:  # out now, with its deposits: kept if another node is lost
                 self.flush()
 
-    def send_leaving(self, key: tuple[int, int] | None = None) -> None:
-        """Send the rays waiting to leave for (node, cell) `key` (None: every key's) as one
-        message each, not joined: each part goes into the frame from where it lies."""
-        for dest, cell in list(self.leaving) if key is None else [key]:
-            parts, _, _ = self.leaving.pop((dest, cell))
-            self.post_rays(dest, Parts.of(parts), cell)
+    def send_leaving(self, keys: list | None = None) -> None:
+        """Send the rays waiting to leave for each (node, cell) of `keys` (None: every key's),
+        not joined: each part goes into the frame from where it lies (`post_rays_set`)."""
+        keys = list(self.leaving) if keys is None else keys
+        if keys:
+            sends = [(d, Parts.of(self.leaving.pop((d, c))[0]), c) for d, c in keys]
+            self.post_rays_set(sends)
 
     def send_pixels(self, routes: dict[int, np.ndarray]) -> None:
         """Adaptive deposits the node's books send on, each toward its pixel's node."""
@@ -127,6 +129,12 @@ class Driver:
     def post_rays(self, dest: int, rays: Parts, cell: int) -> None:
         """RAYS for node `dest` to trace with cell `cell`'s engine (its own or a copy)."""
         raise NotImplementedError
+
+    def post_rays_set(self, sends: list) -> None:
+        """RAYS for each (dest, rays, cell) of `sends`, sent together: a transport may put
+        those that leave over one link in one frame."""
+        for dest, rays, cell in sends:
+            self.post_rays(dest, rays, cell)
 
     def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
         raise NotImplementedError

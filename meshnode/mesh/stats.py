@@ -57,6 +57,7 @@ class NodeStats:
         self.rays_in: dict[int, int] = defaultdict(int)  # neighbour -> rays received from it
         self.rays_out: dict[int, int] = defaultdict(int)  # next hop -> rays sent to it
         self.pixel_packets = 0
+        self.ray_sets = 0  # RAYS_SET frames sent: several RAYS over one link in one frame
         self.batches = 0
         self.cpu = 0.0  # in the engine's kernels: what one node's tracing CPU compares with
         self.batch_cpu = 0.0  # ... and routing rays and deposits around them (`NodeCore.trace`)

@@ -28,11 +28,34 @@ def check_rays(f: dict, nodes: int) -> None:
     check_dest(f, "RAYS", nodes)
     if not 0 <= f["cell"] < nodes:
         raise BadFrame(f"RAYS.cell = {f['cell']}: no such cell")
-    r = f["rays"]
+    _traceable(f["rays"], "RAYS")
+
+
+def checked_parts(f: dict, nodes: int) -> list:
+    """RAYS_SET: its parts as (dest, cell, first ray, end), each a node and cell of the mesh
+    and at least one ray, their counts adding up to the rays sent (checked as RAYS' are)."""
+    parts, r = f["parts"], f["rays"]
+    if len(parts) % 3 or not 2 <= len(parts) // 3 <= nodes * nodes:
+        raise BadFrame(f"RAYS_SET.parts: {len(parts)} numbers, not 2 to {nodes * nodes} triples")
+    dest, cell, count = parts[0::3], parts[1::3], parts[2::3]
+    if not ((0 <= dest) & (dest < nodes) & (0 <= cell) & (cell < nodes)).all():
+        raise BadFrame("RAYS_SET.parts: a destination or cell outside the mesh")
+    if (count < 1).any() or int(count.sum()) != len(r):
+        raise BadFrame(f"RAYS_SET.parts: counts must each be at least 1 and add up to {len(r)}")
+    _traceable(r, "RAYS_SET")
+    ends = np.cumsum(count)
+    return [
+        (int(d), int(c), int(e - n), int(e))
+        for d, c, n, e in zip(dest, cell, count, ends, strict=True)
+    ]
+
+
+def _traceable(r, kind: str) -> None:
+    """Rays the engine can trace: finite, of a known kind, depth >= 1."""
     bad = first_untraceable(r) if len(r) else -1
     if bad >= 0:
         raise BadFrame(
-            f"RAYS: ray {bad} of {len(r)} cannot be traced (each must be finite, of a known "
+            f"{kind}: ray {bad} of {len(r)} cannot be traced (each must be finite, of a known "
             "kind, depth >= 1)"
         )
 

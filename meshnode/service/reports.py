@@ -46,6 +46,7 @@ def stats_message(session: "Session") -> dict:
     report["eye_claims"] = s.core.claims_reason  # whether it made the eye rays it traces
     report["sky"] = s.core.sky_reason  # whether eye rays that meet nothing are made
     report["copies"] = {str(m): e.stats for m, e in s.core.copies.items()}
+    report["ray_sets_sent"] = s.stats.ray_sets  # RAYS_SET frames: RAYS sharing a link
     report["chunks_given"] = s.sched.chunks_given  # taken by neighbours (steal)
     report["chunks_taken"] = s.sched.chunks_taken
     report["chunks_given_by_state"] = dict(s.sched.given_in)

@@ -22,7 +22,6 @@ from meshnode.mesh.node import NodeCore
 from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.stats import NodeStats
 from meshnode.mesh.steps import Trace
-from meshnode.mesh.termination import Echo, Probe
 from meshnode.service.config import Config, Objects
 from meshnode.service.inbound import (
     check_pixels,
@@ -30,13 +29,15 @@ from meshnode.service.inbound import (
     checked_cell,
     checked_chunks,
     checked_echo,
+    checked_parts,
     checked_probe,
 )
 from meshnode.service.reports import progress_message, stats_message
+from meshnode.service.sends import Sends
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
-from protocols.records import Parts, copied, joined
+from protocols.records import copied, joined
 from protocols.state import State, states_of
 from protocols.topology import Router
 
@@ -49,7 +50,7 @@ HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
 PROGRESS_EVERY = 0.05  # seconds at least between PROGRESS messages of traced rays
 
 
-class Session(Driver):
+class Session(Sends, Driver):
     """One render on this node, driving its Scheduler over the links (`Driver`); `service`
     gives the thread pool, the cluster id, the number of tracing threads and the links
     neighbours opened to this node."""
@@ -177,33 +178,13 @@ class Session(Driver):
             self.host_out.post(make(Kind.ERROR, reason=f"node {self.node}: {describe(error)}"))
             self.wake.set()
 
-    def post_data(self, dest: int, kind: Kind, records: np.ndarray | Parts, cell: int = -1) -> None:
-        """A RAYS (for cell `cell`'s engine) or PIXELS message toward node `dest`, counted
-        as sent."""
-        hop = self.router.next_hop(dest)
-        if kind is Kind.RAYS:
-            message = make(Kind.RAYS, rays=records, dest=dest, cell=cell)
-            self.stats.rays_out[hop] += len(records)
-        else:
-            message = make(Kind.PIXELS, deposits=records, dest=dest)
-            self.stats.pixel_packets += 1
-        self.sched.message_out()
-        self.outboxes[hop].post(message, records.nbytes)
-
-    def to_host(self, deposits: np.ndarray) -> None:
-        """Deposits straight to the host, from every node: through node 0 over the torus
-        (DESIGN.md 5's pixel packets) node 0 decoded and sent on every other node's, which
-        in image space left it no time to trace (0.01-0.05 s of tracing CPU against 1.1 s on
-        a 3x3) and in object space made it the busiest node by frame CPU (balls 3x3: 0.39 s
-        against the others' 0.21-0.33)."""
-        self.host_out.post(make(Kind.PIXELS, deposits=deposits, dest=-1), deposits.nbytes)
-
     async def read(self, m: int, link: Link) -> None:
         try:
             while True:
                 kind, f = await link.recv()
-                if kind is Kind.RAYS:
-                    if self.on_rays(m, f):
+                if kind in (Kind.RAYS, Kind.RAYS_SET):
+                    on = self.on_rays if kind is Kind.RAYS else self.on_rays_set
+                    if on(m, f):
                         # Stop reading: TCP pushes back on the sender, whose work loop goes
                         # on (its sends are queued), so this cannot deadlock.
                         self.drained.clear()
@@ -244,6 +225,24 @@ class Session(Driver):
         self.sched.message_in()
         self.post_data(f["dest"], Kind.RAYS, f["rays"], f["cell"])
         return False
+
+    def on_rays_set(self, m: int, f: dict) -> bool:
+        """RAYS_SET: several RAYS in one frame (`post_rays_set`), each part queued here or
+        passed on toward its node as RAYS are; the frame counted as one message."""
+        parts = checked_parts(f, self.config.torus.size)
+        rays, held = f["rays"], self.config.render.plan.held(self.node)
+        self.stats.rays_in[m] += len(rays)
+        self.sched.message_in()
+        stop, onward = False, []
+        for dest, cell, lo, hi in parts:
+            if dest == self.node:
+                taker = checked_cell({"cell": cell}, self.node, held)
+                stop = self.sched.rays_in(rays[lo:hi], message=False, taker=taker) or stop
+            else:
+                onward.append((dest, rays[lo:hi], cell))
+        if onward:
+            self.post_rays_set(onward)
+        return stop
 
     def on_pixels(self, f: dict) -> None:
         check_pixels(f, self.config.torus.size)
@@ -325,39 +324,6 @@ class Session(Driver):
             if self.sched.in_flight == 0:
                 self.stats.turn_idle()
             self.wake.set()
-
-    # ------------------------------------------------------------------ the driver's sends
-    def post_rays(self, dest: int, rays: Parts, cell: int) -> None:
-        self.post_data(dest, Kind.RAYS, rays, cell)
-
-    def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
-        self.post_data(dest, Kind.PIXELS, deposits)
-
-    def post_steal(self, to: int) -> None:
-        self.outboxes[to].post(make(Kind.STEAL, node=self.node))
-        self.sched.message_out()
-
-    def post_give(self, to: int, chunks: list) -> None:
-        chunks = [list(map(int, c)) for c in chunks]
-        self.outboxes[to].post(make(Kind.GIVE, chunks=chunks))
-        self.sched.message_out()
-
-    def post_probe(self, probe: Probe, to: int) -> None:
-        self.outboxes[to].post(make(Kind.STATE, wave=probe.wave, state=probe.state))
-
-    def post_echo(self, echo: Echo, to: int) -> None:
-        self.outboxes[to].post(
-            make(
-                Kind.ECHO,
-                wave=echo.wave,
-                dirty=echo.dirty,
-                sent=echo.sent,
-                received=echo.received,
-            )
-        )
-
-    def post_tiles_done(self, tiles: list[int]) -> None:
-        self.host_out.post(make(Kind.TILE_DONE, node=self.node, tiles=tiles))
 
     def for_host(self, deposits: np.ndarray) -> None:
         """Buffered, and sent in packets of DEPOSIT_BATCH, or DEPOSIT_SECONDS after the oldest

@@ -231,15 +231,17 @@ class Session(Sends, Driver):
         passed on toward its node as RAYS are; the frame counted as one message."""
         parts = checked_parts(f, self.config.torus.size)
         rays, held = f["rays"], self.config.render.plan.held(self.node)
+        mine = [
+            (checked_cell({"cell": c}, self.node, held), rays[lo:hi])
+            for d, c, lo, hi in parts
+            if d == self.node
+        ]  # every part checked before any is taken
         self.stats.rays_in[m] += len(rays)
         self.sched.message_in()
-        stop, onward = False, []
-        for dest, cell, lo, hi in parts:
-            if dest == self.node:
-                taker = checked_cell({"cell": cell}, self.node, held)
-                stop = self.sched.rays_in(rays[lo:hi], message=False, taker=taker) or stop
-            else:
-                onward.append((dest, rays[lo:hi], cell))
+        stop = False
+        for taker, part in mine:
+            stop = self.sched.rays_in(part, message=False, taker=taker) or stop
+        onward = [(d, rays[lo:hi], c) for d, c, lo, hi in parts if d != self.node]
         if onward:
             self.post_rays_set(onward)
         return stop

@@ -192,7 +192,7 @@ def print_row(row: dict) -> None:
         f"{','.join(map(str, row['shared'])) or '-'}"
     )
     if row["mode"] == "object":
-        f = frame_parts(row)
+        f = row["frame_parts"]
         print(
             f"      frame: the nodes' summed {f['summed']:.2f} of one process's (kernels "
             f"{f['kernels']:.2f}, their work units {f['work']:.2f} of one's; routing "

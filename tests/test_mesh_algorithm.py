@@ -19,7 +19,8 @@ from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS, RAY_COUNTS
 from meshnode.engine.locator import cell_locator, owners
-from meshnode.engine.occupancy import occupancy_arrays, skip_empty
+from meshnode.engine.mapwalk import skip_empty
+from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.mesh.node import NodeCore, lit_deposits, per_cell
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.render import EngineSpec, ImageSpec, MeshPlan, RenderSpec

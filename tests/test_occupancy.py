@@ -14,7 +14,8 @@ from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.counters import N_COUNTERS, OCC_STEPS, STEPS
-from meshnode.engine.occupancy import OCTANTS, first_occupied, occupancy_arrays, reaches
+from meshnode.engine.mapwalk import first_occupied
+from meshnode.engine.occupancy import OCTANTS, occupancy_arrays, reaches
 from meshnode.engine.traverse import box_span
 from protocols.partition import Partition
 from protocols.render import EVERYWHERE, ImageSpec, MeshPlan, RenderSpec
@@ -179,3 +180,72 @@ def test_the_hosts_map_is_made_once_per_scene_box_and_size():
         again = read_nff(spd_scene("balls_s1.nff"))  # another scene: made anew, alike
         assert occupancy.occupancy_map(again, box) == first
     assert len(made) == 4
+
+
+def _voxel_by_voxel(o, d, t0, t1, occ) -> float:
+    """The first occupied voxel's entry between t0 and t1 whose marked sub-voxels the ray's
+    path through it may cross, found one voxel at a time (no empty cubes, no walls kept): the
+    reference `first_occupied` must agree with. The path's sub-voxels as the walk takes them:
+    each half's span, widened by `mapwalk.SUB_MARGIN`."""
+    from meshnode.engine.mapwalk import SUB_MARGIN
+    from meshnode.engine.occupancy import SUB, SUB_RANGES
+
+    res, lo, cell = occ.res, occ.lo, occ.cell
+    i = np.clip(np.floor((o + t0 * d - lo) / cell).astype(int), 0, res - 1)
+    up = (d > 0).astype(int)
+    t = t0
+    for _ in range(int(res.sum()) + 3):
+        v = i[0] + res[0] * (i[1] + res[1] * i[2])
+        walls = [
+            (lo[a] + (i[a] + up[a]) * cell[a] - o[a]) / d[a] if d[a] else math.inf for a in range(3)
+        ]
+        t_end = min(min(walls), t1)
+        if occ.clear[0, v] == 0:
+            points = [
+                (o + s * d - lo) / cell * SUB - i * SUB for s in (t, 0.5 * (t + t_end), t_end)
+            ]
+            bits = np.uint64(0)
+            for a, b in ((points[0], points[1]), (points[1], points[2])):
+                span = np.uint64(2**64 - 1)
+                for axis in range(3):
+                    first = int(min(max(min(a[axis], b[axis]) - SUB_MARGIN, 0.0), SUB - 1.0))
+                    last = int(min(max(max(a[axis], b[axis]) + SUB_MARGIN, 0.0), SUB - 1.0))
+                    span &= SUB_RANGES[axis, first, last]
+                bits |= span
+            if occ.fine[v] & bits:
+                return t
+        t = min(walls)
+        if t > t1:
+            return math.inf
+        axis = int(np.argmin(walls))
+        i[axis] += 1 if d[axis] > 0 else -1
+        if not 0 <= i[axis] < res[axis]:
+            return math.inf
+    raise AssertionError("the reference walk did not end")
+
+
+@pytest.mark.parametrize("name", ["rings_s1.nff", "balls_s1.nff", "tetra_s3.nff"])
+def test_the_walk_stops_where_a_voxel_by_voxel_walk_does(name):
+    """The walk jumps empty cubes, keeps the current voxel's walls and tests sub-voxels in
+    its own units; from random points in random directions it stops where a walk of every
+    voxel on the way, each tested afresh, stops (the same voxel entry, or none)."""
+    scene = read_nff(spd_scene(name))
+    lo, hi = scene_box(scene)
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi)))
+    assert len(occ.fine)  # a map with sub-voxels
+    rng = np.random.default_rng(7)
+    n = 300
+    origins = lo + rng.random((n, 3)) * (hi - lo)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    counters = np.zeros(N_COUNTERS, np.int64)
+    stopped = 0
+    for o, d in zip(origins, dirs, strict=True):
+        r = [1.0 / v if v != 0.0 else math.inf for v in d]
+        t0, t1 = box_span(*o, *r, 0.0, math.inf, *lo, *hi)
+        t = first_occupied(*o, *d, *r, t0, t1, *occ, counters)
+        want = _voxel_by_voxel(o, d, t0, t1, occ)
+        assert t == pytest.approx(want, rel=1e-12, abs=1e-12), (name, o, d, t, want)
+        stopped += t < math.inf
+    assert 0.1 * n < stopped < 0.9 * n, stopped  # walks that stop and walks that end
+    assert counters[OCC_STEPS] > 2 * n  # many walks went on past their first voxel

@@ -137,7 +137,8 @@ def test_a_face_on_a_voxel_boundary_stops_the_walk_before_its_hit_from_far_away(
 
     from meshnode.engine import Engine
     from meshnode.engine.counters import N_COUNTERS
-    from meshnode.engine.occupancy import first_occupied, occupancy_arrays
+    from meshnode.engine.mapwalk import first_occupied
+    from meshnode.engine.occupancy import occupancy_arrays
     from meshnode.engine.traverse import box_span
 
     corners = np.zeros(2, dtypes.SPHERE)  # the scene's box: two small spheres far apart

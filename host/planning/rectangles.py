@@ -11,7 +11,8 @@ import numpy as np
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.locator import owners
-from meshnode.engine.occupancy import Occupancy, skip_empty
+from meshnode.engine.mapwalk import skip_empty
+from meshnode.engine.occupancy import Occupancy
 from meshnode.engine.sky import whole_tiles
 from protocols.render import ImageSpec, RenderSpec
 from protocols.scene import SceneData

@@ -9,7 +9,7 @@ import numpy as np
 from meshnode.engine.counters import N_COUNTERS
 from meshnode.engine.jit import inline, kernel
 from meshnode.engine.locator import located_owner
-from meshnode.engine.occupancy import past_box, work_start
+from meshnode.engine.mapwalk import past_box, work_start
 from meshnode.engine.sightlines import eye_cell
 from meshnode.engine.traverse import box_span
 
@@ -128,7 +128,7 @@ def start_cells(rays, scene_lo, scene_hi, occ, los, his, loc):
 @kernel
 def routed(rays, skip, fallback, scene_lo, scene_hi, occ, los, his, loc, eye):
     """`rays` regrouped by the box that takes each on (`owners`), with `skip` after moving
-    t_min on to where its work starts (`occupancy.work_start` on the `Occupancy` occ; a ray
+    t_min on to where its work starts (`mapwalk.work_start` on the `Occupancy` occ; a ray
     with only empty voxels ahead resumes past the scene's box), as (a new array, the runs'
     starts): box b's run is out[starts[b]:starts[b + 1]], in the order the rays came. A ray
     no box takes, with only empty voxels ahead or missing the scene's box (with `skip`),

@@ -2,7 +2,7 @@
 eye ray through it can meet a marked sub-voxel, and in which cell.
 
 A node routes each eye ray it makes from where its work starts: the first occupied voxel of
-the scene's occupancy map it meets (`occupancy.work_start`), a walk of the map that cost more
+the scene's occupancy map it meets (`mapwalk.work_start`), a walk of the map that cost more
 than tracing the ray did (tetra 3x3: 79 ns a ray against the kernel's 72 ns a segment). Every
 pinhole eye ray leaves the same eye through its sample's point of the image plane, so the
 map can be seen from the eye once a render: each occupied voxel's box of marked sub-voxels

@@ -33,7 +33,7 @@ from meshnode.engine.counters import (
 )
 from meshnode.engine.jit import inline, kernel
 from meshnode.engine.lightmaps import light_clear
-from meshnode.engine.occupancy import first_occupied
+from meshnode.engine.mapwalk import first_occupied
 from meshnode.engine.packet import (
     P_BEST,
     P_R,

@@ -90,7 +90,8 @@ def _common_warmup() -> None:
     from meshnode.engine.lenscamera import camera_rays
     from meshnode.engine.lightmaps import light_maps
     from meshnode.engine.locator import cell_locator, owners
-    from meshnode.engine.occupancy import everywhere, occupancy_arrays, skip_empty
+    from meshnode.engine.mapwalk import skip_empty
+    from meshnode.engine.occupancy import everywhere, occupancy_arrays
     from meshnode.engine.raycheck import first_untraceable
     from meshnode.engine.routing import routed, start_cells
     from meshnode.engine.sightlines import eye_map

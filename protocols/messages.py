@@ -14,6 +14,7 @@ from protocols.errors import BadFrame, UnknownKind
 from protocols.records import Parts
 from protocols.scene import TABLE_DTYPES
 
+# 17: Partition.inner_* (a second occupancy map where the small objects lie);
 # 16: RAYS_SET (several RAYS for one link in one frame);
 # 15: Partition.occ_fine (the occupied voxels' sub-voxels a walk tests);
 # 14: RAYS.cell (the engine a ray is for: a copy its node holds), MeshPlan.forward;
@@ -24,7 +25,7 @@ from protocols.scene import TABLE_DTYPES
 # the tree, ECHO up), TILES_TRACED; 9: arrays after the map,
 # MeshPlan.max_share, node_bytes (8: MeshPlan.shared; 7: TILES.owners; 6: MeshPlan.order;
 # 5: OBJECTS name)
-PROTOCOL_VERSION = 16
+PROTOCOL_VERSION = 17
 MAX_TILES_PER_MESSAGE = 1024
 MAX_LINKS = 4  # a torus node's neighbours
 # PROGRESS.setup: the step a node's setup is at (an index), so the live view can say what a

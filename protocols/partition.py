@@ -31,7 +31,9 @@ class Partition(Spec):
     reach, in voxel order, a little-endian uint64 each (bit x + 4 y + 16 z; empty: none, the
     voxels alone); under MeshPlan.copies `takers[i]`, the node taking rectangle i's
     eye rays on where its owner (a node holding that node's engine: a neighbour, or any
-    node for a shared cell) does not."""
+    node for a shared cell) does not; `inner_lo`..`inner_hi`, where the scene's small
+    objects lie in a box far smaller than the scene's (a floor beneath them), a second map
+    there (`inner_res`, `inner_bits`, `inner_fine` as the first's; empty: none)."""
 
     rects: tuple
     owner: tuple
@@ -45,6 +47,11 @@ class Partition(Spec):
     occ_bits: bytes = EVERYWHERE[1]
     takers: tuple = ()
     occ_fine: bytes = b""
+    inner_lo: tuple = ()
+    inner_hi: tuple = ()
+    inner_res: tuple = ()
+    inner_bits: bytes = b""
+    inner_fine: bytes = b""
 
     def check(self) -> None:
         n = len(self.los) if isinstance(self.los, tuple) else -1
@@ -77,33 +84,64 @@ class Partition(Spec):
             self.fail("cell_his", "every cell needs lo <= hi inside its node's box")
         if np.any(_array(self, "scene_lo", float, (3,)) > _array(self, "scene_hi", float, (3,))):
             self.fail("scene_hi", "the scene box needs lo <= hi")
-        res = _array(self, "occ_res", np.int64, (3,))
+        self._check_map("occ_res", "occ_bits", "occ_fine")
+        if self.inner_res != ():
+            lo, hi = _array(self, "inner_lo", float, (3,)), _array(self, "inner_hi", float, (3,))
+            if np.any(lo >= hi) or np.any(lo < self.scene_lo) or np.any(hi > self.scene_hi):
+                self.fail("inner_hi", "the inner map's box needs lo < hi inside the scene's")
+            self._check_map("inner_res", "inner_bits", "inner_fine")
+            if bool(self.inner_fine) != bool(self.occ_fine):
+                self.fail("inner_fine", "must have sub-voxels where the outer map has them")
+        elif self.inner_lo != () or self.inner_hi != () or self.inner_bits or self.inner_fine:
+            self.fail("inner_res", "must be given with the rest of the inner map")
+
+    def _check_map(self, res_name: str, bits_name: str, fine_name: str) -> None:
+        """A map's voxels per axis, its bits (one a voxel) and its sub-voxel masks (8 bytes
+        an occupied voxel, or none)."""
+        res = _array(self, res_name, np.int64, (3,))
         if np.any(res < 1) or np.any(res > MAX_OCC_SIDE):
-            self.fail("occ_res", f"voxels per axis must be from 1 to {MAX_OCC_SIDE}")
-        want = -(-int(res.prod()) // 8)
-        if not isinstance(self.occ_bits, bytes) or len(self.occ_bits) != want:
-            got = (
-                f"{len(self.occ_bits)} bytes"
-                if isinstance(self.occ_bits, bytes)
-                else f"a {type(self.occ_bits).__name__}"
-            )
+            self.fail(res_name, f"voxels per axis must be from 1 to {MAX_OCC_SIDE}")
+        want, bits, fine = (
+            -(-int(res.prod()) // 8),
+            getattr(self, bits_name),
+            getattr(self, fine_name),
+        )
+        if not isinstance(bits, bytes) or len(bits) != want:
+            got = f"{len(bits)} bytes" if isinstance(bits, bytes) else f"a {type(bits).__name__}"
             raise SpecError(
-                f"Partition.occ_bits is {got}: must be {want} bytes, a bit for each "
+                f"Partition.{bits_name} is {got}: must be {want} bytes, a bit for each "
                 f"of the {'x'.join(map(str, res.tolist()))} voxels"
             )
-        occupied = int(np.unpackbits(np.frombuffer(self.occ_bits, np.uint8))[: res.prod()].sum())
-        if not isinstance(self.occ_fine, bytes) or len(self.occ_fine) not in (0, 8 * occupied):
+        occupied = int(np.unpackbits(np.frombuffer(bits, np.uint8))[: res.prod()].sum())
+        if not isinstance(fine, bytes) or len(fine) not in (0, 8 * occupied):
             self.fail(
-                "occ_fine", f"must be empty or 8 bytes for each of the {occupied} occupied voxels"
+                fine_name, f"must be empty or 8 bytes for each of the {occupied} occupied voxels"
             )
+
+    @property
+    def inner(self) -> tuple | None:
+        """The inner map as `occupancy_arrays` takes it (lo, hi, res, bits, fine); None."""
+        if self.inner_res == ():
+            return None
+        return self.inner_lo, self.inner_hi, self.inner_res, self.inner_bits, self.inner_fine
 
     @classmethod
     def make(
-        cls, rects, los, his, scene_box, owner=None, cells=None, occupancy=EVERYWHERE, takers=()
+        cls,
+        rects,
+        los,
+        his,
+        scene_box,
+        owner=None,
+        cells=None,
+        occupancy=EVERYWHERE,
+        takers=(),
+        inner=None,
     ) -> "Partition":
         """From arrays; `owner` None: rectangle n is node n's (object space); `cells` (lo,
         hi) None: the boxes themselves (no overlap); `occupancy` (voxels per axis, bits[,
-        sub-voxel masks]); `takers` empty: each rectangle's owner takes its eye rays on."""
+        sub-voxel masks]); `takers` empty: each rectangle's owner takes its eye rays on;
+        `inner` (lo, hi, voxels per axis, bits, masks) an inner map, or None."""
 
         def rows(a):
             return tuple(tuple(x) for x in np.asarray(a, float).tolist())
@@ -122,6 +160,7 @@ class Partition(Spec):
             bytes(occupancy[1]),
             tuple(int(t) for t in takers),
             bytes(occupancy[2]) if len(occupancy) > 2 else b"",
+            *(() if inner is None else _inner_fields(inner)),
         )
 
     def rects_of(self, node: int) -> list[tuple[int, int, int, int]]:
@@ -161,3 +200,15 @@ def _array(spec: Spec, name: str, dtype, shape) -> np.ndarray:
     if a.shape != shape or not np.all(np.isfinite(a)):
         spec.fail(name, f"must be finite numbers shaped {shape}")
     return a
+
+
+def _inner_fields(inner) -> tuple:
+    """An inner map's Partition fields from (lo, hi, voxels per axis, bits, masks)."""
+    lo, hi, res, bits, fine = inner
+    return (
+        tuple(np.asarray(lo, float).tolist()),
+        tuple(np.asarray(hi, float).tolist()),
+        tuple(int(v) for v in res),
+        bytes(bits),
+        bytes(fine),
+    )

@@ -52,8 +52,9 @@ def holdings(scene: SceneData, spec: RenderSpec, part: "Partition", keep: np.nda
 def cell_bytes(scene: SceneData, part: "Partition", keep: np.ndarray, cells=None) -> list[int]:
     """Each cell's engine bytes (of `cells`, default all) as a node holding it counts them:
     `engine_bytes` of its box's objects and the occupancy map, a byte a voxel and octant
-    and, with sub-voxels (`Partition.occ_fine`), FINE_BYTES a voxel."""
-    occ = (OCTANTS + (FINE_BYTES if part.occ_fine else 0)) * int(np.prod(part.occ_res))
+    and, with sub-voxels (`Partition.occ_fine`), FINE_BYTES a voxel; its inner map's alike."""
+    per = OCTANTS + (FINE_BYTES if part.occ_fine else 0)
+    occ = per * (int(np.prod(part.occ_res)) + int(np.prod(part.inner_res or (0,))))
     cells = range(len(keep)) if cells is None else cells
     return [held_bytes(scene, keep[m]) + occ for m in cells]
 

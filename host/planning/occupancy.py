@@ -24,6 +24,13 @@ PAD = 1e-7
 # tetra 0.69 M; shells' nested spheres take 41.6 M (0.6 s), 60 of 64 sub-voxels deep in
 # every voxel, and stop at these (82 ms).
 SUB_TESTS = 2_000_000
+# An inner map (`inner_map`) where the objects smaller than a quarter of the scene's box lie in
+# a box holding at most a sixteenth of the scene's: balls' floor (24 x 24) left its sphereflake
+# 13 x 13 x 9 of the map's 168 x 168 x 9 voxels (its box 0.65% of the scene's: simulated 3x3,
+# rays passed 45% fewer, the busiest node's work 16% less). Gears' (21% of its box: its gears
+# are polygons filling the voxels they cross) passed 2% fewer and walked 23% more steps.
+BIG_SHARE = 0.25
+INNER_SHARE = 1 / 16
 
 
 def map_voxels(plan) -> int:
@@ -85,3 +92,27 @@ def _mapped(scene: SceneData, lo, hi, voxels: int, sub_voxels=True) -> tuple[tup
         )  # (with no tests to spend, the voxels alone)
     masks = fine[full].astype("<u8").tobytes() if sub_voxels else b""  # in voxel order
     return tuple(res.tolist()), np.packbits(full).tobytes(), masks
+
+
+def inner_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple | None:
+    """(lo, hi, voxels per axis, bits, sub-voxel masks) of a second occupancy map over the box
+    of the scene's small objects (none larger than BIG_SHARE of the scene's box), where that
+    box holds at most INNER_SHARE of the scene's (a few large objects, a floor, make the
+    scene's box the larger); None where there is no such box. It is marked with every object
+    reaching it (the floor beneath them too), as the scene's is, so a walk there misses
+    nothing (`meshnode.engine.mapwalk.first_occupied`)."""
+    lo, hi = (np.asarray(b, float) for b in box)
+    tb = scene_tables(scene)
+    if not tb.n:
+        return None
+    ext = hi - lo
+    small = (tb.hi - tb.lo).max(axis=1) <= BIG_SHARE * ext.max()
+    if small.all() or not small.any():
+        return None
+    grow = 0.01 * (tb.hi[small].max(axis=0) - tb.lo[small].min(axis=0)) + PAD * ext.max()
+    i_lo = np.maximum(tb.lo[small].min(axis=0) - grow, lo)
+    i_hi = np.minimum(tb.hi[small].max(axis=0) + grow, hi)
+    floor = 1e-3 * ext.max()  # as `occupancy_map` thickens a flat box
+    if np.prod(np.maximum(i_hi - i_lo, floor)) > INNER_SHARE * np.prod(np.maximum(ext, floor)):
+        return None
+    return (i_lo, i_hi, *occupancy_map(scene, (i_lo, i_hi), voxels))

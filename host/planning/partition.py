@@ -14,7 +14,7 @@ import numpy as np
 from host.planning.cells import grown, node_cells, scene_box, traced
 from host.planning.clip import holders
 from host.planning.objectcells import object_cells
-from host.planning.occupancy import map_voxels, occupancy_map
+from host.planning.occupancy import inner_map, map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from host.planning.skytiles import SkyTiles, dealt_sky, sky_tiles
 from host.scene.derived import scene_tables
@@ -70,9 +70,12 @@ def partition(
     elif cells is None:
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
-    occ = (
-        occupancy_map(scene, box, map_voxels(plan)) if plan.nodes > 1 and occupancy else EVERYWHERE
-    )
+    mapped = plan.nodes > 1 and occupancy
+    voxels = map_voxels(plan)  # under a byte budget an inner map takes half the map's bytes
+    inner = inner_map(scene, box, voxels // 2 if plan.node_bytes else voxels) if mapped else None
+    outer = voxels - voxels // 2 if inner is not None and plan.node_bytes else voxels
+    occ = occupancy_map(scene, box, outer) if mapped else EVERYWHERE
+    inner = None if occ == EVERYWHERE else inner  # a map of one voxel skips nothing anywhere
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
         occ_arrays = occupancy_arrays(*box, *occ)
@@ -80,6 +83,6 @@ def partition(
         if plan.copies:
             takers, owner = owner, spread(owner, plan)
     return (
-        Partition.make(rects, los, his, box, owner, cells, occ, takers),
+        Partition.make(rects, los, his, box, owner, cells, occ, takers, inner),
         holders(scene, *traced(los, his)),
     )

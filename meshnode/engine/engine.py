@@ -21,7 +21,7 @@ from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
 from meshnode.engine.lightmaps import light_maps
 from meshnode.engine.locator import cell_locator
-from meshnode.engine.occupancy import everywhere, occupancy_arrays
+from meshnode.engine.occupancy import everywhere, map_stats, occupancy_arrays
 from meshnode.engine.packet import PACKET
 from meshnode.engine.quads import quads_as_triangles
 from meshnode.engine.routing import routed
@@ -205,14 +205,7 @@ class Engine:
                 else "asked for single rays"
             ),
             "structure_bytes": (self.bvh.stats if self.bvh else self.grid.stats)["structure_bytes"],
-            "occupancy": {
-                "voxels": self.occupancy.res.tolist(),
-                "occupied": float(np.mean(self.occupancy.clear[0] == 0)),  # 0 in every row
-                "reason": "segments leaving this node's box with only empty voxels of the "
-                "scene ahead end here; others resume at the first occupied voxel"
-                if self.occupancy.res.prod() > 1
-                else "one node or whole scene: nothing leaves the box to be skipped",
-            },
+            "occupancy": map_stats(self.occupancy),
             "preprocess_seconds": self.preprocess_seconds,
         }
         self.stats["engine_bytes"] = self.nbytes()

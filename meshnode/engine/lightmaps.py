@@ -31,6 +31,7 @@ def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
     if lights is None or not len(lights):
         return np.zeros((0, 0))
     points = np.ascontiguousarray(lights[:, :3], float)
+    occ = occ.outer  # bounded on the outer map alone
 
     def make():
         marked, occupied = marked_boxes(occ), occ.clear[0]

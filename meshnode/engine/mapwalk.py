@@ -82,10 +82,49 @@ def first_occupied(
     starts in one) whose marked sub-voxels its path may cross (`fine`; empty: every occupied
     voxel), inf when every voxel it crosses there is empty. rx, ry, rz are the reciprocal
     direction (inf for 0); each step (out of one voxel, or of the empty cube the ray's way
-    from it, `Occupancy`) counts as an occupancy step."""
-    nx, ny, nz = res[0], res[1], res[2]
-    lx, ly, lz = lo[0], lo[1], lo[2]
-    cx, cy, cz = cell[0], cell[1], cell[2]
+    from it, `Occupancy`) counts as an occupancy step. With an inner map (`Occupancy`) the
+    ray walks it where it crosses its box and the outer map before and after."""
+    counters[OCC_WALKS] += 1
+    ray = (ox, oy, oz, dx, dy, dz, rx, ry, rz)
+    if res.shape[0] == 3:
+        return _walk(*ray, t0, t1, lo, cell, res, 0, clear, fine, 0, counters)
+    i0, i1 = box_span(ox, oy, oz, rx, ry, rz, t0, t1, *_inner_box(lo, cell, res))
+    if not i0 <= i1:  # the inner box missed
+        return _walk(*ray, t0, t1, lo, cell, res, 0, clear, fine, 0, counters)
+    if t0 < i0:  # the outer map up to the inner box (a voxel met at its wall: the inner's)
+        t = _walk(*ray, t0, i0, lo, cell, res, 0, clear, fine, 0, counters)
+        if t < i0:
+            return t
+    outer = res[0] * res[1] * res[2]
+    t = _walk(*ray, i0, i1, lo, cell, res, 3, clear, fine, outer, counters)
+    if t < INF or not i1 < t1:
+        return t
+    return _walk(*ray, i1, t1, lo, cell, res, 0, clear, fine, 0, counters)
+
+
+@inline
+def _inner_box(lo, cell, res):
+    """The inner map's box as `box_span` takes it (lo, then hi, per axis)."""
+    return (
+        lo[3],
+        lo[4],
+        lo[5],
+        lo[3] + res[3] * cell[3],
+        lo[4] + res[4] * cell[4],
+        lo[5] + res[5] * cell[5],
+    )
+
+
+@leaf
+def _walk(
+    ox, oy, oz, dx, dy, dz, rx, ry, rz, t0, t1, lo, cell, res, at, clear, fine, base, counters
+):
+    """`first_occupied` on one map: the one whose corner, voxel size and voxels per axis are
+    lo, cell and res from index `at` (0 the outer, 3 the inner), its voxels from `base` in
+    clear and fine."""
+    nx, ny, nz = res[at], res[at + 1], res[at + 2]
+    lx, ly, lz = lo[at], lo[at + 1], lo[at + 2]
+    cx, cy, cz = cell[at], cell[at + 1], cell[at + 2]
     qx, qy, qz = 1.0 / cx, 1.0 / cy, 1.0 / cz
     ix = _index(ox, dx, t0, lx, qx, 0, nx - 1)
     iy = _index(oy, dy, t0, ly, qy, 0, ny - 1)
@@ -109,7 +148,7 @@ def first_occupied(
     # them (the bound also stops a ray whose arithmetic went non-finite).
     for _ in range(nx + ny + nz + 3):
         steps += 1
-        v = ix + nx * (iy + ny * iz)
+        v = base + ix + nx * (iy + ny * iz)
         k = row[v]
         if k <= 1:  # occupied (0), or empty with an occupied voxel beside it the ray's way
             t_end = min(tx, min(ty, tz))
@@ -191,7 +230,6 @@ def first_occupied(
             found = INF
             break
     counters[OCC_STEPS] += steps
-    counters[OCC_WALKS] += 1
     return found
 
 

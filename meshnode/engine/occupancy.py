@@ -60,7 +60,13 @@ class Occupancy(NamedTuple):
     empty space jumps out of it in one step, as the grid's walk does through empty macro
     cells. A cube centred on the voxel (one Chebyshev distance for all rays) stops at the
     nearest object whatever side it lies on: a ray leaving a floor or a cluster upwards took
-    3.4-8.2 steps to find nothing ahead (simulated 3x3, rings and teapot)."""
+    3.4-8.2 steps to find nothing ahead (simulated 3x3, rings and teapot).
+
+    With an inner map (a second map over the box where the scene's small objects lie, when a
+    few large ones, a floor, make the scene's box far larger: `host.planning.occupancy.
+    inner_box`) lo, cell and res hold the outer map's three values, then the inner's, and
+    clear and fine the inner map's voxels after the outer's; `outer` is the outer map alone
+    (what the eye's and the lights' maps project)."""
 
     lo: np.ndarray
     cell: np.ndarray
@@ -68,20 +74,67 @@ class Occupancy(NamedTuple):
     clear: np.ndarray  # (8, voxels) uint8
     fine: np.ndarray  # (voxels,) uint64: an occupied voxel's marked sub-voxels; empty: none
 
+    @property
+    def outer(self) -> "Occupancy":
+        if len(self.res) == 3:
+            return self
+        n = int(np.prod(self.res[:3]))
+        fine = self.fine[:n] if len(self.fine) else self.fine
+        return Occupancy(self.lo[:3], self.cell[:3], self.res[:3], self.clear[:, :n], fine)
 
-def occupancy_arrays(lo, hi, res, bits: bytes, fine: bytes = b"") -> Occupancy:
+
+def map_stats(occ: Occupancy) -> dict:
+    """A map in an engine's stats: voxels per axis and the share occupied, the inner map's
+    voxels too where it has one, and why the map is used."""
+    outer = occ.outer
+    out = {
+        "voxels": outer.res.tolist(),
+        "occupied": float(np.mean(outer.clear[0] == 0)),  # 0 in every row
+        "reason": "segments leaving this node's box with only empty voxels of the scene "
+        "ahead end here; others resume at the first occupied voxel"
+        if outer.res.prod() > 1
+        else "one node or whole scene: nothing leaves the box to be skipped",
+    }
+    if len(occ.res) > 3:
+        out["inner_voxels"] = occ.res[3:].tolist()
+        out["inner_reason"] = (
+            "the scene's small objects lie in a box far smaller than the scene's: a second "
+            "map there walks them finer"
+        )
+    return out
+
+
+def occupancy_arrays(lo, hi, res, bits: bytes, fine: bytes = b"", inner=None) -> Occupancy:
     """The kernels' form of a map over the box lo..hi of res voxels (x, y, z), packed `bits`
     (numpy's packbits order, x fastest) and `fine`, the occupied voxels' sub-voxel masks in
-    voxel order (FINE_BYTES each, little-endian; empty: none); the caller has checked the
-    sizes."""
+    voxel order (FINE_BYTES each, little-endian; empty: none); with `inner` (lo, hi, res,
+    bits, fine: a map as these, its masks given as the outer's are) the inner map appended
+    (`Occupancy`). The caller has checked the sizes."""
     res = np.asarray(res, np.int64)
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     clear = _clear(tuple(res.tolist()), bytes(bits))
     masks = _fine(tuple(res.tolist()), bytes(bits), bytes(fine))
-    return Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, clear, masks)
+    one = Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, clear, masks)
+    if inner is None:
+        return one
+    two = occupancy_arrays(*inner)
+    i_res, i_bits, i_fine = inner[2:]
+    inner_key = (tuple(int(v) for v in i_res), bytes(i_bits), bytes(i_fine))
+    clear, masks = _joined((tuple(res.tolist()), bytes(bits), bytes(fine)), inner_key)
+    lo, cell, res = (np.concatenate([a, b]) for a, b in zip(one[:3], two[:3], strict=True))
+    return Occupancy(lo, cell, res, clear, masks)
 
 
 @lru_cache(maxsize=4)
+def _joined(outer: tuple, inner: tuple) -> tuple:
+    """(clear, fine) of an outer and an inner map, each given as (res, bits, fine), the
+    inner's voxels after the outer's: made once, so the engines on the map share them as
+    they share a single map's."""
+    clear = np.concatenate([_clear(*outer[:2]), _clear(*inner[:2])], axis=1)
+    return clear, np.concatenate([_fine(*outer), _fine(*inner)])
+
+
+@lru_cache(maxsize=8)
 def _fine(res: tuple, bits: bytes, fine: bytes) -> np.ndarray:
     """`Occupancy.fine` of a packed map: every voxel's mask, the occupied ones' from `fine`
     (shared, read only, by every engine built on the map, as `_clear` is)."""
@@ -93,7 +146,7 @@ def _fine(res: tuple, bits: bytes, fine: bytes) -> np.ndarray:
     return out
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=8)
 def _clear(res: tuple, bits: bytes) -> np.ndarray:
     """`reaches` of a packed map; one array shared by every engine built on the same map
     (the kernels only read it): a node builds an engine per box it holds and the cost

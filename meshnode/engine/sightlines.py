@@ -80,6 +80,7 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[E
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
     seen_from = (*view_basis(view, width, height), float(width), float(height), columns, rows, side)
+    occ = occ.outer  # what the eye sees is bounded on the outer map alone
     args = ((occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res), seen_from, bx, by)
     # the bounds depend on the map, view and image alone: made once for every simulated
     # mesh of a plan (balls 3x3: 5 ms of the map's 10); the cells seen, for each partition
@@ -173,9 +174,17 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
 
 
 def map_key(occ: Occupancy) -> tuple:
-    """What names the map `occ` among those alive: its shared arrays' identity (a cache
-    keyed so must hold them, so no other map's can take their ids) and where it lies."""
-    return (id(occ.clear), id(occ.fine), occ.lo.tobytes(), occ.cell.tobytes(), occ.res.tobytes())
+    """What names the map `occ` among those alive: where its shared arrays' memory lies and
+    their shapes (an outer map is a view of its inner map's arrays, made anew each time; a
+    cache keyed so must hold them, so no other map's can take that memory) and where it lies."""
+    return (
+        *(a.__array_interface__["data"][0] for a in (occ.clear, occ.fine)),
+        occ.clear.shape,
+        occ.fine.shape,
+        occ.lo.tobytes(),
+        occ.cell.tobytes(),
+        occ.res.tobytes(),
+    )
 
 
 def per_map_seconds() -> float:

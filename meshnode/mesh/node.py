@@ -145,7 +145,7 @@ class NodeCore:
             # image space: one process's engine (a map sent there is the sky's)
             occupancy=EVERYWHERE
             if spec.plan.mode == "image"
-            else (part.occ_res, part.occ_bits, part.occ_fine),
+            else (part.occ_res, part.occ_bits, part.occ_fine, part.inner),
             eye_rays_expected=eye_ray_count(spec.image, spec.camera is not None) / spec.plan.nodes,
         )
 

@@ -106,3 +106,47 @@ def test_a_partition_checks_its_inner_map():
         Partition.make(**base, inner=(*inner[:4], bytes(8)))
     with pytest.raises(SpecError, match="inner_res"):  # a box with no map
         dataclasses.replace(part, inner_res=(), inner_bits=b"").check()
+
+
+def test_the_eyes_and_the_lights_bounds_on_both_maps_miss_no_hit():
+    """Balls with its inner map: no eye ray hits an object nearer than its block's bound, no
+    segment a light's map calls clear meets an object (brute force), and both bounds reach
+    farther than on the scene's map alone."""
+    from meshnode.engine.camera import eye_rays
+    from meshnode.engine.lightmaps import light_clear, light_maps
+    from meshnode.engine.sightlines import eye_map
+    from tests.test_sightlines import _bound, _views
+
+    scene, lo, hi, outer, inner = _maps("balls_s1.nff")
+    both = occupancy_arrays(lo, hi, *outer, inner=inner)
+    alone = occupancy_arrays(lo, hi, *outer)
+    engine = Engine(scene, brute=True)
+    rng = np.random.default_rng(11)
+    farther = nearer = 0
+    for view in _views(scene, lo, hi):
+        image = ImageSpec(width=40, height=30, spp=2)
+        rays = eye_rays(view, image)
+        rays = rays[rng.choice(len(rays), 400, replace=False)]
+        bound, before = (_bound(eye_map(m, view, image)[0], rays) for m in (both, alone))
+        t_hit, _ = engine.first_hits(rays["o"], rays["d"])
+        assert (t_hit >= bound * np.linalg.norm(rays["d"], axis=1)).all(), view
+        farther += int((bound > before).sum())
+        nearer += int((bound < before).sum())
+    assert farther > 100 and farther > 10 * nearer, (farther, nearer)
+    points = np.vstack([scene.lights["pos"], lo + rng.random((2, 3)) * (hi - lo)])
+    maps = {label: light_maps(m, points) for label, m in (("both", both), ("alone", alone))}
+    assert (maps["both"] > maps["alone"]).sum() > 10 * (maps["both"] < maps["alone"]).sum()
+    told = {"both": 0, "alone": 0}
+    i_lo, i_hi = inner[:2]
+    for li, light in enumerate(points):
+        ends = np.vstack(  # half of them among the small objects
+            [lo + rng.random((100, 3)) * (hi - lo), i_lo + rng.random((100, 3)) * (i_hi - i_lo)]
+        )
+        for label, m in maps.items():
+            clear = np.array([light_clear(m, li, *light, *x) for x in ends])
+            told[label] += int(clear.sum())
+            if clear.any():
+                d = light - ends[clear]
+                hit = engine.occluded(ends[clear], d, np.linalg.norm(d, axis=1))
+                assert not hit.any(), (label, light)
+    assert told["both"] > told["alone"], told

@@ -94,7 +94,7 @@ def test_simulations_on_one_map_make_its_tables_once():
     from host.planning.plan import plan_render
     from host.planning.prepass import coarse_pass, costs
     from host.planning.request import Request
-    from meshnode.engine.sightlines import per_map_seconds
+    from meshnode.engine.mapbounds import per_map_seconds
     from protocols.render import EngineSpec
 
     scene = read_nff(spd_scene("balls_s1.nff"))

@@ -18,9 +18,10 @@ from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.lightmaps import FACE_BLOCKS, light_clear, light_maps
 from meshnode.engine.locator import cell_locator
+from meshnode.engine.mapbounds import marked_box
 from meshnode.engine.occupancy import SUB, occupancy_arrays
 from meshnode.engine.routing import routed
-from meshnode.engine.sightlines import NO_EYE_MAP, eye_map, marked_box
+from meshnode.engine.sightlines import NO_EYE_MAP, eye_map
 from protocols.render import ImageSpec
 from protocols.scene import View
 from tests.conftest import spd_scene

@@ -75,7 +75,7 @@ class Allowance:
     ) -> None:
         """A simulation ran, taking `seconds` of CPU (kernel loads left out), `build_seconds`
         of them building `built` engines and `once` making the map's tables no later one
-        makes again (`sightlines.per_map`: balls 3x3, 28 ms of the first simulation's 88)."""
+        makes again (`mapbounds.per_map`: balls 3x3, 28 ms of the first simulation's 88)."""
         self.passes += 1
         self.pass_seconds += seconds
         self.built += built

@@ -18,7 +18,7 @@ from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
 from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.sightlines import per_map_seconds
+from meshnode.engine.mapbounds import per_map_seconds
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
 from protocols.camera import CameraSampling, Generation
@@ -75,7 +75,7 @@ def simulated(scenes, spec: RenderSpec, part):
     """The simulated mesh's Outcome (`meshnode.mesh.simulator.simulate`), its engines from
     the plan's cache, where a plan is being made (`planning`), and its CPU counted against
     the plan's allowance with the engines it built and the map's tables it made once
-    (`sightlines.per_map`; kernels loaded meanwhile left out)."""
+    (`mapbounds.per_map`; kernels loaded meanwhile left out)."""
     now = _PLANNING.get()
     if now is None:
         return simulate(scenes, spec, part)

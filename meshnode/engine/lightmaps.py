@@ -1,6 +1,6 @@
 """What each light sees of the occupancy map: per block of the six faces of a cube around it,
 how near a ray from the light can meet a marked sub-voxel (the box of each occupied voxel's,
-`sightlines.marked_box`).
+`mapbounds.marked_box`).
 
 Shadow rays all end at their light: seen from each light through the six faces of a cube
 around it (`light_maps`), a shadow ray leaving a node's box nearer its light than the bound
@@ -14,8 +14,9 @@ import math
 import numpy as np
 
 from meshnode.engine.jit import kernel, leaf
+from meshnode.engine.mapbounds import bound_maps, padded_voxel, per_map
 from meshnode.engine.occupancy import Occupancy
-from meshnode.engine.sightlines import INF, MARGIN, marked_boxes, padded_voxel, per_map
+from meshnode.engine.sightlines import INF, MARGIN
 
 FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
 
@@ -26,17 +27,16 @@ def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
     voxel seen through that block: (lights, 6 * FACE_BLOCKS**2); (0, 0) without lights. A
     shadow ray leaving a node's box nearer its light than its block's bound crosses only
     empty voxels to it (`light_clear`), so the walk of the map from its exit is not made.
-    Made once a map and lights (`sightlines.per_map`): every engine built on the map reads
+    Made once a map and lights (`mapbounds.per_map`): every engine built on the map reads
     the same (the cost pre-pass builds hundreds)."""
     if lights is None or not len(lights):
         return np.zeros((0, 0))
     points = np.ascontiguousarray(lights[:, :3], float)
-    occ = occ.outer  # bounded on the outer map alone
 
     def make():
-        marked, occupied = marked_boxes(occ), occ.clear[0]
+        maps = bound_maps(occ)  # the map, or its outer and inner maps
         return np.stack(
-            [_faces(occupied, marked, occ.lo, occ.cell, occ.res, p, FACE_BLOCKS) for p in points]
+            [np.minimum.reduce([_faces(*m, p, FACE_BLOCKS) for m in maps]) for p in points]
         )
 
     return per_map(occ, ("lights", points.tobytes()), make)

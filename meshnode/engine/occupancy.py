@@ -64,9 +64,9 @@ class Occupancy(NamedTuple):
 
     With an inner map (a second map over the box where the scene's small objects lie, when a
     few large ones, a floor, make the scene's box far larger: `host.planning.occupancy.
-    inner_box`) lo, cell and res hold the outer map's three values, then the inner's, and
-    clear and fine the inner map's voxels after the outer's; `outer` is the outer map alone
-    (what the eye's and the lights' maps project)."""
+    inner_map`) lo, cell and res hold the outer map's three values, then the inner's, and
+    clear and fine the inner map's voxels after the outer's; `outer` and `inner` are each
+    map alone."""
 
     lo: np.ndarray
     cell: np.ndarray
@@ -81,6 +81,25 @@ class Occupancy(NamedTuple):
         n = int(np.prod(self.res[:3]))
         fine = self.fine[:n] if len(self.fine) else self.fine
         return Occupancy(self.lo[:3], self.cell[:3], self.res[:3], self.clear[:, :n], fine)
+
+    @property
+    def inner(self) -> "Occupancy | None":
+        """The inner map alone (None without one)."""
+        if len(self.res) == 3:
+            return None
+        n = int(np.prod(self.res[:3]))
+        fine = self.fine[n:] if len(self.fine) else self.fine
+        return Occupancy(self.lo[3:], self.cell[3:], self.res[3:], self.clear[:, n:], fine)
+
+    def inside_inner(self) -> np.ndarray:
+        """Per outer voxel (x fastest), whether it lies wholly inside the inner map's box:
+        every surface there is marked on the inner map too."""
+        lo, hi = self.lo[3:], self.lo[3:] + self.res[3:] * self.cell[3:]
+        axes = []
+        for a in range(3):
+            walls = self.lo[a] + np.arange(self.res[a] + 1) * self.cell[a]
+            axes.append((walls[:-1] >= lo[a]) & (walls[1:] <= hi[a]))
+        return (axes[2][:, None, None] & axes[1][None, :, None] & axes[0][None, None, :]).ravel()
 
 
 def map_stats(occ: Occupancy) -> dict:

@@ -6,10 +6,10 @@ the scene's occupancy map it meets (`mapwalk.work_start`), a walk of the map tha
 than tracing the ray did (tetra 3x3: 79 ns a ray against the kernel's 72 ns a segment). Every
 pinhole eye ray leaves the same eye through its sample's point of the image plane, so the
 map can be seen from the eye once a render: each occupied voxel's box of marked sub-voxels
-(`marked_box`: the whole voxel in a map without them), padded, projects onto the image plane
-inside the rectangle of the projections of its part that eye rays can reach (the hull of a
-convex box clipped to the eye rays' frustum), and every block of the sample grid that
-rectangle touches takes the distance from the eye to the box as a bound. No ray of a block
+(`mapbounds.marked_box`: the whole voxel in a map without them), padded, projects onto the
+image plane inside the rectangle of the projections of its part that eye rays can reach (the
+hull of a convex box clipped to the eye rays' frustum), and every block of the sample grid
+that rectangle touches takes the distance from the eye to the box as a bound. No ray of a block
 meets a marked sub-voxel nearer than its bound (inf: none at all), so its walk starts there,
 or is not made. (The voxels' own boxes bounded the blocks before: balls and tetra 3x3 under
 a quarter share routed their eye rays in 123-134 and 154-156 ns a ray, 71-97 and 91-104 ns
@@ -31,20 +31,18 @@ point out of every marked sub-voxel, and a clear segment out of all of them.
 """
 
 import math
-from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from meshnode.engine.camera import view_basis
 from meshnode.engine.jit import inline, kernel, leaf
-from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.occupancy import SUB, SUB_RANGES, Occupancy
+from meshnode.engine.mapbounds import bound_maps, box_distance, marked_boxes, padded_voxel, per_map
+from meshnode.engine.occupancy import Occupancy
 from protocols.render import ImageSpec
 from protocols.scene import View
 
 BLOCKS = 256  # blocks along the sample grid's longer side, at most
-PAD = 1e-6  # of a voxel, each way, around every box of marked sub-voxels
 MARGIN = 0.01  # sample-grid columns (rows) around each projected rectangle
 WORK_MAX = 1 << 24  # voxel-by-block writes at most; past it the map is not used
 INF = math.inf
@@ -80,11 +78,16 @@ def eye_map(occ: Occupancy, view: View, image: ImageSpec, cells=None) -> tuple[E
     side = -(-max(columns, rows) // BLOCKS)
     bx, by = -(-columns // side), -(-rows // side)
     seen_from = (*view_basis(view, width, height), float(width), float(height), columns, rows, side)
-    occ = occ.outer  # what the eye sees is bounded on the outer map alone
-    args = ((occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res), seen_from, bx, by)
+
+    def bounds():
+        made = [_near(voxels, seen_from, bx, by) for voxels in bound_maps(occ)]
+        return np.minimum.reduce([n for n, _ in made]), sum(w for _, w in made)
+
     # the bounds depend on the map, view and image alone: made once for every simulated
     # mesh of a plan (balls 3x3: 5 ms of the map's 10); the cells seen, for each partition
-    near, work = per_map(occ, ("eye", repr(view), repr(image)), lambda: _near(*args))
+    near, work = per_map(occ, ("eye", repr(view), repr(image)), bounds)
+    occ = occ.outer  # the cells seen first, on the outer map alone
+    args = ((occ.clear[0], marked_boxes(occ), occ.lo, occ.cell, occ.res), seen_from, bx, by)
     if work > WORK_MAX:
         return NO_EYE_MAP, f"not used: {work} voxel-block writes past {WORK_MAX}"
     first, others = np.full(bx * by, SEEN_NONE, np.int64), np.full(bx * by, INF)
@@ -112,100 +115,6 @@ def eye_cell(eye, pixel):
     if known and b < eye.first.shape[0]:
         return g * per_cell, (g + 1) * per_cell, bound, eye.first[b], eye.others[b]
     return g * per_cell, (g + 1) * per_cell, bound, SEEN_NONE, -INF
-
-
-def marked_box(voxels: int, fine: np.ndarray) -> np.ndarray:
-    """(6, voxels) float: per voxel of a map, the box of its marked sub-voxels (`fine`, as
-    `Occupancy.fine`), as the fractions of the voxel its low and high walls lie at on each
-    axis (x, y, z low, then high); the whole voxel where there are no sub-voxel masks."""
-    out = np.empty((6, voxels))
-    out[:3], out[3:] = 0.0, 1.0
-    if fine.shape[0]:
-        _mask_boxes(fine, out)
-    return out
-
-
-@kernel
-def _mask_boxes(fine, out):
-    """`marked_box` of every voxel with a mask, into `out`: per axis the first and one past
-    the last layer of sub-voxels its mask sets (NumPy over the masks took 6-26 ms on the
-    SPD scenes' maps, each time a plan's first simulation made its tables)."""
-    for v in range(fine.shape[0]):
-        mask = fine[v]
-        if mask == 0:
-            continue
-        for a in range(3):
-            first, last = SUB, 0
-            for c in range(SUB):
-                if mask & SUB_RANGES[a, c, c] != 0:
-                    first = min(first, c)
-                    last = c + 1
-            out[a, v] = first / SUB
-            out[3 + a, v] = last / SUB
-
-
-def marked_boxes(occ: Occupancy) -> np.ndarray:
-    """`marked_box` of the map `occ`, made once a map (`per_map`): the eye's map and the
-    lights' read it for every simulated mesh the cost pre-pass runs (balls: 5 ms a time)."""
-    return per_map(occ, ("marked",), lambda: marked_box(occ.clear.shape[1], occ.fine))
-
-
-# `per_map`'s entries: (map's clear, map's fine, value) by the map's identity and a key
-_PER_MAP: dict = {}
-PER_MAP_KEPT = 8
-_MADE = [0.0]  # CPU seconds `per_map` spent making entries, loads left out (`per_map_seconds`)
-
-
-def per_map(occ: Occupancy, key: tuple, make: Callable):
-    """`make()` once for the map `occ` and `key`. Every engine built on one packed map
-    shares its arrays (`occupancy.occupancy_arrays`), so their identity names the map: no
-    hashing of its megabytes per engine (the lights' maps keyed on the map's bytes took 1 ms
-    an engine, 9 ms of a 3x3 simulation's 90). Each entry holds the arrays it is keyed by,
-    so no other map's can take their ids while it stays; the newest PER_MAP_KEPT stay."""
-    full = (*map_key(occ), *key)
-    entry = _PER_MAP.get(full)
-    if entry is None:
-        began = cpu_less_loads()
-        entry = _PER_MAP[full] = (occ.clear, occ.fine, make())
-        _MADE[0] += cpu_less_loads() - began
-        while len(_PER_MAP) > PER_MAP_KEPT:
-            del _PER_MAP[next(iter(_PER_MAP))]
-    return entry[2]
-
-
-def map_key(occ: Occupancy) -> tuple:
-    """What names the map `occ` among those alive: where its shared arrays' memory lies and
-    their shapes (an outer map is a view of its inner map's arrays, made anew each time; a
-    cache keyed so must hold them, so no other map's can take that memory) and where it lies."""
-    return (
-        *(a.__array_interface__["data"][0] for a in (occ.clear, occ.fine)),
-        occ.clear.shape,
-        occ.fine.shape,
-        occ.lo.tobytes(),
-        occ.cell.tobytes(),
-        occ.res.tobytes(),
-    )
-
-
-def per_map_seconds() -> float:
-    """CPU seconds `per_map` has spent making its entries in this process: work done once a
-    map, which the cost pre-pass's first simulation pays and its later ones do not (so it
-    is kept out of what a simulation is expected to cost, `host.planning.allowance`)."""
-    return _MADE[0]
-
-
-@leaf
-def padded_voxel(v, lo, cell, res, point, b_lo, b_hi, marked):
-    """The box of voxel v's marked sub-voxels (`marked_box`; x fastest), padded by PAD of a
-    voxel and far above round-off, as b_lo..b_hi relative to `point`; returns the distance
-    from the point to it."""
-    nx, ny = res[0], res[1]
-    index = (v % nx, (v // nx) % ny, v // (nx * ny))
-    for a in range(3):
-        pad = PAD * cell[a] + 1e-12 * (abs(lo[a]) + abs(point[a]) + res[a] * cell[a])
-        b_lo[a] = lo[a] + (index[a] + marked[a, v]) * cell[a] - pad - point[a]
-        b_hi[a] = lo[a] + (index[a] + marked[3 + a, v]) * cell[a] + pad - point[a]
-    return _distance(b_lo, b_hi)
 
 
 @inline
@@ -274,7 +183,7 @@ def _cells_seen(voxels, seen_from, bx, by, cell_los, cell_his):
         for c in range(cell_los.shape[0]):
             if not _part_in_cell(b_lo, b_hi, eye, cell_los[c], cell_his[c], p_lo, p_hi):
                 continue
-            d = _distance(p_lo, p_hi) * (1.0 - 1e-12)
+            d = box_distance(p_lo, p_hi) * (1.0 - 1e-12)
             state, i0, i1, j0, j1 = _rectangle(p_lo, p_hi, view, d)
             if state == BEHIND:
                 behind[c] = min(behind[c], d)
@@ -388,13 +297,3 @@ def _seen_part(first, first_d, others, b, c, d):
         first[b], first_d[b] = c, d
     else:
         others[b] = min(others[b], d)
-
-
-@inline
-def _distance(b_lo, b_hi):
-    """The distance from the origin to the box b_lo..b_hi."""
-    gap = 0.0
-    for a in range(3):
-        g = max(b_lo[a], 0.0, -b_hi[a])
-        gap += g * g
-    return math.sqrt(gap)

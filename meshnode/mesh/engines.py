@@ -9,7 +9,7 @@ import numpy as np
 
 from meshnode.engine import Engine
 from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.sightlines import map_key, per_map_seconds
+from meshnode.engine.mapbounds import map_key, per_map_seconds
 from protocols.render import EngineSpec
 from protocols.scene import SCENE_TABLES, SceneData
 
@@ -57,7 +57,7 @@ class EngineCache:
             began, once = cpu_less_loads(), per_map_seconds()
             engine = Engine.from_spec(scene, spec, **placement)
             self.built += 1  # its CPU, kernels loaded from the disk cache meanwhile left out,
-            # and the map's tables made once for every engine on it (`sightlines.per_map`)
+            # and the map's tables made once for every engine on it (`mapbounds.per_map`)
             self.build_seconds += cpu_less_loads() - began - (per_map_seconds() - once)
         self.engines[key] = engine
         return engine, reused

@@ -103,7 +103,7 @@ def _common_warmup() -> None:
     box = (np.zeros(3), np.ones(3))
     owners(rays, box[0][None], box[1][None])
     # a node's map: one voxel of two empty, the other's sub-voxel mask all set (its marked
-    # boxes are a kernel's: `sightlines.marked_box`)
+    # boxes are a kernel's: `mapbounds.marked_box`)
     half = occupancy_arrays(*box, (2, 1, 1), bytes([0x80]), (2**64 - 1).to_bytes(8, "little"))
     occ = everywhere(*box)
     skip_empty(rays.copy(), *box, *occ, np.zeros(N_COUNTERS, np.int64))  # the host's probes

@@ -76,20 +76,22 @@ class Occupancy(NamedTuple):
 
     @property
     def outer(self) -> "Occupancy":
-        if len(self.res) == 3:
-            return self
-        n = int(np.prod(self.res[:3]))
-        fine = self.fine[:n] if len(self.fine) else self.fine
-        return Occupancy(self.lo[:3], self.cell[:3], self.res[:3], self.clear[:, :n], fine)
+        return self if len(self.res) == 3 else self._alone(0)
 
     @property
     def inner(self) -> "Occupancy | None":
         """The inner map alone (None without one)."""
-        if len(self.res) == 3:
-            return None
+        return None if len(self.res) == 3 else self._alone(3)
+
+    def _alone(self, at: int) -> "Occupancy":
+        """The outer (at 0) or inner (at 3) map alone: views of the joined arrays."""
         n = int(np.prod(self.res[:3]))
-        fine = self.fine[n:] if len(self.fine) else self.fine
-        return Occupancy(self.lo[3:], self.cell[3:], self.res[3:], self.clear[:, n:], fine)
+        voxels = slice(0, n) if at == 0 else slice(n, None)
+        fine = self.fine[voxels] if len(self.fine) else self.fine
+        three = slice(at, at + 3)
+        return Occupancy(
+            self.lo[three], self.cell[three], self.res[three], self.clear[:, voxels], fine
+        )
 
     def inside_inner(self) -> np.ndarray:
         """Per outer voxel (x fastest), whether it lies wholly inside the inner map's box:
@@ -129,19 +131,19 @@ def occupancy_arrays(lo, hi, res, bits: bytes, fine: bytes = b"", inner=None) ->
     voxel order (FINE_BYTES each, little-endian; empty: none); with `inner` (lo, hi, res,
     bits, fine: a map as these, its masks given as the outer's are) the inner map appended
     (`Occupancy`). The caller has checked the sizes."""
-    res = np.asarray(res, np.int64)
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    clear = _clear(tuple(res.tolist()), bytes(bits))
-    masks = _fine(tuple(res.tolist()), bytes(bits), bytes(fine))
-    one = Occupancy(lo, np.maximum((hi - lo) / res, 1e-300), res, clear, masks)
+    maps = [(lo, hi, res, bits, fine), *([] if inner is None else [inner])]
+    keys = [(tuple(int(v) for v in m[2]), bytes(m[3]), bytes(m[4])) for m in maps]
     if inner is None:
-        return one
-    two = occupancy_arrays(*inner)
-    i_res, i_bits, i_fine = inner[2:]
-    inner_key = (tuple(int(v) for v in i_res), bytes(i_bits), bytes(i_fine))
-    clear, masks = _joined((tuple(res.tolist()), bytes(bits), bytes(fine)), inner_key)
-    lo, cell, res = (np.concatenate([a, b]) for a, b in zip(one[:3], two[:3], strict=True))
-    return Occupancy(lo, cell, res, clear, masks)
+        clear, masks = _clear(*keys[0][:2]), _fine(*keys[0])
+    else:
+        clear, masks = _joined(*keys)
+    corner = [np.asarray(m[0], float) for m in maps]
+    voxels = [np.asarray(m[2], np.int64) for m in maps]
+    cell = [
+        np.maximum((np.asarray(m[1], float) - c) / r, 1e-300)
+        for m, c, r in zip(maps, corner, voxels, strict=True)
+    ]
+    return Occupancy(*map(np.concatenate, (corner, cell, voxels)), clear, masks)
 
 
 @lru_cache(maxsize=4)

@@ -1,12 +1,15 @@
 """How rays are gathered for passing, measured where it matters: a budgeted object-space render
 that passes millions of rays, on local meshes whose nodes each gather another way, in turns.
-A setting is RAYS/AGE/BATCH/EYE/SET: rays leaving for a neighbour are sent once RAYS wait
+A setting is RAYS/AGE/BATCH/EYE/SET/PROG/IDLE: rays leaving for a neighbour are sent once RAYS wait
 (`meshnode.mesh.driver.PASS_RAYS`) or they have waited AGE batches (`PASS_AGE`), queued
 incoming messages are merged into batches of up to BATCH rays
 (`meshnode.mesh.scheduler.PASSED_BATCH`), eye rays are made EYE a batch
 (`meshnode.mesh.node.EYE_BATCH`), and with SET 1 the RAYS that leave over one link together
-go as one RAYS_SET frame, with 0 a frame each (`meshnode.service.sends.RAYS_SETS`); an absent
-part keeps the production value.
+go as one RAYS_SET frame, with 0 a frame each (`meshnode.service.sends.RAYS_SETS`), a node
+tells the host its progress at most every PROG milliseconds
+(`meshnode.service.session.PROGRESS_EVERY`), and with IDLE 1 it sends the deposits it holds
+for the host each time it idles, with 0 once a packet's worth or the oldest has waited
+(`IDLE_DEPOSITS`); an absent part keeps the production value.
 
     python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
                             [--size 384] [--spp 16] [--passing 16384/4/4096,16384/16/16384]
@@ -15,14 +18,15 @@ part keeps the production value.
 Each turn renders the scene once on every setting's mesh (after a first, warming render on
 each), in the same order, so the machine's noise falls on all of them alike. Printed per
 render: the nodes' user and system CPU summed from /proc over the frame, their minor page
-faults, the busiest node's frame CPU, the rays passed and the RAYS messages sent; then each
+faults, the busiest node's frame CPU, the rays passed, the RAYS and PIXELS messages the
+nodes sent each other, and the PIXELS and PROGRESS they sent the host; then each
 setting's medians over the turns and the ratio of its summed CPU and of its busiest node's
 frame CPU to the first setting's. Every render's ray counts must equal the first's and its
 image be within 1e-5 of it (object space sums a pixel's deposits in the order they arrive;
 exit 1 if not).
 
-`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE/SET` is such a node: the production
-service with only those constants changed.
+`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE/SET/PROG/IDLE` is such a node:
+the production service with only those constants changed.
 """
 
 import argparse
@@ -40,23 +44,25 @@ from bench import add_scenes_option, finish  # noqa: E402
 
 
 def serve(argv: list[str]) -> int:
-    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE/SET` says."""
+    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE/SET/PROG/IDLE` says."""
     from meshnode.mesh import driver, node, scheduler
-    from meshnode.service import cli, sends
+    from meshnode.service import cli, sends, session
 
     at = argv.index("--passing")
-    rays, age, batch, eye, sets = setting(argv[at + 1])
+    rays, age, batch, eye, sets, prog, idle = setting(argv[at + 1])
     driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH = rays, age, batch
     node.EYE_BATCH, sends.RAYS_SETS = eye, bool(sets)
+    session.PROGRESS_EVERY, session.IDLE_DEPOSITS = prog / 1000, bool(idle)
     del argv[at : at + 2]
     return cli.main(argv)
 
 
-def setting(text: str) -> tuple[int, int, int, int, int]:
-    """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH, RAYS_SETS) of a RAYS/AGE/BATCH/EYE/SET
-    setting, absent parts the production values."""
+def setting(text: str) -> tuple[int, ...]:
+    """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH, RAYS_SETS, PROGRESS_EVERY in ms,
+    IDLE_DEPOSITS) of a RAYS/AGE/BATCH/EYE/SET/PROG/IDLE setting, absent parts the
+    production values."""
     from meshnode.mesh import driver, node, scheduler
-    from meshnode.service import sends
+    from meshnode.service import sends, session
 
     parts = text.split("/")
     default = (
@@ -65,10 +71,14 @@ def setting(text: str) -> tuple[int, int, int, int, int]:
         scheduler.PASSED_BATCH,
         node.EYE_BATCH,
         int(sends.RAYS_SETS),
+        round(session.PROGRESS_EVERY * 1000),
+        int(session.IDLE_DEPOSITS),
     )
-    if len(parts) > 5 or not all(p.isdigit() or p == "" for p in parts):
-        raise SystemExit(f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE/SET (whole numbers)")
-    parts += [""] * (5 - len(parts))
+    if len(parts) > len(default) or not all(p.isdigit() or p == "" for p in parts):
+        raise SystemExit(
+            f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE/SET/PROG/IDLE (whole numbers)"
+        )
+    parts += [""] * (len(default) - len(parts))
     return tuple(int(p) if p else d for p, d in zip(parts, default, strict=True))
 
 
@@ -90,9 +100,15 @@ def _render(request, mesh, addresses) -> tuple[np.ndarray, dict, tuple]:
     return img, stats, spent
 
 
-def _messages(stats: dict) -> int:
-    """Messages the nodes sent each other (RAYS and PIXELS) over the frame."""
-    return sum(link["messages_out"] for n in stats["nodes"] for link in n["links"].values())
+def _messages(stats: dict) -> tuple[int, int, int]:
+    """Messages the nodes sent each other (RAYS and PIXELS), and the host (PIXELS;
+    PROGRESS, heartbeats included) over the frame."""
+    nodes = stats["nodes"]
+    return (
+        sum(link["messages_out"] for n in nodes for link in n["links"].values()),
+        sum(n.get("host_packets", 0) for n in nodes),
+        sum(n.get("progress_sent", 0) for n in nodes),
+    )
 
 
 def _counts(stats: dict) -> dict:
@@ -123,7 +139,8 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
     )
     print(
         f"{'setting':>16} {'turn':>4} {'user s':>7} {'sys s':>6} {'faults':>7} "
-        f"{'busiest frame s':>15} {'rays passed':>11} {'messages':>8}"
+        f"{'busiest frame s':>15} {'rays passed':>11} {'messages':>8} "
+        f"{'host PIXELS':>11} {'PROGRESS':>8}"
     )
     with ExitStack() as stack:
         meshes = []
@@ -143,9 +160,11 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
                     bad.append(f"{name} setting {size} turn {turn}: {off:.3g} off, or counts")
                 busiest = stats["busiest_node_frame_cpu_seconds"]
                 got[size].append((user + system, busiest))
+                links, packets, progress = _messages(stats)
                 print(
                     f"{size:>16} {turn:>4} {user:7.2f} {system:6.2f} {faults:7d} "
-                    f"{busiest:15.3f} {stats['rays_passed']:>11} {_messages(stats):>8}"
+                    f"{busiest:15.3f} {stats['rays_passed']:>11} {links:>8} "
+                    f"{packets:>11} {progress:>8}"
                 )
     first = statistics.median(t for t, _ in got[sizes[0]])
     first_busiest = statistics.median(b for _, b in got[sizes[0]])
@@ -182,7 +201,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--passing",
         default="16384/4/4096,16384/16/16384",
-        help="RAYS/AGE/BATCH/EYE settings to compare, the first the base",
+        help="RAYS/AGE/BATCH/EYE/SET/PROG/IDLE settings to compare, the first the base",
     )
     p.add_argument("--turns", type=int, default=2)
     p.add_argument("--json", type=Path)

@@ -23,6 +23,7 @@ from meshnode.mesh.scheduler import Scheduler
 from meshnode.mesh.stats import NodeStats
 from meshnode.mesh.steps import Trace
 from meshnode.service.config import Config, Objects
+from meshnode.service.depositpackets import DepositPackets
 from meshnode.service.inbound import (
     check_pixels,
     check_rays,
@@ -37,17 +38,20 @@ from meshnode.service.sends import Sends
 from meshnode.transport.link import Link, LinkClosed, Outbox
 from protocols.errors import BadFrame, ProtocolError, describe
 from protocols.messages import Kind, make
-from protocols.records import copied, joined
+from protocols.records import copied
 from protocols.state import State, states_of
 from protocols.topology import Router
 
 log = logging.getLogger("meshnode")
 OUTBOX_HIGH = 8 * 1024 * 1024  # bytes queued on all links before primaries pause
-DEPOSIT_BATCH = 32768  # deposits per pixel packet, sent sooner once the oldest waited:
-DEPOSIT_SECONDS = 0.25  # (a live view's frames come as often; they had waited for a third
-# of a node's pixels: object space 2x2 at 640x640 showed its first at 65% of the eye rays)
 HEARTBEAT = 1.0  # seconds between a node's signs of life to the host
-PROGRESS_EVERY = 0.05  # seconds at least between PROGRESS messages of traced rays
+# seconds at least between PROGRESS messages of traced rays: as often as a live view draws
+# (host.live's interval). One a batch took 3.6% of a tetra 3x3 node's CPU; one in 50 ms was
+# still 60-75 a node and render of 3 s on balls 3x3, a third of the messages it sent.
+PROGRESS_EVERY = 0.25
+# Held deposits go to the host each time the node idles (True: as before `DepositPackets`;
+# `python -m bench.passing` compares both)
+IDLE_DEPOSITS = False
 
 
 class Session(Sends, Driver):
@@ -78,8 +82,7 @@ class Session(Sends, Driver):
         self.wake = asyncio.Event()
         self.drained = asyncio.Event()
         self.host_out = Outbox(host, self.fail, self.wake)
-        self.deposits: list = []
-        self.deposits_held, self.deposits_since = 0, 0.0  # in self.deposits; the oldest's time
+        self.packets = DepositPackets(self.host_out)  # deposits for the host
         self.error: Exception | None = None
         self.ready = False  # engine built and every neighbour linked
         self.setup = "objects"  # the setup step PROGRESS reports (SETUP_STEPS)
@@ -89,6 +92,7 @@ class Session(Sends, Driver):
         self.frame_cpu_start = time.process_time()  # moved to the frame's start once built
         self.frame_sys_start = os.times().system
         self.progress_rays, self.progress_due = 0, 0.0  # rays not yet told; when to tell
+        self.progress_sent = 0
         self.tasks: set[asyncio.Task] = set()
         self.spawn(self.heartbeat())
 
@@ -109,15 +113,17 @@ class Session(Sends, Driver):
 
     def progress(self, rays: int) -> None:
         """Primary rays just traced, to the host with what its live view shows of this node
-        (`reports.progress_message`), at most once in PROGRESS_EVERY seconds: one a batch
-        took 3.6% of a tetra 3x3 node's CPU. Rays not yet told go with the next; a call of
-        no rays (the heartbeat, the end of the frame) tells at once."""
+        (`reports.progress_message`), at most once in PROGRESS_EVERY seconds; rays not yet
+        told go with the next. A call of no rays (the heartbeat, ready, the end of the frame)
+        tells at once, and does not put the next batch's off."""
         self.progress_rays += rays
         now = time.monotonic()
-        if rays and now < self.progress_due:
-            return
-        self.progress_due = now + PROGRESS_EVERY
+        if rays:
+            if now < self.progress_due:
+                return
+            self.progress_due = now + PROGRESS_EVERY
         told, self.progress_rays = self.progress_rays, 0
+        self.progress_sent += 1
         self.host_out.post(progress_message(self, told))
 
     # ------------------------------------------------------------------ setup
@@ -286,15 +292,13 @@ class Session(Sends, Driver):
             self.fail(e)
 
     def flush(self) -> None:
-        """Buffered deposits toward the host, in packets of DEPOSIT_BATCH; then the tiles
-        traced whole (dynamic image space), after every deposit of theirs on the same link,
-        so the host may keep them if another node is lost."""
-        if self.deposits:
-            allp = joined(self.deposits)
-            self.deposits, self.deposits_held = [], 0
-            for i in range(0, len(allp), DEPOSIT_BATCH):
-                self.to_host(allp[i : i + DEPOSIT_BATCH])
-        if self.traced.done and not self.core.keeps_pixels:
+        """Idle, or a dynamic tile traced whole: the tiles traced whole go to the host after
+        every deposit of theirs on the same link, so the host may keep them if another node
+        is lost; otherwise held deposits wait for their packet (`DepositPackets`)."""
+        tiles_done = self.traced.done and not self.core.keeps_pixels
+        if tiles_done or IDLE_DEPOSITS:
+            self.packets.send()
+        if tiles_done:
             tiles, counts = self.traced.take()
             self.host_out.post(make(Kind.TILES_TRACED, node=self.node, tiles=tiles, counts=counts))
 
@@ -328,15 +332,7 @@ class Session(Sends, Driver):
             self.wake.set()
 
     def for_host(self, deposits: np.ndarray) -> None:
-        """Buffered, and sent in packets of DEPOSIT_BATCH, or DEPOSIT_SECONDS after the oldest
-        (`flush`)."""
-        now = time.monotonic()
-        if not self.deposits:
-            self.deposits_since = now
-        self.deposits.append(deposits)
-        self.deposits_held += len(deposits)
-        if self.deposits_held >= DEPOSIT_BATCH or now - self.deposits_since >= DEPOSIT_SECONDS:
-            self.flush()
+        self.packets.add(deposits)
 
     def finished(self, batches) -> None:
         """Adaptive sampling's finished pixels, straight to the host."""
@@ -345,7 +341,9 @@ class Session(Sends, Driver):
         self.stats.counts["refined_pixels"] = self.core.refined_pixels
 
     def report(self) -> None:
-        """The rays not yet told, then the node's STATS to the host (`reports.stats_message`)."""
+        """The deposits and rays not yet told, then the node's STATS to the host
+        (`reports.stats_message`)."""
+        self.packets.send()
         self.progress(0)
         self.host_out.post(stats_message(self))
 
@@ -353,6 +351,7 @@ class Session(Sends, Driver):
         """Cancel and await every task of this render, then drop its neighbour links: the
         render is over (every node sent its STATS) or given up, so nothing queued on them
         matters, and a neighbour that stopped reading must not hold this node up."""
+        self.packets.close()
         tasks = list(self.tasks)
         for t in tasks:
             t.cancel()

@@ -17,13 +17,13 @@ for the host each time it idles, with 0 once a packet's worth or the oldest has 
 
 Each turn renders the scene once on every setting's mesh (after a first, warming render on
 each), in the same order, so the machine's noise falls on all of them alike. Printed per
-render: the nodes' user and system CPU summed from /proc over the frame, their minor page
-faults, the busiest node's frame CPU, the rays passed, the RAYS and PIXELS messages the
-nodes sent each other, and the PIXELS and PROGRESS they sent the host; then each
-setting's medians over the turns and the ratio of its summed CPU and of its busiest node's
-frame CPU to the first setting's. Every render's ray counts must equal the first's and its
-image be within 1e-5 of it (object space sums a pixel's deposits in the order they arrive;
-exit 1 if not).
+render: the nodes' user and system CPU summed from /proc over the render, the host's CPU
+(this process's), the nodes' minor page faults, the busiest node's frame CPU, the rays
+passed, the RAYS and PIXELS messages the nodes sent each other, and the PIXELS and PROGRESS
+they sent the host; then each setting's medians over the turns and the ratio of its summed
+CPU and of its busiest node's frame CPU to the first setting's. Every render's ray counts
+must equal the first's and its image be within 1e-5 of it (object space sums a pixel's
+deposits in the order they arrive; exit 1 if not).
 
 `python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE/SET/PROG/IDLE` is such a node:
 the production service with only those constants changed.
@@ -33,6 +33,7 @@ import argparse
 import asyncio
 import statistics
 import sys
+import time
 from pathlib import Path
 
 if __package__ in (None, ""):
@@ -89,15 +90,18 @@ def _proc(pid: int) -> tuple[int, float, float]:
 
 
 def _render(request, mesh, addresses) -> tuple[np.ndarray, dict, tuple]:
-    """One render on the running `mesh`: (image, stats, (faults, user, system) of its nodes)."""
+    """One render on the running `mesh`: (image, stats, (faults, user, system) of its nodes,
+    and the host's CPU: this process's, which renders as `host render` does)."""
     from host.run.connections import Nodes
     from host.run.meshclient import render_on_mesh
 
     before = [_proc(p.pid) for p in mesh.procs]
+    host = time.process_time()
     img, stats = asyncio.run(render_on_mesh(request, Nodes(addresses, wait=60)))
+    host = time.process_time() - host
     after = [_proc(p.pid) for p in mesh.procs]
     spent = tuple(sum(a[i] - b[i] for a, b in zip(after, before, strict=True)) for i in range(3))
-    return img, stats, spent
+    return img, stats, (*spent, host)
 
 
 def _messages(stats: dict) -> tuple[int, int, int]:
@@ -138,7 +142,7 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
         f"{args.size}x{args.size} at {args.spp} spp"
     )
     print(
-        f"{'setting':>16} {'turn':>4} {'user s':>7} {'sys s':>6} {'faults':>7} "
+        f"{'setting':>16} {'turn':>4} {'user s':>7} {'sys s':>6} {'host s':>6} {'faults':>7} "
         f"{'busiest frame s':>15} {'rays passed':>11} {'messages':>8} "
         f"{'host PIXELS':>11} {'PROGRESS':>8}"
     )
@@ -154,7 +158,7 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
         got = {size: [] for size in sizes}
         for turn in range(args.turns):
             for size, mesh, addresses in meshes:
-                img, stats, (faults, user, system) = _render(request, mesh, addresses)
+                img, stats, (faults, user, system, host) = _render(request, mesh, addresses)
                 off = float(np.abs(img - ref[0]).max())
                 if off > 1e-5 or _counts(stats) != ref[1]:
                     bad.append(f"{name} setting {size} turn {turn}: {off:.3g} off, or counts")
@@ -162,7 +166,7 @@ def bench_scene(args, name: str, rows: list, bad: list) -> None:
                 got[size].append((user + system, busiest))
                 links, packets, progress = _messages(stats)
                 print(
-                    f"{size:>16} {turn:>4} {user:7.2f} {system:6.2f} {faults:7d} "
+                    f"{size:>16} {turn:>4} {user:7.2f} {system:6.2f} {host:6.2f} {faults:7d} "
                     f"{busiest:15.3f} {stats['rays_passed']:>11} {links:>8} "
                     f"{packets:>11} {progress:>8}"
                 )

@@ -1,5 +1,7 @@
-"""`python -m tests.faultnode serve ... --slow-link SRC,DST,SECONDS,COUNT`: a mesh node whose
-link from node SRC to node DST holds back its first COUNT ray messages SECONDS each.
+"""`python -m tests.faultnode serve ... --slow-link SRC,DST,SECONDS,COUNT [--progress-every S]`:
+a mesh node whose link from node SRC to node DST holds back its first COUNT ray messages
+SECONDS each, and which tells the host its progress at most every S seconds (a test that
+acts at a share of the frame's rays hears of them sooner than a live view needs).
 
 Fault injection lives here, in the tests, not in the node: the service's `wrap` hook hands
 this module's SlowLink in place of the real link, and everything else is the production node.
@@ -8,7 +10,7 @@ this module's SlowLink in place of the real link, and everything else is the pro
 import asyncio
 import sys
 
-from meshnode.service import cli
+from meshnode.service import cli, session
 from meshnode.service.server import NodeService
 from protocols.messages import Kind
 
@@ -44,6 +46,10 @@ def main(argv=None) -> int:
     at = argv.index("--slow-link")
     src, dst, seconds, count = argv[at + 1].split(",")
     del argv[at : at + 2]
+    if "--progress-every" in argv:
+        at = argv.index("--progress-every")
+        session.PROGRESS_EVERY = float(argv[at + 1])
+        del argv[at : at + 2]
     slow = service_class(int(src), int(dst), float(seconds), int(count))
     args = cli.parse(argv)
     return cli.serve(

@@ -38,13 +38,17 @@ def mesh_render(scene, plan: MeshPlan, rs):
         return asyncio.run(asyncio.wait_for(on_mesh(scene, rs, addresses, plan), 180))
 
 
-def slow_mesh(n: int, src: int, dst: int, seconds: float, count: int) -> LocalMesh:
-    """Nodes whose link src -> dst holds back its first `count` ray messages (tests.faultnode)."""
+def slow_mesh(
+    n: int, src: int, dst: int, seconds: float, count: int, progress: float | None = None
+) -> LocalMesh:
+    """Nodes whose link src -> dst holds back its first `count` ray messages (tests.faultnode),
+    telling the host their progress at most every `progress` seconds (None: as in production)."""
     root = str(Path(__file__).resolve().parents[1])
+    every = [] if progress is None else ["--progress-every", str(progress)]
     return LocalMesh(
         n,
         module="tests.faultnode",
-        options=["--slow-link", f"{src},{dst},{seconds},{count}"],
+        options=["--slow-link", f"{src},{dst},{seconds},{count}", *every],
         env={"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")},
     )
 

@@ -40,8 +40,8 @@ def test_shrink_uses_every_node_left_nearly_square():
 )
 def test_a_node_lost_mid_frame_is_replanned_to_the_single_node_image(rows, cols, fault, mode):
     scene = read_nff(spd_scene("balls_s2.nff"))
-    # Image space has no held link: its frame must outlast the first PROGRESS, which a node
-    # sends 50 ms in at the earliest (or with its STATS, when the frame is done before then)
+    # Image space has no held link: its frame must outlast the first PROGRESS of rays, which
+    # a node sends with its first batch (or with its STATS, when the frame is done before)
     size, spp = (96, 16) if mode == "image" else (48, 1)
     rs = records(width=size, height=size, spp=spp, threads=1)
     ref, ref_stats = render(Request(scene, *rs))
@@ -175,7 +175,9 @@ def test_a_node_lost_at_half_an_image_space_frame_costs_only_the_tiles_not_yet_t
     if name == "tetra_s2":
         monkeypatch.setattr(sky, "SKY_MIN_RAYS", 0)  # the host's choice: nodes follow its map
     plan = MeshPlan(3, 3, mode="image", tiles="dynamic", tile=8)
-    mesh = slow_mesh(9, 0, 1, 0.0, 0)
+    # progress told every 50 ms: at every 250 ms (a live view's pace) this frame's half was
+    # heard of after its end, and the node was killed after the render
+    mesh = slow_mesh(9, 0, 1, 0.0, 0, progress=0.05)
     with mesh as addresses:
         victim = mesh.procs[4]
         img, stats = asyncio.run(

@@ -332,6 +332,7 @@ class Session(Sends, Driver):
             self.wake.set()
 
     def for_host(self, deposits: np.ndarray) -> None:
+        """Held for the host's next packet (`DepositPackets`)."""
         self.packets.add(deposits)
 
     def finished(self, batches) -> None:

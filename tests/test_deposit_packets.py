@@ -2,16 +2,19 @@
 of at most a batch; a few held while the node idles still go, by the timer."""
 
 import asyncio
+from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 
 from meshnode.service.depositpackets import DepositPackets
+from meshnode.service.sends import Sends
 from protocols.dtypes import DEPOSIT
 from protocols.messages import Kind
 
 
 class Outbox:
-    """The host's outbox as DepositPackets uses it: keeps what is posted, says when."""
+    """The host's outbox as a session's `to_host` uses it: keeps what is posted, says when."""
 
     def __init__(self):
         self.posted: list[tuple[dict, int]] = []
@@ -27,6 +30,11 @@ class Outbox:
         return np.concatenate(parts) if parts else np.zeros(0, DEPOSIT)
 
 
+def buffer(out: Outbox, **options) -> DepositPackets:
+    """A node's packets, sent as its session sends them (`Sends.to_host`) onto `out`."""
+    return DepositPackets(partial(Sends.to_host, SimpleNamespace(host_out=out)), **options)
+
+
 def deposits(n: int, first: int) -> np.ndarray:
     d = np.zeros(n, DEPOSIT)
     d["pixel"] = np.arange(first, first + n)
@@ -35,7 +43,7 @@ def deposits(n: int, first: int) -> np.ndarray:
 
 async def test_full_packets_go_at_once_and_the_rest_when_told():
     out = Outbox()
-    packets = DepositPackets(out, batch=100, seconds=60.0)
+    packets = buffer(out, batch=100, seconds=60.0)
     sent = [deposits(n, i * 1000) for i, n in enumerate((40, 50, 30, 7))]
     packets.add(sent[0])
     packets.add(sent[1])
@@ -52,7 +60,7 @@ async def test_full_packets_go_at_once_and_the_rest_when_told():
 
 async def test_an_idle_nodes_last_deposits_go_by_the_timer():
     out = Outbox()
-    packets = DepositPackets(out, batch=100, seconds=0.01)
+    packets = buffer(out, batch=100, seconds=0.01)
     held = deposits(5, 0)
     packets.add(held)
     assert out.posted == []
@@ -62,7 +70,7 @@ async def test_an_idle_nodes_last_deposits_go_by_the_timer():
 
 async def test_closed_packets_set_no_timer_going():
     out = Outbox()
-    packets = DepositPackets(out, batch=100, seconds=60.0)
+    packets = buffer(out, batch=100, seconds=60.0)
     packets.add(deposits(5, 0))
     timer = packets.timer
     packets.close()

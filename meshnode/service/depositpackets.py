@@ -1,7 +1,7 @@
 """A node's deposits for the host, gathered into packets (`DepositPackets`).
 
-Kept apart from `session`: this decides only when a packet goes; the session says where
-(the host's outbox) and when the frame's end or a tile traced whole needs everything now.
+Kept apart from `session`: this decides only when a packet goes; the session says how one is
+sent (`Sends.to_host`) and when the frame's end or a tile traced whole needs everything now.
 """
 
 import asyncio
@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 
-from protocols.messages import Kind, make
 from protocols.records import joined
 
 DEPOSIT_BATCH = 32768  # deposits per pixel packet, sent sooner once the oldest waited:
@@ -18,14 +17,14 @@ DEPOSIT_SECONDS = 0.25  # (a live view's frames come as often; they had waited f
 
 
 class DepositPackets:
-    """Deposits buffered for the host and posted on `outbox` in packets of at most
+    """Deposits buffered for the host and sent by `to_host(deposits)` in packets of at most
     `batch`: once `batch` wait, once the oldest has waited `seconds` (a timer, so an idle
     node's last few go too), or when `send` is told. A node no longer sends what it holds
     each time it idles: balls 3x3 under a quarter share sent 20-70 packets a node and
     render so, most of a few hundred deposits, each a message for both ends' event loops."""
 
-    def __init__(self, outbox, batch: int = DEPOSIT_BATCH, seconds: float = DEPOSIT_SECONDS):
-        self.outbox, self.batch, self.seconds = outbox, batch, seconds
+    def __init__(self, to_host, batch: int = DEPOSIT_BATCH, seconds: float = DEPOSIT_SECONDS):
+        self.to_host, self.batch, self.seconds = to_host, batch, seconds
         self.parts: list[np.ndarray] = []
         self.held = 0
         self.since = 0.0  # when the oldest held came
@@ -51,8 +50,7 @@ class DepositPackets:
         held = joined(self.parts)
         self.parts, self.held = [], 0
         for i in range(0, len(held), self.batch):
-            part = held[i : i + self.batch]
-            self.outbox.post(make(Kind.PIXELS, deposits=part, dest=-1), part.nbytes)
+            self.to_host(held[i : i + self.batch])
             self.packets += 1
 
     def close(self) -> None:

@@ -82,7 +82,7 @@ class Session(Sends, Driver):
         self.wake = asyncio.Event()
         self.drained = asyncio.Event()
         self.host_out = Outbox(host, self.fail, self.wake)
-        self.packets = DepositPackets(self.host_out)  # deposits for the host
+        self.packets = DepositPackets(self.to_host)  # deposits for the host
         self.error: Exception | None = None
         self.ready = False  # engine built and every neighbour linked
         self.setup = "objects"  # the setup step PROGRESS reports (SETUP_STEPS)

@@ -18,7 +18,7 @@ from host.scene.subset import subset
 from meshnode.engine import Engine
 from meshnode.engine.camera import eye_rays
 from meshnode.engine.counters import N_COUNTERS, RAY_COUNTS
-from meshnode.engine.locator import cell_locator, owners
+from meshnode.engine.locator import LINEAR_MAX, cell_locator, owners
 from meshnode.engine.mapwalk import skip_empty
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.mesh.node import NodeCore, lit_deposits, per_cell
@@ -554,8 +554,32 @@ def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
     part, keep = partition(scene, spec)
     core = NodeCore(0, subset(scene, keep[0]), spec, part)
     los, his = core.cells
-    rng = np.random.default_rng(5)
-    n = 6000
+    _routed_as_owners(core.engine, los, his, np.random.default_rng(5))
+    loc = cell_locator(los, his)  # most points look at one or two cells, not every one
+    assert np.diff(loc.first).mean() < 1.5 and loc.n.all()
+
+
+def test_routing_among_many_cells_picks_the_cell_owners_picks():
+    """Past `locator.LINEAR_MAX` face coordinates along an axis the arrangement is searched,
+    not counted (40 slabs across x, 2 across y and z: both ways in one ray's lookup)."""
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    spec = RenderSpec(ImageSpec(width=40, height=30), plan=MeshPlan(1, 2, 24))
+    part, keep = partition(scene, spec)
+    core = NodeCore(0, subset(scene, keep[0]), spec, part)
+    lo, hi = part.scene_lo, part.scene_hi
+    xs = np.linspace(lo[0], hi[0], 41)
+    ys, zs = (np.array([lo[a], (lo[a] + hi[a]) / 2, hi[a]]) for a in (1, 2))
+    cells = [(x, y, z) for z in range(2) for y in range(2) for x in range(40)]
+    los = np.array([(xs[x], ys[y], zs[z]) for x, y, z in cells])
+    his = np.array([(xs[x + 1], ys[y + 1], zs[z + 1]) for x, y, z in cells])
+    loc = cell_locator(los, his)
+    assert loc.n[0] > LINEAR_MAX >= loc.n[1]
+    _routed_as_owners(core.engine, los, his, np.random.default_rng(6))
+
+
+def _routed_as_owners(engine, los, his, rng, n: int = 6000) -> None:
+    """Rays from inside, outside and on the faces, edges and corners of the cells los..his
+    go where `owners` sends them, their records otherwise unchanged."""
     lo, hi = los.min(axis=0), his.max(axis=0)
     rays = np.zeros(n, RAY)
     rays["o"] = lo - 0.2 * (hi - lo) + 1.4 * (hi - lo) * rng.random((n, 3))
@@ -580,14 +604,12 @@ def test_routing_rays_from_anywhere_picks_the_cell_owners_picks(shape):
     rays["pixel"] = np.arange(n)
     expected = rays.copy()
     dest = owners(expected, los, his)
-    out, starts, lost = core.engine.routed(rays, core.cells, False)
+    out, starts, lost = engine.routed(rays, (los, his), False)
     order = np.argsort(out["pixel"])
     taker = np.repeat(np.arange(len(los)), np.diff(starts))[order]
     assert lost == (dest < 0).sum() and 0 < lost < 0.7 * n
     assert np.array_equal(taker[dest >= 0], dest[dest >= 0])
     assert out[order].tobytes() == expected.tobytes()
-    loc = cell_locator(los, his)  # most points look at one or two cells, not every one
-    assert np.diff(loc.first).mean() < 1.5 and loc.n.all()
 
 
 def test_a_batch_deposits_the_colour_of_every_ray_that_brought_any():

@@ -9,6 +9,7 @@ from host.scene.nff import read_nff
 from meshnode.engine import Engine
 from meshnode.engine.bvh import LANES, LEAF_BITS, LEAF_CAP, NODE_COLS, REF_COL
 from meshnode.engine.camera import eye_rays
+from meshnode.engine.rows import PACKET
 from protocols.dtypes import EYE, RAY, SHADOW
 from protocols.render import ImageSpec
 from tests.conftest import make_scene, spd_scene
@@ -204,3 +205,27 @@ def test_an_object_space_node_walking_in_packets_finds_what_single_rays_find(nam
         "rays_forwarded",
     )
     assert {k: counts[k] for k in keys} == {k: counts_ref[k] for k in keys}
+
+
+@pytest.mark.parametrize("name", ["teapot_s1.nff", "gears_s1.nff"])
+def test_a_packet_s_steps_for_rays_that_entered_are_their_own_walks(name):
+    """`packet_idle_steps` counts the steps a packet took for rays that had not entered the
+    node: without them, a batch's steps are what its rays walk alone (the pre-pass's
+    estimate of one node's tracing rests on it, `prepass.walked_units`). Eight copies of
+    each ray make packets that walk as one ray: no idle step, the very steps of single
+    walks. Scattered rays idle; less those, within 1% of single walks (a packet's rays
+    meet nodes in the packet's order, so a ray's bound can fall later than alone)."""
+    scene = read_nff(spd_scene(name))
+    engine = Engine(scene, structure="bvh")
+    single = Engine(scene, structure="bvh", packets=False)
+    rays = mixed_batch(scene, engine.scene_lo, engine.scene_hi, np.random.default_rng(7))
+    _, alone = single.trace(rays)
+    _, packed = engine.trace(rays)
+    assert alone["packet_idle_steps"] == 0 and packed["packet_idle_steps"] > 0
+    own = packed["voxel_steps"] - packed["packet_idle_steps"]
+    assert abs(own - alone["voxel_steps"]) <= 0.01 * alone["voxel_steps"]
+    copies = np.repeat(rays, PACKET)
+    _, alone = single.trace(copies)
+    _, packed = engine.trace(copies)
+    assert packed["packet_idle_steps"] == 0
+    assert packed["voxel_steps"] == alone["voxel_steps"]

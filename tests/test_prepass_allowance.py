@@ -44,6 +44,37 @@ def test_the_allowance_affords_simulations_within_a_tenth_of_the_tracing(monkeyp
     assert not nothing.affords("rounds")
 
 
+@pytest.mark.parametrize("name", ["balls_s1.nff", "rings_s1.nff", "teapot_s1.nff"])
+def test_the_tracing_estimate_counts_one_node_s_work_on_any_mesh(name):
+    """The allowance is a tenth of one node's tracing, estimated from the first coarse
+    simulation (`prepass.tracing_seconds`): its units (`walked_units`: the rays' own
+    walks, no map steps, sends or packet steps for rays that had not entered) must be one
+    node's, whatever the mesh. Reference: one node simulated at the render's full
+    resolution. Raw work units put the coarse 3x3 at 1.27-1.39 times one node's (so the
+    allowance grew with the mesh and passed a tenth of the tracing: tetra_s8 1.43-1.49)."""
+    from host.planning.plan import plan_render
+    from host.planning.prepass import coarse_pass, coarse_spec, walked_units
+    from host.planning.request import Request
+    from host.scene.subset import subset
+    from meshnode.mesh.simulator import simulate
+    from meshnode.mesh.stats import work_units
+    from protocols.render import EngineSpec
+
+    scene = read_nff(spd_scene(name))
+    image = ImageSpec(width=128, height=128, spp=1)
+    one = plan_render(Request(scene, image, EngineSpec(), plan=MeshPlan(1, 1, 0)))
+    alone = simulate([subset(scene, one.holders[0])], one.spec, one.partition).totals()
+    per_one = work_units(alone) / (128 * 128)
+    for rows, cols in ((1, 2), (2, 2), (3, 3)):
+        plan = MeshPlan(rows, cols, 1.0, "objects", "object")
+        spec = plan_render(Request(scene, image, EngineSpec(), plan=plan)).spec
+        counts = coarse_pass(scene, spec, None, None).totals()
+        width, height = coarse_spec(spec).sample_grid
+        assert width < 128  # the coarse image's rays lie further apart than the render's
+        ratio = walked_units(counts) / (width * height) / per_one
+        assert 0.8 <= ratio <= 1.1, (rows, cols, ratio)
+
+
 def test_the_allowance_estimates_a_stage_by_the_engines_it_builds_kernel_loads_apart(
     monkeypatch,
 ):

@@ -21,9 +21,16 @@ from host.planning.budget import budgeted, holdings, within
 from host.planning.cells import scene_box
 from host.planning.holding import at_overlap, choose_holding, overlap_report, too_big_for_memory
 from host.planning.objectcells import object_cells
-from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
+from host.planning.objectwork import balanced_object_cells, object_limit
 from host.planning.partition import partition
-from host.planning.prepass import allowance, efficiency, node_costs
+from host.planning.prepass import (
+    allowance,
+    coarse_pass,
+    costs,
+    efficiency,
+    node_costs,
+    tracing_seconds,
+)
 from host.planning.rectangles import bands, column_rows, splits
 from host.planning.shared_cells import busiest_vs_none, choose_shared
 from host.planning.workmap import map_tries
@@ -175,8 +182,9 @@ def _tries(scene, spec: RenderSpec, rounds: int, families, work: dict) -> list[t
     each family only where the pre-pass's allowance affords its rounds (the even cuts'
     simulation estimates the render's tracing: `host.planning.allowance`)."""
     plan, allowed = spec.plan, allowance()
-    even = node_costs(scene, spec, None, None)
-    allowed.learn(node_seconds(spec, float(even.sum())))  # the even cuts estimate the render
+    first = coarse_pass(scene, spec, None, None)
+    even = costs(first)
+    allowed.learn(tracing_seconds(spec, first))  # the even cuts estimate the render
     tried = [(float(even.max()), None, None, even, "even", None)]
     for family in families:
         if not allowed.affords(f"cuts: {family}", 1 if family == "objects" else rounds):

@@ -22,6 +22,7 @@ from host.planning.prepass import (
     coarse_spec,
     costs,
     primary_costs,
+    tracing_seconds,
     unaffordable,
 )
 from host.planning.seenwork import first_guess
@@ -43,16 +44,11 @@ ROUNDS = 3
 # 1.01 / 1.08 (its kernels 1.24 / 1.15; its frame is its sky's eye rays, docs/measurements)
 GRID = 32
 FITS = 3  # passes over every round's measurements fitting the grid to them all
-# One node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), for the pre-pass's
-# estimate of a render's tracing: the lowest of the SPD scenes', so the pre-pass rather
-# affords too little than too much. At 4.0 (fitted when the kernels were slower) the estimate
-# was 0.94-1.61 times one node's measured tracing CPU (256x256, 3x3 under a quarter share,
-# at `bench.mesh --min-trace 3`'s samples: tetra 1.61, teapot 1.27, balls 1.25, mount 1.19,
-# rings and gears 0.95), and the pre-pass took 12-18% of the tracing on five of the six;
-# measured per unit: tetra 2.49 ns, teapot 3.16, balls 3.19, mount 3.36, rings and gears
-# 4.2. (The coarse pass's own kernel CPU says 25-30 times too much, teapot 256x256 at 135
-# spp: 80 s against 2.9 s: its batches are small, and each kernel call costs about 30 us
-# whatever its size.)
+# A node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), turning each node's
+# simulated work into the seconds the sky's tiles are dealt against (`node_seconds`). It
+# also estimated one node's tracing of the render for the pre-pass's allowance until session
+# 54, on the coarse pass's mesh units: 0.56-0.95 of the measured tracing on five scenes,
+# 1.11-1.49 on tetra and tetra_s8 (`prepass.tracing_seconds` now, on the rays' own walks).
 NS_PER_UNIT = 2.5
 # A re-cut whose fullest node breaks the limit (the cuts count objects per node as if every
 # later cut divided them evenly, and the boxes grow by the overlap) is cut again under a cap
@@ -90,7 +86,7 @@ def balanced_object_cells(
     why = f"asked for {rounds}"
     # the first cut's simulation estimates the render's tracing: the pre-pass's allowance
     cost = costs(first)
-    allowed.learn(node_seconds(spec, float(cost.sum())))
+    allowed.learn(tracing_seconds(spec, first))
     # each node's work and the part of it in its primary batches (`holder_shares`), together
     both = np.column_stack([cost, primary_costs(first)])
     tried, over = [(float(cost.max()), cells, both, sends(first))], [excess]
@@ -212,9 +208,9 @@ def _placed(cells, cost, traffic, plan):
 
 
 def node_seconds(spec: RenderSpec, units):
-    """Tracing CPU seconds of the render for work `units` measured on the coarse pass (each
-    node's, or all nodes'): scaled by the render's samples over the coarse pass's, at
-    NS_PER_UNIT a unit; None where nothing was measured (no simulation afforded)."""
+    """Each node's tracing CPU seconds of the render for the work `units` measured on the
+    coarse pass: scaled by the render's samples over the coarse pass's, at NS_PER_UNIT a
+    unit; None where nothing was measured (no simulation afforded)."""
     if units is None:
         return None
     samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel

@@ -19,7 +19,14 @@ from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.occupancy import map_voxels, occupancy_map
 from host.planning.partition import image_partition, partition
-from host.planning.prepass import allowance, node_costs, planning, unaffordable
+from host.planning.prepass import (
+    allowance,
+    coarse_pass,
+    costs,
+    planning,
+    tracing_seconds,
+    unaffordable,
+)
 from host.planning.replicas import COPIES_LEAST, with_replicas
 from host.planning.request import Request
 from host.planning.skytiles import SkyTiles
@@ -103,8 +110,9 @@ def _planned(request: Request, memory: int) -> Planned:
         loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen
-        even = node_costs(scene, spec, None, None)
-        allowance().learn(node_seconds(spec, float(even.sum())))  # the render's tracing
+        first = coarse_pass(scene, spec, None, None)
+        even = costs(first)
+        allowance().learn(tracing_seconds(spec, first))  # the render's tracing
         overlap, occupancy, report = choose_holding(
             scene, spec, None, None, None, even.max(), overlaps, memory
         )

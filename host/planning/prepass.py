@@ -21,6 +21,7 @@ from meshnode.engine.loading import cpu_less_loads
 from meshnode.engine.mapbounds import per_map_seconds
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
+from meshnode.mesh.stats import UNIT_WEIGHTS
 from protocols.camera import CameraSampling, Generation
 from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
 
@@ -30,6 +31,13 @@ COARSE = 64  # coarse samples along the longer image axis
 # 3x3 plan's CPU (balls under a quarter share: 117 builds, 0.56 s of 2.7 s). At most this
 # many meshes' engines are kept, the least recently used dropped first.
 MESHES_KEPT = 3
+# One node's tracing CPU a unit of its rays' own walks (`tracing_seconds`), set below every
+# scene's so the pre-pass rather affords too little than too much. Against session 53's
+# table (256x256, 2x2 / 3x3 / 4x4 under 0.5 / 0.25 / 0.15, one node's measured tracing CPU
+# and the first cut's counts) one node took 3.7-4.7 ns a unit on tetra, tetra_s8, mount,
+# teapot, gears and balls, 5.5 on rings: the estimate is 0.57-0.87 of the tracing on every
+# row (docs/measurements.md, session 54).
+NS_ALONE = 3.2
 
 
 @dataclass
@@ -156,6 +164,32 @@ def rays_passed(outcome) -> int:
 def costs(outcome) -> np.ndarray:
     """Every simulated node's cost, in work units."""
     return np.array([r.cost for r in outcome.nodes], float)
+
+
+def tracing_seconds(spec: RenderSpec, outcome) -> float:
+    """One node's tracing CPU for the render, estimated from a coarse simulation's
+    `outcome`: its rays' own walks (`walked_units`) scaled by the render's samples over the
+    coarse image's, at NS_ALONE a unit (the pre-pass's allowance is a share of it)."""
+    coarse = coarse_spec(spec).sample_grid
+    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
+    per = walked_units(outcome.totals()) / max(1, coarse[0] * coarse[1])
+    return per * samples * NS_ALONE * 1e-9
+
+
+def walked_units(counts: dict) -> float:
+    """The work units of `counts` one node would spend on the same rays: tests, segments
+    and the hierarchy steps the rays take alone. A mesh's map walks and rays sent on are
+    its own, and a coarse image's packets walk for rays that have not entered a node
+    (`packet_idle_steps`), rays four times as far apart as the render's sharing less of
+    each walk: counted, they put the coarse pass's units at 1.1-2.1 times one node's render
+    (tetra 3x3: 4.2 hierarchy steps a sample in the coarse pass's packets, 2.0 alone,
+    2.4 in the render's packets at 256x256)."""
+    steps = counts.get("voxel_steps", 0) - counts.get("packet_idle_steps", 0)
+    return float(
+        UNIT_WEIGHTS["intersection_tests"] * counts.get("intersection_tests", 0)
+        + UNIT_WEIGHTS["voxel_steps"] * steps
+        + UNIT_WEIGHTS["ray_segments"] * counts.get("ray_segments", 0)
+    )
 
 
 def primary_costs(outcome) -> np.ndarray:

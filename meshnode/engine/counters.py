@@ -9,13 +9,15 @@ SPD author's counter counts such an event as a refracted ray (`spd_counts`).
 hierarchy nodes), `occupancy_steps` steps through the scene's occupancy map (an object-space
 node's segments leaving its box) and `occupancy_walks` the walks they make (a walk's start,
 its box span and first voxel, costs several steps): each costs differently
-(`meshnode.mesh.stats.work_units`).
+(`meshnode.mesh.stats.work_units`). `packet_idle_steps` counts the hierarchy steps (of
+`voxel_steps`) a packet took for rays that had not entered the node: the rest are what the
+rays walk alone, however far apart they lie (`host.planning.prepass.tracing_seconds`).
 """
 
 EYE_RAYS, EYE_HITS, REFLECTED_RAYS, REFRACTED_RAYS, SHADOW_RAYS, SHADOW_BLOCKED = range(6)
 TESTS, STEPS, SEGMENTS, ESCAPED, HITS, SHADOW_LIT, FORWARDED, INTERNAL, OCC_STEPS = range(6, 15)
-OCC_WALKS = 15
-N_COUNTERS = 16
+OCC_WALKS, PACKET_IDLE = 15, 16
+N_COUNTERS = 17
 COUNTER_NAMES = (
     "eye_rays",
     "eye_hits",
@@ -33,12 +35,19 @@ COUNTER_NAMES = (
     "internal_reflections",
     "occupancy_steps",
     "occupancy_walks",
+    "packet_idle_steps",
 )
 # Rays by kind, the six counts any two renders of one scene must agree on (one node and a mesh,
 # grid and hierarchy, one process and another): what the tests and benchmarks compare.
 RAY_COUNTS = COUNTER_NAMES[:6]
 # The walks' work, not rays: kept apart from the ray counts in a render's statistics.
-WALK_COUNTS = ("intersection_tests", "voxel_steps", "occupancy_steps", "occupancy_walks")
+WALK_COUNTS = (
+    "intersection_tests",
+    "voxel_steps",
+    "occupancy_steps",
+    "occupancy_walks",
+    "packet_idle_steps",
+)
 # What the SPD author's published table counts: eye rays that hit, reflected rays, refracted
 # rays (total internal reflections included) and shadow rays.
 SPD_COUNT_KEYS = ("eye_hits", "reflected_rays", "refracted_rays", "shadow_rays")

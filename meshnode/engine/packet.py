@@ -20,7 +20,7 @@ from meshnode.engine.bvh import (
     sort4,
 )
 from meshnode.engine.bvh import STACK as BVH_STACK
-from meshnode.engine.counters import STEPS, TESTS
+from meshnode.engine.counters import PACKET_IDLE, STEPS, TESTS
 from meshnode.engine.jit import inline, kernel, leaf
 from meshnode.engine.leaves import PREFETCH_FROM, prefetch_entered
 from meshnode.engine.rows import (
@@ -230,6 +230,7 @@ def packet_walk(
             break
     counters[TESTS] += tests
     counters[STEPS] += visits
+    counters[PACKET_IDLE] += visits - entered
     return entered, visits
 
 

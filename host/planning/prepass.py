@@ -32,12 +32,13 @@ COARSE = 64  # coarse samples along the longer image axis
 # many meshes' engines are kept, the least recently used dropped first.
 MESHES_KEPT = 3
 # One node's tracing CPU a unit of its rays' own walks (`tracing_seconds`), set below every
-# scene's so the pre-pass rather affords too little than too much. Against session 53's
-# table (256x256, 2x2 / 3x3 / 4x4 under 0.5 / 0.25 / 0.15, one node's measured tracing CPU
-# and the first cut's counts) one node took 3.7-4.7 ns a unit on tetra, tetra_s8, mount,
-# teapot, gears and balls, 5.5 on rings: the estimate is 0.57-0.87 of the tracing on every
-# row (docs/measurements.md, session 54).
-NS_ALONE = 3.2
+# scene's so the pre-pass rather affords too little than too much. Against one node's
+# measured tracing CPU (256x256, 2x2 / 3x3 / 4x4 under 0.5 / 0.25 / 0.15, `bench.mesh
+# --min-trace 3`, two runs of the seven scenes) one node took 3.4-4.7 ns a unit on tetra,
+# tetra_s8, mount, teapot, gears and balls, 5.5-5.7 on rings: at 3.2 the estimate was
+# 0.56-0.94 of the tracing (tetra 2x2 the highest), so 3.0 keeps a margin for a quicker run
+# (docs/measurements.md, session 54).
+NS_ALONE = 3.0
 
 
 @dataclass

@@ -118,3 +118,38 @@ def test_boxes_clipped_before_are_not_clipped_again_and_hold_the_same_objects(mo
     # another scene object (the same file read again) is clipped anew
     clip.holders(read_nff(spd_scene("gears_s1.nff")), los[:1], his[:1])
     assert clipped == [4, 2, 1]
+
+
+def test_a_plan_makes_each_node_s_scene_once_and_digests_it_once(monkeypatch):
+    """Within a plan the same rows of held objects give the same scene objects
+    (`prepass.held_scenes`), and the plan's engine cache digests each once
+    (`EngineCache(same_scenes=True)`); outside a plan every call makes its own, and a cache
+    without `same_scenes` digests every time. The engines are the same either way."""
+    import meshnode.mesh.engines as engines_module
+    from host.scene.subset import subset
+    from protocols.scene import OBJECT_KINDS
+
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    objects = sum(len(getattr(scene, kind)) for kind in OBJECT_KINDS)
+    keep = np.random.default_rng(5).random((3, objects)) < 0.6  # each node's objects
+    outside = prepass.held_scenes(scene, keep)
+    assert all(a is not b for a, b in zip(outside, prepass.held_scenes(scene, keep), strict=True))
+    digested = []
+    digest = engines_module.scene_digest
+    monkeypatch.setattr(engines_module, "scene_digest", lambda s: digested.append(1) or digest(s))
+    with prepass.planning(3):
+        first = prepass.held_scenes(scene, keep)
+        again = prepass.held_scenes(scene, keep[::-1])
+        assert [id(s) for s in again] == [id(s) for s in first[::-1]]
+        cache = prepass._PLANNING.get().engines
+        for s in first + again:
+            cache.get(s, keep=6)
+        assert len(digested) == 3 and cache.built == 3
+    for made, row in zip(first, keep, strict=True):
+        expected = subset(scene, row)
+        assert engines_module.scene_digest(made) == engines_module.scene_digest(expected)
+    plain = EngineCache(least=6)
+    digested.clear()
+    for s in first + again:
+        plain.get(s, keep=6)
+    assert len(digested) == 6 and plain.built == 3

@@ -30,13 +30,13 @@ from host.planning.prepass import (
     allowance,
     coarse_partition,
     costs,
+    held_scenes,
     partition_pass,
     primary_costs,
     rays_passed,
     simulated,
 )
 from host.planning.rectangles import spread
-from host.scene.subset import subset
 from meshnode.mesh.adaptive import RectIndex
 from protocols.partition import Partition
 from protocols.render import RenderSpec
@@ -290,7 +290,7 @@ def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted)
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays
     dealt = replace(cpart, owner=tuple(spread(list(cpart.takers), spec.plan, weights)))
-    weighed = simulated([subset(scene, keep[n]) for n in range(part.nodes)], coarse, dealt)
+    weighed = simulated(held_scenes(scene, keep[: part.nodes]), coarse, dealt)
     now, before = float(costs(weighed).max()), float(costs(counted).max())
     better = now < before
     full = _tile_weights(part, spec, coarse, cpart, weights) if better else None

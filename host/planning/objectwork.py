@@ -19,8 +19,8 @@ from host.planning.placement import MAX_CELLS, placed, sends
 from host.planning.prepass import (
     allowance,
     coarse_pass,
-    coarse_spec,
     costs,
+    per_coarse_sample,
     primary_costs,
     tracing_seconds,
     unaffordable,
@@ -213,10 +213,7 @@ def node_seconds(spec: RenderSpec, units):
     unit; None where nothing was measured (no simulation afforded)."""
     if units is None:
         return None
-    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
-    coarse = coarse_spec(spec)
-    per = np.asarray(units, float) / max(1, coarse.sample_grid[0] * coarse.sample_grid[1])
-    return per * samples * NS_PER_UNIT * 1e-9
+    return np.asarray(units, float) * per_coarse_sample(spec) * NS_PER_UNIT * 1e-9
 
 
 def _fitted(grid: WorkGrid, measured: list) -> WorkGrid:

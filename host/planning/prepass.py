@@ -47,7 +47,7 @@ class Planning:
 
     engines: EngineCache
     allowance: Allowance
-    held: dict = field(default_factory=dict)  # `held_scenes`: (scene id, objects) -> subset
+    held: dict = field(default_factory=dict)  # `held_scenes`: (id, objects) -> (scene, subset)
 
 
 _PLANNING: ContextVar[Planning | None] = ContextVar("planning", default=None)
@@ -190,10 +190,19 @@ def tracing_seconds(spec: RenderSpec, outcome) -> float:
     """One node's tracing CPU for the render, estimated from a coarse simulation's
     `outcome`: its rays' own walks (`walked_units`) scaled by the render's samples over the
     coarse image's, at NS_ALONE a unit (the pre-pass's allowance is a share of it)."""
+    return walked_units(outcome.totals()) * per_coarse_sample(spec) * NS_ALONE * 1e-9
+
+
+def per_coarse_sample(spec: RenderSpec) -> float:
+    """The render's samples for each of the coarse image's: what scales work measured on
+    the coarse pass to the render's."""
     coarse = coarse_spec(spec).sample_grid
-    samples = spec.sample_grid[0] * spec.sample_grid[1] * spec.rays_per_pixel
-    per = walked_units(outcome.totals()) / max(1, coarse[0] * coarse[1])
-    return per * samples * NS_ALONE * 1e-9
+    return (
+        spec.sample_grid[0]
+        * spec.sample_grid[1]
+        * spec.rays_per_pixel
+        / max(1, coarse[0] * coarse[1])
+    )
 
 
 def walked_units(counts: dict) -> float:

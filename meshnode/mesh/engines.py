@@ -112,11 +112,11 @@ def scene_digest(scene: SceneData) -> bytes:
     return h.digest()
 
 
-def _engine_key(scene: bytes, options: dict) -> bytes:
-    """A digest of everything an engine is built from: its scene's digest
+def _engine_key(objects: bytes, options: dict) -> bytes:
+    """A digest of everything an engine is built from: its scene's digest `objects`
     (`scene_digest`) and options (bytes and arrays digested as they are: the repr of an
     occupancy map's 32 KB of bits was a tenth of a plan's CPU)."""
-    h = hashlib.sha256(scene)
+    h = hashlib.sha256(objects)
     for name, value in sorted(options.items()):
         h.update(name.encode())
         _digest(h, value)

@@ -16,7 +16,7 @@ from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lightmaps import FACE_BLOCKS, light_clear, light_maps
+from meshnode.engine.lightmaps import NO_LIGHT_MAPS, face_blocks, light_clear, light_maps
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.mapbounds import marked_box
 from meshnode.engine.occupancy import SUB, occupancy_arrays
@@ -240,7 +240,7 @@ def test_a_segment_told_clear_from_its_light_meets_no_marked_sub_voxel(name):
     rng = np.random.default_rng(5)
     points = np.vstack([scene.lights["pos"], lo + rng.random((2, 3)) * (hi - lo)])
     maps = light_maps(occ, points)
-    assert maps.shape == (len(points), 6 * FACE_BLOCKS**2)
+    assert maps.shape == (len(points), 6 * face_blocks(len(points)) ** 2)
     told, boxes = 0, _marked_boxes(occ)
     for li, light in enumerate(points):
         for x in lo + rng.random((150, 3)) * (hi - lo):
@@ -257,7 +257,7 @@ def test_shadow_rays_clear_from_their_light_end_without_a_walk(name, monkeypatch
     runs = {}
     for use in (True, False):
         if not use:
-            monkeypatch.setattr(engine_module, "light_maps", lambda occ, lights: np.zeros((0, 0)))
+            monkeypatch.setattr(engine_module, "light_maps", lambda occ, lights: NO_LIGHT_MAPS)
         runs[use] = render_mesh(scene, 2, 2, 1, 32, 32, spp=4, mode="object")
     (img, totals, _, _), (ref, ref_totals, _, _) = runs[True], runs[False]
     assert img.tobytes() == ref.tobytes()

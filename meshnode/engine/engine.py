@@ -19,7 +19,7 @@ from meshnode.engine.bound import Bound, array_key
 from meshnode.engine.counters import COUNTER_NAMES, N_COUNTERS
 from meshnode.engine.grid import box_only
 from meshnode.engine.heap import keep_freed_memory
-from meshnode.engine.lightmaps import light_maps
+from meshnode.engine.lightmaps import NO_LIGHT_MAPS, light_maps
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import everywhere, map_stats, occupancy_arrays
 from meshnode.engine.packet import PACKET
@@ -143,7 +143,7 @@ class Engine:
         )
         # the map seen from each light: shadow rays leaving the box walk it less
         self.light_near = (
-            np.zeros((0, 0))
+            NO_LIGHT_MAPS
             if occupancy is None or self.holds_scene
             else light_maps(self.occupancy, self.tables.lights)
         )

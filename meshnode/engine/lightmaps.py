@@ -18,28 +18,47 @@ from meshnode.engine.mapbounds import bound_maps, padded_voxel, per_map
 from meshnode.engine.occupancy import Occupancy
 from meshnode.engine.sightlines import INF, MARGIN
 
-FACE_BLOCKS = 64  # blocks along a side of each face of a light's cube map
+FACE_BLOCKS = 256  # blocks along a side of each face of a light's cube map, at most ...
+LIGHT_MAP_BYTES = 16 << 20  # ... within this for all the lights (float32 bounds)
+# no lights' maps: of the maps' type, so the tracing kernel is compiled for one
+NO_LIGHT_MAPS = np.zeros((0, 0), np.float32)
+
+
+def face_blocks(lights: int) -> int:
+    """Blocks along a face's side for a scene's `lights`: the finest within LIGHT_MAP_BYTES,
+    at least 16. A block must be narrow beside the map's voxels to tell a shadow ray
+    through a gap from the voxels beside it: at 64 a face's block covered 4-6 voxels of
+    balls' map as its lights see it, and half of the shadow rays walked for nothing more
+    than at 256 (simulated balls 3x3 under a quarter: 128 k walks ending lit -> 64 k)."""
+    fit = math.isqrt(LIGHT_MAP_BYTES // (4 * 6 * max(lights, 1)))
+    return max(16, min(FACE_BLOCKS, fit))
 
 
 def light_maps(occ: Occupancy, lights: np.ndarray | None) -> np.ndarray:
     """Per light (rows of `lights`, position first) and face of a cube around it (`_faces`),
-    per block of FACE_BLOCKS x FACE_BLOCKS, the least distance from the light to an occupied
-    voxel seen through that block: (lights, 6 * FACE_BLOCKS**2); (0, 0) without lights. A
-    shadow ray leaving a node's box nearer its light than its block's bound crosses only
-    empty voxels to it (`light_clear`), so the walk of the map from its exit is not made.
-    Made once a map and lights (`mapbounds.per_map`): every engine built on the map reads
-    the same (the cost pre-pass builds hundreds)."""
+    per block of `face_blocks` a side, the least distance from the light to an occupied
+    voxel seen through that block, rounded down to float32: (lights, 6 * blocks**2); (0, 0)
+    without lights. A shadow ray leaving a node's box nearer its light than its block's
+    bound crosses only empty voxels to it (`light_clear`), so the walk of the map from its
+    exit is not made. Made once a map and lights (`mapbounds.per_map`): every engine built
+    on the map reads the same (the cost pre-pass builds hundreds)."""
     if lights is None or not len(lights):
-        return np.zeros((0, 0))
+        return NO_LIGHT_MAPS
     points = np.ascontiguousarray(lights[:, :3], float)
+    blocks = face_blocks(len(points))
 
     def make():
         maps = bound_maps(occ)  # the map, or its outer and inner maps
-        return np.stack(
-            [np.minimum.reduce([_faces(*m, p, FACE_BLOCKS) for m in maps]) for p in points]
-        )
+        near = np.stack([np.minimum.reduce([_faces(*m, p, blocks) for m in maps]) for p in points])
+        return _rounded_down(near)
 
     return per_map(occ, ("lights", points.tobytes()), make)
+
+
+def _rounded_down(near: np.ndarray) -> np.ndarray:
+    """`near` as float32, each value at most its own: a bound may only shrink."""
+    out = near.astype(np.float32)
+    return np.where(out > near, np.nextafter(out, np.float32(-np.inf)), out)
 
 
 @kernel
@@ -100,7 +119,7 @@ def light_clear(maps, light, lx, ly, lz, x, y, z):
         face, depth, a, b = (4 if vz >= 0.0 else 5), az, vx, vy
     if not depth > 0.0:
         return False
-    s = FACE_BLOCKS
+    s = int(math.sqrt(maps.shape[1] // 6) + 0.5)  # `face_blocks` of the scene's lights
     fx = a / depth * (0.5 * s) + 0.5 * s  # as `_faces` projects with step 2 / s
     fy = 0.5 * s - b / depth * (0.5 * s)
     i = min(max(int(math.floor(fx)), 0), s - 1)

@@ -16,7 +16,7 @@ from meshnode.engine.locator import cell_locator
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.routing import routed, start_cells
 from meshnode.engine.sightlines import NO_EYE_MAP, SEEN_NONE, eye_map
-from meshnode.mesh.claims import claimed_bands, routing_map
+from meshnode.mesh.claims import claimed_bands
 from protocols.render import ImageSpec
 from tests.conftest import spd_scene
 from tests.meshsim import render_mesh
@@ -88,48 +88,6 @@ def test_an_eye_ray_entering_its_first_cell_before_the_others_starts_there(name)
             tested["none"] += int((first == SEEN_NONE).sum())
             tested["others"] += int((seen & ~early).sum())
     assert tested["first"] > 100 and tested["others"] > 0, tested  # not vacuous
-
-
-@pytest.mark.parametrize("name", ["tetra_s3.nff", "balls_s1.nff", "teapot_s1.nff"])
-def test_a_node_routes_into_its_own_cell_only_rays_that_meet_no_voxel_before_it(name):
-    """A block that sees another node's cell first: the routing map sends a ray into the
-    node's own cell, with no walk, only where it enters that cell before the block's bound,
-    and no marked sub-voxel lies before that entry (brute force); and `routed` puts each
-    such ray in the own cell at its entry, as the rule says."""
-    scene = read_nff(spd_scene(name))
-    lo, hi = scene_box(scene)
-    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi), voxels=24**3))
-    cells = _cells(lo, hi)
-    box = (np.asarray(lo, float), np.asarray(hi, float))
-    loc, rng, moved = cell_locator(*cells), np.random.default_rng(5), 0
-    image = ImageSpec(width=48, height=40, spp=4)
-    for view in _views(scene, lo, hi):
-        eye, _ = eye_map(occ, view, image, cells)
-        rays = eye_rays(view, image)
-        rays["w"][:, 0] = np.arange(len(rays))
-        g = rays["pixel"] // eye.per_cell
-        block = (g // eye.columns) // eye.side * eye.blocks_x + g % eye.columns // eye.side
-        for own in range(len(cells[0])):
-            mine = routing_map(eye, [own], own)
-            other = (eye.first[block] >= 0) & (eye.first[block] != own)
-            assert np.array_equal(mine.first[block][other], np.full(other.sum(), own))
-            entry = _entry(rays, *(c[own] for c in cells))
-            early = other & (entry < eye.near[block])
-            out, starts, _ = routed(rays, True, own, *box, occ, *cells, loc, mine)
-            here = out[starts[own] : starts[own + 1]]
-            ids = here["w"][:, 0].astype(np.int64).tolist()
-            at = dict(zip(ids, here["t_min"].tolist(), strict=True))
-            idx = np.flatnonzero(early)
-            # each went into the own cell at its entry (to the slabs' round-off)
-            assert all(i in at for i in idx.tolist()), (name, view, own)
-            t = np.array([at[i] for i in idx.tolist()])
-            np.testing.assert_allclose(t, entry[idx], rtol=1e-9, atol=1e-12)
-            some = rng.choice(idx, min(len(idx), 40), replace=False) if len(idx) else idx
-            marked = _first_marked_brute(rays[some], occ)
-            slack = 1e-12 * np.abs(entry[some])
-            assert not (marked < entry[some] - slack).any(), (name, view, own)
-            moved += len(idx)
-    assert moved > 50, moved  # not vacuous
 
 
 def test_bands_cover_every_claimed_cell_once_in_batches():

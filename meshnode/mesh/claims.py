@@ -192,16 +192,10 @@ def claimed_bands(mine: np.ndarray, per_cell: int, batch: int):
         yield y0, y1, int(cols[0]), int(cols[-1]) + 1
 
 
-def routing_map(eye: EyeMap, traced: list[int], own: int) -> EyeMap:
+def routing_map(eye: EyeMap, traced: list[int]) -> EyeMap:
     """The eye map a node routes with: a block seeing first a cell it traces (its own, or a
     copy it holds) sends its rays into that cell without a walk of the map where they may
-    (`routing.routed`). A block seeing first another node's cell sends a ray into the node's
-    `own` cell where it enters it before the block's bound (`EyeMap.near`): no voxel of any
-    cell lies nearer, and the own cell's lie in it, so the ray's work starts there as the walk
-    would find (tetra 3x3: a third of the eye rays that walked, balls' two thirds). Any other
-    ray walks, so a ray that meets no voxel still ends where it was made instead of being
-    passed to the cell it crosses."""
-    mine = np.isin(eye.first, traced)
-    other = ~mine & (eye.first != SEEN_NONE) & np.isfinite(eye.near)
-    first = np.where(mine, eye.first, np.where(other, own, SEEN_NONE))
-    return eye._replace(first=first, others=np.where(other, eye.near, eye.others))
+    (`routing.routed`); any other block's rays walk as before, so a ray that meets no voxel
+    still ends where it was made instead of being passed to the cell it crosses."""
+    first = np.where(np.isin(eye.first, traced), eye.first, SEEN_NONE)
+    return eye._replace(first=first)

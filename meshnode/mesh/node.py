@@ -128,7 +128,7 @@ class NodeCore:
         self.claims, self.claims_reason = node_claims(
             engines, self.engine, spec, part, self.view, self.eye
         )
-        self.eye = routing_map(self.eye, list(spec.plan.held(node)), node)
+        self.eye = routing_map(self.eye, list(spec.plan.held(node)))
 
     def _options(self, node: int) -> dict:
         """Node `node`'s engine: the render's EngineSpec whole, at its box, told the primary

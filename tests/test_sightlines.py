@@ -16,7 +16,14 @@ from host.planning.cells import scene_box
 from host.planning.occupancy import occupancy_map
 from host.scene.nff import read_nff
 from meshnode.engine.camera import eye_rays
-from meshnode.engine.lightmaps import NO_LIGHT_MAPS, face_blocks, light_clear, light_maps
+from meshnode.engine.lightmaps import (
+    LIGHT_MAP_BYTES,
+    NO_LIGHT_MAPS,
+    _faces,
+    face_blocks,
+    light_clear,
+    light_maps,
+)
 from meshnode.engine.locator import cell_locator
 from meshnode.engine.mapbounds import marked_box
 from meshnode.engine.occupancy import SUB, occupancy_arrays
@@ -248,6 +255,34 @@ def test_a_segment_told_clear_from_its_light_meets_no_marked_sub_voxel(name):
                 told += 1
                 assert not _meets_brute(light, x, occ, boxes), (light, x)
     assert told > 10, told  # not vacuous
+
+
+def test_the_lights_maps_fit_their_bytes_and_only_shrink_a_bound():
+    """Any number of lights: the maps take at most LIGHT_MAP_BYTES (past the least blocks a
+    face), as float32 bounds each at most the float64 one `_faces` made, and as close."""
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    lo, hi = (np.asarray(b, float) for b in scene_box(scene))
+    occ = occupancy_arrays(lo, hi, *occupancy_map(scene, (lo, hi), voxels=12**3))
+    rng = np.random.default_rng(3)
+    for n in (1, 3, 40, 300):
+        points = lo + rng.random((n, 3)) * (hi - lo) * 1.5
+        maps = light_maps(occ, points)
+        blocks = face_blocks(n)
+        assert maps.dtype == np.float32 and maps.shape == (n, 6 * blocks**2)
+        assert maps.nbytes <= LIGHT_MAP_BYTES or blocks == 16, (n, maps.nbytes)
+        exact = _faces(
+            occ.clear[0],
+            marked_box(occ.clear.shape[1], occ.fine),
+            occ.lo,
+            occ.cell,
+            occ.res,
+            points[0],
+            blocks,
+        )
+        assert (maps[0] <= exact).all()
+        finite = np.isfinite(exact)
+        assert np.isinf(maps[0][~finite]).all()
+        np.testing.assert_allclose(maps[0][finite], exact[finite], rtol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["balls_s1.nff", "rings_s1.nff"])

@@ -167,3 +167,34 @@ def test_rescaled_shares_move_from_holders_over_the_mean_to_those_under():
     assert out[0][0] < 0.5 and out[0][1] > 0.25 and out[0][2] > 0.25
     assert out[1] == pytest.approx((0.5, 0.5))  # its holders 1, 2 carry alike
     assert all(sum(s) == pytest.approx(1.0) for s in out[:2])
+
+
+def test_shares_are_kept_only_where_the_simulated_mesh_finds_them_lighter():
+    from dataclasses import replace
+
+    from host.planning.holder_shares import checked
+    from host.planning.partition import partition
+    from host.planning.prepass import costs, partition_pass, planning
+    from protocols.render import RenderSpec
+
+    scene = read_nff(spd_scene("teapot_s1.nff"))
+    plan = _plan(balance="objects")
+    spec = RenderSpec(ImageSpec(width=32, height=32).sized(scene.view), plan=plan)
+    part, keep = partition(scene, spec)
+    # each shared cell's eye rays all to one of its holders, or spread alike
+    tries = [((1.0, 0.0, 0.0), (1.0, 0.0)), ((0.0, 0.0, 1.0), (0.0, 1.0))]
+    tries += [((0.0, 1.0, 0.0), (1.0, 0.0)), ((1 / 3, 1 / 3, 1 / 3), (0.5, 0.5))]
+    kept = set()
+    with planning(plan.nodes):
+        without = costs(partition_pass(scene, spec, part, keep)).max()
+        for first, second in tries:
+            shared = replace(spec, plan=replace(plan, claim_shares=(first, second, (), ())))
+            out, report = checked(scene, shared, part, keep)
+            busiest = costs(partition_pass(scene, shared, part, keep)).max()
+            assert report["why"] and report["chosen"] in ("shared", "owner")
+            if busiest < without:
+                assert out is shared and report["chosen"] == "shared", report
+            else:
+                assert out.plan.claim_shares == () and report["chosen"] == "owner", report
+            kept.add(report["chosen"])
+    assert kept == {"shared", "owner"}  # both ways are tried here

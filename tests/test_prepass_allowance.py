@@ -227,3 +227,48 @@ def test_a_budget_s_retreat_simulates_its_cut_only_within_the_allowance():
     assert tiny.balance["prepass"]["simulations"] == 0
     assert retreat not in {s["stage"] for s in big.balance["prepass"]["skipped"]}
     assert big.balance["prepass"]["simulations"] > small.balance["prepass"]["simulations"]
+
+
+def test_a_stage_of_new_cells_is_estimated_with_what_the_eye_sees_of_them(monkeypatch):
+    from host.planning.allowance import Allowance
+
+    now = [10.0]
+    monkeypatch.setattr(allowance.time, "process_time", lambda: now[0])
+    allowed = Allowance(began=10.0)
+    now[0] += 0.1  # the first cut: 0.03 s building 9 engines, 0.02 making its sightlines
+    allowed.ran(0.1, built=9, build_seconds=0.03, sights=0.02)
+    assert allowed.per_pass == pytest.approx(0.05) and allowed.per_cut == pytest.approx(0.02)
+    assert allowed.cost(1) == pytest.approx(0.1)  # a re-cut round: all of it again
+    assert allowed.cost(2, builds=0) == pytest.approx(0.1)  # the same cells: neither
+    now[0] += 0.05
+    allowed.ran(0.05)  # so it was
+    assert allowed.per_pass == pytest.approx(0.05) and allowed.per_cut == pytest.approx(0.02)
+
+
+def test_a_plan_s_stages_simulate_the_same_plan_once():
+    from dataclasses import replace
+
+    from host.planning.plan import plan_render
+    from host.planning.prepass import costs, partition_pass
+    from host.planning.request import Request
+    from protocols.render import EngineSpec
+
+    scene = read_nff(spd_scene("balls_s1.nff"))
+    plan = MeshPlan(2, 2, 1.0, "objects", "object", max_share=0.5)
+    request = Request(scene, ImageSpec(width=64, height=64, spp=64), EngineSpec(), plan=plan)
+    planned = plan_render(request)
+    spec, part, keep = planned.spec, planned.partition, planned.holders
+    with planning(plan.nodes) as allowed:
+        first = partition_pass(scene, spec, part, keep)
+        again = partition_pass(scene, spec, replace(part), keep.copy())  # equal, not the same
+        assert again is first and (allowed.passes, allowed.reused) == (1, 1)
+        nearest = replace(spec, plan=replace(spec.plan, forward="nearest"))
+        other = partition_pass(scene, nearest, part, keep)
+        assert other is not first and (allowed.passes, allowed.reused) == (2, 1)
+        fewer = keep.copy()
+        fewer[0, np.flatnonzero(fewer[0])[0]] = False  # one object fewer on node 0
+        assert partition_pass(scene, spec, part, fewer) is not first
+        assert allowed.passes == 3
+    outside = partition_pass(scene, spec, part, keep)  # no plan: simulated anew
+    assert outside is not first
+    np.testing.assert_array_equal(costs(outside), costs(first))

@@ -34,10 +34,13 @@ class Allowance:
     seconds: float = math.inf  # CPU the pre-pass may take (inf until the estimate is learnt)
     trace: float | None = None  # one node's tracing of the render, estimated (seconds)
     passes: int = 0  # simulations run
+    reused: int = 0  # simulations asked again, their outcomes kept (`prepass.partition_pass`)
     pass_seconds: float = 0.0  # their CPU in all (kernel loads left out)
     built: int = 0  # engines they built
     build_seconds: float = 0.0  # ... and those builds' CPU
     once_seconds: float = 0.0  # ... and the map's tables they made, once a plan
+    sight_seconds: float = 0.0  # ... and what the eye sees of their cells, once a cut
+    cuts: int = 0  # simulations that made it (of new cells)
     most_built: int = 0  # the most one simulation built: a new cut's, every node's engine
     loads: float = field(default_factory=lambda: load_seconds())  # kernel loads before it
     skipped: list = field(default_factory=list)
@@ -71,16 +74,25 @@ class Allowance:
         )
 
     def ran(
-        self, seconds: float, built: int = 0, build_seconds: float = 0.0, once: float = 0.0
+        self,
+        seconds: float,
+        built: int = 0,
+        build_seconds: float = 0.0,
+        once: float = 0.0,
+        sights: float = 0.0,
     ) -> None:
         """A simulation ran, taking `seconds` of CPU (kernel loads left out), `build_seconds`
-        of them building `built` engines and `once` making the map's tables no later one
-        makes again (`mapbounds.per_map`: balls 3x3, 28 ms of the first simulation's 88)."""
+        of them building `built` engines, `once` making the map's tables no later one
+        makes again (`mapbounds.per_map`: balls 3x3, 28 ms of the first simulation's 88) and
+        `sights` what the eye sees of new cells (`EngineCache.sightlines`: rings 4x4, 11 ms
+        of the first cut's 73, where a simulation of the same cells took 35)."""
         self.passes += 1
         self.pass_seconds += seconds
         self.built += built
         self.build_seconds += build_seconds
         self.once_seconds += once
+        self.sight_seconds += sights
+        self.cuts += sights > 0
         self.most_built = max(self.most_built, built)
 
     @property
@@ -98,8 +110,13 @@ class Allowance:
     @property
     def per_pass(self) -> float:
         """A simulation's CPU on engines already built, as measured so far."""
-        made = self.pass_seconds - self.build_seconds - self.once_seconds
+        made = self.pass_seconds - self.build_seconds - self.once_seconds - self.sight_seconds
         return made / self.passes if self.passes else 0.0
+
+    @property
+    def per_cut(self) -> float:
+        """What the eye sees of a simulation's new cells, as measured so far."""
+        return self.sight_seconds / self.cuts if self.cuts else 0.0
 
     @property
     def per_build(self) -> float:
@@ -108,9 +125,11 @@ class Allowance:
 
     def cost(self, passes: int, builds: int | None = None) -> float:
         """CPU of `passes` simulations that build `builds` engines (None: each a new cut's,
-        as many as the most one simulation built)."""
+        as many as the most one simulation built; any: of new cells, whose sightlines are
+        made too)."""
         builds = passes * self.most_built if builds is None else builds
-        return passes * self.per_pass + builds * self.per_build
+        cuts = passes * self.per_cut if builds else 0.0
+        return passes * self.per_pass + builds * self.per_build + cuts
 
     def affords(
         self, stage: str, passes: int = 1, reserve: int = 0, builds: int | None = None
@@ -148,6 +167,7 @@ class Allowance:
             "cpu_seconds": self.spent,
             "one_node_tracing_seconds": self.trace,
             "simulations": self.passes,
+            "simulations_reused": self.reused,
             "simulation_cpu_seconds": self.pass_seconds,
             "engines_built": self.built,
             "engine_build_cpu_seconds": self.build_seconds,

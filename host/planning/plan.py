@@ -14,7 +14,7 @@ from host.planning.balance import balanced_cuts
 from host.planning.budget import budgeted, holdings, refusal, report, retreats, within
 from host.planning.cells import scene_box
 from host.planning.growth import grown_within
-from host.planning.holder_shares import refined, shared
+from host.planning.holder_shares import checked, refined, shared
 from host.planning.holding import FITS, choose_holding, engine_bytes
 from host.planning.objectwork import balanced_object_cells, node_seconds, object_limit
 from host.planning.occupancy import map_voxels, occupancy_map
@@ -104,7 +104,9 @@ def _planned(request: Request, memory: int) -> Planned:
         )
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and plan.balance == "objects":
-        reserve = COPIES_LEAST if budgeted(plan) and request.auto.budget_copies else 0
+        # the copies' simulations kept from the re-cut rounds, and the shares' check
+        copied = budgeted(plan) and request.auto.budget_copies
+        reserve = COPIES_LEAST + int(request.auto.share_claims) if copied else 0
         limit = object_limit(scene, plan)
         cells, cost, report = balanced_object_cells(scene, spec, limit, reserve=reserve)
         loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
@@ -170,11 +172,14 @@ def _within_budget(
         raise refusal(scene, spec.plan, held)
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
-    spec, part, keep, chosen = _copied(scene, spec, part, keep, load)
+    spec, part, keep, chosen = _copied(scene, spec, part, keep, load, reserve=int(share))
     if spec.plan.holds and share:
         work = chosen.get("simulated_load")
         primary = chosen.get("simulated_primary_load", primary)
         spec, chosen["claims"] = shared(spec, work, primary)
+        if spec.plan.claim_shares:  # weighed from the cells' work: simulated where afforded
+            spec, check = checked(scene, spec, part, keep)
+            chosen["claims"].update(chosen=check["chosen"], checked=check)
     elif spec.plan.holds:
         chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)
@@ -190,7 +195,7 @@ def _within_budget(
     )
 
 
-def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None):
+def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve: int = 0):
     """(spec, partition, holders, report) of the budget's copies (`with_replicas`) on the
     cells as cut, or where those are cut by the objects evened on the work and the
     simulated busiest node still carries UNEVEN times the mean or more, on cells cut for the
@@ -198,8 +203,9 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None):
     room for copies of the hottest cells. The mountain 3x3 under a quarter share: its glass
     spheres' cell took 54% of the work, and with cells evened on the work only three nodes
     besides its owner had room for its copy (busiest frame 1.02 s against 0.73 cut for the
-    fewest objects, the copy then on every node)."""
-    at, dealt, chosen = with_replicas(scene, spec, part, keep, load)
+    fewest objects, the copy then on every node). `reserve`: simulations the copies keep
+    for the claims' shares' check (`holder_shares.checked`)."""
+    at, dealt, chosen = with_replicas(scene, spec, part, keep, load, reserve)
     simulated = chosen.get("simulated_load", [])
     top = chosen.get("simulated_busiest", 0.0)
     uneven = top / max(np.mean(simulated), 1e-300) if simulated else 0.0

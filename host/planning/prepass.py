@@ -48,6 +48,7 @@ class Planning:
     engines: EngineCache
     allowance: Allowance
     held: dict = field(default_factory=dict)  # `held_scenes`: (id, objects) -> (scene, subset)
+    passes: dict = field(default_factory=dict)  # `partition_pass`: its key -> (camera, Outcome)
 
 
 _PLANNING: ContextVar[Planning | None] = ContextVar("planning", default=None)
@@ -92,11 +93,12 @@ def simulated(scenes, spec: RenderSpec, part):
         return simulate(scenes, spec, part)
     cache = now.engines
     began, built, building = cpu_less_loads(), cache.built, cache.build_seconds
-    once = per_map_seconds()
+    once, sights = per_map_seconds(), cache.sight_seconds
     out = simulate(scenes, spec, part, engines=cache)
     seconds = cpu_less_loads() - began
     built, building = cache.built - built, cache.build_seconds - building
-    now.allowance.ran(seconds, built, building, once=per_map_seconds() - once)
+    once, sights = per_map_seconds() - once, cache.sight_seconds - sights
+    now.allowance.ran(seconds, built, building, once=once, sights=sights)
     return out
 
 
@@ -145,9 +147,29 @@ def coarse_pass(scene, spec: RenderSpec, xs, ys, cells=None, occupancy=True):
 
 def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray):
     """The simulated mesh's Outcome on the coarse image with a partition's own cells, map,
-    boxes (grown as they may be, node by node) and holders (`keep`)."""
+    boxes (grown as they may be, node by node) and holders (`keep`). Within a plan, once for
+    the same of all these: the stages after the copies each simulated the plan they were
+    handed before changing it (teapot 3x3: the copies' plan three times, a tenth of its
+    pre-pass), the outcome kept for the plan and its reuse counted (`Allowance.reused`)."""
+    now, key = _PLANNING.get(), _pass_key(scene, spec, part, keep)
+    if now is not None and key in now.passes:
+        now.allowance.reused += 1
+        return now.passes[key][1]
     coarse, cpart = coarse_partition(scene, spec, part)
-    return simulated(held_scenes(scene, keep[: part.nodes]), coarse, cpart)
+    out = simulated(held_scenes(scene, keep[: part.nodes]), coarse, cpart)
+    if now is not None:
+        now.passes[key] = (spec.camera, out)  # the camera kept: its id stays its own
+    return out
+
+
+def _pass_key(scene, spec: RenderSpec, part, keep: np.ndarray) -> tuple:
+    """What `partition_pass` simulates from: the scene and camera by identity (a plan's
+    are the same objects throughout; a camera's elements are an array), the rest of the
+    spec, the partition's cells, boxes and map, and the holders' bits."""
+    occupancy = (part.occ_res, part.occ_bits) != EVERYWHERE
+    cells = (part.cell_los, part.cell_his, part.los, part.his, occupancy)
+    held = np.packbits(np.asarray(keep[: part.nodes], bool)).tobytes()
+    return id(scene), id(spec.camera), replace(spec, camera=None), cells, held
 
 
 def held_scenes(scene, keep: np.ndarray) -> list:

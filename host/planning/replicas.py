@@ -65,7 +65,7 @@ HOLDER = {
 
 
 def with_replicas(
-    scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray, load=None
+    scene: SceneData, spec: RenderSpec, part: Partition, keep: np.ndarray, load=None, reserve=0
 ) -> tuple[RenderSpec, Partition, dict]:
     """(spec, partition, report): the budgeted plan with copies of the hottest cells on the
     nodes with room for them (`MeshPlan.holds`): of the copies each rule of RULES chooses,
@@ -73,7 +73,9 @@ def with_replicas(
     busiest node carries least, if less than without (or as much, with fewer rays passed);
     else the plan as it was, and why. Where the pre-pass's allowance affords no simulation
     of them, the copies of the load rule unsimulated (`_unsimulated`), from each node's
-    simulated `load` on these cells where it is known and uneven."""
+    simulated `load` on these cells where it is known and uneven. `reserve`: simulations of
+    these cells kept from the other sets, forwarding and dealing for a later stage (the
+    claims' shares' check)."""
     plan = spec.plan
     if not budgeted(plan) or plan.nodes < 2 or plan.copies:
         why = "the plan holds every neighbour's copy within the budget" if plan.copies else ""
@@ -94,7 +96,7 @@ def with_replicas(
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
     tried = []
     for rule, share, holds in tries:
-        if tried and not allowance().affords("copies: the other sets", builds=0):
+        if tried and not allowance().affords("copies: the other sets", 1, reserve, builds=0):
             break
         at = replace(spec, plan=replace(plan, copies=True, holds=holds))
         after = partition_pass(scene, at, part, keep)
@@ -114,8 +116,8 @@ def with_replicas(
         )
     if not within(at.plan, holdings(scene, at, part, keep)):  # choose_copies keeps it
         raise AssertionError("copies chosen past the memory budget")
-    at, forward, counted = _forwarded(scene, at, part, keep, after)
-    weights, dealing = _weighed(scene, at, part, keep, counted)
+    at, forward, counted = _forwarded(scene, at, part, keep, after, reserve)
+    weights, dealing = _weighed(scene, at, part, keep, counted, reserve)
     return (
         at,
         _dealt(part, at, weights),
@@ -184,7 +186,7 @@ def _candidates(scene: SceneData, spec: RenderSpec, part: Partition, keep, befor
     return out
 
 
-def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners):
+def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners, reserve=0):
     """(spec, report, its simulated Outcome): the plan with its copies' rays handed to each
     cell's nearest holder where the simulated busiest node then carries less than in
     `owners` (the plan's Outcome, handed to the owners), else as it was."""
@@ -192,7 +194,7 @@ def _forwarded(scene: SceneData, spec: RenderSpec, part: Partition, keep, owners
     if all(nearest.plan.takers(n) == spec.plan.takers(n) for n in range(spec.plan.nodes)):
         why = "every nearest holder is the owner"
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
-    if not allowance().affords("copies: forwarding", builds=0):
+    if not allowance().affords("copies: forwarding", 1, reserve, builds=0):
         why = "not simulated: " + allowance().why
         return spec, {"chosen": spec.plan.forward, "why": why}, owners
     handed = partition_pass(scene, nearest, part, keep)
@@ -279,13 +281,13 @@ def _tried(busiest: float, now: float, passed: int, rule: str, share: float, at)
     }
 
 
-def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted) -> tuple:
+def _weighed(scene: SceneData, spec: RenderSpec, part: Partition, keep, counted, reserve=0):
     """(weights, report): each tile's work as the simulated mesh measured it where the
     tiles were dealt by count (`counted`, its Outcome: `Outcome.tile_work`), kept where
     dealing by it leaves the simulated busiest node lighter (else None: by count)."""
     if spec.adaptive:
         return None, {"chosen": "count", "why": "adaptive sampling's rectangles stay put"}
-    if not allowance().affords("copies: dealing", builds=0):
+    if not allowance().affords("copies: dealing", 1, reserve, builds=0):
         return None, {"chosen": "count", "why": "not simulated: " + allowance().why}
     coarse, cpart = coarse_partition(scene, spec, part)
     weights = counted.tile_work + 1.0  # a tile with nothing traced still makes its rays

@@ -30,6 +30,7 @@ class EngineCache:
         self.seen: dict[tuple, tuple] = {}  # `sightlines`, oldest first
         self.built = 0  # engines built, not reused: what a simulated mesh's cells cost anew
         self.build_seconds = 0.0  # ... and their CPU
+        self.sight_seconds = 0.0  # CPU making `sightlines`
         # `same_scenes`: the caller hands the same scene objects again and never changes
         # them (a plan's simulations: `host.planning.prepass.held_scenes`), so each scene's
         # objects are digested once, by identity (`_scene_digest`): tetra_s8 3x3's
@@ -90,7 +91,9 @@ class EngineCache:
         full = (*map_key(occ), where, *key)
         if full in self.seen:
             return self.seen[full][2]
+        began, once = cpu_less_loads(), per_map_seconds()
         made = make()
+        self.sight_seconds += cpu_less_loads() - began - (per_map_seconds() - once)
         self.seen[full] = (occ.clear, occ.fine, made)
         while len(self.seen) > SIGHTLINES_KEPT:
             del self.seen[next(iter(self.seen))]

@@ -153,3 +153,22 @@ def test_a_plan_makes_each_node_s_scene_once_and_digests_it_once(monkeypatch):
     for s in first + again:
         plain.get(s, keep=6)
     assert len(digested) == 6 and plain.built == 3
+
+
+def test_an_engine_s_key_digests_a_map_by_its_bytes_whichever_object_holds_them():
+    from meshnode.mesh.engines import BLOB, BLOBS_KEPT, _engine_key
+
+    bits = bytes(range(256)) * (2 * BLOB // 256)
+    blobs: dict = {}
+    key = _engine_key(b"scene", {"occupancy": ((4, 4, 4), bits)}, blobs)
+    again = bytes(bytearray(bits))  # the same bytes in another object
+    assert again is not bits
+    assert _engine_key(b"scene", {"occupancy": ((4, 4, 4), again)}, blobs) == key
+    assert _engine_key(b"scene", {"occupancy": ((4, 4, 4), bits)}) == key  # no memo: alike
+    changed = bytearray(bits)
+    changed[-1] ^= 1  # one bit of the map's last voxels
+    assert _engine_key(b"scene", {"occupancy": ((4, 4, 4), bytes(changed))}, blobs) != key
+    for i in range(2 * BLOBS_KEPT):
+        _engine_key(b"scene", {"occupancy": bytes([i]) * BLOB}, blobs)
+    assert len(blobs) == BLOBS_KEPT  # the newest kept, each with the bytes it digested
+    assert all(id(held) == at for at, (held, _) in blobs.items())

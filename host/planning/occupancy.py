@@ -100,8 +100,16 @@ def inner_map(scene: SceneData, box, voxels: int = OCC_VOXELS) -> tuple | None:
     box holds at most INNER_SHARE of the scene's (a few large objects, a floor, make the
     scene's box the larger); None where there is no such box. It is marked with every object
     reaching it (the floor beneath them too), as the scene's is, so a walk there misses
-    nothing (`meshnode.engine.mapwalk.first_occupied`)."""
+    nothing (`meshnode.engine.mapwalk.first_occupied`). Made once while the scene lives (a
+    plan's every simulation partitions: 1.2 ms of balls 3x3's 16 ms each); not to be
+    changed."""
     lo, hi = (np.asarray(b, float) for b in box)
+    key = ("inner map", lo.tobytes(), hi.tobytes(), int(voxels))
+    return kept(scene, key, lambda: _inner(scene, lo, hi, voxels))
+
+
+def _inner(scene: SceneData, lo, hi, voxels: int) -> tuple | None:
+    """`inner_map`, made."""
     tb = scene_tables(scene)
     if not tb.n:
         return None

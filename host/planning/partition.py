@@ -17,7 +17,7 @@ from host.planning.objectcells import object_cells
 from host.planning.occupancy import inner_map, map_voxels, occupancy_map
 from host.planning.rectangles import rectangles, spread, taker_tiles, tiles
 from host.planning.skytiles import SkyTiles, dealt_sky, sky_tiles
-from host.scene.derived import scene_tables
+from host.scene.derived import kept, scene_tables
 from meshnode.engine.occupancy import occupancy_arrays
 from meshnode.engine.sky import looked_for
 from protocols.partition import Partition
@@ -78,7 +78,8 @@ def partition(
     inner = None if occ == EVERYWHERE else inner  # a map of one voxel skips nothing anywhere
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
-        occ_arrays = occupancy_arrays(*box, *occ)
+        key = ("occupancy arrays", *(np.asarray(b, float).tobytes() for b in box), *occ)
+        occ_arrays = kept(scene, key, lambda: occupancy_arrays(*box, *occ))  # not changed
         rects, owner = taker_tiles(scene, spec, cells, rects, box, occ_arrays, loads)
         if plan.copies:
             takers, owner = owner, spread(owner, plan)

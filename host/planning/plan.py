@@ -180,6 +180,8 @@ def _within_budget(
         if spec.plan.claim_shares:  # weighed from the cells' work: simulated where afforded
             spec, check = checked(scene, spec, part, keep)
             chosen["claims"].update(chosen=check["chosen"], checked=check)
+            if not spec.plan.claim_shares:  # the check's reason, not the weighing's
+                chosen["claims"]["why"] = check["why"]
     elif spec.plan.holds:
         chosen["claims"] = {"chosen": "owner", "why": "not asked"}
     part, keep, growth = grown_within(scene, spec, part, keep)

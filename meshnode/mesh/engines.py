@@ -36,6 +36,9 @@ class EngineCache:
         # objects are digested once, by identity (`_scene_digest`): tetra_s8 3x3's
         # simulations hashed them 11 ms of 60 ms each
         self.digests: dict[int, tuple[SceneData, bytes]] | None = {} if same_scenes else None
+        # ... and each map's bytes digested once, by identity (`_digest`): a 3x3 simulation
+        # digested the same map and sub-voxels nine times, 2.6 ms of balls' 19
+        self.blobs: dict[int, tuple[bytes, bytes]] | None = {} if same_scenes else None
 
     def trim(self) -> None:
         """After a render: the oldest engines go until the rest fit `keep_bytes` (their
@@ -54,7 +57,7 @@ class EngineCache:
         # traces: a kept engine serves a render of any size or sampling (in the structure
         # chosen for the render it was built for).
         built_from = {k: v for k, v in placement.items() if k != "eye_rays_expected"}
-        key = _engine_key(self._scene_digest(scene), {"spec": spec, **built_from})
+        key = _engine_key(self._scene_digest(scene), {"spec": spec, **built_from}, self.blobs)
         engine = self.engines.pop(key, None)
         reused = engine is not None
         if engine is None:
@@ -115,24 +118,40 @@ def scene_digest(scene: SceneData) -> bytes:
     return h.digest()
 
 
-def _engine_key(objects: bytes, options: dict) -> bytes:
+def _engine_key(objects: bytes, options: dict, blobs: dict | None = None) -> bytes:
     """A digest of everything an engine is built from: its scene's digest `objects`
     (`scene_digest`) and options (bytes and arrays digested as they are: the repr of an
-    occupancy map's 32 KB of bits was a tenth of a plan's CPU)."""
+    occupancy map's 32 KB of bits was a tenth of a plan's CPU; `blobs`: `_digest`'s)."""
     h = hashlib.sha256(objects)
     for name, value in sorted(options.items()):
         h.update(name.encode())
-        _digest(h, value)
+        _digest(h, value, blobs)
     return h.digest()
 
 
-def _digest(h, value) -> None:
+BLOB = 4096  # bytes at least, digested on their own first (`_digest`)
+BLOBS_KEPT = 32  # `EngineCache.blobs` entries kept, the oldest dropped first
+
+
+def _digest(h, value, blobs: dict | None = None) -> None:
     """`value` into the digest h: bytes and arrays as their bytes (with their length and
-    shape), tuples item by item, anything else by its repr."""
+    shape; bytes of BLOB or more as their own digest, which `blobs` keeps by identity where
+    given: bytes never change, and each is held there so no other takes its id), tuples
+    item by item, anything else by its repr."""
     if isinstance(value, tuple | list):
         h.update(b"(%d" % len(value))
         for v in value:
-            _digest(h, v)
+            _digest(h, v, blobs)
+    elif isinstance(value, bytes) and len(value) >= BLOB:
+        h.update(b"blob%d" % len(value))
+        known = blobs.get(id(value)) if blobs is not None else None
+        if known is None:
+            known = (value, hashlib.sha256(value).digest())
+            if blobs is not None:
+                blobs[id(value)] = known
+                while len(blobs) > BLOBS_KEPT:
+                    del blobs[next(iter(blobs))]
+        h.update(known[1])
     elif isinstance(value, bytes | np.ndarray):
         data = np.ascontiguousarray(value).tobytes() if isinstance(value, np.ndarray) else value
         shape = getattr(value, "shape", (len(value),))

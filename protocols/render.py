@@ -131,7 +131,9 @@ class MeshPlan(Spec):
     `steal` (object space): a node traces its rectangle in chunks spiralling out from the
     centre, and one that has run out takes unstarted chunks from the outer end of a busy
     neighbour's spiral and makes their eye rays itself; under adaptive sampling in both
-    passes (pass 2's chunks are the refined pixels' row runs), the owner keeping the books.
+    passes (pass 2's chunks are the refined pixels' row runs), the owner keeping the books;
+    with copies and the eye's claims, the chunks are tiles of a node's claimed samples, taken
+    only by a holder of every cell they start in (`meshnode.mesh.claimfeed`).
     `copies` (object space): each node also holds a copy of every linked neighbour's engine
     (the same objects in the same box, so the same segments) and traces there the rays that
     neighbour would take on, instead of passing them: stolen chunks then move their work,

@@ -293,3 +293,37 @@ def test_adaptive_stealing_over_tcp_gives_the_single_node_image():
     # CI run once gave none in one pass): the by-state record must add up; the simulated
     # mesh above shows both passes stolen from, deterministically.
     assert sum(sum(g.values()) for g in given) == sum(n["chunks_given"] for n in stats["nodes"])
+
+
+def test_holders_steal_claimed_chunks_and_give_the_single_node_image(monkeypatch):
+    # Under copies the eye's claims stay on (each block's eye rays made where they are
+    # traced): a node out of work takes unstarted chunks of a neighbour's claimed samples
+    # whose every block starts in a cell it holds, and makes them as their claimant would.
+    import meshnode.mesh.node
+    from meshnode.mesh.claimfeed import ClaimFeed
+    from tests.test_budget import copied_render
+
+    feeds = []
+
+    class Kept(ClaimFeed):
+        def __init__(self, *args):
+            super().__init__(*args)
+            feeds.append(self)
+
+    monkeypatch.setattr(meshnode.mesh.node, "ClaimFeed", Kept)
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    moved = 0
+    for shape in [(1, 2), (2, 2), (3, 3), (2, 3)]:
+        nodes = shape[0] * shape[1]
+        holds = tuple(tuple(c for c in (0, 1) if c != n) for n in range(nodes))  # 0, 1: all
+        feeds.clear()
+        records = copied_render(scene, shape, holds=holds, steal=True, tile=4, passed_min=1)
+        assert len(feeds) == nodes  # the claims kept under stealing: every node's feed
+        given = sum(r.chunks_given for r in records)
+        assert given == sum(r.chunks_taken for r in records)
+        moved += given
+        # a given chunk is made as its giver claimed it, and never given on
+        for feed in feeds:
+            thief = (feed.node + 1) % nodes
+            assert not feed.usable(thief, [(0, 4, 0, 4, thief)]).any()
+    assert moved > 0  # chunks did change hands, and every sample was still made once

@@ -95,9 +95,12 @@ def balanced_object_cells(
         if rounds is None and not allowed.affords("re-cut rounds", 1, reserve):
             why = f"{made} of {ROUNDS}: " + allowed.why
             break
-        made += 1
         grid = _fitted(WorkGrid(*box, guess), [(t[1], t[2][:, 0]) for t in tried])
         cut, cap, excess = _within(scene, spec, grid, cap, limit)
+        if any(_same(cut, t[1]) for t in tried):  # measured already: so would the next be
+            why = f"{made} of {ROUNDS}: the cut repeated one simulated"
+            break
+        made += 1
         over.append(excess)
         if excess > 1:  # the plan would refuse these cells: no round to learn from
             continue
@@ -124,6 +127,14 @@ def balanced_object_cells(
             "placement": placement,
         },
     )
+
+
+def _same(cells, other) -> bool:
+    """Whether two cuts' cells are the same: a round's cut, fitted to every measurement so
+    far, repeats one measured (gears 2x2 under a half share and teapot 3x3 under a quarter:
+    the second and third rounds the same cut), and the grid it is fitted to then learns
+    nothing more from it."""
+    return all(np.array_equal(a, b) for a, b in zip(cells, other, strict=True))
 
 
 def _guessed(scene: SceneData, spec: RenderSpec, box, guess, limit, why: str, seconds: float):

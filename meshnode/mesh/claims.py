@@ -59,23 +59,39 @@ def node_eye_map(engines, engine, spec: RenderSpec, part: Partition, view: View,
 
 def node_claims(engines, engine, spec: RenderSpec, part: Partition, view: View, eye: EyeMap):
     """(which node makes each sample's eye rays, why) under the eye map and static
-    rectangles (`eye_claims`; None where not used): a stolen chunk or a dealt tile is made
-    by whoever takes it. The blocks' cells are found once for every node on the same map."""
+    rectangles (`eye_claims`; None where not used): a dealt tile, or a stolen chunk without
+    copies, is made by whoever takes it (with copies a holder of a claimed chunk's cells
+    may take it: `meshnode.mesh.claimfeed`). The blocks' cells are found once for every
+    node on the same map."""
     if not eye.near.shape[0]:
         return None, "not used: no eye map"
-    if spec.plan.steal or spec.plan.dynamic:
+    if spec.plan.dynamic or (spec.plan.steal and not spec.plan.copies):
         return None, "not used: chunks are stolen or tiles dealt"
-    blocks = engines.sightlines(
-        engine,
-        _seen_key("blocks", spec, part, view),
-        lambda: block_cells(engine, part.cells, eye, view, spec.image),
-    )
+    blocks = _blocks(engines, engine, spec, part, view, eye)
     # every node's claims are the same table: made once a mesh too (0.6 ms a node)
     rects = (np.asarray(part.rects, np.int64).tobytes(), np.asarray(part.owner).tobytes())
     return engines.sightlines(
         engine,
         (*_seen_key("claims", spec, part, view), repr(spec.plan), *rects),
         lambda: eye_claims(blocks, eye, part, spec.plan, spec.image.sample_grid()),
+    )
+
+
+def claim_cells(engines, engine, spec: RenderSpec, part: Partition, view: View, eye: EyeMap):
+    """Per sample-grid cell (rows by columns), the cell its block's eye rays start their
+    work in (`block_cells`), -1 where none: which engines a node must hold to make and
+    trace a claimed chunk (`meshnode.mesh.claimfeed`)."""
+    columns, rows = spec.image.sample_grid()
+    blocks = _blocks(engines, engine, spec, part, view, eye)
+    return np.repeat(np.repeat(blocks, eye.side, 0), eye.side, 1)[:rows, :columns]
+
+
+def _blocks(engines, engine, spec: RenderSpec, part: Partition, view: View, eye: EyeMap):
+    """`block_cells`, once for every node on the same map."""
+    return engines.sightlines(
+        engine,
+        _seen_key("blocks", spec, part, view),
+        lambda: block_cells(engine, part.cells, eye, view, spec.image),
     )
 
 

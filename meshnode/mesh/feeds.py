@@ -96,7 +96,8 @@ class ChunkFeed(Primaries):
                 self.on_give(chunk)
         return given
 
-    def add(self, chunks) -> None:
+    def add(self, chunks, giver: int = -1) -> None:
+        """Chunks a neighbour (`giver`) gave, traced after this node's own."""
         self.chunks.extend(tuple(c) for c in chunks)
         if self.next is None:
             self._advance()

@@ -22,7 +22,14 @@ from meshnode.engine.sky import cells_of, counted, node_sky, sky_batch
 from meshnode.engine.structure_cost import eye_ray_count
 from meshnode.mesh.adaptive import RAYS_PER_BATCH, RectIndex
 from meshnode.mesh.books import NodeBooks
-from meshnode.mesh.claims import claimed_bands, node_claims, node_eye_map, routing_map
+from meshnode.mesh.claimfeed import ClaimFeed
+from meshnode.mesh.claims import (
+    claim_cells,
+    claimed_bands,
+    node_claims,
+    node_eye_map,
+    routing_map,
+)
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
 from meshnode.mesh.spiral import spiral_chunks
@@ -128,6 +135,9 @@ class NodeCore:
         self.claims, self.claims_reason = node_claims(
             engines, self.engine, spec, part, self.view, self.eye
         )
+        self.claim_cells = None  # under stealing, the cell each claimed sample starts in
+        if spec.plan.steal and self.claims is not None:
+            self.claim_cells = claim_cells(engines, self.engine, spec, part, self.view, self.eye)
         self.eye = routing_map(self.eye, list(spec.plan.held(node)))
 
     def _options(self, node: int) -> dict:
@@ -178,6 +188,9 @@ class NodeCore:
             return self.books.primaries(state)
         if state != State.TRACE:
             return Primaries()
+        if self.spec.plan.steal and self.claims is not None:  # holders take claimed chunks
+            plan = self.spec.plan
+            return ClaimFeed(self.node, self.claims, self.claim_cells, plan, plan.tile, self._made)
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             chunks = [c for rect in self.owned for c in spiral_chunks(rect, side)]

@@ -133,7 +133,7 @@ class Scheduler:
         if giver == self.steal_from:
             self.steal_from = None
         if chunks and isinstance(self.primaries, ChunkFeed):
-            self.primaries.add(chunks)
+            self.primaries.add(chunks, giver)
             self.chunks_taken += len(chunks)
             self.spare = bool(self.hungry)
         else:

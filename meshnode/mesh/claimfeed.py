@@ -1,0 +1,72 @@
+"""Stealing the eye's claims (`MeshPlan.steal` with copies): a node's claimed eye rays in
+chunks a holder of their cells may take.
+
+Under the eye's claims (`meshnode.mesh.claims`) each block's eye rays are made by a node that
+traces the cell their work starts in: its owner, or a holder of its copy, in the plan's
+shares. The shares are weighed before the render from a coarse simulation, and what they
+leave uneven stays so. Here a node's claimed samples are cut into chunks (the plan's tiles,
+only the samples it claims in each), traced in turn, and a neighbour that has run out takes
+unstarted ones whose every claimed block starts in a cell it holds: it makes those eye rays
+itself and traces them with the same engine as the claimant would (a ray's segments do not
+depend on who made it), so the image and counts stay the single node's and no ray is passed
+for it. A chunk is given only by the node that claims it: a thief makes it as its giver
+claimed it, and keeps it (`ClaimFeed.add`).
+"""
+
+import numpy as np
+
+from meshnode.mesh.feeds import ChunkFeed
+
+
+class ClaimFeed(ChunkFeed):
+    """A `ChunkFeed` of claimed samples: own chunks are (x0, x1, y0, y1) tiles of the sample
+    grid, a given chunk carries its claimant as a fifth item; `make(flags, y, x)` makes the
+    batches of a rectangle's flagged cells (`NodeCore._made`)."""
+
+    def __init__(self, node: int, claims: np.ndarray, cells: np.ndarray, plan, side: int, make):
+        self.node, self.claims, self.plan = node, claims, plan
+        self.need = _needs(claims == node, cells, side, plan.nodes)
+        self._make = make
+        super().__init__(self._stealable_last(list(self.need)), self._batches, usable=self.usable)
+
+    def usable(self, thief: int, chunks: list) -> np.ndarray:
+        """Which of `chunks` `thief` can make and trace itself: this node's own, every
+        claimed block's cell held there."""
+        held = frozenset(self.plan.held(thief))
+        return np.array([len(c) == 4 and self.need[c] <= held for c in chunks], bool)
+
+    def _stealable_last(self, chunks: list) -> list:
+        """The chunks fewest nodes could take first, those most could last (thieves take
+        from the back), each kind in grid order."""
+        holders = [frozenset(self.plan.held(m)) for m in range(self.plan.nodes)]
+        reach = [sum(self.need[c] <= h for h in holders) for c in chunks]
+        return [chunks[i] for i in np.argsort(reach, kind="stable").tolist()]
+
+    def _batches(self, group: list):
+        """The batches of one chunk: its claimant's samples in it (this node's, or the
+        giver's for a given chunk)."""
+        x0, x1, y0, y1, *given = group[0]
+        claimant = given[0] if given else self.node
+        return self._make(self.claims[y0:y1, x0:x1] == claimant, y0, x0)
+
+    def add(self, chunks, giver: int = -1) -> None:
+        """Chunks `giver` gave: each made as `giver` claimed it."""
+        super().add([(*c, giver) for c in chunks])
+
+
+def _needs(mine: np.ndarray, cells: np.ndarray, side: int, nodes: int) -> dict:
+    """Per chunk (x0, x1, y0, y1: a side x side tile of the grid holding any `mine` sample),
+    in grid order, the cells its `mine` samples start in (`cells`, -1: none)."""
+    rows, cols = mine.shape
+    across = -(-cols // side)
+    tile = (np.arange(rows) // side)[:, None] * across + (np.arange(cols) // side)[None, :]
+    seen = mine & (cells >= 0)
+    pairs = np.unique(tile[seen] * nodes + cells[seen])
+    need: dict[int, set] = {int(t): set() for t in np.unique(tile[mine])}
+    for t, c in zip((pairs // nodes).tolist(), (pairs % nodes).tolist(), strict=True):
+        need[t].add(c)
+    out = {}
+    for t, held in need.items():
+        y0, x0 = t // across * side, t % across * side
+        out[(x0, min(x0 + side, cols), y0, min(y0 + side, rows))] = frozenset(held)
+    return out

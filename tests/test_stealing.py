@@ -327,3 +327,28 @@ def test_holders_steal_claimed_chunks_and_give_the_single_node_image(monkeypatch
             thief = (feed.node + 1) % nodes
             assert not feed.usable(thief, [(0, 4, 0, 4, thief)]).any()
     assert moved > 0  # chunks did change hands, and every sample was still made once
+
+
+def test_a_budget_s_copies_set_their_holders_stealing():
+    import math
+    from dataclasses import replace
+    from unittest import mock
+
+    from host.planning import allowance
+    from host.planning.plan import plan_render, stealing
+    from host.planning.request import Auto
+
+    scene = read_nff(spd_scene("teapot.nff"))
+    plan = MeshPlan(3, 3, max_share=0.25, balance="objects")
+    image = ImageSpec(width=48, height=48, spp=2)
+    one = EngineSpec(threads=1)
+    with mock.patch.object(allowance, "PREPASS_SHARE", math.inf):
+        on = plan_render(Request(scene, image, one, plan=plan))
+        off = plan_render(Request(scene, image, one, plan=plan, auto=Auto(steal_claims=False)))
+    assert on.spec.plan.holds and on.spec.plan.steal  # the hot spout's cell is copied
+    assert on.balance["budget"]["copies"]["steal"]["chosen"] is True
+    assert off.spec.plan.holds and not off.spec.plan.steal
+    bare = dict(copies=False, holds=(), claim_shares=(), steal=False)
+    none = replace(on.spec, plan=replace(on.spec.plan, **bare))
+    assert stealing(none) == (none, {"chosen": False, "why": stealing(none)[1]["why"]})
+    assert "no copies" in stealing(none)[1]["why"]

@@ -135,13 +135,22 @@ def _planned(request: Request, memory: int) -> Planned:
             cost,
             request.auto.share_claims,
             balance.get("simulated_primary_load"),
+            request.auto.steal_claims,
         )
         balance["cuts"] = spec.plan.balance  # what the budget left of the plan's cuts
     return Planned(spec, part, keep, info, balance, time.perf_counter() - start)
 
 
 def _within_budget(
-    scene: SceneData, spec: RenderSpec, part, keep, copies=True, load=None, share=True, primary=None
+    scene: SceneData,
+    spec: RenderSpec,
+    part,
+    keep,
+    copies=True,
+    load=None,
+    share=True,
+    primary=None,
+    steal=True,
 ):
     """(spec, partition, holders, report) keeping every node within the plan's memory
     budget: the plan as made, or the first of its retreats (`host.planning.budget.retreats`)
@@ -152,7 +161,8 @@ def _within_budget(
     took 260 MB for 1.5 MB of objects). `load`: each node's simulated work on these cells
     (the pre-pass's), for copies it cannot afford to simulate (`replicas._unsimulated`).
     `share`: each copied cell's own work shared over its holders (`holder_shares.shared`),
-    `primary` the part of `load` in each node's primary batches."""
+    `primary` the part of `load` in each node's primary batches; `steal`: the holders then
+    steal each other's claimed chunks (`stealing`)."""
     gave_up = []
     if spec.plan.node_bytes and spec.engine.structure == "auto":
         spec = replace(spec, engine=replace(spec.engine, structure="bvh"))
@@ -173,6 +183,8 @@ def _within_budget(
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
     spec, part, keep, chosen = _copied(scene, spec, part, keep, load, reserve=int(share))
+    if steal:
+        spec, chosen["steal"] = stealing(spec)
     if spec.plan.holds and share:
         work = chosen.get("simulated_load")
         primary = chosen.get("simulated_primary_load", primary)
@@ -195,6 +207,24 @@ def _within_budget(
         keep,
         {**report(spec.plan, held, gave_up), "copies": chosen, "growth": growth},
     )
+
+
+def stealing(spec: RenderSpec) -> tuple[RenderSpec, dict]:
+    """(spec, report): the plan with its holders stealing each other's claimed chunks
+    (`MeshPlan.steal` under copies: `meshnode.mesh.claimfeed`) where the budget's copies
+    were chosen and pinhole eye rays are claimed; else as it was, and why. A stolen chunk is
+    traced with the engines its claimant would use, so it moves work and adds no pass: 3x3
+    under a quarter share, the busiest node's frame CPU at once teapot 3.15 -> 4.60, the
+    mountain 3.98 -> 4.45 (one run each)."""
+    plan = spec.plan
+    if plan.steal:
+        return spec, {"chosen": True, "why": "asked for"}
+    if not plan.holds:
+        return spec, {"chosen": False, "why": "no copies: a cell's work stays on its node"}
+    if spec.camera is not None or spec.adaptive:
+        return spec, {"chosen": False, "why": "a lens or adaptive sampling: no eye claims"}
+    why = "each copied cell's claimed chunks taken at run time by whichever holder runs out"
+    return replace(spec, plan=replace(plan, steal=True)), {"chosen": True, "why": why}
 
 
 def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve: int = 0):

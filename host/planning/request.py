@@ -27,13 +27,15 @@ class Auto:
     `budget_copies` (under a memory budget, fill each node's room with copies of the
     hottest cells where the pre-pass finds they pay: `host.planning.replicas`) and
     `share_claims` (with those copies, each copied cell's own work shared over its holders:
-    `host.planning.holder_shares`)."""
+    `host.planning.holder_shares`) and `steal_claims` (with those copies, holders take each
+    other's unstarted claimed chunks at run time: `meshnode.mesh.claimfeed`)."""
 
     mode: str | None = None
     node_memory: int | None = None
     overlaps: tuple[float, ...] = ()
     budget_copies: bool = True
     share_claims: bool = True
+    steal_claims: bool = True
 
     def __post_init__(self):
         if self.mode is not None and self.mode not in PLAN_MODES:

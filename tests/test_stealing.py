@@ -301,7 +301,6 @@ def test_holders_steal_claimed_chunks_and_give_the_single_node_image(monkeypatch
     # whose every block starts in a cell it holds, and makes them as their claimant would.
     import meshnode.mesh.node
     from meshnode.mesh.claimfeed import ClaimFeed
-    from tests.test_budget import copied_render
 
     feeds = []
 
@@ -311,13 +310,22 @@ def test_holders_steal_claimed_chunks_and_give_the_single_node_image(monkeypatch
             feeds.append(self)
 
     monkeypatch.setattr(meshnode.mesh.node, "ClaimFeed", Kept)
+    # chunks are made together up to a batch: at this size a copies' batch would take a
+    # node's every chunk at once, and none would be left to take
+    monkeypatch.setattr(meshnode.mesh.node, "COPIES_EYE_BATCH", 16)
     scene = read_nff(spd_scene("balls_s2.nff"))
+    ref, st = render(Request(scene, ImageSpec(width=32, height=32, spp=4), EngineSpec(threads=1)))
     moved = 0
     for shape in [(1, 2), (2, 2), (3, 3), (2, 3)]:
         nodes = shape[0] * shape[1]
         holds = tuple(tuple(c for c in (0, 1) if c != n) for n in range(nodes))  # 0, 1: all
         feeds.clear()
-        records = copied_render(scene, shape, holds=holds, steal=True, tile=4, passed_min=1)
+        img, totals, records, _ = render_mesh(
+            scene, *shape, 1.0, 32, 32, spp=4, balance="objects", copies=True, holds=holds,
+            steal=True, tile=4, passed_min=1, batch=16,
+        )  # fmt: skip
+        assert {k: totals[k] for k in SPD_COUNTS} == {k: st["rays"][k] for k in SPD_COUNTS}
+        np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
         assert len(feeds) == nodes  # the claims kept under stealing: every node's feed
         given = sum(r.chunks_given for r in records)
         assert given == sum(r.chunks_taken for r in records)

@@ -17,15 +17,15 @@ import numpy as np
 
 from meshnode.mesh.feeds import ChunkFeed
 
-# Samples along a chunk's side (the plan's tile, if smaller): a chunk is taken only where
-# its every claimed block starts in a cell the thief holds, and a busy node's 32-sample tiles
-# mix its own cell's blocks with its copies'. Simulated 256 x 256 at 16 spp, the same plans,
-# the busiest node stealing at 32 / at 8 against none: teapot 3x3 under a quarter share
-# 0.963 / 0.939 (15 / 304 chunks given), the mountain 3x3 1.009 / 0.976, 4x4 0.988 / 0.958.
-# Chunks made together (`NodeCore`'s CLAIMED_BATCH) up to 2,048 rays: teapot 0.967, the
-# mountain 0.994 / 0.986 (16,384: 0.999, 0.997, 0.992); at the bench's 100-200 spp one 8 x 8
-# chunk passes 2,048 rays alone.
-SIDE = 8
+# Samples along a chunk's side at most (the plan's tile, if smaller). Smaller chunks are
+# taken more often, each claimed block in one wholly held by the thief (simulated 256 x 256
+# at 16 spp, the same plans, the busiest node stealing against none at 32 / 8 samples:
+# teapot 3x3 under a quarter share 0.963 / 0.939, the mountain 3x3 1.009 / 0.976, 4x4
+# 0.988 / 0.958), but on real nodes their smaller batches cost more than that gained: at 8,
+# the nodes' frames outside their batches rose from 0.24 to 0.41 of one process's on the
+# mountain 3x3 and 0.19 to 0.29 on teapot, their frame at once 3.91 -> 3.46 and 4.52 ->
+# 4.05 (one run each).
+SIDE = 32
 
 
 class ClaimFeed(ChunkFeed):

@@ -52,9 +52,6 @@ IMAGE_BATCH = 65536  # ... in image space, where none are passed: a tile's rows 
 # --size 256 --spp 62 --copies-eye-batch N` measures it: its "batches s" column, one turn
 # each on a loaded machine, 1.42 / 1.22 / 1.38 s for 4096 / 16384 / 65536)
 COPIES_EYE_BATCH = 16384
-# Claimed chunks made together up to this many rays under stealing (`ClaimFeed`): a group is
-# started whole, so a larger one leaves less to take (`meshnode.mesh.claimfeed.SIDE`)
-CLAIMED_BATCH = 2048
 
 
 @dataclass
@@ -195,7 +192,7 @@ class NodeCore:
             plan, image = self.spec.plan, self.spec.image
             per_cell = 1 if image.corners() else image.spp
             args = (self.claims, self.claim_cells, plan, plan.tile, self._made)
-            return ClaimFeed(self.node, *args, per_cell, min(self.eye_batch, CLAIMED_BATCH))
+            return ClaimFeed(self.node, *args, per_cell, self.eye_batch)
         if self.spec.plan.steal:
             side = self.spec.plan.tile
             chunks = [c for rect in self.owned for c in spiral_chunks(rect, side)]

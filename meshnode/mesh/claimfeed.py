@@ -15,7 +15,7 @@ claimed it, and keeps it (`ClaimFeed.add`).
 
 import numpy as np
 
-from meshnode.mesh.feeds import ChunkFeed
+from meshnode.mesh.feeds import ChunkFeed, stealable_last
 
 # Samples along a chunk's side at most (the plan's tile, if smaller). Smaller chunks are
 # taken more often, each claimed block in one wholly held by the thief (simulated 256 x 256
@@ -38,7 +38,7 @@ class ClaimFeed(ChunkFeed):
         self.node, self.claims, self.plan, self.per_cell = node, claims, plan, per_cell
         self.need = _needs(claims == node, cells, min(side, SIDE), plan.nodes)
         self._make = make
-        chunks = self._stealable_last(list(self.need))
+        chunks = stealable_last(list(self.need), self.usable, node, plan)
         super().__init__(chunks, self._batches, usable=self.usable, rays=self._rays, budget=batch)
 
     def usable(self, thief: int, chunks: list) -> np.ndarray:
@@ -46,13 +46,6 @@ class ClaimFeed(ChunkFeed):
         claimed block's cell held there."""
         held = frozenset(self.plan.held(thief))
         return np.array([len(c) == 4 and self.need[c] <= held for c in chunks], bool)
-
-    def _stealable_last(self, chunks: list) -> list:
-        """The chunks fewest nodes could take first, those most could last (thieves take
-        from the back), each kind in grid order."""
-        holders = [frozenset(self.plan.held(m)) for m in range(self.plan.nodes)]
-        reach = [sum(self.need[c] <= h for h in holders) for c in chunks]
-        return [chunks[i] for i in np.argsort(reach, kind="stable").tolist()]
 
     def _flags(self, chunk: tuple) -> np.ndarray:
         """The chunk's samples its claimant claims (this node, or the giver of a given one)."""
@@ -66,9 +59,9 @@ class ClaimFeed(ChunkFeed):
         """The batches of a group of chunks' claimed samples: one of their eye rays (a
         chunk of many: its bands), and any other kind `make` yields (the sky's deposits) as
         it comes."""
+        if len(group) < 2:  # made as they are traced: a chunk may hold millions of rays
+            return self._make(self._flags(group[0]), group[0][2], group[0][0])
         made = [b for c in group for b in self._make(self._flags(c), c[2], c[0]) if len(b)]
-        if len(group) < 2:
-            return iter(made)
         kinds: dict = {}
         for b in made:
             kinds.setdefault(b.dtype, []).append(b)

@@ -83,7 +83,12 @@ def claim_cells(engines, engine, spec: RenderSpec, part: Partition, view: View, 
     trace a claimed chunk (`meshnode.mesh.claimfeed`)."""
     columns, rows = spec.image.sample_grid()
     blocks = _blocks(engines, engine, spec, part, view, eye)
-    return np.repeat(np.repeat(blocks, eye.side, 0), eye.side, 1)[:rows, :columns]
+    return per_sample(blocks, eye.side, rows, columns)
+
+
+def per_sample(blocks: np.ndarray, side: int, rows: int, columns: int) -> np.ndarray:
+    """A per-block table (blocks of `side` x `side` samples) as one per sample-grid cell."""
+    return np.repeat(np.repeat(blocks, side, axis=0), side, axis=1)[:rows, :columns]
 
 
 def _blocks(engines, engine, spec: RenderSpec, part: Partition, view: View, eye: EyeMap):
@@ -138,13 +143,12 @@ def eye_claims(blocks: np.ndarray, eye: EyeMap, part: Partition, plan: MeshPlan,
     if (rect < 0).any():
         raise ValueError("eye_claims: the partition's rectangles leave sample-grid cells out")
     owner = np.asarray(part.owner, np.int64)[rect]
-    seen = np.repeat(np.repeat(blocks, eye.side, axis=0), eye.side, axis=1)[:rows, :columns]
+    seen = per_sample(blocks, eye.side, rows, columns)
     takers = taker_table(plan)
     one = seen >= 0
     claims = owner.copy()
     claims[one] = takers[owner[one], seen[one]]
-    shared = np.repeat(np.repeat(shared_claims(blocks, plan), eye.side, 0), eye.side, 1)
-    shared = shared[:rows, :columns]
+    shared = per_sample(shared_claims(blocks, plan), eye.side, rows, columns)
     claims = np.where(shared >= 0, shared, claims)
     moved = float(np.mean(claims != owner))
     why = f"{np.mean(one):.0%} of the samples start in a cell; {moved:.0%} made there"

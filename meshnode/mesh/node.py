@@ -31,7 +31,7 @@ from meshnode.mesh.claims import (
     routing_map,
 )
 from meshnode.mesh.engines import EngineCache
-from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed
+from meshnode.mesh.feeds import ChunkFeed, Primaries, TileFeed, stealable_last
 from meshnode.mesh.spiral import spiral_chunks
 from protocols.dtypes import DEPOSIT, RAY
 from protocols.errors import BadFrame
@@ -40,7 +40,6 @@ from protocols.records import joined
 from protocols.render import EVERYWHERE, RenderSpec
 from protocols.scene import SceneData, View
 from protocols.state import State
-from protocols.topology import Torus
 
 HOST = -1  # deposits for the host (object space: through node 0)
 EYE_BATCH = 4096  # pinhole eye rays per batch: small enough to interleave with passed rays
@@ -198,26 +197,13 @@ class NodeCore:
             chunks = [c for rect in self.owned for c in spiral_chunks(rect, side)]
             usable = self._usable()
             return ChunkFeed(
-                self._stealable_last(chunks, usable),
+                stealable_last(chunks, usable, self.node, self.spec.plan),
                 lambda chunks: self.rect_batches(chunks[0]),
                 usable=usable,
             )
         if self.claims is not None:
             return Primaries(self._claimed_batches())
         return Primaries(batch for rect in self.owned for batch in self.rect_batches(rect))
-
-    def _stealable_last(self, chunks: list, usable) -> list:
-        """Under MeshPlan.copies, the chunks fewest of this node's links could trace first
-        and those most could last (stable, so each kind keeps its spiral order): thieves
-        take from the back, and a node left at the end with chunks only one link holds the
-        engine for finished last while the others idled (tetra 3x3, simulated at 137 spp:
-        the centre node kept 10 of 11 unstarted chunks from its asking links; parallel
-        efficiency 0.948 -> 0.972)."""
-        if usable is None or not chunks:
-            return chunks
-        links = set(Torus(self.spec.plan.rows, self.spec.plan.cols).links(self.node))
-        reach = sum(usable(m, chunks).astype(np.int64) for m in links - {self.node})
-        return [chunks[i] for i in np.argsort(reach, kind="stable").tolist()]
 
     def _usable(self):
         """Under MeshPlan.copies, which chunks a thief can trace itself: those of tiles

@@ -108,6 +108,7 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         "balance": st.get("balance"),
         # the cost pre-pass's CPU against one node's measured tracing, and what it skipped
         "prepass_share": prepass.get("cpu_seconds", 0.0) / max(cpu1, 1e-9),
+        "prepass_charged_share": prepass.get("charged_cpu_seconds", 0.0) / max(cpu1, 1e-9),
         "prepass_skipped": [s["stage"] for s in prepass.get("skipped", ())],
         "counts": {k: st["rays"][k] for k in COUNTS},
         "image": image.to_wire(),
@@ -204,8 +205,8 @@ def print_row(row: dict) -> None:
     if row["prepass_share"]:
         skipped = ", ".join(dict.fromkeys(row["prepass_skipped"])) or "nothing"
         print(
-            f"      pre-pass: {row['prepass_share']:.1%} of one node's tracing CPU; "
-            f"skipped: {skipped}"
+            f"      pre-pass: {row['prepass_share']:.1%} of one node's tracing CPU "
+            f"({row.get('prepass_charged_share', 0.0):.1%} charged); skipped: {skipped}"
         )
 
 

@@ -42,6 +42,16 @@ def image_partition(scene: SceneData, spec: RenderSpec) -> tuple[Partition, np.n
     return part, keep, sky_tiles(sky, why, rects)
 
 
+def scene_maps(scene: SceneData, box, plan) -> tuple:
+    """(inner map or None, occupancy map) an object-space plan's nodes get (kept with the
+    scene: the plan's every simulation and its partition read the same)."""
+    voxels = map_voxels(plan)  # under a byte budget an inner map takes half the map's bytes
+    inner = inner_map(scene, box, voxels // 2 if plan.node_bytes else voxels)
+    outer = voxels - voxels // 2 if inner is not None and plan.node_bytes else voxels
+    occ = occupancy_map(scene, box, outer)
+    return (None if occ == EVERYWHERE else inner), occ  # a map of one voxel skips nothing
+
+
 def partition(
     scene: SceneData,
     spec: RenderSpec,
@@ -71,11 +81,7 @@ def partition(
         cells = node_cells(scene, box, width, height, plan.rows, plan.cols, xs, ys)
     los, his = grown(*cells, plan.overlap)
     mapped = plan.nodes > 1 and occupancy
-    voxels = map_voxels(plan)  # under a byte budget an inner map takes half the map's bytes
-    inner = inner_map(scene, box, voxels // 2 if plan.node_bytes else voxels) if mapped else None
-    outer = voxels - voxels // 2 if inner is not None and plan.node_bytes else voxels
-    occ = occupancy_map(scene, box, outer) if mapped else EVERYWHERE
-    inner = None if occ == EVERYWHERE else inner  # a map of one voxel skips nothing anywhere
+    inner, occ = scene_maps(scene, box, plan) if mapped else (None, EVERYWHERE)
     rects, owner, takers = rectangles(gw, gh, plan.rows, plan.cols, xs, ys), None, ()
     if plan.nodes > 1 and not spec.adaptive:
         key = ("occupancy arrays", *(np.asarray(b, float).tobytes() for b in box), *occ)

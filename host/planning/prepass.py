@@ -7,23 +7,25 @@ the same scheduler as real ones, each node's cost counted as its intersection te
 steps and segments, with each segment sent on weighted (`meshnode.mesh.stats.work_units`).
 """
 
+from collections import Counter
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from host.planning.allowance import Allowance
+from host.planning.allowance import Allowance, Work
 from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
 from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.mapbounds import per_map_seconds
+from meshnode.engine.mapbounds import per_map_made, per_map_seconds
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
-from meshnode.mesh.stats import UNIT_WEIGHTS
+from meshnode.mesh.stats import UNIT_WEIGHTS, work_units
 from protocols.camera import CameraSampling, Generation
 from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
+from protocols.scene import OBJECT_KINDS
 
 COARSE = 64  # coarse samples along the longer image axis
 # A plan's simulated meshes build their engines in one cache (`planning`): the same boxes
@@ -85,20 +87,36 @@ def unaffordable(spec: RenderSpec) -> str:
 
 def simulated(scenes, spec: RenderSpec, part):
     """The simulated mesh's Outcome (`meshnode.mesh.simulator.simulate`), its engines from
-    the plan's cache, where a plan is being made (`planning`), and its CPU counted against
-    the plan's allowance with the engines it built and the map's tables it made once
-    (`mapbounds.per_map`; kernels loaded meanwhile left out)."""
+    the plan's cache, where a plan is being made (`planning`), and charged to the plan's
+    allowance for what it counted (`allowance.Work`), its CPU measured beside (the engines
+    it built, the map's tables it made once, `mapbounds.per_map`; kernels loaded meanwhile
+    left out)."""
     now = _PLANNING.get()
     if now is None:
         return simulate(scenes, spec, part)
     cache = now.engines
     began, built, building = cpu_less_loads(), cache.built, cache.build_seconds
-    once, sights = per_map_seconds(), cache.sight_seconds
+    objects, sights, sighting = Counter(cache.built_objects), cache.sights, cache.sight_seconds
+    once, tables = per_map_seconds(), per_map_made()
     out = simulate(scenes, spec, part, engines=cache)
     seconds = cpu_less_loads() - began
-    built, building = cache.built - built, cache.build_seconds - building
-    once, sights = per_map_seconds() - once, cache.sight_seconds - sights
-    now.allowance.ran(seconds, built, building, once=once, sights=sights)
+    work = Work(
+        nodes=len(out.nodes),
+        batches=sum(rec.batches for rec in out.nodes),
+        units=work_units(out.totals()),
+        built=cache.built - built,
+        objects=dict(cache.built_objects - objects),
+        sights=cache.sights - sights,
+        tables=per_map_made() - tables,
+        held=sum(len(getattr(s, kind)) for s in scenes for kind in OBJECT_KINDS),
+    )
+    now.allowance.ran(
+        work,
+        seconds,
+        cache.build_seconds - building,
+        once=per_map_seconds() - once,
+        sights=cache.sight_seconds - sighting,
+    )
     return out
 
 

@@ -73,7 +73,7 @@ def marked_boxes(occ: Occupancy) -> np.ndarray:
 # `per_map`'s entries: (map's clear, map's fine, value) by the map's identity and a key
 _PER_MAP: dict = {}
 PER_MAP_KEPT = 8
-_MADE = [0.0]  # CPU seconds `per_map` spent making entries, loads left out (`per_map_seconds`)
+_MADE = [0.0, 0]  # CPU seconds `per_map` spent making entries, loads left out, and entries
 
 
 def per_map(occ: Occupancy, key: tuple, make: Callable):
@@ -88,6 +88,7 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
         began = cpu_less_loads()
         entry = _PER_MAP[full] = (occ.clear, occ.fine, make())
         _MADE[0] += cpu_less_loads() - began
+        _MADE[1] += 1
         while len(_PER_MAP) > PER_MAP_KEPT:
             del _PER_MAP[next(iter(_PER_MAP))]
     return entry[2]
@@ -112,6 +113,11 @@ def per_map_seconds() -> float:
     map, which the cost pre-pass's first simulation pays and its later ones do not (so it
     is kept out of what a simulation is expected to cost, `host.planning.allowance`)."""
     return _MADE[0]
+
+
+def per_map_made() -> int:
+    """Entries `per_map` has made in this process (what the cost pre-pass is charged for)."""
+    return _MADE[1]
 
 
 @leaf

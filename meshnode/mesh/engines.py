@@ -3,6 +3,7 @@ of objects costs seconds, and a user re-rendering the same scene on a running cl
 size, sampling or camera) should not pay it again."""
 
 import hashlib
+from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
@@ -11,7 +12,7 @@ from meshnode.engine import Engine
 from meshnode.engine.loading import cpu_less_loads
 from meshnode.engine.mapbounds import map_key, per_map_seconds
 from protocols.render import EngineSpec
-from protocols.scene import SCENE_TABLES, SceneData
+from protocols.scene import OBJECT_KINDS, SCENE_TABLES, SceneData
 
 
 class EngineCache:
@@ -30,7 +31,9 @@ class EngineCache:
         self.seen: dict[tuple, tuple] = {}  # `sightlines`, oldest first
         self.built = 0  # engines built, not reused: what a simulated mesh's cells cost anew
         self.build_seconds = 0.0  # ... and their CPU
-        self.sight_seconds = 0.0  # CPU making `sightlines`
+        self.built_objects: Counter = Counter()  # ... and their objects by kind
+        self.sights = 0  # `sightlines` made, not reused
+        self.sight_seconds = 0.0  # ... and their CPU
         # `same_scenes`: the caller hands the same scene objects again and never changes
         # them (a plan's simulations: `host.planning.prepass.held_scenes`), so each scene's
         # objects are digested once, by identity (`_scene_digest`): tetra_s8 3x3's
@@ -66,6 +69,7 @@ class EngineCache:
             began, once = cpu_less_loads(), per_map_seconds()
             engine = Engine.from_spec(scene, spec, **placement)
             self.built += 1  # its CPU, kernels loaded from the disk cache meanwhile left out,
+            self.built_objects.update({k: len(getattr(scene, k)) for k in OBJECT_KINDS})
             # and the map's tables made once for every engine on it (`mapbounds.per_map`)
             self.build_seconds += cpu_less_loads() - began - (per_map_seconds() - once)
         self.engines[key] = engine
@@ -96,6 +100,7 @@ class EngineCache:
             return self.seen[full][2]
         began, once = cpu_less_loads(), per_map_seconds()
         made = make()
+        self.sights += 1
         self.sight_seconds += cpu_less_loads() - began - (per_map_seconds() - once)
         self.seen[full] = (occ.clear, occ.fine, made)
         while len(self.seen) > SIGHTLINES_KEPT:

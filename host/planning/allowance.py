@@ -36,7 +36,7 @@ from meshnode.engine.loading import load_seconds
 
 PREPASS_SHARE = 0.1  # of one node's estimated tracing CPU the pre-pass may take
 # What a simulation is charged, by what it counts (`charge`): fitted on this machine to the
-# 532 simulations of plans of balls, gears, rings, teapot, tetra, the mountain and tetra_s8
+# 602 simulations of plans of balls, gears, rings, teapot, tetra, the mountain and tetra_s8
 # on 2x2 to 4x4 with every stage run (charge over measured CPU: median 1.0, tenth to ninetieth
 # percentile 0.7-1.1 for the simulations, 0.8-1.2 for the builds; docs/measurements.md,
 # session 57).

@@ -155,8 +155,8 @@ def test_a_plan_is_the_same_however_quick_the_machine_s_clock(monkeypatch):
     plan = MeshPlan(3, 3, 1.0, "objects", "object", max_share=0.4)
     image = ImageSpec(width=128, height=128, spp=600)  # affords some stages, not all
     request = Request(scene, image, EngineSpec(), plan=plan, auto=Auto(budget_copies=True))
-    plan_render(request)  # the map's tables made: charged to the process's first plan alone
-    real, plans = time.process_time, []
+    real, plans = time.process_time, []  # the first plan makes the map's tables, the second
+    # reads them kept: charged alike
     for rate in (0.5, 1.5):
         monkeypatch.setattr(time, "process_time", lambda rate=rate: rate * real())
         plans.append(plan_render(request))

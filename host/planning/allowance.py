@@ -48,8 +48,9 @@ OBJECT_SECONDS = {"spheres": 0.94e-6, "triangles": 0.8e-6, "polygons": 3.36e-6, 
 # (triangles at their ninetieth percentile, 0.56 at the median: the 65,536-triangle tetra's
 # builds took 0.55-0.82 us a triangle, and its plans measured up to a third over their charge)
 SIGHT_SECONDS = 3e-3  # what the eye sees of cells, an entry made (3 a new cut: 5-12 ms)
-TABLE_SECONDS = 15e-3  # a map's table made once a process (`mapbounds.per_map`: 3-4 a plan,
-# 12-67 ms in all on the SPD scenes, with the lights' maps the most)
+TABLE_SECONDS = 15e-3  # a map's table a plan reads (`mapbounds.per_map`: 3-4 a plan, made
+# once a process in 12-67 ms in all on the SPD scenes, the lights' maps the most; charged
+# to every plan, made or kept, so a plan is the same whatever the process planned before)
 BETWEEN = 1.2  # the plan's own work between simulations: a fifth of theirs (2x2 to 4x4) ...
 HELD_SECONDS = 0.15e-6  # ... and, each simulation, for every object a node holds in it (the
 # holders' subsets and tables: the 65,536-triangle tetra's plans 17 ms a simulation beyond)
@@ -66,7 +67,7 @@ class Work:
     built: int = 0  # engines it built ...
     objects: dict = field(default_factory=dict)  # ... and their objects, by kind
     sights: int = 0  # sightlines' entries it made (`EngineCache.sightlines`)
-    tables: int = 0  # the map's tables it made, which no later simulation makes again
+    tables: int = 0  # the map's tables it read first in its plan (made, or kept from another)
     held: int = 0  # objects its nodes held, summed over them
 
 

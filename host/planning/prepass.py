@@ -19,7 +19,7 @@ from host.planning.partition import partition
 from host.planning.rectangles import bands, splits
 from host.scene.subset import subset
 from meshnode.engine.loading import cpu_less_loads
-from meshnode.engine.mapbounds import per_map_made, per_map_seconds
+from meshnode.engine.mapbounds import asked_in, per_map_seconds
 from meshnode.mesh.engines import EngineCache
 from meshnode.mesh.simulator import simulate
 from meshnode.mesh.stats import UNIT_WEIGHTS, work_units
@@ -51,6 +51,7 @@ class Planning:
     allowance: Allowance
     held: dict = field(default_factory=dict)  # `held_scenes`: (id, objects) -> (scene, subset)
     passes: dict = field(default_factory=dict)  # `partition_pass`: its key -> (camera, Outcome)
+    tables: set = field(default_factory=set)  # the map's tables its simulations read
 
 
 _PLANNING: ContextVar[Planning | None] = ContextVar("planning", default=None)
@@ -63,9 +64,11 @@ def planning(nodes: int):
     allowance (`host.planning.allowance`); both dropped when the plan is made. Yields the
     allowance."""
     cache = EngineCache(least=MESHES_KEPT * nodes, same_scenes=True)
-    token = _PLANNING.set(Planning(cache, Allowance()))
+    now = Planning(cache, Allowance())
+    token = _PLANNING.set(now)
     try:
-        yield _PLANNING.get().allowance
+        with asked_in(now.tables):
+            yield now.allowance
     finally:
         _PLANNING.reset(token)
 
@@ -97,7 +100,7 @@ def simulated(scenes, spec: RenderSpec, part):
     cache = now.engines
     began, built, building = cpu_less_loads(), cache.built, cache.build_seconds
     objects, sights, sighting = Counter(cache.built_objects), cache.sights, cache.sight_seconds
-    once, tables = per_map_seconds(), per_map_made()
+    once, tables = per_map_seconds(), len(now.tables)
     out = simulate(scenes, spec, part, engines=cache)
     seconds = cpu_less_loads() - began
     work = Work(
@@ -107,7 +110,7 @@ def simulated(scenes, spec: RenderSpec, part):
         built=cache.built - built,
         objects=dict(cache.built_objects - objects),
         sights=cache.sights - sights,
-        tables=per_map_made() - tables,
+        tables=len(now.tables) - tables,
         held=sum(len(getattr(s, kind)) for s in scenes for kind in OBJECT_KINDS),
     )
     now.allowance.ran(

@@ -6,6 +6,7 @@ inner maps), and what is made once a map for every engine on it (`per_map`).
 
 import math
 from collections.abc import Callable
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -73,7 +74,8 @@ def marked_boxes(occ: Occupancy) -> np.ndarray:
 # `per_map`'s entries: (map's clear, map's fine, value) by the map's identity and a key
 _PER_MAP: dict = {}
 PER_MAP_KEPT = 8
-_MADE = [0.0, 0]  # CPU seconds `per_map` spent making entries, loads left out, and entries
+_MADE = [0.0]  # CPU seconds `per_map` spent making entries, loads left out (`per_map_seconds`)
+_ASKED: list = [None]  # a set `per_map` adds each key asked for to, while one is given
 
 
 def per_map(occ: Occupancy, key: tuple, make: Callable):
@@ -82,15 +84,19 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
     hashing of its megabytes per engine (the lights' maps keyed on the map's bytes took 1 ms
     an engine, 9 ms of a 3x3 simulation's 90). Each entry holds the arrays it is keyed by,
     so no other map's can take their ids while it stays; the newest PER_MAP_KEPT stay."""
-    full = (*map_key(occ), *key)
+    full, asked = (*map_key(occ), *key), _ASKED[0]
     entry = _PER_MAP.get(full)
     if entry is None:
-        began = cpu_less_loads()
-        entry = _PER_MAP[full] = (occ.clear, occ.fine, make())
+        began, inner = cpu_less_loads(), set()
+        with asked_in(inner):  # the entries making it asks for: asked again with it
+            value = make()
+        entry = _PER_MAP[full] = (occ.clear, occ.fine, value, frozenset(inner))
         _MADE[0] += cpu_less_loads() - began
-        _MADE[1] += 1
         while len(_PER_MAP) > PER_MAP_KEPT:
             del _PER_MAP[next(iter(_PER_MAP))]
+    if asked is not None:
+        asked.add(full)
+        asked.update(entry[3])
     return entry[2]
 
 
@@ -115,9 +121,16 @@ def per_map_seconds() -> float:
     return _MADE[0]
 
 
-def per_map_made() -> int:
-    """Entries `per_map` has made in this process (what the cost pre-pass is charged for)."""
-    return _MADE[1]
+@contextmanager
+def asked_in(keys: set):
+    """While inside, every key `per_map` is asked for is added to `keys`: the cost pre-pass
+    charges a plan for the tables its simulations read, made now or kept from an earlier
+    plan, so the plan is the same whatever this process planned before."""
+    before, _ASKED[0] = _ASKED[0], keys
+    try:
+        yield keys
+    finally:
+        _ASKED[0] = before
 
 
 @leaf

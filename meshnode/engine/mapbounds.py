@@ -7,6 +7,7 @@ inner maps), and what is made once a map for every engine on it (`per_map`).
 import math
 from collections.abc import Callable
 from contextlib import contextmanager
+from contextvars import ContextVar
 
 import numpy as np
 
@@ -75,7 +76,9 @@ def marked_boxes(occ: Occupancy) -> np.ndarray:
 _PER_MAP: dict = {}
 PER_MAP_KEPT = 8
 _MADE = [0.0]  # CPU seconds `per_map` spent making entries, loads left out (`per_map_seconds`)
-_ASKED: list = [None]  # a set `per_map` adds each key asked for to, while one is given
+# a set `per_map` adds each key asked for to, while one is given (`asked_in`): a context
+# variable, so another thread's engines (a node traced in the host's process) add nothing
+_ASKED: ContextVar[set | None] = ContextVar("per_map_asked", default=None)
 
 
 def per_map(occ: Occupancy, key: tuple, make: Callable):
@@ -84,7 +87,7 @@ def per_map(occ: Occupancy, key: tuple, make: Callable):
     hashing of its megabytes per engine (the lights' maps keyed on the map's bytes took 1 ms
     an engine, 9 ms of a 3x3 simulation's 90). Each entry holds the arrays it is keyed by,
     so no other map's can take their ids while it stays; the newest PER_MAP_KEPT stay."""
-    full, asked = (*map_key(occ), *key), _ASKED[0]
+    full, asked = (*map_key(occ), *key), _ASKED.get()
     entry = _PER_MAP.get(full)
     if entry is None:
         began, inner = cpu_less_loads(), set()
@@ -126,11 +129,11 @@ def asked_in(keys: set):
     """While inside, every key `per_map` is asked for is added to `keys`: the cost pre-pass
     charges a plan for the tables its simulations read, made now or kept from an earlier
     plan, so the plan is the same whatever this process planned before."""
-    before, _ASKED[0] = _ASKED[0], keys
+    token = _ASKED.set(keys)
     try:
         yield keys
     finally:
-        _ASKED[0] = before
+        _ASKED.reset(token)
 
 
 @leaf

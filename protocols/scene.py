@@ -172,6 +172,12 @@ class SceneData:
         )
 
     @property
+    def records_by_kind(self) -> dict[str, int]:
+        """Records of each object table (`OBJECT_KINDS`): a polygon split or a patch
+        tessellated counts each of its records, as engines build and hold them."""
+        return {kind: len(getattr(self, kind)) for kind in OBJECT_KINDS}
+
+    @property
     def n_objects(self) -> int:
         """Number of NFF primitives (distinct gids)."""
         gids = [getattr(self, kind)["gid"] for kind in OBJECT_KINDS]

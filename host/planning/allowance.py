@@ -97,7 +97,7 @@ class Allowance:
     pass_charge: float = 0.0  # their simulating charged (`charge`), BETWEEN apart
     build_charge: float = 0.0  # ... their engines' builds
     cut_charge: float = 0.0  # ... what the eye sees of their new cells
-    table_charge: float = 0.0  # ... the map's tables, once a process
+    table_charge: float = 0.0  # ... the map's tables the plan read, made or kept
     built: int = 0  # engines they built
     cuts: int = 0  # simulations that made sightlines (of new cells)
     most_built: int = 0  # the most one simulation built: a new cut's, every node's engine

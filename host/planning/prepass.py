@@ -25,7 +25,6 @@ from meshnode.mesh.simulator import simulate
 from meshnode.mesh.stats import UNIT_WEIGHTS, work_units
 from protocols.camera import CameraSampling, Generation
 from protocols.render import EVERYWHERE, ImageSpec, RenderSpec
-from protocols.scene import OBJECT_KINDS
 
 COARSE = 64  # coarse samples along the longer image axis
 # A plan's simulated meshes build their engines in one cache (`planning`): the same boxes
@@ -111,7 +110,7 @@ def simulated(scenes, spec: RenderSpec, part):
         objects=dict(cache.built_objects - objects),
         sights=cache.sights - sights,
         tables=len(now.tables) - tables,
-        held=sum(len(getattr(s, kind)) for s in scenes for kind in OBJECT_KINDS),
+        held=sum(sum(s.records_by_kind.values()) for s in scenes),
     )
     now.allowance.ran(
         work,

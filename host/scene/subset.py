@@ -6,12 +6,12 @@ from dataclasses import replace
 import numpy as np
 
 from meshnode.engine.tables import segments
-from protocols.scene import OBJECT_KINDS, SceneData
+from protocols.scene import SceneData
 
 
 def subset(scene: SceneData, keep: np.ndarray) -> SceneData:
     """The scene restricted to objects `keep` (engine local order), gids and materials kept."""
-    counts = [len(getattr(scene, kind)) for kind in OBJECT_KINDS]
+    counts = list(scene.records_by_kind.values())
     parts = np.split(keep, np.cumsum(counts)[:-1])
     polys = scene.polygons[parts[2]].copy()
     rows, new_start, _, _ = segments(polys["start"], polys["count"])  # kept vertices, in order

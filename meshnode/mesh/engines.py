@@ -12,7 +12,7 @@ from meshnode.engine import Engine
 from meshnode.engine.loading import cpu_less_loads
 from meshnode.engine.mapbounds import map_key, per_map_seconds
 from protocols.render import EngineSpec
-from protocols.scene import OBJECT_KINDS, SCENE_TABLES, SceneData
+from protocols.scene import SCENE_TABLES, SceneData
 
 
 class EngineCache:
@@ -69,9 +69,9 @@ class EngineCache:
             began, once = cpu_less_loads(), per_map_seconds()
             engine = Engine.from_spec(scene, spec, **placement)
             self.built += 1  # its CPU, kernels loaded from the disk cache meanwhile left out,
-            self.built_objects.update({k: len(getattr(scene, k)) for k in OBJECT_KINDS})
             # and the map's tables made once for every engine on it (`mapbounds.per_map`)
             self.build_seconds += cpu_less_loads() - began - (per_map_seconds() - once)
+            self.built_objects.update(scene.records_by_kind)
         self.engines[key] = engine
         return engine, reused
 

@@ -12,7 +12,7 @@ from host.planning.placement import sends
 from host.planning.plan import plan_render
 from host.planning.prepass import coarse_pass, costs
 from host.planning.rectangles import spread
-from host.planning.replicas import RULES, _holds, choose_copies, with_replicas
+from host.planning.replicas import RULES, _holds, choose_copies, promise_of, with_replicas
 from host.planning.request import Auto, Request
 from host.scene.nff import read_nff
 from host.scene.subset import subset
@@ -141,6 +141,41 @@ def test_copies_go_hottest_first_and_never_past_the_budget(name, shape, share, r
         mine = keep[[n, *full[n]]].any(axis=0)
         for c in set(range(plan.nodes)) - {n, *full[n]}:
             assert np.count_nonzero(mine | keep[c]) > share * total
+
+
+def test_a_copy_promises_the_busiest_node_its_cells_primary_work_shared_over_its_holders():
+    # 2x2 without copies: cell 0 carries 10 (8 in its primary batches, its claimed eye rays
+    # and all they spawn there), the others 1. A copy of cell 0 on node 1 or 3 shares those
+    # 8 with its holder: 2 + x and 1 + (8 - x) even at 5.5. A copy of cell 1 on node 0
+    # leaves node 0 its 10 (and more).
+    plan = MeshPlan(2, 2, balance="objects", max_share=0.5)
+    work, primary = np.array([10.0, 1, 1, 1]), np.array([8.0, 1, 1, 1])
+    assert promise_of(plan, ((), (0,), (), ()), work, primary) == pytest.approx(5.5)
+    assert promise_of(plan, ((), (), (), (0,)), work, primary) == pytest.approx(5.5)
+    assert promise_of(plan, ((1,), (), (), ()), work, primary) >= 10.0
+    # the rays passed into cell 0 (its work outside primary batches) stay with its owner
+    assert promise_of(plan, ((), (0,), (), ()), work, np.array([0.0, 1, 1, 1])) == 10.0
+
+
+def test_the_copies_promising_the_lightest_busiest_node_are_simulated_first():
+    # balls under a budget on 3x3: every rule's sets tried (the allowance unbounded), in
+    # the order of their estimated busiest node, and each estimate is the one its holds
+    # and the copies-free mesh's cells give
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.4, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    part, keep = partition(scene, spec)
+    _, _, report = with_replicas(scene, spec, part, keep)
+    tried = report["tried"]
+    assert len(tried) > 1, report["why"]
+    estimates = [t["estimated_busiest_vs_none"] for t in tried]
+    assert estimates == sorted(estimates)
+    work = np.array(report["simulated_load"])
+    primary = np.array(report["simulated_primary_load"])
+    for t in tried:
+        holds = tuple(tuple(h) for h in t["holds"])
+        got = promise_of(plan, holds, work, primary) / work.max()
+        assert t["estimated_busiest_vs_none"] == pytest.approx(got)
 
 
 def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():

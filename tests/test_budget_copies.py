@@ -3,10 +3,13 @@ other cells' engines, and the image and ray counts stay the single node's; copie
 hottest cell first, never past the budget, and kept only where the simulated mesh's busiest
 node carries less."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from host.planning.budget import holdings, within
+from host.planning.holder_shares import shared
 from host.planning.partition import partition
 from host.planning.placement import sends
 from host.planning.plan import plan_render
@@ -176,6 +179,29 @@ def test_the_copies_promising_the_lightest_busiest_node_are_simulated_first():
         holds = tuple(tuple(h) for h in t["holds"])
         got = promise_of(plan, holds, work, primary) / work.max()
         assert t["estimated_busiest_vs_none"] == pytest.approx(got)
+
+
+def test_copies_are_weighed_with_their_cells_work_shared_as_the_plan_will_share_it():
+    # teapot 3x3 under a quarter: its copies' sets simulated with each copied cell's own
+    # work shared over its holders (the claims' shares the plan then keeps) carry its
+    # busiest node lighter than the same sets with each cell's eye rays on its owner
+    scene = read_nff(spd_scene("teapot.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.25, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    part, keep = partition(scene, spec)
+    at, _, report = with_replicas(scene, spec, part, keep)
+    _, _, alone = with_replicas(scene, spec, part, keep, shares=False)
+    assert report["chosen"], report["why"]
+    work = report["simulated_load"]
+    bare = replace(at, plan=replace(at.plan, claim_shares=()))
+    assert (
+        at.plan.claim_shares
+        == shared(bare, work, report["simulated_primary_load"])[0].plan.claim_shares
+    )
+    assert at.plan.claim_shares
+    by_holds = {str(t["holds"]): t["simulated_busiest_vs_none"] for t in alone["tried"]}
+    first = report["tried"][0]
+    assert first["simulated_busiest_vs_none"] < by_holds[str(first["holds"])]
 
 
 def test_copies_that_lighten_the_busiest_node_are_kept_and_the_image_holds():

@@ -183,7 +183,7 @@ def _within_budget(
         raise refusal(scene, spec.plan, held)
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
-    spec, part, keep, chosen = _copied(scene, spec, part, keep, load, reserve=int(share))
+    spec, part, keep, chosen = _copied(scene, spec, part, keep, load, int(share), share)
     if steal:
         spec, chosen["steal"] = stealing(spec)
     if spec.plan.holds and share:
@@ -228,7 +228,7 @@ def stealing(spec: RenderSpec) -> tuple[RenderSpec, dict]:
     return replace(spec, plan=replace(plan, steal=True)), {"chosen": True, "why": why}
 
 
-def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve: int = 0):
+def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve=0, shares=True):
     """(spec, partition, holders, report) of the budget's copies (`with_replicas`) on the
     cells as cut, or where those are cut by the objects evened on the work and the
     simulated busiest node still carries UNEVEN times the mean or more, on cells cut for the
@@ -237,8 +237,9 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve: 
     spheres' cell took 54% of the work, and with cells evened on the work only three nodes
     besides its owner had room for its copy (busiest frame 1.02 s against 0.73 cut for the
     fewest objects, the copy then on every node). `reserve`: simulations the copies keep
-    for the claims' shares' check (`holder_shares.checked`)."""
-    at, dealt, chosen = with_replicas(scene, spec, part, keep, load, reserve)
+    for the claims' shares' check (`holder_shares.checked`); `shares`: the copies weighed
+    with each copied cell's own work shared over its holders, as the plan will share it."""
+    at, dealt, chosen = with_replicas(scene, spec, part, keep, load, reserve, shares)
     simulated = chosen.get("simulated_load", [])
     top = chosen.get("simulated_busiest", 0.0)
     uneven = top / max(np.mean(simulated), 1e-300) if simulated else 0.0
@@ -250,7 +251,7 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve: 
     same = np.array_equal(np.asarray(fewest.cells), np.asarray(part.cells))
     if same or not within(spec.plan, holdings(scene, spec, fewest, fewest_keep)):
         return at, dealt, keep, chosen
-    at2, dealt2, chosen2 = with_replicas(scene, spec, fewest, fewest_keep)
+    at2, dealt2, chosen2 = with_replicas(scene, spec, fewest, fewest_keep, shares=shares)
     busiest = {"evened on the work": chosen["simulated_busiest"]}
     busiest["fewest objects"] = chosen2["simulated_busiest"]
     cells = {"simulated_busiest": busiest, "uneven": float(uneven)}

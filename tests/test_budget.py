@@ -288,6 +288,30 @@ def test_object_cells_re_cut_on_the_measured_work_lighten_the_busiest_node(name)
     assert max(tiny.balance["budget"]["share_held"]) <= 0.25
 
 
+def test_with_copies_to_come_a_cut_is_judged_by_what_its_copies_promise():
+    # teapot 3x3 under a quarter share, three re-cut rounds: without copies to come the cut
+    # kept is the one whose simulated busiest node is lightest; with them each cut is judged
+    # by the least of that and what its copies promise (`objectwork.PROMISED` times
+    # `replicas.cut_promise`), and the cut kept is the one judged lightest
+    from host.planning.objectwork import balanced_object_cells, object_limit
+    from protocols.render import RenderSpec
+
+    scene = read_nff(spd_scene("teapot.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.25)
+    spec = RenderSpec(ImageSpec(width=128, height=128).sized(scene.view), plan=plan)
+    limit = object_limit(scene, plan)
+    _, bare_cost, bare = balanced_object_cells(scene, spec, limit, rounds=3)
+    _, cost, judged = balanced_object_cells(scene, spec, limit, rounds=3, copies=True)
+    busiest = bare["simulated_busiest_by_round"]
+    assert judged["simulated_busiest_by_round"] == busiest and len(busiest) > 1
+    assert bare["judged_busiest_by_round"] == busiest
+    assert bare_cost.max() == min(busiest)
+    promised = judged["judged_busiest_by_round"]
+    assert all(p <= b for p, b in zip(promised, busiest, strict=True))
+    assert any(p < b for p, b in zip(promised, busiest, strict=True))
+    assert cost.max() == busiest[int(np.argmin(promised))]
+
+
 def test_re_cut_cells_that_break_the_budget_are_cut_again_within_it():
     # The re-cuts count objects per node as if every later cut divided them evenly, and the
     # boxes then grow by the overlap: teapot 3x3 under a quarter share reached 28.5%, and

@@ -109,7 +109,7 @@ def _planned(request: Request, memory: int) -> Planned:
         copied = budgeted(plan) and request.auto.budget_copies
         reserve = COPIES_LEAST + int(request.auto.share_claims) if copied else 0
         limit = object_limit(scene, plan)
-        cells, cost, report = balanced_object_cells(scene, spec, limit, reserve=reserve)
+        cells, cost, report = balanced_object_cells(scene, spec, limit, None, reserve, copied)
         loads = node_seconds(spec, cost)  # where the tiles no eye ray enters go
         balance.update(report, seconds=time.perf_counter() - t0)
     elif plan.mode == "object" and plan.nodes > 1 and overlaps:  # even cuts, overlap chosen

@@ -192,19 +192,38 @@ def _candidates(scene: SceneData, spec: RenderSpec, part: Partition, keep, befor
     rule's choice (`choose_copies`, from the copies-free mesh's Outcome `before`), cut to
     each share of TRIES; the most promising first (`promise_of`), since the allowance often
     affords one."""
+    work, primary = costs(before), primary_costs(before)
+    out = _sets(scene, spec, part, keep, work, sends(before))
+    promise = [promise_of(spec.plan, holds, work, primary) for _, _, holds in out]
+    order = sorted(range(len(out)), key=lambda i: (promise[i], i))
+    return [(*out[i], promise[i]) for i in order]
+
+
+def _sets(scene: SceneData, spec: RenderSpec, part, keep, work, passes) -> list:
+    """(rule, share, holds) of every distinct set of copies: each rule's choice
+    (`choose_copies`, from each cell's `work` and the rays cells pass each other, `passes`),
+    cut to each share of TRIES."""
     out, seen = [], set()
     for rule in RULES:
-        passes = sends(before) if rule == "traffic" else None
-        added = choose_copies(scene, spec, part, keep, costs(before), passes)
+        added = choose_copies(scene, spec, part, keep, work, passes if rule == "traffic" else None)
         for share in TRIES if added else ():
             holds = _holds(spec.plan.nodes, added[: max(1, round(share * len(added)))])
             if holds not in seen:
                 seen.add(holds)
                 out.append((rule, share, holds))
-    work, primary = costs(before), primary_costs(before)
-    promise = [promise_of(spec.plan, holds, work, primary) for _, _, holds in out]
-    order = sorted(range(len(out)), key=lambda i: (promise[i], i))
-    return [(*out[i], promise[i]) for i in order]
+    return out
+
+
+def cut_promise(scene: SceneData, spec: RenderSpec, keep, work, primary, passes) -> float:
+    """The lightest busiest node any set of copies (`_sets`) promises on cells whose nodes
+    hold `keep`, from each cell's simulated `work`, its `primary` part and the rays cells
+    pass each other (`promise_of`; no simulation), or the busiest's `work` with none; a plan
+    under a byte budget (`MeshPlan.node_bytes`) counts no copies here."""
+    work = np.asarray(work, float)
+    if spec.plan.node_bytes:
+        return float(work.max())
+    sets = _sets(scene, spec, None, keep, work, passes)
+    return min([float(work.max())] + [promise_of(spec.plan, h, work, primary) for *_, h in sets])
 
 
 def promise_of(plan, holds: tuple, work, primary) -> float:
@@ -255,9 +274,10 @@ def choose_copies(
     most work per holder (`load[c]` shared evenly by its holders) gets one more holder, a
     node with room for its objects and bytes: of those, the one it passes most rays to or
     takes most from (`passes`, nodes x nodes; None: none), else the least loaded (each
-    holder's load its cells' shares)."""
+    holder's load its cells' shares). `part`: for the cells' bytes, None where no byte
+    budget bounds them."""
     plan, nodes = spec.plan, spec.plan.nodes
-    own = np.asarray(cell_bytes(scene, part, keep))
+    own = np.asarray(cell_bytes(scene, part, keep) if part is not None else [0] * nodes)
     held = [{n} for n in range(nodes)]  # sets, as `carried` sums them (the same bits)
     holds = np.eye(nodes, dtype=bool)  # holds[n, c]: node n holds cell c
     mask = np.array(keep[:nodes], bool)  # the objects each node holds

@@ -1,6 +1,6 @@
 """The cost pre-pass's allowance (`host.planning.allowance`): simulations only within a tenth of
 one node's tracing, stages refused named with why, and the copies a short render cannot afford
-to simulate chosen anyway where one cell carries most of the work (`replicas._unsimulated`)."""
+to simulate chosen anyway where they promise the busiest node less (`replicas._unsimulated`)."""
 
 import numpy as np
 import pytest
@@ -215,24 +215,31 @@ def test_simulations_on_one_map_make_its_tables_once():
 
 
 @pytest.mark.parametrize("uneven", [True, False])
-def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_the_load_is_uneven(
+def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_they_promise_less(
     uneven,
 ):
+    # node 4's cell carries 6 (or 1.05) against the others' 1, all of it in its primary
+    # batches: copies share it with their holders (at 1.05 no set can promise less than the
+    # mean, 1.006, and 1.1 times that is over 1.05: none is taken on its promise alone)
     scene = read_nff(spd_scene("balls_s2.nff"))
     plan = MeshPlan(3, 3, balance="objects", max_share=0.4)
     spec = RenderSpec(ImageSpec(width=32, height=32).sized(scene.view), plan=plan)
     part, keep = partition(scene, spec)  # cut for the fewest objects: room for copies
     load = np.ones(9)
-    load[4] = 6.0 if uneven else 1.2  # the first cut's simulated work, node by node
+    load[4] = 6.0 if uneven else 1.05  # the first cut's simulated work, node by node
     with planning(9) as allowed:
         allowed.learn(0.0)  # a render that affords no simulation
-        at, dealt, report = with_replicas(scene, spec, part, keep, load)
+        at, dealt, report = with_replicas(scene, spec, part, keep, load, primary=load)
+        _, _, unknown = with_replicas(scene, spec, part, keep, load)
     assert allowed.passes == 0 and report["why"].startswith("skipped: ")
+    assert unknown["chosen"] == [] and "no cell's work known" in unknown["why"]
+    assert report["simulated"] is False and "unsimulated" in report["why"]
     if not uneven:
         assert report["chosen"] == [] and not at.plan.copies
+        assert report["estimated_busiest_vs_none"] * 1.05 >= load.mean() - 1e-12
         return
-    assert report["simulated"] is False and "unsimulated" in report["why"]
-    # every copy is of the busiest node's cell first, on nodes with room; the budget holds
+    assert report["estimated_busiest_vs_none"] * 6.0 < 4.0
+    # copies of the busiest node's cell, on nodes with room; the budget holds
     assert at.plan.copies and any(4 in h for h in at.plan.holds)
     assert within(at.plan, holdings(scene, at, dealt, keep))
     ref, ref_counts = single(scene)

@@ -25,7 +25,7 @@ from host.planning.prepass import (
     tracing_seconds,
     unaffordable,
 )
-from host.planning.replicas import cut_promise
+from host.planning.replicas import PROMISED, cut_promise
 from host.planning.seenwork import first_guess
 from host.scene.derived import scene_tables
 from protocols.render import RenderSpec
@@ -44,12 +44,6 @@ ROUNDS = 3
 # 4x4 under 0.15 (one pair) balls 0.93, teapot 0.89, rings 0.98, gears 0.94, tetra at 668 spp
 # 1.01 / 1.08 (its kernels 1.24 / 1.15; its frame is its sky's eye rays, docs/measurements)
 GRID = 32
-# What a set of copies promises the busiest node (`replicas.promise_of`) is short of what its
-# simulation then gives: simulated over promised 1.00-1.53, quartiles 1.03 / 1.07 / 1.15, for
-# the 48 sets tried on the table's 3x3 and 4x4 plans of balls, gears, teapot and tetra_s8.
-# A cut is chosen for its copies by their promise times this: at 1.0, tetra 3x3 took a cut
-# whose copies were then turned down (coarse estimate of the speedup 5.11 -> 4.86)
-PROMISED = 1.1
 FITS = 3  # passes over every round's measurements fitting the grid to them all
 # A node's tracing CPU a work unit (`meshnode.mesh.stats.work_units`), turning each node's
 # simulated work into the seconds the sky's tiles are dealt against (`node_seconds`). It

@@ -183,7 +183,7 @@ def _within_budget(
         raise refusal(scene, spec.plan, held)
     if not copies:
         return spec, part, keep, {**report(spec.plan, held, gave_up), "copies": "none asked"}
-    spec, part, keep, chosen = _copied(scene, spec, part, keep, load, int(share), share)
+    spec, part, keep, chosen = _copied(scene, spec, part, keep, load, primary, int(share), share)
     if steal:
         spec, chosen["steal"] = stealing(spec)
     if spec.plan.holds and share:
@@ -228,7 +228,7 @@ def stealing(spec: RenderSpec) -> tuple[RenderSpec, dict]:
     return replace(spec, plan=replace(plan, steal=True)), {"chosen": True, "why": why}
 
 
-def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve=0, shares=True):
+def _copied(scene: SceneData, spec: RenderSpec, part, keep, load, primary, reserve=0, shares=True):
     """(spec, partition, holders, report) of the budget's copies (`with_replicas`) on the
     cells as cut, or where those are cut by the objects evened on the work and the
     simulated busiest node still carries UNEVEN times the mean or more, on cells cut for the
@@ -239,7 +239,7 @@ def _copied(scene: SceneData, spec: RenderSpec, part, keep, load=None, reserve=0
     fewest objects, the copy then on every node). `reserve`: simulations the copies keep
     for the claims' shares' check (`holder_shares.checked`); `shares`: the copies weighed
     with each copied cell's own work shared over its holders, as the plan will share it."""
-    at, dealt, chosen = with_replicas(scene, spec, part, keep, load, reserve, shares)
+    at, dealt, chosen = with_replicas(scene, spec, part, keep, load, reserve, shares, primary)
     simulated = chosen.get("simulated_load", [])
     top = chosen.get("simulated_busiest", 0.0)
     uneven = top / max(np.mean(simulated), 1e-300) if simulated else 0.0

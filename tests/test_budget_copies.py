@@ -160,14 +160,19 @@ def test_a_copy_promises_the_busiest_node_its_cells_primary_work_shared_over_its
     assert promise_of(plan, ((), (0,), (), ()), work, np.array([0.0, 1, 1, 1])) == 10.0
 
 
+def _budgeted(name: str, share: float):
+    """(scene, plan, spec, partition, holders) of a 3x3 under `share`, 64x64, overlap 0."""
+    scene = read_nff(spd_scene(name))
+    plan = MeshPlan(3, 3, balance="objects", max_share=share, overlap=0.0)
+    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
+    return scene, plan, spec, *partition(scene, spec)
+
+
 def test_the_copies_promising_the_lightest_busiest_node_are_simulated_first():
     # balls under a budget on 3x3: every rule's sets tried (the allowance unbounded), in
     # the order of their estimated busiest node, and each estimate is the one its holds
     # and the copies-free mesh's cells give
-    scene = read_nff(spd_scene("balls_s2.nff"))
-    plan = MeshPlan(3, 3, balance="objects", max_share=0.4, overlap=0.0)
-    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
-    part, keep = partition(scene, spec)
+    scene, plan, spec, part, keep = _budgeted("balls_s2.nff", 0.4)
     _, _, report = with_replicas(scene, spec, part, keep)
     tried = report["tried"]
     assert len(tried) > 1, report["why"]
@@ -185,10 +190,7 @@ def test_copies_are_weighed_with_their_cells_work_shared_as_the_plan_will_share_
     # teapot 3x3 under a quarter: its copies' sets simulated with each copied cell's own
     # work shared over its holders (the claims' shares the plan then keeps) carry its
     # busiest node lighter than the same sets with each cell's eye rays on its owner
-    scene = read_nff(spd_scene("teapot.nff"))
-    plan = MeshPlan(3, 3, balance="objects", max_share=0.25, overlap=0.0)
-    spec = RenderSpec(ImageSpec(width=64, height=64).sized(scene.view), ONE, plan)
-    part, keep = partition(scene, spec)
+    scene, _, spec, part, keep = _budgeted("teapot.nff", 0.25)
     at, _, report = with_replicas(scene, spec, part, keep)
     _, _, alone = with_replicas(scene, spec, part, keep, shares=False)
     assert report["chosen"], report["why"]

@@ -250,6 +250,33 @@ def test_copies_the_allowance_refuses_are_chosen_unsimulated_only_where_they_pro
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
 
 
+@pytest.mark.parametrize("room,ran", [(1.5, 0), (2.5, 2)])
+def test_the_claims_check_asks_for_every_simulation_it_runs(round_charges, room, ran):
+    # copies chosen unsimulated, their claims' shares weighed: the check simulates the plan
+    # with them and without (neither kept from the copies), so it asks for two simulations:
+    # with room for one and a half it runs none, with room for two and a half both.
+    from host.planning.holder_shares import checked, shared
+    from host.planning.prepass import partition_pass
+
+    scene = read_nff(spd_scene("balls_s2.nff"))
+    plan = MeshPlan(3, 3, balance="objects", max_share=0.4)
+    spec = RenderSpec(ImageSpec(width=32, height=32).sized(scene.view), plan=plan)
+    part, keep = partition(scene, spec)
+    load = np.ones(9)
+    load[4] = 6.0
+    with planning(9) as allowed:
+        allowed.learn(0.0)
+        at, dealt, _ = with_replicas(scene, spec, part, keep, load, primary=load)
+    at, _ = shared(at, load, load)
+    assert at.plan.claim_shares
+    with planning(9) as allowed:
+        partition_pass(scene, spec, part, keep)  # what a simulation costs, learnt
+        allowed.learn((allowed.spent + room * allowed.cost(1, 0)) / allowance.PREPASS_SHARE)
+        _, report = checked(scene, at, dealt, keep)
+        assert allowed.passes == 1 + ran
+    assert ("not simulated" in report["why"]) == (ran == 0)
+
+
 def test_cost_cuts_and_overlaps_keep_within_the_allowance_too():
     from host.planning.holding import OVERLAPS
     from host.planning.plan import plan_render

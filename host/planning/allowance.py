@@ -81,7 +81,7 @@ def charge(work: Work) -> tuple[float, float, float, float]:
         + HELD_SECONDS * work.held
     )
     building = ENGINE_SECONDS * work.built + sum(
-        OBJECT_SECONDS.get(kind, max(OBJECT_SECONDS.values())) * n
+        OBJECT_SECONDS.get(kind, max(OBJECT_SECONDS.values(), default=0.0)) * n
         for kind, n in work.objects.items()
     )
     return simulating, building, SIGHT_SECONDS * work.sights, TABLE_SECONDS * work.tables

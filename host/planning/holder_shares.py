@@ -23,7 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from host.planning.holding import ratio
-from host.planning.prepass import allowance, costs, partition_pass
+from host.planning.prepass import allowance, costs, partition_pass, unsimulated
 
 QUANTA = 64  # parts of each shared cell's work dealt to its holders
 # Simulations at most refining the shares after the one of the shares weighed (`refined`):
@@ -139,7 +139,8 @@ def checked(scene, spec, part, keep) -> tuple:
     rays passed into a cell and where in it the work lies: teapot 3x3 under a quarter share,
     its shares weighed lighter, carried 1.04 times the busiest node's load without them."""
     owner = replace(spec, plan=replace(spec.plan, claim_shares=()))
-    if not allowance().affords("claims: checked", builds=0):
+    new = unsimulated(scene, (spec, owner), part, keep)  # the copies' own, if simulated, kept
+    if new and not allowance().affords("claims: checked", new, builds=0):
         return spec, {"chosen": "shared", "why": "not simulated: " + allowance().why}
     with_shares = float(costs(partition_pass(scene, spec, part, keep)).max())
     without = float(costs(partition_pass(scene, owner, part, keep)).max())

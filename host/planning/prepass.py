@@ -182,6 +182,14 @@ def partition_pass(scene, spec: RenderSpec, part, keep: np.ndarray):
     return out
 
 
+def unsimulated(scene, specs, part, keep: np.ndarray) -> int:
+    """How many of `specs` `partition_pass` would simulate, not having kept them: what a
+    stage asks the allowance for."""
+    now = _PLANNING.get()
+    kept = now.passes if now is not None else {}
+    return sum(_pass_key(scene, spec, part, keep) not in kept for spec in specs)
+
+
 def _pass_key(scene, spec: RenderSpec, part, keep: np.ndarray) -> tuple:
     """What `partition_pass` simulates from: the scene and camera by identity (a plan's
     are the same objects throughout; a camera's elements are an array), the rest of the

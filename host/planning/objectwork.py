@@ -146,8 +146,7 @@ def _judged(scene: SceneData, spec: RenderSpec, tried: list, copies: bool) -> li
         return [t[0] for t in tried]
     out = []
     for busiest, cells, both, traffic in tried:
-        keep = holders(scene, *traced(*grown(*cells, spec.plan.overlap)))
-        promise = cut_promise(scene, spec, keep, both[:, 0], both[:, 1], traffic)
+        promise = cut_promise(scene, spec, _holders(scene, spec, cells), *both.T, traffic)
         out.append(min(busiest, PROMISED * promise))
     return out
 
@@ -208,7 +207,13 @@ def _fullest(scene: SceneData, spec: RenderSpec, cells) -> int:
     """The most objects a node holds with these cells, counted as the budget counts them:
     its box grown by the overlap and padded as its engine pads it, each object tested
     exactly (`host.planning.clip.holders`)."""
-    return int(holders(scene, *traced(*grown(*cells, spec.plan.overlap))).sum(axis=1).max())
+    return int(_holders(scene, spec, cells).sum(axis=1).max())
+
+
+def _holders(scene: SceneData, spec: RenderSpec, cells) -> np.ndarray:
+    """(nodes, objects) bool: the objects each node's box holds with these cells, grown by
+    the overlap and padded as its engine pads it (`host.planning.clip.holders`)."""
+    return holders(scene, *traced(*grown(*cells, spec.plan.overlap)))
 
 
 def _placed(cells, cost, traffic, plan):

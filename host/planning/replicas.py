@@ -109,10 +109,11 @@ def with_replicas(
         "simulated_rays_passed": passed,
         "simulated_busiest": busiest,  # ... with the copies chosen, below
     }
-    tries = _candidates(scene, spec, part, keep, before)
+    work, primary = costs(before), primary_costs(before)
+    tries = _ranked(plan, _sets(scene, spec, part, keep, work, sends(before)), work, primary)
     if not tries:
         return spec, part, {**report, "chosen": [], "why": "no node has room for another cell"}
-    tried, work, primary = [], costs(before), primary_costs(before)
+    tried = []
     for rule, share, holds, promise in tries:
         if tried and not allowance().affords("copies: the other sets", 1, reserve, builds=0):
             break
@@ -173,16 +174,15 @@ def _unsimulated(scene, spec: RenderSpec, part: Partition, keep, loads, skipped:
     nodes = spec.plan.nodes
     if load is None or primary is None or len(load) != nodes or len(primary) != nodes:
         return spec, part, {"chosen": [], "why": skipped + "; no cell's work known"}
-    sets = _sets(scene, spec, part, keep, load, None)
+    sets = _ranked(spec.plan, _sets(scene, spec, part, keep, load, None, ("load",)), load, primary)
     if not sets:
         return spec, part, {"chosen": [], "why": skipped + "; no node has room for a copy"}
-    promise = [promise_of(spec.plan, h, load, primary) for *_, h in sets]
-    best = int(np.argmin(promise))
-    report = {"simulated": False, "estimated_busiest_vs_none": ratio(promise[best], load.max())}
-    if not PROMISED * promise[best] < load.max():
+    _, share, holds, promise = sets[0]
+    report = {"simulated": False, "estimated_busiest_vs_none": ratio(promise, load.max())}
+    if not PROMISED * promise < load.max():
         why = f"{skipped}; unsimulated, no set of copies promises the busiest node less"
         return spec, part, {**report, "chosen": [], "why": why}
-    at = replace(spec, plan=replace(spec.plan, copies=True, holds=sets[best][2]))
+    at = replace(spec, plan=replace(spec.plan, copies=True, holds=holds))
     return (
         at,
         _dealt(part, at),
@@ -192,31 +192,28 @@ def _unsimulated(scene, spec: RenderSpec, part: Partition, keep, loads, skipped:
             "rule": "load",
             "simulated_load": load.tolist(),  # the first cut's: each cell's work, no copies
             "simulated_primary_load": primary.tolist(),
-            "why": f"{skipped}; unsimulated, the hottest {sets[best][1]:.0%} of the copies "
+            "why": f"{skipped}; unsimulated, the hottest {share:.0%} of the copies "
             f"that fit, each on {HOLDER['load']}: estimated, the busiest node carries "
             f"{report['estimated_busiest_vs_none']:.2f} of its load",
         },
     )
 
 
-def _candidates(scene: SceneData, spec: RenderSpec, part: Partition, keep, before) -> list:
-    """(rule, share, holds, promise) of every distinct set of copies to simulate: each
-    rule's choice (`choose_copies`, from the copies-free mesh's Outcome `before`), cut to
-    each share of TRIES; the most promising first (`promise_of`), since the allowance often
-    affords one."""
-    work, primary = costs(before), primary_costs(before)
-    out = _sets(scene, spec, part, keep, work, sends(before))
-    promise = [promise_of(spec.plan, holds, work, primary) for _, _, holds in out]
-    order = sorted(range(len(out)), key=lambda i: (promise[i], i))
-    return [(*out[i], promise[i]) for i in order]
+def _ranked(plan, sets: list, work, primary) -> list:
+    """(rule, share, holds, promise) of `sets` (`_sets`), the most promising first
+    (`promise_of`, from each cell's `work` and its `primary` part): the allowance often
+    affords one simulation of them, or none."""
+    promise = [promise_of(plan, holds, work, primary) for _, _, holds in sets]
+    order = sorted(range(len(sets)), key=lambda i: (promise[i], i))
+    return [(*sets[i], promise[i]) for i in order]
 
 
-def _sets(scene: SceneData, spec: RenderSpec, part, keep, work, passes) -> list:
+def _sets(scene: SceneData, spec: RenderSpec, part, keep, work, passes, rules=RULES) -> list:
     """(rule, share, holds) of every distinct set of copies: each rule's choice
     (`choose_copies`, from each cell's `work` and the rays cells pass each other, `passes`),
     cut to each share of TRIES."""
     out, seen = [], set()
-    for rule in RULES:
+    for rule in rules:
         added = choose_copies(scene, spec, part, keep, work, passes if rule == "traffic" else None)
         for share in TRIES if added else ():
             holds = _holds(spec.plan.nodes, added[: max(1, round(share * len(added)))])
@@ -234,8 +231,8 @@ def cut_promise(scene: SceneData, spec: RenderSpec, keep, work, primary, passes)
     work = np.asarray(work, float)
     if spec.plan.node_bytes:
         return float(work.max())
-    sets = _sets(scene, spec, None, keep, work, passes)
-    return min([float(work.max())] + [promise_of(spec.plan, h, work, primary) for *_, h in sets])
+    ranked = _ranked(spec.plan, _sets(scene, spec, None, keep, work, passes), work, primary)
+    return min([float(work.max())] + [t[3] for t in ranked[:1]])
 
 
 def promise_of(plan, holds: tuple, work, primary) -> float:

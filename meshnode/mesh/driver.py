@@ -107,6 +107,17 @@ class Driver:
             if self.traced.done:  # out now, with its deposits: kept if another node is lost
                 self.flush()
 
+    def relay(self, sends: list) -> None:
+        """Rays passing through this node toward (dest, rays, cell) of `sends`: they join
+        this node's own rays leaving for the same node and cell, due at the next batch's end
+        or the next flush (a frame each, sent on at once, made a third of a 4x4's messages)."""
+        for dest, rays, cell in sends:
+            waiting = self.leaving.setdefault((dest, cell), [[], 0, 0])
+            waiting[0].append(rays)
+            waiting[1] += len(rays)
+            waiting[2] = max(waiting[2], PASS_AGE - 1)
+        self.sched.output_waiting()
+
     def send_leaving(self, keys: list | None = None) -> None:
         """Send the rays waiting to leave for each (node, cell) of `keys` (None: every key's),
         not joined: each part goes into the frame from where it lies (`post_rays_set`)."""

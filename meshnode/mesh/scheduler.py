@@ -165,6 +165,11 @@ class Scheduler:
         self.in_flight -= 1
         self.unflushed = True
 
+    def output_waiting(self) -> None:
+        """The driver holds output to send (rays relayed through this node): a flush is due
+        before the node next idles or answers a wave."""
+        self.unflushed = True
+
     @property
     def chunks_given(self) -> int:
         """Chunks of this node's rectangle neighbours took (MeshPlan.steal)."""

@@ -58,6 +58,7 @@ class NodeStats:
         self.rays_out: dict[int, int] = defaultdict(int)  # next hop -> rays sent to it
         self.pixel_packets = 0
         self.ray_sets = 0  # RAYS_SET frames sent: several RAYS over one link in one frame
+        self.relayed = 0  # rays received for another node and sent on toward it
         self.batches = 0
         self.cpu = 0.0  # in the engine's kernels: what one node's tracing CPU compares with
         self.batch_cpu = 0.0  # ... and routing rays and deposits around them (`NodeCore.trace`)

@@ -52,6 +52,9 @@ PROGRESS_EVERY = 0.25
 # Held deposits go to the host each time the node idles (True: as before `DepositPackets`;
 # `python -m bench.passing` compares both)
 IDLE_DEPOSITS = False
+# Rays relayed through this node wait for its next send over their link, at most a batch
+# (False: each message's sent on at once; `python -m bench.passing` compares both)
+RELAYS_WAIT = True
 
 
 class Session(Sends, Driver):
@@ -229,7 +232,7 @@ class Session(Sends, Driver):
             taker = checked_cell(f, self.node, self.config.render.plan.held(self.node))
             return self.sched.rays_in(f["rays"], taker=taker)
         self.sched.message_in()
-        self.post_data(f["dest"], Kind.RAYS, f["rays"], f["cell"])
+        self.pass_on([(f["dest"], f["rays"], f["cell"])])
         return False
 
     def on_rays_set(self, m: int, f: dict) -> bool:
@@ -249,8 +252,17 @@ class Session(Sends, Driver):
             stop = self.sched.rays_in(part, message=False, taker=taker) or stop
         onward = [(d, rays[lo:hi], c) for d, c, lo, hi in parts if d != self.node]
         if onward:
-            self.post_rays_set(onward)
+            self.pass_on(onward)
         return stop
+
+    def pass_on(self, sends: list) -> None:
+        """Rays relayed toward their nodes: with this node's own leaving rays (`relay`), or
+        each message's at once (RELAYS_WAIT False)."""
+        self.stats.relayed += sum(len(rays) for _, rays, _ in sends)
+        if RELAYS_WAIT:
+            self.relay(sends)
+        else:
+            self.post_rays_set(sends)
 
     def on_pixels(self, f: dict) -> None:
         check_pixels(f, self.config.torus.size)

@@ -1,7 +1,7 @@
 """How rays are gathered for passing, measured where it matters: a budgeted object-space render
 that passes millions of rays, on local meshes whose nodes each gather another way, in turns.
-A setting is RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY: rays leaving for a neighbour are sent
-once RAYS wait (`meshnode.mesh.driver.PASS_RAYS`) or they have waited AGE batches
+A setting is RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY/INLINE: rays leaving for a neighbour are
+sent once RAYS wait (`meshnode.mesh.driver.PASS_RAYS`) or they have waited AGE batches
 (`PASS_AGE`), queued incoming messages are merged into batches of up to BATCH rays
 (`meshnode.mesh.scheduler.PASSED_BATCH`), eye rays are made EYE a batch
 (`meshnode.mesh.node.EYE_BATCH`), and with SET 1 the RAYS that leave over one link together
@@ -10,8 +10,9 @@ tells the host its progress at most every PROG milliseconds
 (`meshnode.service.session.PROGRESS_EVERY`), and with IDLE 1 it sends the deposits it holds
 for the host each time it idles, with 0 once a packet's worth or the oldest has waited
 (`IDLE_DEPOSITS`), and with RELAY 1 rays relayed through a node wait for its next send over
-their link, with 0 each message's go on at once (`RELAYS_WAIT`); an absent part keeps the
-production value.
+their link, with 0 each message's go on at once (`RELAYS_WAIT`), and a passed batch of
+fewer than INLINE rays is traced on the event loop's thread (`INLINE_RAYS`); an absent part
+keeps the production value.
 
     python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
                             [--size 384] [--spp 16] [--passing 16384/4/4096,16384/16/16384]
@@ -27,8 +28,8 @@ CPU and of its busiest node's frame CPU to the first setting's. Every render's r
 must equal the first's and its image be within 1e-5 of it (object space sums a pixel's
 deposits in the order they arrive; exit 1 if not).
 
-`python -m bench.passing serve ... --passing RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY` is such a node:
-the production service with only those constants changed.
+`python -m bench.passing serve ... --passing SETTING` is such a node: the production service
+with only those constants changed.
 """
 
 import argparse
@@ -45,26 +46,28 @@ import numpy as np  # noqa: E402
 
 from bench import add_scenes_option, finish  # noqa: E402
 
+SETTING = "RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY/INLINE"
+
 
 def serve(argv: list[str]) -> int:
-    """A node that gathers rays as `--passing RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY` says."""
+    """A node that gathers rays as its `--passing` setting says."""
     from meshnode.mesh import driver, node, scheduler
     from meshnode.service import cli, sends, session
 
     at = argv.index("--passing")
-    rays, age, batch, eye, sets, prog, idle, relay = setting(argv[at + 1])
+    rays, age, batch, eye, sets, prog, idle, relay, inline = setting(argv[at + 1])
     driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH = rays, age, batch
     node.EYE_BATCH, sends.RAYS_SETS = eye, bool(sets)
     session.PROGRESS_EVERY, session.IDLE_DEPOSITS = prog / 1000, bool(idle)
-    session.RELAYS_WAIT = bool(relay)
+    session.RELAYS_WAIT, session.INLINE_RAYS = bool(relay), inline
     del argv[at : at + 2]
     return cli.main(argv)
 
 
 def setting(text: str) -> tuple[int, ...]:
     """(PASS_RAYS, PASS_AGE, PASSED_BATCH, EYE_BATCH, RAYS_SETS, PROGRESS_EVERY in ms,
-    IDLE_DEPOSITS, RELAYS_WAIT) of a RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY setting, absent
-    parts the production values."""
+    IDLE_DEPOSITS, RELAYS_WAIT, INLINE_RAYS) of a setting (SETTING), absent parts the
+    production values."""
     from meshnode.mesh import driver, node, scheduler
     from meshnode.service import sends, session
 
@@ -78,11 +81,10 @@ def setting(text: str) -> tuple[int, ...]:
         round(session.PROGRESS_EVERY * 1000),
         int(session.IDLE_DEPOSITS),
         int(session.RELAYS_WAIT),
+        session.INLINE_RAYS,
     )
     if len(parts) > len(default) or not all(p.isdigit() or p == "" for p in parts):
-        raise SystemExit(
-            f"bench.passing: {text!r} is not RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY (whole numbers)"
-        )
+        raise SystemExit(f"bench.passing: {text!r} is not {SETTING} (whole numbers)")
     parts += [""] * (len(default) - len(parts))
     return tuple(int(p) if p else d for p, d in zip(parts, default, strict=True))
 
@@ -209,7 +211,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--passing",
         default="16384/4/4096,16384/16/16384",
-        help="RAYS/AGE/BATCH/EYE/SET/PROG/IDLE/RELAY settings to compare, the first the base",
+        help=f"{SETTING} settings to compare, the first the base",
     )
     p.add_argument("--turns", type=int, default=2)
     p.add_argument("--json", type=Path)

@@ -61,8 +61,9 @@ def test_a_ray_the_engine_cannot_trace_is_refused_by_its_index():
 
 def test_a_mesh_sending_ray_sets_renders_one_nodes_image_and_counts():
     """Object space under a quarter share on 3x3 local nodes: its flushes send RAYS_SET
-    frames and nodes relay rays between nodes two links apart (both counted by the nodes
-    themselves), and every ray still ends once, where one node ends it."""
+    frames, nodes relay rays between nodes two links apart and trace batches of few passed
+    rays on their event loop's thread (each counted by the nodes themselves), and every ray
+    still ends once, where one node ends it."""
     scene = read_nff(spd_scene("balls_s2.nff"))
     image = ImageSpec(width=48, height=48, spp=2)
     one = EngineSpec(threads=1)
@@ -78,3 +79,4 @@ def test_a_mesh_sending_ray_sets_renders_one_nodes_image_and_counts():
     np.testing.assert_allclose(img, ref, rtol=0, atol=1e-5)
     assert sum(n["ray_sets_sent"] for n in stats["nodes"]) > 0
     assert sum(n["rays_relayed"] for n in stats["nodes"]) > 0
+    assert sum(n["batches_inline"] for n in stats["nodes"]) > 0

@@ -48,6 +48,7 @@ def stats_message(session: "Session") -> dict:
     report["copies"] = {str(m): e.stats for m, e in s.core.copies.items()}
     report["ray_sets_sent"] = s.stats.ray_sets  # RAYS_SET frames: RAYS sharing a link
     report["rays_relayed"] = s.stats.relayed  # rays received here for another node
+    report["batches_inline"] = s.stats.inline  # of `batches`, traced on the loop's thread
     report["host_packets"] = s.packets.packets  # PIXELS to the host (`DepositPackets`)
     report["progress_sent"] = s.progress_sent  # PROGRESS, heartbeats included
     report["chunks_given"] = s.sched.chunks_given  # taken by neighbours (steal)

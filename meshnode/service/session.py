@@ -55,6 +55,9 @@ IDLE_DEPOSITS = False
 # Rays relayed through this node wait for its next send over their link, at most a batch
 # (False: each message's sent on at once; `python -m bench.passing` compares both)
 RELAYS_WAIT = True
+# A passed batch of fewer rays is traced on the event loop's thread: a pool thread's hand-off
+# and wake-up back cost more than its tracing (0: every batch on the pool)
+INLINE_RAYS = 64
 
 
 class Session(Sends, Driver):
@@ -318,18 +321,40 @@ class Session(Sends, Driver):
         return sum(o.bytes for o in self.outboxes.values()) + self.host_out.bytes
 
     def start(self, step: Trace) -> None:
-        """Trace a batch on a pool thread; the work loop wakes when it is done."""
+        """Trace a batch on a pool thread, the work loop woken when it is done; a passed
+        batch of fewer than INLINE_RAYS rays on this thread, at once."""
         if self.sched.in_flight == 1:  # the first batch in flight: the node turns busy
             self.stats.turn_busy()
-        self.spawn(self.trace(step))
+        if not step.primary and len(step.rays) < INLINE_RAYS:
+            self.stats.inline += 1
+            try:
+                batch, error = self.core.trace(step.rays, False, step.taker), None
+            except Exception as e:  # noqa: BLE001 - the host must hear of it
+                batch, error = None, e
+            self.traced_batch(step, batch, error)
+        else:
+            self.spawn(self.trace(step))
 
     async def trace(self, step: Trace) -> None:
+        loop = asyncio.get_running_loop()
+        try:
+            batch, error = (
+                await loop.run_in_executor(
+                    self.service.pool, self.core.trace, step.rays, step.primary, step.taker
+                ),
+                None,
+            )
+        except Exception as e:  # noqa: BLE001 - the host must hear of it
+            batch, error = None, e
+        self.traced_batch(step, batch, error)
+
+    def traced_batch(self, step: Trace, batch, error: Exception | None) -> None:
+        """A batch traced (or its failure, `error`): its output delivered, the scheduler
+        told, the work loop woken."""
         rays, primary = step.rays, step.primary
         try:
-            loop = asyncio.get_running_loop()
-            batch = await loop.run_in_executor(
-                self.service.pool, self.core.trace, rays, primary, step.taker
-            )
+            if error is not None:
+                raise error
             self.stats.traced(batch.counts, self.core.stood_for(rays) if primary else 0)
             self.deliver(batch, step)
             if primary:

@@ -59,7 +59,7 @@ def serve(argv: list[str]) -> int:
     driver.PASS_RAYS, driver.PASS_AGE, scheduler.PASSED_BATCH = rays, age, batch
     node.EYE_BATCH, sends.RAYS_SETS = eye, bool(sets)
     session.PROGRESS_EVERY, session.IDLE_DEPOSITS = prog / 1000, bool(idle)
-    session.RELAYS_WAIT, session.INLINE_RAYS = bool(relay), inline
+    sends.RELAYS_WAIT, session.INLINE_RAYS = bool(relay), inline
     del argv[at : at + 2]
     return cli.main(argv)
 
@@ -80,7 +80,7 @@ def setting(text: str) -> tuple[int, ...]:
         int(sends.RAYS_SETS),
         round(session.PROGRESS_EVERY * 1000),
         int(session.IDLE_DEPOSITS),
-        int(session.RELAYS_WAIT),
+        int(sends.RELAYS_WAIT),
         session.INLINE_RAYS,
     )
     if len(parts) > len(default) or not all(p.isdigit() or p == "" for p in parts):

@@ -1,6 +1,7 @@
 """What a node's session sends (`Sends`, a part of `session.Session`): RAYS and PIXELS toward
 a node over the torus, each counted as a message for the termination waves; several RAYS
-leaving over one link together as one RAYS_SET frame; STEAL and GIVE, the waves' STATE and
+leaving over one link together as one RAYS_SET frame; rays relayed through the node, with its
+own leaving rays; STEAL and GIVE, the waves' STATE and
 ECHO to neighbours; deposits and TILE_DONE to the host. It uses the session's router,
 outboxes, the host's outbox, scheduler and statistics."""
 
@@ -13,6 +14,9 @@ from protocols.records import Parts
 # Several RAYS leaving over one link together go as one RAYS_SET frame (False: a frame each;
 # `python -m bench.passing` compares both)
 RAYS_SETS = True
+# Rays relayed through this node wait for its next send over their link, at most a batch
+# (False: each message's sent on at once; `python -m bench.passing` compares both)
+RELAYS_WAIT = True
 
 
 class Sends:
@@ -60,6 +64,15 @@ class Sends:
             self.stats.ray_sets += 1
             self.sched.message_out()
             self.outboxes[hop].post(make(Kind.RAYS_SET, rays=rays, parts=parts), rays.nbytes)
+
+    def pass_on(self, sends: list) -> None:
+        """Rays relayed toward their nodes: with this node's own leaving rays
+        (`Driver.relay`), or each message's at once (RELAYS_WAIT False)."""
+        self.stats.relayed += sum(len(rays) for _, rays, _ in sends)
+        if RELAYS_WAIT:
+            self.relay(sends)
+        else:
+            self.post_rays_set(sends)
 
     def post_pixels(self, dest: int, deposits: np.ndarray) -> None:
         self.post_data(dest, Kind.PIXELS, deposits)

@@ -52,9 +52,6 @@ PROGRESS_EVERY = 0.25
 # Held deposits go to the host each time the node idles (True: as before `DepositPackets`;
 # `python -m bench.passing` compares both)
 IDLE_DEPOSITS = False
-# Rays relayed through this node wait for its next send over their link, at most a batch
-# (False: each message's sent on at once; `python -m bench.passing` compares both)
-RELAYS_WAIT = True
 # A passed batch of fewer rays is traced on the event loop's thread: a pool thread's hand-off
 # and wake-up back cost more than its tracing (0: every batch on the pool)
 INLINE_RAYS = 64
@@ -257,15 +254,6 @@ class Session(Sends, Driver):
         if onward:
             self.pass_on(onward)
         return stop
-
-    def pass_on(self, sends: list) -> None:
-        """Rays relayed toward their nodes: with this node's own leaving rays (`relay`), or
-        each message's at once (RELAYS_WAIT False)."""
-        self.stats.relayed += sum(len(rays) for _, rays, _ in sends)
-        if RELAYS_WAIT:
-            self.relay(sends)
-        else:
-            self.post_rays_set(sends)
 
     def on_pixels(self, f: dict) -> None:
         check_pixels(f, self.config.torus.size)

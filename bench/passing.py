@@ -10,9 +10,9 @@ tells the host its progress at most every PROG milliseconds
 (`meshnode.service.session.PROGRESS_EVERY`), and with IDLE 1 it sends the deposits it holds
 for the host each time it idles, with 0 once a packet's worth or the oldest has waited
 (`IDLE_DEPOSITS`), and with RELAY 1 rays relayed through a node wait for its next send over
-their link, with 0 each message's go on at once (`RELAYS_WAIT`), and a passed batch of
-fewer than INLINE rays is traced on the event loop's thread (`INLINE_RAYS`); an absent part
-keeps the production value.
+their link, with 0 each message's go on at once (`meshnode.service.sends.RELAYS_WAIT`), and
+a passed batch of fewer than INLINE rays is traced on the event loop's thread
+(`meshnode.service.session.INLINE_RAYS`); an absent part keeps the production value.
 
     python -m bench.passing [--scenes DIR] [--only balls,tetra] [--mesh 3x3] [--share 0.25]
                             [--size 384] [--spp 16] [--passing 16384/4/4096,16384/16/16384]

@@ -102,6 +102,7 @@ def figures(key: dict, got: tuple, image, camera) -> dict:
         # what the work and frame speedups' busiest node is the busiest of
         "node_work_units": node_work,
         "node_frame_cpu_seconds": [n.get("frame_cpu_seconds", 0.0) for n in st["nodes"]],
+        "node_loop_cpu_seconds": [n.get("loop_cpu_seconds", 0.0) for n in st["nodes"]],
         "one_frame_cpu_seconds": s1["frame_cpu_seconds"],
         "work_summed_over_one": sum(node_work) / max(work1, 1),
         "sky_tiles": st.get("sky_tiles", {}),
@@ -124,8 +125,9 @@ def frame_parts(row: dict) -> dict:
     more, routing, the event loop) and `balance` the busiest node's over the mean node's.
     `summed` is split into the nodes' kernels, their routing around the kernels in whole
     batches, and the rest of their process (the event loop, framing, the sky's deposits),
-    each over one process's frame; `work` is the kernels' summed work units over one's, and
-    `even` the speedup were the nodes evenly loaded (N / summed)."""
+    each over one process's frame (`event_loop`: of that rest, the event loop's thread);
+    `work` is the kernels' summed work units over one's, and `even` the speedup were the
+    nodes evenly loaded (N / summed)."""
     one = max(row["one_frame_cpu_seconds"], 1e-9)
     frames, batches = row["node_frame_cpu_seconds"], row["node_batch_cpu_seconds"]
     kernels = row["node_cpu_seconds"]
@@ -138,6 +140,7 @@ def frame_parts(row: dict) -> dict:
         "kernels": sum(kernels) / one,
         "routing": (sum(batches) - sum(kernels)) / one,
         "outside_batches": (sum(frames) - sum(batches)) / one,
+        "event_loop": sum(row.get("node_loop_cpu_seconds", [])) / one,
         "one_kernels": row["single_cpu_seconds"] / one,
         "work": row["work_summed_over_one"],
     }
@@ -197,7 +200,8 @@ def print_row(row: dict) -> None:
         print(
             f"      frame: the nodes' summed {f['summed']:.2f} of one process's (kernels "
             f"{f['kernels']:.2f}, their work units {f['work']:.2f} of one's; routing "
-            f"{f['routing']:.2f}; outside batches {f['outside_batches']:.2f}; one process's "
+            f"{f['routing']:.2f}; outside batches {f['outside_batches']:.2f}, the event loop's "
+            f"thread {f['event_loop']:.2f}; one process's "
             f"kernels {f['one_kernels']:.2f}), busiest / mean {f['balance']:.2f}: "
             f"{len(row['node_frame_cpu_seconds'])} / ({f['summed']:.2f} x {f['balance']:.2f}); "
             f"evenly loaded {f['even']:.2f}"

@@ -24,14 +24,17 @@ def _row(frames, batches, kernels, one_frame, one_kernels):
 @pytest.mark.parametrize("seed", range(5))
 def test_the_frame_speedup_is_the_nodes_over_summed_and_balance(seed):
     """N / (summed x balance) is the frame speedup, and the nodes' kernels, routing and the
-    rest of their process add up to the summed frame, whatever the nodes' figures."""
+    rest of their process add up to the summed frame, whatever the nodes' figures; the event
+    loop's thread is a part of that rest."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(2, 17))
     kernels = rng.uniform(0.1, 2.0, n)
     batches = kernels + rng.uniform(0.0, 0.5, n)
     frames = batches + rng.uniform(0.0, 0.5, n)
     row = _row(list(frames), list(batches), list(kernels), float(rng.uniform(1, 9)), 0.9)
+    row["node_loop_cpu_seconds"] = list((frames - batches) * rng.uniform(0.0, 1.0, n))
     f = frame_parts(row)
+    assert 0.0 <= f["event_loop"] <= f["outside_batches"] + 1e-12
     assert math.isclose(n / (f["summed"] * f["balance"]), row["frame_speedup"], rel_tol=1e-12)
     parts = f["kernels"] + f["routing"] + f["outside_batches"]
     assert math.isclose(parts, f["summed"], rel_tol=1e-12)

@@ -80,3 +80,6 @@ def test_a_mesh_sending_ray_sets_renders_one_nodes_image_and_counts():
     assert sum(n["ray_sets_sent"] for n in stats["nodes"]) > 0
     assert sum(n["rays_relayed"] for n in stats["nodes"]) > 0
     assert sum(n["batches_inline"] for n in stats["nodes"]) > 0
+    for n in stats["nodes"]:  # the event loop's thread: within what the batches leave
+        outside = n["frame_cpu_seconds"] - n["batch_cpu_seconds"]
+        assert 0.0 < n["loop_cpu_seconds"] <= outside + 1e-3

@@ -60,6 +60,7 @@ class NodeStats:
         self.ray_sets = 0  # RAYS_SET frames sent: several RAYS over one link in one frame
         self.relayed = 0  # rays received for another node and sent on toward it
         self.inline = 0  # passed batches traced on the event loop's thread (few rays)
+        self.inline_cpu = 0.0  # ... their batches' CPU
         self.batches = 0
         self.cpu = 0.0  # in the engine's kernels: what one node's tracing CPU compares with
         self.batch_cpu = 0.0  # ... and routing rays and deposits around them (`NodeCore.trace`)

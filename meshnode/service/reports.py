@@ -62,4 +62,8 @@ def stats_message(session: "Session") -> dict:
     report["frame_cpu_seconds"] = time.process_time() - s.frame_cpu_start
     # ... of which in the operating system (sockets, TCP, page faults)
     report["frame_system_cpu_seconds"] = os.times().system - s.frame_sys_start
+    # ... of which the event loop's thread outside the batches it traced (messages framed
+    # and read, scheduling, eye rays made): the rest of `frame - batch` is the pool's
+    loop = time.thread_time() - s.frame_loop_start
+    report["loop_cpu_seconds"] = max(loop - s.stats.inline_cpu, 0.0)
     return make(Kind.STATS, node=s.node, stats=report)

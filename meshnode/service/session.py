@@ -94,6 +94,7 @@ class Session(Sends, Driver):
         self.compile_seconds = 0.0  # of the setup, numba compiling (a first run)
         self.frame_cpu_start = time.process_time()  # moved to the frame's start once built
         self.frame_sys_start = os.times().system
+        self.frame_loop_start = time.thread_time()
         self.progress_rays, self.progress_due = 0, 0.0  # rays not yet told; when to tell
         self.progress_sent = 0
         self.tasks: set[asyncio.Task] = set()
@@ -170,6 +171,7 @@ class Session(Sends, Driver):
             self.progress(0)
             self.frame_cpu_start = time.process_time()
             self.frame_sys_start = os.times().system
+            self.frame_loop_start = time.thread_time()  # this, the event loop's thread
             self.spawn(self.work())
         except Exception as e:  # noqa: BLE001 - whatever broke, the host must hear of it
             self.fail(e)
@@ -317,6 +319,7 @@ class Session(Sends, Driver):
             self.stats.inline += 1
             try:
                 batch, error = self.core.trace(step.rays, False, step.taker), None
+                self.stats.inline_cpu += batch.counts.get("batch_cpu_seconds", 0.0)
             except Exception as e:  # noqa: BLE001 - the host must hear of it
                 batch, error = None, e
             self.traced_batch(step, batch, error)

@@ -94,9 +94,7 @@ class Driver:
             waiting[2] += 1
         takers = self.core.takers
         for cell, passed in batch.outgoing.items():
-            waiting = self.leaving.setdefault((takers[cell], cell), [[], 0, 0])
-            waiting[0] += passed
-            waiting[1] += sum(len(p) for p in passed)
+            self._leave(takers[cell], cell, passed)
         due = [k for k, w in self.leaving.items() if w[1] >= PASS_RAYS or w[2] >= PASS_AGE]
         if due:
             self.send_leaving(due)
@@ -112,11 +110,17 @@ class Driver:
         this node's own rays leaving for the same node and cell, due at the next batch's end
         or the next flush (a frame each, sent on at once, made a third of a 4x4's messages)."""
         for dest, rays, cell in sends:
-            waiting = self.leaving.setdefault((dest, cell), [[], 0, 0])
-            waiting[0].append(rays)
-            waiting[1] += len(rays)
+            waiting = self._leave(dest, cell, [rays])
             waiting[2] = max(waiting[2], PASS_AGE - 1)
         self.sched.output_waiting()
+
+    def _leave(self, dest: int, cell: int, parts: list) -> list:
+        """`parts` (arrays of rays) queued to leave for node `dest` and cell `cell`; the
+        queue's entry [batches of rays, rays, batches waited]."""
+        waiting = self.leaving.setdefault((dest, cell), [[], 0, 0])
+        waiting[0] += parts
+        waiting[1] += sum(len(p) for p in parts)
+        return waiting
 
     def send_leaving(self, keys: list | None = None) -> None:
         """Send the rays waiting to leave for each (node, cell) of `keys` (None: every key's),
